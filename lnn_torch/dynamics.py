@@ -1,0 +1,133 @@
+"""Euler-Lagrange solves: accelerations from a Lagrangian, never predicted directly.
+
+For ``L(q, qd)`` the Euler-Lagrange equations ``d/dt dL/dqd = dL/dq`` give
+
+    H qdd = dL/dq - J qd,    H = d2L/dqd2 (dof x dof),  J[i, j] = d2L / dqd_i dq_j.
+
+* ``generic_acceleration`` solves this for ANY scalar Lagrangian with ``torch.func`` (hessian,
+  jacrev, vmap) and ``torch.linalg.solve_ex``. A singular or indefinite-at-machine-precision
+  Hessian is reported (``SingularHessianError``), or damped when asked for.
+* ``structured_acceleration`` solves ``M qdd = dL/dq - Mdot qd`` for ``L = 1/2 qd^T M(q) qd - V(q)``
+  with the model's own Cholesky factor of M (no Hessian of L).
+
+Pure tensor functions: no networks, no Lightning.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch.func import hessian, jacrev, vmap
+
+LagrangianFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+class SingularHessianError(RuntimeError):
+    """The velocity Hessian d2L/dqd2 of a Lagrangian is singular: accelerations are undefined."""
+
+
+def _flatten(q, qd, params):
+    if q.shape != qd.shape:
+        raise ValueError(f"q and qd must have the same shape, got {tuple(q.shape)} and {tuple(qd.shape)}")
+    if params.shape[:-1] != q.shape[:-1]:
+        raise ValueError(f"params batch shape {tuple(params.shape[:-1])} differs from q's {tuple(q.shape[:-1])}")
+    batch = q.shape[:-1]
+    return batch, q.reshape(-1, q.shape[-1]), qd.reshape(-1, q.shape[-1]), params.reshape(-1, params.shape[-1])
+
+
+def euler_lagrange_terms(lagrangian_fn: LagrangianFn, q, qd, params):
+    """Velocity Hessian and right-hand side of the Euler-Lagrange equations.
+
+    Args:
+        lagrangian_fn: scalar ``L(q, qd, params)`` for ONE sample: ``(dof,), (dof,), (P,) -> ()``.
+        q, qd: ``(B, dof)``; params: ``(B, P)``.
+
+    Returns:
+        ``H`` of shape ``(B, dof, dof)`` and ``rhs = dL/dq - J qd`` of shape ``(B, dof)``.
+    """
+
+    def single(q1, qd1, p1):
+        H = hessian(lagrangian_fn, argnums=1)(q1, qd1, p1)
+        dL_dq = jacrev(lagrangian_fn, argnums=0)(q1, qd1, p1)
+        J = jacrev(jacrev(lagrangian_fn, argnums=1), argnums=0)(q1, qd1, p1)
+        return H, dL_dq - J @ qd1
+
+    return vmap(single)(q, qd, params)
+
+
+def generic_acceleration(
+    lagrangian_fn: LagrangianFn,
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    params: torch.Tensor,
+    damping: float = 0.0,
+    check: bool = True,
+) -> torch.Tensor:
+    """Accelerations of any Lagrangian by the generic Euler-Lagrange solve.
+
+    Args:
+        lagrangian_fn: scalar Lagrangian of one sample (see ``euler_lagrange_terms``).
+        q, qd: ``(*batch, dof)``; params: ``(*batch, P)``.
+        damping: the singular-Hessian policy. ``0`` (default) solves exactly and raises
+            ``SingularHessianError`` where the solve fails; ``> 0`` solves ``(H + damping I)``
+            (Levenberg-style damping, relative to the mean |diagonal| of H) instead.
+        check: raise on singular Hessians (costs one sync); set False inside compiled code.
+
+    Returns:
+        ``qdd`` of shape ``(*batch, dof)``, same dtype and device as ``q``.
+    """
+    batch, qf, qdf, pf = _flatten(q, qd, params)
+    H, rhs = euler_lagrange_terms(lagrangian_fn, qf, qdf, pf)
+    if damping > 0:
+        scale = H.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True).clamp_min(torch.finfo(H.dtype).tiny)
+        H = H + damping * scale[..., None] * torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
+    qdd, info = torch.linalg.solve_ex(H, rhs[..., None])
+    qdd = qdd[..., 0]
+    if check and damping == 0:
+        bad = (info != 0) | ~torch.isfinite(qdd).all(-1)
+        if bad.any():
+            n = int(bad.sum())
+            raise SingularHessianError(
+                f"the velocity Hessian d2L/dqd2 is singular for {n} of {bad.numel()} states; "
+                "accelerations are undefined there (pass damping > 0 to regularise)"
+            )
+    return qdd.reshape(*batch, q.shape[-1])
+
+
+def structured_acceleration(
+    chol_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    potential_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    params: torch.Tensor,
+    eps: float = 0.0,
+) -> torch.Tensor:
+    """Accelerations of ``L = 1/2 qd^T M qd - V`` with ``M = chol chol^T + eps I`` (torch.func reference).
+
+    ``M qdd = dT/dq - dV/dq - Mdot qd`` where ``Mdot qd`` comes from a jvp of ``M(q)`` along ``qd``
+    and ``dT/dq = 1/2 d(qd^T M qd)/dq`` from a vjp. Solved with ``cholesky_solve`` when
+    ``eps == 0`` (then chol is M's own factor), else with a Cholesky factorisation of M.
+
+    Args:
+        chol_fn: ``(q, params) -> chol`` for ONE sample, lower-triangular ``(dof, dof)``.
+        potential_fn: ``(q, params) -> V`` for ONE sample, scalar.
+        q, qd: ``(*batch, dof)``; params ``(*batch, P)``.
+    """
+    batch, qf, qdf, pf = _flatten(q, qd, params)
+    dof = q.shape[-1]
+
+    def mass_fn(q1, p1):
+        c = chol_fn(q1, p1)
+        return c @ c.mT + eps * torch.eye(dof, dtype=c.dtype, device=c.device)
+
+    def single(q1, qd1, p1):
+        M, dM = torch.func.jvp(lambda x: mass_fn(x, p1), (q1,), (qd1,))
+        dT_dq = torch.func.grad(lambda x: 0.5 * qd1 @ mass_fn(x, p1) @ qd1)(q1)
+        dV_dq = torch.func.grad(lambda x: potential_fn(x, p1))(q1)
+        return M, dT_dq - dV_dq - dM @ qd1
+
+    M, rhs = vmap(single)(qf, qdf, pf)
+    chol = torch.linalg.cholesky(M)
+    qdd = torch.cholesky_solve(rhs[..., None], chol)[..., 0]
+    return qdd.reshape(*batch, dof)

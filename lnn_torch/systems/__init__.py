@@ -1,0 +1,28 @@
+"""Ground-truth scenes with closed-form Lagrangians, and the registry that builds them by name."""
+
+from __future__ import annotations
+
+from .base import GRAVITY, InputError, Range, System
+from .double_pendulum import DoublePendulum
+from .mass_spring import MassSpring
+from .pendulum import Pendulum
+
+SYSTEMS: dict[str, type[System]] = {
+    cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring)
+}
+
+
+def get_system(name: str, **config) -> System:
+    """Build a scene by name with its sampler configuration (``config`` as in ``System.config()``)."""
+    try:
+        cls = SYSTEMS[name]
+    except KeyError:
+        raise InputError(f"unknown scene '{name}'; known scenes: {', '.join(sorted(SYSTEMS))}") from None
+    try:
+        return cls(**config)
+    except TypeError as err:
+        raise InputError(f"scene '{name}': bad configuration ({err})") from None
+
+
+__all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
+           "DoublePendulum", "Pendulum", "MassSpring"]

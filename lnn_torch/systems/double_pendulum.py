@@ -1,0 +1,129 @@
+"""Planar double pendulum with point masses on massless rods.
+
+Conventions (written into every dataset file):
+
+* ``q = (theta1, theta2)``: absolute angles of rod 1 and rod 2 from the downward vertical, in rad,
+  counter-clockwise positive. ``qd``, ``qdd`` are their first and second time derivatives.
+* ``params = (m1, m2, l1, l2)`` in kg, kg, m, m; gravity g = 9.81 m/s^2 along -y.
+* Positions: ``x1 = l1 sin t1, y1 = -l1 cos t1; x2 = x1 + l2 sin t2, y2 = y1 - l2 cos t2``.
+
+Physics:
+
+* ``T = 1/2 (m1+m2) l1^2 t1d^2 + 1/2 m2 l2^2 t2d^2 + m2 l1 l2 t1d t2d cos(t1 - t2)``
+* ``V = -(m1+m2) g l1 cos t1 - m2 g l2 cos t2`` (so V_max - V_min = 2 g ((m1+m2) l1 + m2 l2))
+
+Default sampler (the reference design): ``m1 = exp(0.3 N(0,1))``, ``m2 = m1 U(0.2, 1)``,
+``l1 ~ U(0.9, 2)``, ``l2 = l1 U(0.9, 1.1)``, ``theta0 ~ U(-pi/2, pi/2)^2``,
+``thetad0 ~ U(-pi/5, pi/5)^2``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from .base import GRAVITY, InputError, System, as_range
+
+CONVENTIONS = (
+    "q=(theta1, theta2): absolute angles from the downward vertical, counter-clockwise positive, rad; "
+    "params=(m1, m2, l1, l2) in kg, kg, m, m; point masses on massless rods; g=9.81 m/s^2"
+)
+
+
+class DoublePendulum(System):
+    name = "double_pendulum"
+    dof = 2
+    angle_mask = (True, True)
+    coord_names = ("theta1", "theta2")
+    param_names = ("m1", "m2", "l1", "l2")
+    param_units = ("kg", "kg", "m", "m")
+    quadratic_kinetic = True
+    conventions = CONVENTIONS
+
+    def __init__(
+        self,
+        m1_log_std: float = 0.3,
+        m2_ratio=(0.2, 1.0),
+        l1_range=(0.9, 2.0),
+        l2_ratio=(0.9, 1.1),
+        theta_range=(-math.pi / 2, math.pi / 2),
+        omega_range=(-math.pi / 5, math.pi / 5),
+    ) -> None:
+        if not (math.isfinite(m1_log_std) and m1_log_std >= 0):
+            raise InputError(f"double_pendulum: m1_log_std must be >= 0, got {m1_log_std}")
+        self.m1_log_std = float(m1_log_std)
+        self.m2_ratio = as_range(m2_ratio, "m2_ratio")
+        self.l1_range = as_range(l1_range, "l1_range")
+        self.l2_ratio = as_range(l2_ratio, "l2_ratio")
+        self.theta_range = as_range(theta_range, "theta_range")
+        self.omega_range = as_range(omega_range, "omega_range")
+        for name in ("m2_ratio", "l1_range", "l2_ratio"):
+            if getattr(self, name).low <= 0:
+                raise InputError(f"double_pendulum: {name} must be positive, got {getattr(self, name)}")
+
+    def config(self) -> dict:
+        pair = lambda r: [r.low, r.high]  # noqa: E731
+        return {
+            "m1_log_std": self.m1_log_std,
+            "m2_ratio": pair(self.m2_ratio),
+            "l1_range": pair(self.l1_range),
+            "l2_ratio": pair(self.l2_ratio),
+            "theta_range": pair(self.theta_range),
+            "omega_range": pair(self.omega_range),
+        }
+
+    def sample_params(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        m1 = np.exp(self.m1_log_std * rng.standard_normal(n))
+        m2 = m1 * self.m2_ratio.sample(rng, n)
+        l1 = self.l1_range.sample(rng, n)
+        l2 = l1 * self.l2_ratio.sample(rng, n)
+        return np.stack([m1, m2, l1, l2], axis=-1)
+
+    def sample_state(self, rng: np.random.Generator, n: int):
+        return self.theta_range.sample(rng, (n, 2)), self.omega_range.sample(rng, (n, 2))
+
+    # ------------------------------------------------------------------ physics
+    def mass_matrix(self, q, params):
+        m1, m2, l1, l2 = params.unbind(-1)
+        m12 = m2 * l1 * l2 * torch.cos(q[..., 0] - q[..., 1])
+        row0 = torch.stack([(m1 + m2) * l1**2, m12], dim=-1)
+        row1 = torch.stack([m12, m2 * l2**2], dim=-1)
+        return torch.stack([row0, row1], dim=-2)
+
+    def kinetic(self, q, qd, params):
+        m1, m2, l1, l2 = params.unbind(-1)
+        w1, w2 = qd[..., 0], qd[..., 1]
+        c = torch.cos(q[..., 0] - q[..., 1])
+        return 0.5 * (m1 + m2) * l1**2 * w1**2 + 0.5 * m2 * l2**2 * w2**2 + m2 * l1 * l2 * w1 * w2 * c
+
+    def potential(self, q, params):
+        m1, m2, l1, l2 = params.unbind(-1)
+        return -(m1 + m2) * GRAVITY * l1 * torch.cos(q[..., 0]) - m2 * GRAVITY * l2 * torch.cos(q[..., 1])
+
+    def acceleration(self, q, qd, params):
+        m1, m2, l1, l2 = params.unbind(-1)
+        w1, w2 = qd[..., 0], qd[..., 1]
+        g = GRAVITY
+        # four transcendental calls; the rest by angle-sum identities (d = t1 - t2)
+        s1, c1 = torch.sin(q[..., 0]), torch.cos(q[..., 0])
+        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        s = s1 * c2 - c1 * s2  # sin d
+        c = c1 * c2 + s1 * s2  # cos d
+        den = 2 * m1 + m2 - m2 * (2 * c * c - 1)  # 2 m1 + m2 - m2 cos 2d
+        s1_2 = s * c2 - c * s2  # sin(t1 - 2 t2)
+        a1 = (-g * (2 * m1 + m2) * s1 - m2 * g * s1_2 - 2 * s * m2 * (w2**2 * l2 + w1**2 * l1 * c)) / (l1 * den)
+        a2 = (2 * s * (w1**2 * l1 * (m1 + m2) + g * (m1 + m2) * c1 + w2**2 * l2 * m2 * c)) / (l2 * den)
+        return torch.stack([a1, a2], dim=-1)
+
+    def energy_scale(self, params):
+        m1, m2, l1, l2 = params.unbind(-1)
+        return 2 * GRAVITY * ((m1 + m2) * l1 + m2 * l2)
+
+    def positions(self, q, params):
+        """Cartesian positions of both masses, shape ``(*batch, 2, 2)`` as ``[[x1, y1], [x2, y2]]`` in m."""
+        _, _, l1, l2 = params.unbind(-1)
+        x1, y1 = l1 * torch.sin(q[..., 0]), -l1 * torch.cos(q[..., 0])
+        x2, y2 = x1 + l2 * torch.sin(q[..., 1]), y1 - l2 * torch.cos(q[..., 1])
+        return torch.stack([torch.stack([x1, y1], -1), torch.stack([x2, y2], -1)], -2)

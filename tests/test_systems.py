@@ -1,0 +1,137 @@
+"""Scenes against independent references: the generic Euler-Lagrange solve, limits, normal modes."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch.dynamics import generic_acceleration
+from lnn_torch.integrators import rollout
+from lnn_torch.systems import GRAVITY, SYSTEMS, InputError, get_system
+
+from .conftest import random_batch
+
+
+@pytest.mark.parametrize("name", sorted(SYSTEMS))
+def test_closed_form_acceleration_equals_generic_solve(name, rng):
+    system = get_system(name)
+    q, qd, params = random_batch(system, rng, 256)
+    closed = system.acceleration(q, qd, params)
+    generic = generic_acceleration(system.lagrangian, q, qd, params)
+    torch.testing.assert_close(closed, generic, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", sorted(SYSTEMS))
+def test_every_parameter_matters(name, rng):
+    """A parameter that is silently ignored would leave the accelerations or energy unchanged."""
+    system = get_system(name)
+    q, qd, params = random_batch(system, rng, 32)
+    base_a = system.acceleration(q, qd, params)
+    base_e = system.energy(q, qd, params)
+    for i, pname in enumerate(system.param_names):
+        p2 = params.clone()
+        p2[:, i] *= 1.3
+        changed = (system.acceleration(q, qd, p2) - base_a).abs().max() + (system.energy(q, qd, p2) - base_e).abs().max()
+        assert changed > 1e-6, f"parameter {pname} has no effect"
+
+
+@pytest.mark.parametrize("name", sorted(SYSTEMS))
+def test_mass_matrix_is_velocity_hessian_and_energy_is_legendre(name, rng):
+    system = get_system(name)
+    q, qd, params = random_batch(system, rng, 16)
+    H = torch.func.vmap(torch.func.hessian(system.lagrangian, argnums=1))(q, qd, params)
+    torch.testing.assert_close(system.mass_matrix(q, params), H, rtol=0, atol=1e-10)
+    p = torch.func.vmap(torch.func.grad(system.lagrangian, argnums=1))(q, qd, params)
+    torch.testing.assert_close(system.momentum(q, qd, params), p, rtol=0, atol=1e-10)
+    legendre = (p * qd).sum(-1) - system.lagrangian(q, qd, params)
+    torch.testing.assert_close(system.energy(q, qd, params), legendre, rtol=0, atol=1e-10)
+
+
+def test_double_pendulum_potential_range():
+    system = get_system("double_pendulum")
+    params = torch.tensor([[1.3, 0.7, 1.1, 0.9]], dtype=torch.float64)
+    grid = torch.linspace(-math.pi, math.pi, 201, dtype=torch.float64)
+    q = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1).reshape(-1, 2)
+    V = system.potential(q, params.expand(len(q), -1))
+    torch.testing.assert_close(V.max() - V.min(), system.energy_scale(params)[0], rtol=1e-12, atol=0)
+
+
+def _dominant_frequency(x, dt):
+    """Angular frequency from the mean spacing of sign changes (linear interpolation)."""
+    s = np.sign(x)
+    idx = np.nonzero(s[1:] != s[:-1])[0]
+    crossings = idx + x[idx] / (x[idx] - x[idx + 1])
+    half_period = np.diff(crossings).mean() * dt
+    return math.pi / half_period
+
+
+def test_light_second_mass_gives_simple_pendulum():
+    """m2 -> 0: the first rod is a simple pendulum of length l1 (omega = sqrt(g/l1))."""
+    system = get_system("double_pendulum")
+    l1 = 1.7
+    params = torch.tensor([[1.0, 1e-9, l1, 1.2]], dtype=torch.float64)
+    q0 = torch.tensor([[1e-3, 0.0]], dtype=torch.float64)
+    q, _ = rollout(system.acceleration, q0, torch.zeros_like(q0), params, 0.01, 3000, "rk4")
+    omega = _dominant_frequency(q[0, :, 0].numpy(), 0.01)
+    assert abs(omega - math.sqrt(GRAVITY / l1)) / math.sqrt(GRAVITY / l1) < 1e-4
+    # the closed form itself reduces to -(g/l1) sin(theta1) for any angle
+    qq = torch.tensor([[1.2, -0.4]], dtype=torch.float64)
+    a = system.acceleration(qq, torch.zeros_like(qq), params)
+    assert abs(a[0, 0].item() + GRAVITY / l1 * math.sin(1.2)) < 1e-7
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_small_angle_normal_modes(sign):
+    """Equal masses and lengths: omega^2 = (g/l)(2 -+ sqrt 2), modes (1, +-sqrt 2)."""
+    system = get_system("double_pendulum")
+    l = 1.3
+    params = torch.tensor([[0.8, 0.8, l, l]], dtype=torch.float64)
+    omega_expected = math.sqrt(GRAVITY / l * (2 + sign * math.sqrt(2)))
+    amp = 1e-4
+    q0 = torch.tensor([[amp, -sign * math.sqrt(2) * amp]], dtype=torch.float64)
+    dt = 0.002
+    q, _ = rollout(system.acceleration, q0, torch.zeros_like(q0), params, dt, 5000, "rk4")
+    t = torch.arange(q.shape[1], dtype=torch.float64) * dt
+    expected = q0[0] * torch.cos(omega_expected * t)[:, None]
+    assert (q[0] - expected).abs().max() < 1e-3 * amp * 10  # nonlinearity ~ amp^2, integration ~ dt^4
+
+
+def test_unknown_scene_and_bad_ranges():
+    with pytest.raises(InputError, match="unknown scene 'triple'"):
+        get_system("triple")
+    with pytest.raises(InputError, match="inverted"):
+        get_system("double_pendulum", l1_range=(2.0, 1.0))
+    with pytest.raises(InputError, match="empty"):
+        get_system("pendulum", m_range=(1.0, 1.0))
+    with pytest.raises(InputError, match="positive"):
+        get_system("mass_spring", k_range=(-1.0, 1.0))
+
+
+def test_input_checks(rng):
+    system = get_system("double_pendulum")
+    q, qd, params = random_batch(system, rng, 4)
+    system.check_inputs(q, qd, params)
+    with pytest.raises(InputError, match="params must have shape"):
+        system.check_inputs(q, qd, params[:, :3])
+    with pytest.raises(InputError, match="NaN"):
+        system.check_inputs(q.clone().fill_(float("nan")), qd, params)
+    bad = params.clone()
+    bad[0, 1] = -1.0
+    with pytest.raises(InputError, match="m2"):
+        system.check_inputs(q, qd, bad)
+    with pytest.raises(InputError, match="batch shapes differ"):
+        system.check_inputs(q, qd, params[:2])
+
+
+def test_samplers_follow_the_reference_distribution():
+    system = get_system("double_pendulum")
+    p = system.sample_params(np.random.default_rng(0), 20000)
+    m1, m2, l1, l2 = p.T
+    assert abs(np.log(m1).std() - 0.3) < 0.01
+    assert (m2 / m1).min() >= 0.2 and (m2 / m1).max() <= 1.0
+    assert l1.min() >= 0.9 and l1.max() <= 2.0
+    assert (l2 / l1).min() >= 0.9 and (l2 / l1).max() <= 1.1
+    q0, qd0 = system.sample_state(np.random.default_rng(0), 20000)
+    assert np.abs(q0).max() <= math.pi / 2 and np.abs(q0).max() > 1.5
+    assert np.abs(qd0).max() <= math.pi / 5
