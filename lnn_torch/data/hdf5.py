@@ -1,0 +1,157 @@
+"""The HDF5 dataset schema: the only module that imports h5py.
+
+Layout of a dataset file (float64 throughout; N trajectories, T points, dof, P parameters):
+
+=================  ===============  =====================================================
+name               shape            meaning
+=================  ===============  =====================================================
+``t``              ``(T,)``         sample times, s
+``q``              ``(N, T, dof)``  generalised coordinates (rad or m)
+``qd``             ``(N, T, dof)``  velocities (rad/s or m/s)
+``qdd``            ``(N, T, dof)``  accelerations (rad/s^2 or m/s^2): closed form by default
+``params``         ``(N, P)``       physical parameters (SI, order in attribute ``param_names``)
+``energy``         ``(N, T)``       the scene's closed-form total energy, J
+``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
+=================  ===============  =====================================================
+
+Root attributes: ``format``, ``format_version``, ``scene``, ``scene_json`` (the scene's full
+description: dof, angle mask, names, units, sampler configuration), ``conventions``, ``units``
+(JSON), ``gravity``, ``param_names``, ``spec`` (the ``DatasetSpec`` as JSON), ``seed``,
+``integrator``, ``substeps``, ``tolerances`` (JSON: measured max relative energy drift),
+``targets``, ``package_version``, ``created``, ``complete``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "lnn_torch.trajectories"
+FORMAT_VERSION = 1
+ARRAYS = ("t", "q", "qd", "qdd", "params", "energy")
+SPLITS = ("train", "val", "test")
+
+
+class DatasetFileError(ValueError):
+    """A dataset file is missing, not HDF5, incomplete or malformed."""
+
+
+def _h5py():
+    import h5py
+
+    return h5py
+
+
+def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, overwrite: bool = False) -> Path:
+    """Write a dataset file atomically: a temporary name in the same folder, then a rename.
+
+    Raises ``FileExistsError`` if ``path`` exists and ``overwrite`` is False.
+    """
+    h5py = _h5py()
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            for name in ARRAYS:
+                data = np.asarray(arrays[name])
+                chunks = (1,) + data.shape[1:] if data.ndim == 3 else None
+                f.create_dataset(name, data=data, chunks=chunks)
+            grp = f.create_group("splits")
+            for name in SPLITS:
+                grp.create_dataset(name, data=np.asarray(splits[name], dtype=np.int64))
+            for key, value in attrs.items():
+                f.attrs[key] = value
+            f.attrs["format"] = FORMAT
+            f.attrs["format_version"] = FORMAT_VERSION
+            f.attrs["complete"] = True
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def check_writable(path: str | Path, overwrite: bool) -> Path:
+    """Fail early (before any work) if ``path`` cannot be written."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
+    if path.exists() and path.is_dir():
+        raise IsADirectoryError(f"{path} is a directory, not a file path")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PermissionError(f"cannot create folder {parent}: {err.strerror}") from None
+    if not os.access(parent, os.W_OK):
+        raise PermissionError(f"cannot write to {parent}: permission denied")
+    return path
+
+
+@dataclass
+class TrajectoryFile:
+    """A validated, opened-on-demand view of a dataset file (arrays are read lazily)."""
+
+    path: Path
+    attrs: dict
+    splits: dict
+    num_trajectories: int
+    num_points: int
+    dof: int
+    num_params: int
+
+    @property
+    def scene(self) -> dict:
+        return json.loads(self.attrs["scene_json"])
+
+    @property
+    def spec(self) -> dict:
+        return json.loads(self.attrs["spec"])
+
+    def open(self):
+        """A read-only h5py handle (open one per process / DataLoader worker)."""
+        return _h5py().File(self.path, "r")
+
+    def read(self, name: str, index=None) -> np.ndarray:
+        with self.open() as f:
+            return f[name][()] if index is None else f[name][index]
+
+
+def read_dataset(path: str | Path) -> TrajectoryFile:
+    """Open and validate a dataset file; raise ``DatasetFileError`` naming the problem."""
+    h5py = _h5py()
+    path = Path(path)
+    if not path.exists():
+        raise DatasetFileError(f"dataset file {path} does not exist")
+    if not h5py.is_hdf5(path):
+        raise DatasetFileError(f"{path} is not an HDF5 file")
+    try:
+        with h5py.File(path, "r") as f:
+            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            if attrs.get("format") != FORMAT:
+                raise DatasetFileError(f"{path} is not an lnn_torch dataset (attribute 'format' is {attrs.get('format')!r})")
+            if not attrs.get("complete", False):
+                raise DatasetFileError(f"{path} is incomplete (its writer did not finish)")
+            missing = [n for n in ARRAYS if n not in f] + [f"splits/{n}" for n in SPLITS if f"splits/{n}" not in f]
+            if missing:
+                raise DatasetFileError(f"{path} is malformed: missing {', '.join(missing)}")
+            n, t, dof = f["q"].shape
+            for name in ("qd", "qdd"):
+                if f[name].shape != (n, t, dof):
+                    raise DatasetFileError(f"{path} is malformed: '{name}' has shape {f[name].shape}, expected {(n, t, dof)}")
+            if f["t"].shape != (t,) or f["params"].shape[0] != n or f["energy"].shape != (n, t):
+                raise DatasetFileError(f"{path} is malformed: 't', 'params' or 'energy' shapes do not match 'q' {(n, t, dof)}")
+            splits = {name: f[f"splits/{name}"][()] for name in SPLITS}
+            all_idx = np.concatenate(list(splits.values()))
+            if len(all_idx) and (all_idx.min() < 0 or all_idx.max() >= n):
+                raise DatasetFileError(f"{path} is malformed: split indices out of range [0, {n})")
+            num_params = f["params"].shape[1]
+    except OSError as err:
+        raise DatasetFileError(f"cannot read {path}: {err}") from None
+    return TrajectoryFile(path, attrs, splits, n, t, dof, num_params)

@@ -1,0 +1,80 @@
+"""The dataset specification: everything that determines a generated dataset file."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+
+from ..systems import InputError, System, get_system
+
+
+@dataclass
+class DatasetSpec:
+    """What to generate. Every field is recorded in the file (attribute ``spec``, JSON).
+
+    Attributes:
+        scene: scene name (see ``lnn_torch.systems.SYSTEMS``).
+        scene_config: sampler configuration of the scene (ranges; see the scene's ``__init__``).
+        num_trajectories: number of trajectories.
+        duration: length of each trajectory in s.
+        dt: sampling interval in s (``round(duration / dt) + 1`` points per trajectory).
+        seed: master seed; trajectory ``i`` uses the seed sequence ``(seed, i)``.
+        split: train/val/test fractions by trajectory.
+        integrator: fixed-step method of ``lnn_torch.integrators`` used for ground truth.
+        substeps: integrator steps per sampling interval.
+        targets: ``"analytic"`` (the scene's closed-form accelerations, default) or
+            ``"finite_difference"`` (second-order central differences of qd, as for measured data).
+    """
+
+    scene: str = "double_pendulum"
+    scene_config: dict = field(default_factory=dict)
+    num_trajectories: int = 2000
+    duration: float = 20.0
+    dt: float = 0.005
+    seed: int = 0
+    split: tuple[float, float, float] = (0.8, 0.1, 0.1)
+    integrator: str = "rk8"
+    substeps: int = 1
+    targets: str = "analytic"
+
+    def __post_init__(self) -> None:
+        self.split = tuple(float(x) for x in self.split)
+        self.validate()
+
+    @property
+    def num_points(self) -> int:
+        return int(round(self.duration / self.dt)) + 1
+
+    def build_system(self) -> System:
+        return get_system(self.scene, **self.scene_config)
+
+    def validate(self) -> None:
+        self.build_system()  # unknown scene / bad ranges raise InputError
+        if int(self.num_trajectories) < 1:
+            raise InputError(f"num_trajectories must be >= 1, got {self.num_trajectories}")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise InputError(f"dt must be positive, got {self.dt}")
+        if not (math.isfinite(self.duration) and self.duration >= self.dt):
+            raise InputError(f"duration must be >= dt, got duration={self.duration}, dt={self.dt}")
+        if abs(self.duration / self.dt - round(self.duration / self.dt)) > 1e-6:
+            raise InputError(f"duration {self.duration} is not a whole number of steps of dt={self.dt}")
+        if len(self.split) != 3 or any(x < 0 for x in self.split) or abs(sum(self.split) - 1) > 1e-9:
+            raise InputError(f"split must be three non-negative fractions summing to 1, got {self.split}")
+        if self.split[0] == 0:
+            raise InputError("split: the training fraction must be positive")
+        if int(self.substeps) < 1:
+            raise InputError(f"substeps must be >= 1, got {self.substeps}")
+        if self.targets not in ("analytic", "finite_difference"):
+            raise InputError(f"targets must be 'analytic' or 'finite_difference', got '{self.targets}'")
+        from ..integrators import METHODS
+
+        if self.integrator not in METHODS:
+            raise InputError(f"unknown integrator '{self.integrator}'; known: {', '.join(METHODS)}")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "DatasetSpec":
+        return cls(**json.loads(text))
