@@ -131,3 +131,27 @@ def structured_acceleration(
     chol = torch.linalg.cholesky(M)
     qdd = torch.cholesky_solve(rhs[..., None], chol)[..., 0]
     return qdd.reshape(*batch, dof)
+
+
+def structured_acceleration_from_factor(
+    chol: torch.Tensor, dchol: torch.Tensor, qd: torch.Tensor, dV_dq: torch.Tensor, eps: float
+) -> torch.Tensor:
+    """Accelerations of ``L = 1/2 qd^T M qd - V`` from a Cholesky factor and its q-derivatives.
+
+    ``M = chol chol^T + eps I``. With ``u = chol^T qd`` and ``du_k = dchol_k^T qd``:
+    ``dT/dq_k = u . du_k`` and ``Mdot qd = sum_k qd_k (dchol_k u + chol du_k)``; then
+    ``M qdd = dT/dq - dV/dq - Mdot qd`` is solved with ``cholesky_solve``.
+
+    Args:
+        chol: ``(B, dof, dof)`` lower-triangular factor.
+        dchol: ``(dof, B, dof, dof)``: ``dchol[k] = d chol / d q_k``.
+        qd: ``(B, dof)``; dV_dq: ``(B, dof)``.
+    """
+    dof = chol.shape[-1]
+    u = torch.einsum("bji,bj->bi", chol, qd)  # (B, dof)
+    du = torch.einsum("kbji,bj->kbi", dchol, qd)  # (K, B, dof)
+    dT_dq = (u[None] * du).sum(-1).T  # (B, K)
+    mdot_qd = torch.einsum("kbij,bj,bk->bi", dchol, u, qd) + torch.einsum("bij,kbj,bk->bi", chol, du, qd)
+    M = chol @ chol.mT + eps * torch.eye(dof, dtype=chol.dtype, device=chol.device)
+    factor, _ = torch.linalg.cholesky_ex(M)
+    return torch.cholesky_solve((dT_dq - dV_dq - mdot_qd)[..., None], factor)[..., 0]

@@ -1,0 +1,295 @@
+"""Lagrangian models and baselines behind one interface: ``acceleration(q, qd, params)``.
+
+Variants (``build_model(variant, scene, ...)``):
+
+* ``film_lnn`` (default): structured ``L = 1/2 qd^T M(q, theta) qd - V(q, theta)``; ``M`` from a
+  Cholesky factor predicted by a kinetic MLP that FiLM modulates from the parameters; fast
+  structured solve with hand-carried tangents.
+* ``delan``: the same structure with the parameters concatenated to the inputs (Deep Lagrangian
+  Networks, Lutter et al.), no FiLM.
+* ``lnn``: a black-box MLP Lagrangian on the generic torch.func solve (Cranmer et al.).
+* ``mlp``: predicts ``qdd`` directly (a second-order neural ODE baseline).
+
+Every model works in normalised units internally (``Normalizer``); ``acceleration`` takes and
+returns SI units. Shapes: ``q, qd (B, dof)``, ``params (B, P)`` -> ``(B, dof)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ..dynamics import generic_acceleration, structured_acceleration_from_factor
+from ..systems.base import InputError
+from .layers import FiLM, TangentMLP
+from .normalization import Normalizer
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    """What a model needs to know about a scene."""
+
+    name: str
+    dof: int
+    angle_mask: tuple[bool, ...]
+    num_params: int
+    quadratic_kinetic: bool = True
+
+    @classmethod
+    def of(cls, scene) -> "SceneInfo":
+        """From a ``System``, a ``System.describe()`` dict or a ``SceneInfo``."""
+        if isinstance(scene, SceneInfo):
+            return scene
+        if isinstance(scene, dict):
+            return cls(scene["name"], int(scene["dof"]), tuple(bool(a) for a in scene["angle_mask"]),
+                       len(scene["param_names"]), bool(scene.get("quadratic_kinetic", True)))
+        return cls(scene.name, scene.dof, tuple(scene.angle_mask), scene.num_params, scene.quadratic_kinetic)
+
+
+class DynamicsModel(nn.Module):
+    """Base: normalisation, input features and checks; subclasses give ``acceleration_norm``."""
+
+    variant = ""
+    has_energy = True
+
+    def __init__(self, scene) -> None:
+        super().__init__()
+        self.scene = SceneInfo.of(scene)
+        dof = self.scene.dof
+        self.normalizer = Normalizer(dof, self.scene.num_params, self.scene.angle_mask)
+        angles = [i for i, a in enumerate(self.scene.angle_mask) if a]
+        linear = [i for i, a in enumerate(self.scene.angle_mask) if not a]
+        self.register_buffer("angle_idx", torch.tensor(angles, dtype=torch.long), persistent=False)
+        self.register_buffer("linear_idx", torch.tensor(linear, dtype=torch.long), persistent=False)
+        # d(feature)/dq_k selectors: (dof, n_angles) and (dof, n_linear)
+        self.register_buffer("sel_angle", torch.eye(dof)[:, angles], persistent=False)
+        self.register_buffer("sel_linear", torch.eye(dof)[:, linear], persistent=False)
+        self.num_features = 2 * len(angles) + len(linear)
+
+    # ------------------------------------------------------------------ features
+    def features(self, q_norm: torch.Tensor, tangents: bool = False):
+        """Features ``[sin q_a, cos q_a, q_lin]`` ``(B, F)`` and, if asked, ``d phi / d q_k`` ``(dof, B, F)``.
+
+        Angles are wrapped to [-pi, pi) for the features only (exact periodicity, accurate sin/cos
+        for large angles); the dynamics never see wrapped angles.
+        """
+        qa = q_norm[..., self.angle_idx]
+        qa = torch.remainder(qa + math.pi, 2 * math.pi) - math.pi
+        s, c = torch.sin(qa), torch.cos(qa)
+        ql = q_norm[..., self.linear_idx]
+        phi = torch.cat([s, c, ql], -1)
+        if not tangents:
+            return phi, None
+        sa = self.sel_angle.to(q_norm.dtype)[:, None, :]
+        sl = self.sel_linear.to(q_norm.dtype)[:, None, :]
+        B = q_norm.shape[0]
+        dphi = torch.cat([sa * c, -sa * s, sl.expand(-1, B, -1)], -1)  # (dof, B, F)
+        return phi, dphi
+
+    def features_vjp(self, q_norm: torch.Tensor, g_phi: torch.Tensor) -> torch.Tensor:
+        """Pull a feature gradient ``(B, F)`` back to ``(B, dof)`` through ``features``."""
+        qa = q_norm[..., self.angle_idx]
+        na = qa.shape[-1]
+        g_angle = g_phi[..., :na] * torch.cos(qa) - g_phi[..., na : 2 * na] * torch.sin(qa)
+        g_lin = g_phi[..., 2 * na :]
+        return g_angle @ self.sel_angle.to(g_phi.dtype).T + g_lin @ self.sel_linear.to(g_phi.dtype).T
+
+    # ------------------------------------------------------------------ interface
+    def acceleration_norm(self, q_norm, qd_norm, params_norm) -> torch.Tensor:
+        raise NotImplementedError
+
+    def energy_norm(self, q_norm, qd_norm, params_norm):
+        """The model's own Hamiltonian ``H``, kinetic-like ``T`` and potential-like ``V`` (normalised)."""
+        raise NotImplementedError(f"variant '{self.variant}' has no energy")
+
+    def check_inputs(self, q, qd, params) -> None:
+        dof, P = self.scene.dof, self.scene.num_params
+        if q.ndim != 2 or q.shape[-1] != dof:
+            raise InputError(f"q must have shape (batch, {dof}), got {tuple(q.shape)}")
+        if qd.shape != q.shape:
+            raise InputError(f"qd must have the shape of q {tuple(q.shape)}, got {tuple(qd.shape)}")
+        if params.ndim != 2 or params.shape != (q.shape[0], P):
+            raise InputError(f"params must have shape ({q.shape[0]}, {P}) for scene '{self.scene.name}', "
+                             f"got {tuple(params.shape)}")
+        for name, x in (("q", q), ("qd", qd), ("params", params)):
+            if not torch.isfinite(x).all():
+                raise InputError(f"{name} contains NaN or Inf")
+        if (params <= 0).any():
+            raise InputError("params must be positive (masses, lengths, stiffnesses)")
+
+    def normalize(self, q, qd, params):
+        q_norm, qd_norm = self.normalizer.state(q, qd)
+        return q_norm, qd_norm, self.normalizer.params(params)
+
+    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, check: bool = True) -> torch.Tensor:
+        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)``; keeps dtype and device."""
+        if check:
+            self.check_inputs(q, qd, params)
+        return self.normalizer.accel_to_phys(self.acceleration_norm(*self.normalize(q, qd, params)))
+
+    forward = acceleration
+
+
+class StructuredLagrangian(DynamicsModel):
+    """``L = 1/2 qd^T M qd - V`` with ``M = chol chol^T + eps I`` (variants ``film_lnn`` and ``delan``)."""
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", conditioning: str = "film",
+                 film_mode: str = "neuron", potential_film: bool = True, film_hidden: int = 16,
+                 eps: float = 1e-4, diag_shift: float = 1e-3) -> None:
+        super().__init__(scene)
+        if not self.scene.quadratic_kinetic:
+            raise InputError(
+                f"scene '{self.scene.name}' has a kinetic energy that is not quadratic in the velocities; "
+                "the structured model (T = 1/2 qd^T M qd) cannot represent it: use variant 'lnn'"
+            )
+        if conditioning not in ("film", "concat"):
+            raise ValueError(f"conditioning must be 'film' or 'concat', got '{conditioning}'")
+        dof, P, F = self.scene.dof, self.scene.num_params, self.num_features
+        hidden_dims = list(hidden_dims)
+        self.conditioning, self.eps, self.diag_shift = conditioning, float(eps), float(diag_shift)
+        self.variant = "film_lnn" if conditioning == "film" else "delan"
+        self.num_chol = dof * (dof + 1) // 2
+        kin_in = F if conditioning == "film" else F + P
+        self.kinetic_net = TangentMLP(kin_in, hidden_dims, self.num_chol, activation)
+        self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation)
+        self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if conditioning == "film" else None
+        self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (conditioning == "film" and potential_film) else None
+        # scatter of the Cholesky entries into a lower-triangular matrix: diagonal first
+        rows, cols = torch.tril_indices(dof, dof)
+        order = torch.cat([torch.nonzero(rows == cols)[:, 0], torch.nonzero(rows != cols)[:, 0]])
+        scatter = torch.zeros(self.num_chol, dof * dof)
+        scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
+        self.register_buffer("chol_scatter", scatter, persistent=False)
+
+    def _cond_input(self, phi, dphi, params_norm):
+        if self.conditioning == "film":
+            return phi, dphi
+        x = torch.cat([phi, params_norm], -1)
+        dx = None if dphi is None else torch.cat([dphi, dphi.new_zeros(dphi.shape[0], *params_norm.shape)], -1)
+        return x, dx
+
+    def cholesky(self, q_norm, params_norm, tangents: bool = False):
+        """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
+        dof = self.scene.dof
+        phi, dphi = self.features(q_norm, tangents)
+        x, dx = self._cond_input(phi, dphi, params_norm)
+        film = self.kinetic_film(params_norm) if self.kinetic_film is not None else None
+        raw, draw = self.kinetic_net(x, dx, film)
+        diag_raw, off = raw[..., :dof], raw[..., dof:]
+        entries = torch.cat([nn.functional.softplus(diag_raw) + self.diag_shift, off], -1)
+        S = self.chol_scatter.to(raw.dtype)
+        chol = (entries @ S).reshape(-1, dof, dof)
+        if not tangents:
+            return chol, None
+        dentries = torch.cat([torch.sigmoid(diag_raw) * draw[..., :dof], draw[..., dof:]], -1)
+        dchol = (dentries @ S).reshape(dof, -1, dof, dof)
+        return chol, dchol
+
+    def mass_matrix_norm(self, q_norm, params_norm):
+        chol, _ = self.cholesky(q_norm, params_norm)
+        eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
+        return chol @ chol.mT + self.eps * eye
+
+    def mass_matrix(self, q, params):
+        """The learned mass matrix in normalised units, ``(B, dof, dof)`` (physical M up to a scale per system)."""
+        q_norm, _, params_norm = self.normalize(q, q, params)
+        return self.mass_matrix_norm(q_norm, params_norm)
+
+    def potential_norm(self, q_norm, params_norm, grad: bool = False):
+        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass)."""
+        phi, _ = self.features(q_norm)
+        x = torch.cat([phi, params_norm], -1)
+        film = self.potential_film(params_norm) if self.potential_film is not None else None
+        if not grad:
+            return self.potential_net(x, None, film)[0][..., 0], None
+        V, dV_dx = self.potential_net.value_and_input_grad(x, film)
+        return V, self.features_vjp(q_norm, dV_dx[..., : self.num_features])
+
+    def acceleration_norm(self, q_norm, qd_norm, params_norm):
+        chol, dchol = self.cholesky(q_norm, params_norm, tangents=True)
+        _, dV = self.potential_norm(q_norm, params_norm, grad=True)
+        return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
+
+    def energy_norm(self, q_norm, qd_norm, params_norm):
+        M = self.mass_matrix_norm(q_norm, params_norm)
+        T = 0.5 * torch.einsum("bi,bij,bj->b", qd_norm, M, qd_norm)
+        V, _ = self.potential_norm(q_norm, params_norm)
+        return T + V, T, V
+
+    def lagrangian_norm(self, q_norm, qd_norm, params_norm):
+        """Scalar Lagrangian of ONE sample ``(dof,), (dof,), (P,) -> ()`` (for torch.func references)."""
+        M = self.mass_matrix_norm(q_norm[None], params_norm[None])[0]
+        V, _ = self.potential_norm(q_norm[None], params_norm[None])
+        return 0.5 * qd_norm @ M @ qd_norm - V[0]
+
+
+class BlackBoxLagrangian(DynamicsModel):
+    """The LNN paper's model: an MLP ``L(q, qd, theta)`` and the generic Euler-Lagrange solve."""
+
+    variant = "lnn"
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
+                 damping: float = 0.0) -> None:
+        super().__init__(scene)
+        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1, activation)
+        if lnn_init:
+            self.net.lnn_init()
+        self.damping = float(damping)
+
+    def lagrangian_norm(self, q_norm, qd_norm, params_norm):
+        phi, _ = self.features(q_norm[None])
+        return self.net(torch.cat([phi[0], qd_norm, params_norm], -1)[None])[0][0, 0]
+
+    def acceleration_norm(self, q_norm, qd_norm, params_norm, check: bool = False):
+        return generic_acceleration(self.lagrangian_norm, q_norm, qd_norm, params_norm, damping=self.damping,
+                                    check=check)
+
+    def acceleration(self, q, qd, params, check: bool = True):
+        if check:
+            self.check_inputs(q, qd, params)
+        qdd_norm = self.acceleration_norm(*self.normalize(q, qd, params), check=check)
+        return self.normalizer.accel_to_phys(qdd_norm)
+
+    def energy_norm(self, q_norm, qd_norm, params_norm):
+        L_fn = torch.func.vmap(self.lagrangian_norm)
+        L = L_fn(q_norm, qd_norm, params_norm)
+        p = torch.func.vmap(torch.func.grad(self.lagrangian_norm, argnums=1))(q_norm, qd_norm, params_norm)
+        T = 0.5 * (p * qd_norm).sum(-1)
+        H = 2 * T - L
+        return H, T, T - L
+
+
+class DirectMLP(DynamicsModel):
+    """Baseline: an MLP that predicts normalised accelerations from ``(q, qd, theta)``."""
+
+    variant = "mlp"
+    has_energy = False
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus") -> None:
+        super().__init__(scene)
+        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims),
+                              self.scene.dof, activation)
+
+    def acceleration_norm(self, q_norm, qd_norm, params_norm):
+        phi, _ = self.features(q_norm)
+        return self.net(torch.cat([phi, qd_norm, params_norm], -1))[0]
+
+
+VARIANTS = ("film_lnn", "lnn", "delan", "mlp")
+
+
+def build_model(variant: str, scene, hidden_dims=(128, 128), activation: str = "softplus", film_mode: str = "neuron",
+                potential_film: bool = True, eps: float = 1e-4, lnn_init: bool = False, damping: float = 0.0) -> DynamicsModel:
+    """Build a model variant for a scene (a ``System``, its ``describe()`` dict or a ``SceneInfo``)."""
+    if variant == "film_lnn":
+        return StructuredLagrangian(scene, hidden_dims, activation, "film", film_mode, potential_film, eps=eps)
+    if variant == "delan":
+        return StructuredLagrangian(scene, hidden_dims, activation, "concat", eps=eps)
+    if variant == "lnn":
+        return BlackBoxLagrangian(scene, hidden_dims, activation, lnn_init=lnn_init, damping=damping)
+    if variant == "mlp":
+        return DirectMLP(scene, hidden_dims, activation)
+    raise InputError(f"unknown model variant '{variant}'; known: {', '.join(VARIANTS)}")

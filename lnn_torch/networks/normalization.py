@@ -1,0 +1,63 @@
+"""Internal normalisation with ONE time scale, stored as buffers so it travels with checkpoints.
+
+Coordinates: angles stay raw (they enter networks as sin/cos); a linear coordinate ``x`` becomes
+``(x - shift) / scale``. Time becomes ``t / tau`` for every coordinate. Hence
+
+    q_norm = (q - shift) / scale,  qd_norm = qd * tau / scale,  qdd_norm = qdd * tau^2 / scale.
+
+This is a point transformation plus a time rescaling, so a Lagrangian in normalised variables is an
+exact Lagrangian of the physical dynamics (z-scoring each velocity and acceleration separately, as
+the reference design does, is not). Parameters enter as z-scored logarithms (they are positive and
+span ratios). ``accel_rms`` (per coordinate, normalised units) only weights the loss.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class Normalizer(nn.Module):
+    def __init__(self, dof: int, num_params: int, angle_mask) -> None:
+        super().__init__()
+        self.dof, self.num_params = dof, num_params
+        self.register_buffer("angle_mask", torch.tensor(list(angle_mask), dtype=torch.bool))
+        self.register_buffer("coord_shift", torch.zeros(dof))
+        self.register_buffer("coord_scale", torch.ones(dof))
+        self.register_buffer("time_scale", torch.ones(()))
+        self.register_buffer("param_log_mean", torch.zeros(num_params))
+        self.register_buffer("param_log_std", torch.ones(num_params))
+        self.register_buffer("accel_rms", torch.ones(dof))
+
+    @torch.no_grad()
+    def fit(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor) -> "Normalizer":
+        """Set the statistics from training data: q, qd, qdd ``(n, dof)``; params ``(m, P)``."""
+        q, qd, qdd, params = (x.double().reshape(-1, x.shape[-1]) for x in (q, qd, qdd, params))
+        lin = ~self.angle_mask.cpu()
+        shift = torch.where(lin, q.mean(0), torch.zeros(self.dof, dtype=torch.float64))
+        scale = torch.where(lin, q.std(0).clamp_min(1e-8), torch.ones(self.dof, dtype=torch.float64))
+        acc = qdd / scale
+        # one time scale: tau = 1/sqrt(rms |qdd / scale|), so normalised accelerations are O(1)
+        tau = acc.pow(2).mean().sqrt().clamp_min(1e-12).rsqrt()
+        logp = params.log()
+        self.coord_shift.copy_(shift)
+        self.coord_scale.copy_(scale)
+        self.time_scale.copy_(tau)
+        self.param_log_mean.copy_(logp.mean(0))
+        self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if len(logp) > 1 else torch.ones(self.num_params))
+        self.accel_rms.copy_((acc * tau**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
+        return self
+
+    def state(self, q, qd):
+        q_norm = (q - self.coord_shift.to(q.dtype)) / self.coord_scale.to(q.dtype)
+        qd_norm = qd * (self.time_scale.to(q.dtype) / self.coord_scale.to(q.dtype))
+        return q_norm, qd_norm
+
+    def params(self, params):
+        return (params.log() - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
+
+    def accel_to_norm(self, qdd):
+        return qdd * (self.time_scale.to(qdd.dtype) ** 2 / self.coord_scale.to(qdd.dtype))
+
+    def accel_to_phys(self, qdd_norm):
+        return qdd_norm * (self.coord_scale.to(qdd_norm.dtype) / self.time_scale.to(qdd_norm.dtype) ** 2)

@@ -1,0 +1,253 @@
+"""Networks and Euler-Lagrange solves: fast structured path vs torch.func references, SPD mass
+matrices, batch independence, gradcheck, shapes and error messages."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch.dynamics import SingularHessianError, generic_acceleration, structured_acceleration
+from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, StructuredLagrangian, build_model
+from lnn_torch.networks.layers import ACTIVATIONS, TangentMLP
+from lnn_torch.systems import SYSTEMS, InputError, get_system
+
+from .conftest import random_batch
+
+
+def perturbed(model, scale=0.05, seed=0):
+    """Random, non-identity FiLM and weights so that every path of the model matters."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(scale * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    return model
+
+
+def normalized_batch(model, system, rng, n=64):
+    q, qd, params = random_batch(system, rng, n)
+    return model.normalize(q, qd, params)
+
+
+@pytest.mark.parametrize("scene", sorted(SYSTEMS))
+@pytest.mark.parametrize("variant", ["film_lnn", "delan"])
+@pytest.mark.parametrize("activation", ACTIVATIONS)
+def test_structured_fast_path_equals_generic_solve(scene, variant, activation, rng):
+    system = get_system(scene)
+    model = perturbed(build_model(variant, system, hidden_dims=(32, 32), activation=activation).double())
+    qn, qdn, pn = normalized_batch(model, system, rng)
+    fast = model.acceleration_norm(qn, qdn, pn)
+    generic = generic_acceleration(model.lagrangian_norm, qn, qdn, pn)
+    reference = structured_acceleration(
+        lambda q1, p1: model.cholesky(q1[None], p1[None])[0][0],
+        lambda q1, p1: model.potential_norm(q1[None], p1[None])[0][0],
+        qn, qdn, pn, eps=model.eps)
+    scale = generic.abs().max()
+    assert (fast - generic).abs().max() <= 1e-10 * scale
+    assert (fast - reference).abs().max() <= 1e-10 * scale
+
+
+def test_structured_energy_is_legendre_transform(rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32)).double())
+    qn, qdn, pn = normalized_batch(model, system, rng, 16)
+    H, T, V = model.energy_norm(qn, qdn, pn)
+    L = torch.func.vmap(model.lagrangian_norm)(qn, qdn, pn)
+    p = torch.func.vmap(torch.func.grad(model.lagrangian_norm, argnums=1))(qn, qdn, pn)
+    torch.testing.assert_close(H, (p * qdn).sum(-1) - L, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(T - V, L, rtol=1e-12, atol=1e-12)
+
+
+def test_potential_gradient_matches_autograd(rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32)).double())
+    qn, _, pn = normalized_batch(model, system, rng, 16)
+    qn = qn.clone().requires_grad_(True)
+    V, dV = model.potential_norm(qn, pn, grad=True)
+    (auto,) = torch.autograd.grad(V.sum(), qn)
+    torch.testing.assert_close(dV, auto, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("variant", ["film_lnn", "delan"])
+def test_mass_matrix_spd_with_min_eigenvalue_eps(variant, rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system).double(), scale=0.5)
+    q, qd, params = random_batch(system, rng, 256)
+    model.normalizer.fit(q, qd, system.acceleration(q, qd, params), params)
+    cases = {
+        "random": (q, params),
+        "huge angles": (q + 1e3 * torch.sign(torch.randn_like(q)), params),
+        "params 100x above": (q, params * 100),
+        "params 100x below": (q, params / 100),
+    }
+    for name, (qq, pp) in cases.items():
+        M = model.mass_matrix(qq, pp)
+        torch.testing.assert_close(M, M.mT, rtol=0, atol=0)
+        eig = torch.linalg.eigvalsh(M)
+        assert torch.isfinite(eig).all(), name
+        assert eig.min() >= model.eps * (1 - 1e-9), name
+    # huge velocities: the accelerations stay finite
+    a = model.acceleration(q, qd * 1e3, params)
+    assert torch.isfinite(a).all()
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_batch_independence_and_per_sample_loop(variant, rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16)).double())
+    q, qd, params = random_batch(system, rng, 8)
+    batch = model.acceleration(q, qd, params)
+    loop = torch.cat([model.acceleration(q[i : i + 1], qd[i : i + 1], params[i : i + 1]) for i in range(8)])
+    torch.testing.assert_close(batch, loop, rtol=1e-12, atol=1e-12)
+    # changing one sample leaves the others untouched
+    q2 = q.clone()
+    q2[3] += 0.5
+    other = model.acceleration(q2, qd, params)
+    torch.testing.assert_close(torch.cat([other[:3], other[4:]]), torch.cat([batch[:3], batch[4:]]), rtol=0, atol=0)
+    assert (other[3] - batch[3]).abs().max() > 0
+
+
+@pytest.mark.parametrize("variant", ["film_lnn", "mlp"])
+def test_vmap_equals_loop(variant, rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16)).double())
+    q, qd, params = random_batch(system, rng, 6)
+    single = lambda a, b, c: model.acceleration(a[None], b[None], c[None], check=False)[0]  # noqa: E731
+    vm = torch.func.vmap(single)(q, qd, params)
+    loop = torch.stack([single(q[i], qd[i], params[i]) for i in range(6)])
+    torch.testing.assert_close(vm, loop, rtol=1e-12, atol=1e-12)
+
+
+def test_gradcheck_through_structured_solve(rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(4, 4)).double())
+    qn, qdn, pn = (x[:3].clone().requires_grad_(True) for x in normalized_batch(model, system, rng, 3))
+    assert torch.autograd.gradcheck(lambda a, b: model.acceleration_norm(a, b, pn), (qn, qdn))
+    # and with respect to network weights (what training differentiates)
+    q, qd, params = (x[:3] for x in random_batch(system, rng, 3))
+    names = ("kinetic_net.hidden.1.weight", "potential_net.hidden.0.weight", "kinetic_film.net.2.weight")
+    weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
+
+    def accel(*ws):
+        return torch.func.functional_call(model, dict(zip(names, ws)), (q, qd, params))
+
+    assert torch.autograd.gradcheck(accel, weights)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_differentiable_for_training_and_no_grad(variant, rng):
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16)))
+    q, qd, params = (x.float() for x in random_batch(system, rng, 32))
+    loss = model.acceleration(q, qd, params).pow(2).mean()
+    loss.backward()
+    grads = [p.grad for p in model.parameters() if p.grad is not None]
+    assert grads and all(torch.isfinite(g).all() for g in grads)
+    assert sum(g.abs().sum() for g in grads) > 0
+    with torch.no_grad():
+        a = model.acceleration(q, qd, params)
+    assert not a.requires_grad and torch.isfinite(a).all()
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_shapes_dtype_device_preserved(variant, dtype, rng):
+    system = get_system("double_pendulum")
+    model = build_model(variant, system, hidden_dims=(16, 16)).to(dtype)
+    q, qd, params = (x.to(dtype) for x in random_batch(system, rng, 5))
+    a = model.acceleration(q, qd, params)
+    assert a.shape == (5, 2) and a.dtype == dtype and a.device == q.device
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_bad_input_raises_clear_errors(variant, rng):
+    system = get_system("double_pendulum")
+    model = build_model(variant, system, hidden_dims=(8,)).double()
+    q, qd, params = random_batch(system, rng, 4)
+    with pytest.raises(InputError, match=r"params must have shape \(4, 4\)"):
+        model.acceleration(q, qd, params[:, :3])
+    with pytest.raises(InputError, match="qd must have the shape of q"):
+        model.acceleration(q, qd[:3], params)
+    with pytest.raises(InputError, match=r"q must have shape \(batch, 2\)"):
+        model.acceleration(q[:, :1], qd[:, :1], params)
+    nan_q = q.clone()
+    nan_q[1, 0] = float("nan")
+    with pytest.raises(InputError, match="q contains NaN"):
+        model.acceleration(nan_q, qd, params)
+    with pytest.raises(InputError, match="positive"):
+        model.acceleration(q, qd, -params)
+
+
+def test_film_identity_init_and_modes():
+    cond = torch.randn(7, 4)
+    for mode, size in (("neuron", 32), ("layer", 1)):
+        film = FiLM(4, [32, 32], mode=mode)
+        out = film(cond)
+        assert len(out) == 2
+        for g, b in out:
+            assert g.shape == (7, size) and b.shape == (7, size)
+            torch.testing.assert_close(g, torch.ones_like(g))
+            torch.testing.assert_close(b, torch.zeros_like(b))
+    with pytest.raises(ValueError, match="FiLM mode"):
+        FiLM(4, [8], mode="channel")
+
+
+def test_film_parameters_change_the_mass_matrix(rng):
+    """The parameters reach M only through FiLM in film_lnn: a perturbed FiLM makes M depend on them."""
+    system = get_system("double_pendulum")
+    model = build_model("film_lnn", system, hidden_dims=(16, 16)).double()
+    q, _, params = random_batch(system, rng, 4)
+    M1 = model.mass_matrix(q, params)
+    torch.testing.assert_close(M1, model.mass_matrix(q, params * 2))  # identity FiLM: no dependence yet
+    perturbed(model)
+    assert (model.mass_matrix(q, params) - model.mass_matrix(q, params * 2)).abs().max() > 1e-6
+
+
+def test_structured_model_refuses_non_quadratic_kinetic_energy():
+    scene = SceneInfo("relativistic_particle", 1, (False,), 1, quadratic_kinetic=False)
+    with pytest.raises(InputError, match="not quadratic"):
+        build_model("film_lnn", scene)
+    build_model("lnn", scene)  # the black-box Lagrangian accepts it
+
+
+def test_unknown_variant():
+    with pytest.raises(InputError, match="unknown model variant 'hnnn'"):
+        build_model("hnnn", get_system("pendulum"))
+
+
+def test_generic_solve_reports_singular_hessian():
+    def lagrangian(q, qd, params):  # depends on qd1 + qd2 only: d2L/dqd2 has rank 1
+        return 0.5 * (qd[0] + qd[1]) ** 2 - q[0] ** 2
+
+    q = torch.randn(5, 2, dtype=torch.float64)
+    qd = torch.randn(5, 2, dtype=torch.float64)
+    params = torch.ones(5, 1, dtype=torch.float64)
+    with pytest.raises(SingularHessianError, match="singular for 5 of 5"):
+        generic_acceleration(lagrangian, q, qd, params)
+    damped = generic_acceleration(lagrangian, q, qd, params, damping=1e-3)
+    assert torch.isfinite(damped).all()
+
+
+def test_generic_solve_double_backward():
+    """The generic solve is differentiable (training the black-box LNN needs the double backward)."""
+    k = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
+
+    def lagrangian(q, qd, params):
+        return 0.5 * params[0] * qd @ qd - 0.5 * k * q @ q
+
+    q = torch.randn(3, 2, dtype=torch.float64)
+    qd = torch.randn(3, 2, dtype=torch.float64)
+    params = torch.full((3, 1), 0.5, dtype=torch.float64)
+    a = generic_acceleration(lagrangian, q, qd, params)
+    torch.testing.assert_close(a, -k.detach() / 0.5 * q)
+    (g,) = torch.autograd.grad(a.sum(), k)
+    torch.testing.assert_close(g, -(q / 0.5).sum())
+
+
+def test_lnn_init_scheme():
+    mlp = TangentMLP(8, [100, 100, 100], 1)
+    mlp.lnn_init()
+    stds = [layer.weight.std().item() for layer in mlp.hidden] + [mlp.out.weight.std().item()]
+    expected = [2.2 / 10, 0.58 / 10, 1.16 / 10, 100 / 10]
+    for s, e in zip(stds, expected):
+        assert abs(s - e) / e < 0.1
