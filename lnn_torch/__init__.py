@@ -1,8 +1,31 @@
-"""lnn_torch: Lagrangian Neural Networks for mechanical systems, in PyTorch."""
+"""lnn_torch: Lagrangian Neural Networks for mechanical systems, in PyTorch.
+
+Public names: ``LNNModule`` (Lightning training shell; loading checkpoints), ``rollout``
+(fixed-step integration of any ``accel_fn``), ``get_system`` (ground-truth scenes),
+``build_model`` (plain ``nn.Module`` variants).
+"""
 
 __version__ = "0.1.0"
 
 from .integrators import rollout  # noqa: E402
 from .systems import get_system  # noqa: E402
 
-__all__ = ["__version__", "rollout", "get_system"]
+
+def __getattr__(name):
+    # Lightning and the networks are imported on first use, so that physics-only users stay light
+    if name == "LNNModule":
+        from .module import LNNModule
+
+        return LNNModule
+    if name == "build_model":
+        from .networks import build_model
+
+        return build_model
+    if name == "TrajectoryDataModule":
+        from .data.datamodule import TrajectoryDataModule
+
+        return TrajectoryDataModule
+    raise AttributeError(f"module 'lnn_torch' has no attribute '{name}'")
+
+
+__all__ = ["__version__", "rollout", "get_system", "LNNModule", "build_model", "TrajectoryDataModule"]

@@ -61,14 +61,29 @@ def generate_main(argv: list[str]) -> int:
     return 0
 
 
-COMMANDS = {"generate": generate_main}
+LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+
+
+def lightning_main(argv: list[str]) -> int:
+    """``fit``/``validate``/``test``/``predict`` with LightningCLI (YAML configs, ``--help``)."""
+    from .lightning_cli import run_cli
+
+    run_cli(argv)
+    return 0
+
+
+COMMANDS = {"generate": generate_main, **{c: lightning_main for c in LIGHTNING_COMMANDS}}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print("usage: lnn-torch {" + ",".join(COMMANDS) + "} ...\n\n"
-              "  generate   write a ground-truth trajectory dataset (HDF5)\n\n"
+              "  generate   write a ground-truth trajectory dataset (HDF5)\n"
+              "  fit        train a model (LightningCLI; -c configs/quickstart.yaml)\n"
+              "  validate   validation metrics of a checkpoint (--ckpt_path)\n"
+              "  test       test-split metrics of a checkpoint (--ckpt_path)\n"
+              "  predict    write test-split predictions to a file (--ckpt_path)\n\n"
               "Run 'lnn-torch COMMAND --help' for a command's options.")
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
@@ -76,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lnn-torch: error: unknown command '{command}' (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
     try:
-        return COMMANDS[command](rest)
+        return COMMANDS[command](argv if command in LIGHTNING_COMMANDS else rest)
     except (ValueError, OSError, RuntimeError) as err:  # InputError, DatasetFileError, FileExistsError, ...
         print(f"lnn-torch {command}: error: {err}", file=sys.stderr)
         return 2

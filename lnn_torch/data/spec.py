@@ -39,7 +39,13 @@ class DatasetSpec:
     targets: str = "analytic"
 
     def __post_init__(self) -> None:
-        self.split = tuple(float(x) for x in self.split)
+        try:  # values from command lines and YAML may arrive as strings
+            self.num_trajectories, self.seed, self.substeps = int(self.num_trajectories), int(self.seed), int(self.substeps)
+            self.duration, self.dt = float(self.duration), float(self.dt)
+            self.split = tuple(float(x) for x in self.split)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"dataset spec: {err}") from None
+        self.scene_config = dict(self.scene_config or {})
         self.validate()
 
     @property

@@ -57,7 +57,7 @@ class FiLM(nn.Module):
 class TangentMLP(nn.Module):
     """MLP ``in_dim -> hidden_dims -> out_dim`` with optional FiLM after each hidden activation."""
 
-    def __init__(self, in_dim: int, hidden_dims: list[int], out_dim: int, activation: str = "softplus") -> None:
+    def __init__(self, in_dim: int, hidden_dims: list[int], out_dim: int, activation: str = "tanh") -> None:
         super().__init__()
         dims = [in_dim, *hidden_dims]
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))

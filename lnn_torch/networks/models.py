@@ -136,7 +136,7 @@ class DynamicsModel(nn.Module):
 class StructuredLagrangian(DynamicsModel):
     """``L = 1/2 qd^T M qd - V`` with ``M = chol chol^T + eps I`` (variants ``film_lnn`` and ``delan``)."""
 
-    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", conditioning: str = "film",
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", conditioning: str = "film",
                  film_mode: str = "neuron", potential_film: bool = True, film_hidden: int = 16,
                  eps: float = 1e-4, diag_shift: float = 1e-3) -> None:
         super().__init__(scene)
@@ -231,7 +231,7 @@ class BlackBoxLagrangian(DynamicsModel):
 
     variant = "lnn"
 
-    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", lnn_init: bool = False,
                  damping: float = 0.0) -> None:
         super().__init__(scene)
         self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1, activation)
@@ -268,7 +268,7 @@ class DirectMLP(DynamicsModel):
     variant = "mlp"
     has_energy = False
 
-    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus") -> None:
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh") -> None:
         super().__init__(scene)
         self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims),
                               self.scene.dof, activation)
@@ -281,7 +281,7 @@ class DirectMLP(DynamicsModel):
 VARIANTS = ("film_lnn", "lnn", "delan", "mlp")
 
 
-def build_model(variant: str, scene, hidden_dims=(128, 128), activation: str = "softplus", film_mode: str = "neuron",
+def build_model(variant: str, scene, hidden_dims=(128, 128), activation: str = "tanh", film_mode: str = "neuron",
                 potential_film: bool = True, eps: float = 1e-4, lnn_init: bool = False, damping: float = 0.0) -> DynamicsModel:
     """Build a model variant for a scene (a ``System``, its ``describe()`` dict or a ``SceneInfo``)."""
     if variant == "film_lnn":

@@ -1,0 +1,214 @@
+"""``TrajectoryDataModule``: contiguous trajectory chunks from an HDF5 dataset file.
+
+Training batches are ``chunks_per_batch`` contiguous chunks of ``chunk_len`` points, each from one
+training trajectory (the energy regulariser needs whole chunks of one trajectory). Chunk ``i`` of
+epoch ``e`` is drawn from the seed sequence ``(seed, e, i)``: reproducible, and under DDP the
+distributed sampler gives each rank distinct indices. Validation and test sets are fixed: every
+``eval_stride``-th point of every trajectory of the split, in order.
+
+The file is generated from ``spec`` if it is missing. Normalisation statistics come from the
+training split only (``normalization_data``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from .generate import generate_dataset
+from .hdf5 import TrajectoryFile, read_dataset
+from .spec import DatasetSpec
+
+FIELDS = ("q", "qd", "qdd")
+
+
+class _Source:
+    """Arrays of a set of trajectories: in memory, or read lazily with one h5py handle per process."""
+
+    def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype) -> None:
+        self.file, self.indices, self.in_memory, self.dtype = file, np.asarray(indices), in_memory, dtype
+        self.params = torch.as_tensor(file.read("params")[self.indices], dtype=dtype)
+        self._arrays = None
+        self._handle, self._pid = None, None
+        if in_memory:
+            with file.open() as f:
+                self._arrays = {k: torch.as_tensor(f[k][np.sort(self.indices)], dtype=dtype) for k in FIELDS}
+            order = np.argsort(np.argsort(self.indices))
+            self._arrays = {k: v[order] for k, v in self._arrays.items()}
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_handle"], state["_pid"] = None, None  # h5py handles never cross processes
+        return state
+
+    def _h5(self):
+        if self._handle is None or self._pid != os.getpid():
+            self._handle, self._pid = self.file.open(), os.getpid()
+        return self._handle
+
+    def chunk(self, j: int, start: int, length: int, stride: int = 1) -> dict:
+        """Points ``start, start + stride, ...`` (``length`` of them) of the j-th trajectory."""
+        sl = slice(start, start + length * stride, stride)
+        if self._arrays is not None:
+            out = {k: self._arrays[k][j, sl] for k in FIELDS}
+        else:
+            f = self._h5()
+            out = {k: torch.as_tensor(f[k][int(self.indices[j]), sl], dtype=self.dtype) for k in FIELDS}
+        out["params"] = self.params[j].expand(out["q"].shape[0], -1)
+        return out
+
+
+class ChunkDataset(Dataset):
+    """Random contiguous chunks of training trajectories; item i of epoch e from seed (seed, e, i)."""
+
+    def __init__(self, source: _Source, num_points: int, chunk_len: int, num_chunks: int, seed: int) -> None:
+        if chunk_len > num_points:
+            raise ValueError(f"chunk_len {chunk_len} exceeds the trajectory length {num_points}")
+        self.source, self.num_points, self.chunk_len, self.num_chunks, self.seed = source, num_points, chunk_len, num_chunks, seed
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        return self.num_chunks
+
+    def __getitem__(self, i: int) -> dict:
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.epoch, int(i))))
+        j = int(rng.integers(len(self.source.indices)))
+        start = int(rng.integers(self.num_points - self.chunk_len + 1))
+        return self.source.chunk(j, start, self.chunk_len)
+
+
+class PointDataset(Dataset):
+    """Fixed evaluation points: every ``stride``-th point of each trajectory, one item per trajectory."""
+
+    def __init__(self, source: _Source, num_points: int, stride: int) -> None:
+        self.source, self.stride = source, stride
+        self.length = (num_points + stride - 1) // stride
+
+    def __len__(self) -> int:
+        return len(self.source.indices)
+
+    def __getitem__(self, j: int) -> dict:
+        out = self.source.chunk(j, 0, self.length, self.stride)
+        out["trajectory"] = torch.tensor(int(self.source.indices[j]))
+        return out
+
+
+class TrajectoryDataModule(L.LightningDataModule):
+    """Serves an lnn_torch HDF5 dataset (generated from ``spec`` when ``path`` is missing).
+
+    Args:
+        path: the dataset file.
+        spec: ``DatasetSpec`` fields used to generate the file when it is missing (and to check the
+            scene); ``None`` means the defaults.
+        chunk_len: points per training chunk.
+        chunks_per_batch: chunks per training batch.
+        steps_per_epoch: training batches per epoch.
+        eval_stride: stride of the fixed validation/test points.
+        eval_trajectories_per_batch: trajectories per validation/test batch.
+        num_workers: DataLoader workers (each opens its own h5py handle when not in memory).
+        in_memory: load the needed splits into memory (fast; default).
+        seed: seed of the chunk sampling.
+    """
+
+    def __init__(self, path: str = "data/double_pendulum.h5", spec: dict | None = None, chunk_len: int = 64,
+                 chunks_per_batch: int = 8, steps_per_epoch: int = 250, eval_stride: int = 10,
+                 eval_trajectories_per_batch: int = 16, num_workers: int = 0, in_memory: bool = True,
+                 seed: int = 0) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.path = Path(path)
+        self.spec = DatasetSpec(**(spec or {}))
+        self.file: TrajectoryFile | None = None
+        self._sources: dict = {}
+        self.train_set: ChunkDataset | None = None
+
+    # ------------------------------------------------------------------ preparation
+    def prepare_data(self) -> None:
+        if not self.path.exists():
+            print(f"dataset {self.path} not found: generating it ({self.spec.num_trajectories} trajectories)")
+            generate_dataset(self.spec, self.path, progress=True)
+
+    def _open(self) -> TrajectoryFile:
+        if self.file is None:
+            self.prepare_data()
+            self.file = read_dataset(self.path)
+            if self.file.attrs["scene"] != self.spec.scene:
+                raise ValueError(f"{self.path} holds scene '{self.file.attrs['scene']}', but the data spec "
+                                 f"says '{self.spec.scene}'")
+        return self.file
+
+    def source(self, split: str, dtype=torch.float32) -> _Source:
+        key = (split, dtype)
+        if key not in self._sources:
+            f = self._open()
+            self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype)
+        return self._sources[key]
+
+    @property
+    def scene(self) -> dict:
+        return self._open().scene
+
+    def setup(self, stage: str | None = None) -> None:
+        f = self._open()
+        if stage in ("fit", None):
+            self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
+                                          self.hparams.steps_per_epoch * self.hparams.chunks_per_batch, self.hparams.seed)
+        for split in ("val", "test"):
+            if len(f.splits[split]) == 0 and stage in (split if split == "test" else "validate", "fit"):
+                raise ValueError(f"{self.path} has an empty '{split}' split")
+
+    def set_epoch(self, epoch: int) -> None:
+        if self.train_set is not None:
+            self.train_set.epoch = int(epoch)
+
+    # ------------------------------------------------------------------ loaders
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(self.train_set, batch_size=self.hparams.chunks_per_batch, shuffle=False,
+                          num_workers=self.hparams.num_workers, persistent_workers=False, drop_last=True)
+
+    def _points(self, split: str) -> DataLoader:
+        f = self._open()
+        ds = PointDataset(self.source(split), f.num_points, self.hparams.eval_stride)
+        return DataLoader(ds, batch_size=self.hparams.eval_trajectories_per_batch, shuffle=False,
+                          num_workers=self.hparams.num_workers)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._points("val")
+
+    def test_dataloader(self) -> DataLoader:
+        return self._points("test")
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._points("test")
+
+    # ------------------------------------------------------------------ for the model
+    def normalization_data(self, max_points: int = 200_000) -> dict:
+        """Training-split samples (float64) for the normaliser: q, qd, qdd ``(n, dof)``, params ``(m, P)``."""
+        f = self._open()
+        src = self.source("train", torch.float64)
+        n_traj = len(src.indices)
+        stride = max(1, (n_traj * f.num_points) // max_points)
+        parts = [src.chunk(j, 0, (f.num_points + stride - 1) // stride, stride) for j in range(n_traj)]
+        out = {k: torch.cat([p[k] for p in parts]) for k in FIELDS}
+        out["params"] = src.params
+        return out
+
+    def rollout_data(self, split: str = "val", num_trajectories: int = 4, num_points: int | None = None) -> dict:
+        """Whole trajectories (float64) of a split for rollout metrics: q, qd ``(n, T, dof)``, params, dt."""
+        f = self._open()
+        src = self.source(split, torch.float64)
+        n = min(num_trajectories, len(src.indices))
+        T = f.num_points if num_points is None else min(num_points, f.num_points)
+        parts = [src.chunk(j, 0, T) for j in range(n)]
+        dt = float(f.read("t", slice(0, 2))[1])
+        return {"q": torch.stack([p["q"] for p in parts]), "qd": torch.stack([p["qd"] for p in parts]),
+                "params": src.params[:n], "dt": dt}
+
+    def spec_dict(self) -> dict:
+        return asdict(self.spec)

@@ -1,0 +1,32 @@
+"""LightningCLI wiring: the data's scene is linked to the model; inference mode is off (the
+Euler-Lagrange solves differentiate with respect to their inputs even in evaluation)."""
+
+from __future__ import annotations
+
+from lightning.pytorch.cli import LightningCLI
+
+from .data.datamodule import TrajectoryDataModule
+from .module import LNNModule
+
+
+class LNNCLI(LightningCLI):
+    def add_arguments_to_parser(self, parser) -> None:
+        parser.link_arguments("data.spec", "model.scene", compute_fn=lambda spec: (spec or {}).get("scene", "double_pendulum"))
+        parser.link_arguments("data.spec", "model.scene_config", compute_fn=lambda spec: (spec or {}).get("scene_config", {}))
+        parser.set_defaults({"trainer.logger": LOGGER, "trainer.callbacks": CALLBACKS})
+
+
+TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
+LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
+          "init_args": {"save_dir": ".", "name": "lightning_logs", "default_hp_metric": False}}
+CALLBACKS = [
+    {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+     "init_args": {"monitor": "val/acc_rel_err", "mode": "min", "save_last": True,
+                   "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
+    {"class_path": "lnn_torch.callbacks.PredictionWriter"},
+]
+
+
+def run_cli(argv: list[str]) -> LNNCLI:
+    return LNNCLI(LNNModule, TrajectoryDataModule, args=argv, trainer_defaults=TRAINER_DEFAULTS,
+                  save_config_kwargs={"overwrite": True}, seed_everything_default=0)

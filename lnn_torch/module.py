@@ -1,0 +1,242 @@
+"""``LNNModule``: a thin LightningModule over a dynamics model (``lnn_torch.networks``).
+
+Loss = Huber on normalised accelerations + ``energy_weight`` x the scale-invariant variance of the
+model's own Hamiltonian over each contiguous chunk (``lnn_torch.losses.energy_variance``).
+A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
+Validation: relative L2 acceleration error and rollouts of a few validation trajectories with their
+true-energy drift and divergence time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import lightning as L
+import torch
+
+from .evaluation import acceleration_errors, rollout_metrics
+from .integrators import rollout as _rollout
+from .losses import acceleration_loss, energy_variance
+from .networks import VARIANTS, build_model
+from .systems import get_system
+
+
+class LNNModule(L.LightningModule):
+    """Train a Lagrangian (or baseline) model of a scene.
+
+    Args:
+        scene: scene name (``lnn_torch.systems``); linked to the data's scene by the CLI.
+        scene_config: scene sampler configuration (only structural options matter to the model).
+        variant: one of ``film_lnn`` (default), ``lnn``, ``delan``, ``mlp``.
+        hidden_dims: hidden widths of each MLP.
+        activation: ``tanh`` (default), ``softplus``, ``sigmoid``, ``isru``.
+        film_mode: ``neuron`` (per-neuron FiLM) or ``layer`` (per-layer scalars, the reference design).
+        potential_film: FiLM on the potential network too.
+        eps: ``M = chol chol^T + eps I``.
+        lnn_init: the LNN paper's initialisation (``lnn`` variant).
+        lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run.
+        weight_decay: AdamW weight decay.
+        huber_delta: Huber threshold (normalised units).
+        energy_weight: weight of the energy-conservation term (0 disables it).
+        val_rollouts: validation trajectories rolled out each epoch.
+        val_rollout_seconds: their horizon.
+        val_threshold: angle error (rad) that defines the divergence time.
+        figure_every_n_epochs: log trajectory/energy figures this often (0: never).
+    """
+
+    def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
+                 hidden_dims: list[int] = (128, 128), activation: str = "tanh", film_mode: str = "neuron",
+                 potential_film: bool = True, eps: float = 1e-4, lnn_init: bool = False, lr: float = 3e-3,
+                 lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
+                 val_rollouts: int = 4, val_rollout_seconds: float = 5.0, val_threshold: float = 0.1,
+                 figure_every_n_epochs: int = 5) -> None:
+        super().__init__()
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown model variant '{variant}'; known: {', '.join(VARIANTS)}")
+        self.save_hyperparameters(logger=False)
+        self.system = get_system(scene, **(scene_config or {}))
+        self.model = build_model(variant, self.system, hidden_dims=tuple(hidden_dims), activation=activation,
+                                 film_mode=film_mode, potential_film=potential_film, eps=eps, lnn_init=lnn_init)
+        self.register_buffer("normalizer_fitted", torch.tensor(False))
+        self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))
+        self._skip_this_step = False
+        self._val_outputs: list = []
+
+    # ------------------------------------------------------------------ public physics
+    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)``."""
+        return self.model.acceleration(q, qd, params)
+
+    forward = acceleration
+
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
+        """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``."""
+        self.model.check_inputs(q0, qd0, params)
+        fn = lambda q, qd, p: self.model.acceleration(q, qd, p, check=False)  # noqa: E731
+        return _rollout(fn, q0, qd0, params, dt, num_steps, method)
+
+    # ------------------------------------------------------------------ set-up
+    def setup(self, stage: str) -> None:
+        dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if dm is not None and hasattr(dm, "scene"):
+            data_scene = dm.scene
+            if data_scene["name"] != self.system.name or data_scene["dof"] != self.system.dof:
+                raise ValueError(f"the model is for scene '{self.system.name}' but the data hold "
+                                 f"'{data_scene['name']}' (set model.scene, or let the CLI link it)")
+        if not bool(self.normalizer_fitted):
+            if dm is None or not hasattr(dm, "normalization_data"):
+                raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
+            stats = dm.normalization_data()
+            self.model.normalizer.fit(stats["q"], stats["qd"], stats["qdd"], stats["params"])
+            self.normalizer_fitted.fill_(True)
+
+    def on_fit_start(self) -> None:
+        from lightning.pytorch.loggers import TensorBoardLogger
+
+        # tanh/softplus tails produce denormal floats, which slow CPU arithmetic by up to 30x here
+        torch.set_flush_denormal(True)
+
+        for logger in self.loggers:
+            if isinstance(logger, TensorBoardLogger):
+                # hyper-parameters with the metric keys, so the HParams tab shows real metrics
+                logger.log_hyperparams(dict(self.hparams), {"val/acc_rel_err": math.nan,
+                                                            "val/energy_drift": math.nan,
+                                                            "val/divergence_time": math.nan})
+
+    def on_train_epoch_start(self) -> None:
+        dm = getattr(self.trainer, "datamodule", None)
+        if dm is not None and hasattr(dm, "set_epoch"):
+            dm.set_epoch(self.current_epoch)
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        total = self.trainer.estimated_stepping_batches
+        total = int(total) if total is not None and math.isfinite(total) else 10_000
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, total), eta_min=self.hparams.lr_min)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    # ------------------------------------------------------------------ training
+    def _normalized(self, batch):
+        q, qd, qdd, params = batch["q"], batch["qd"], batch["qdd"], batch["params"]
+        shape = q.shape  # (C, L, dof)
+        flat = lambda x: x.reshape(-1, x.shape[-1])  # noqa: E731
+        q_n, qd_n, p_n = self.model.normalize(flat(q), flat(qd), flat(params))
+        return shape, q_n, qd_n, p_n, self.model.normalizer.accel_to_norm(flat(qdd))
+
+    def training_step(self, batch, batch_idx):
+        shape, q_n, qd_n, p_n, qdd_n = self._normalized(batch)
+        pred = self.model.acceleration_norm(q_n, qd_n, p_n)
+        huber = acceleration_loss(pred, qdd_n, self.model.normalizer.accel_rms.to(pred.dtype), self.hparams.huber_delta)
+        loss = huber
+        if self.hparams.energy_weight > 0 and self.model.has_energy:
+            H, T, V = (x.reshape(shape[0], shape[1]) for x in self.model.energy_norm(q_n, qd_n, p_n))
+            evar = energy_variance(H, T, V)
+            loss = loss + self.hparams.energy_weight * evar
+            self.log("train/energy_var", evar.detach(), on_step=True, on_epoch=False)
+        finite = torch.isfinite(loss)
+        self._skip_this_step = not bool(finite)
+        if self._skip_this_step:
+            # keep the graph (DDP needs every rank to run backward) but contribute nothing
+            loss = sum(p.sum() for p in self.parameters()) * 0.0
+        self.log("train/loss", loss.detach(), on_step=True, on_epoch=False, prog_bar=True)
+        self.log("train/huber", huber.detach(), on_step=True, on_epoch=False)
+        return loss
+
+    def on_before_optimizer_step(self, optimizer) -> None:
+        grads = [p.grad for p in self.parameters() if p.grad is not None]
+        bad = self._skip_this_step or not all(torch.isfinite(g).all() for g in grads)
+        flag = torch.tensor(float(bad), device=self.device)
+        if self.trainer.world_size > 1:
+            flag = self.trainer.strategy.reduce(flag, reduce_op="max")
+        if flag.item() > 0:
+            self.skipped_steps += 1
+            for p in self.parameters():
+                p.grad = None  # AdamW leaves parameters without gradients untouched
+        self.log("train/skipped_steps", self.skipped_steps.float(), on_step=True, on_epoch=False)
+        self.log("train/lr", optimizer.param_groups[0]["lr"], on_step=True, on_epoch=False)
+
+    # ------------------------------------------------------------------ evaluation
+    def _eval_step(self, batch):
+        shape, q_n, qd_n, p_n, qdd_n = self._normalized(batch)
+        with torch.enable_grad():  # the generic solve differentiates even in evaluation
+            pred = self.model.acceleration_norm(q_n, qd_n, p_n).detach()
+        pred = self.model.normalizer.accel_to_phys(pred).reshape(shape)
+        return pred, batch["qdd"]
+
+    def validation_step(self, batch, batch_idx):
+        self._val_outputs.append(self._eval_step(batch))
+
+    def test_step(self, batch, batch_idx):
+        self._val_outputs.append(self._eval_step(batch))
+
+    def on_validation_epoch_end(self) -> None:
+        self._finish_eval("val")
+
+    def on_test_epoch_end(self) -> None:
+        self._finish_eval("test")
+
+    def _finish_eval(self, prefix: str) -> None:
+        outputs, self._val_outputs = self._val_outputs, []
+        if not outputs:
+            return
+        pred = torch.cat([p.reshape(-1, p.shape[-1]) for p, _ in outputs])
+        true = torch.cat([t.reshape(-1, t.shape[-1]) for _, t in outputs])
+        # relative L2 over all ranks' points: sync the sums, not the ratios
+        num = self.all_gather((pred - true).pow(2).sum(0)).reshape(-1, pred.shape[-1]).sum(0)
+        den = self.all_gather(true.pow(2).sum(0)).reshape(-1, pred.shape[-1]).sum(0)
+        self.log(f"{prefix}/acc_rel_err", (num.sum() / den.sum()).sqrt(), sync_dist=False, prog_bar=True)
+        for i, name in enumerate(self.system.coord_names):
+            self.log(f"{prefix}/acc_rel_err_{name}", (num[i] / den[i]).sqrt(), sync_dist=False)
+        self._rollout_metrics(prefix)
+
+    def _rollout_metrics(self, prefix: str) -> None:
+        dm = getattr(self.trainer, "datamodule", None)
+        n = self.hparams.val_rollouts
+        if dm is None or not hasattr(dm, "rollout_data") or n <= 0:
+            return
+        split = "val" if prefix == "val" else "test"
+        data = dm.rollout_data(split, n)
+        steps = int(round(self.hparams.val_rollout_seconds / data["dt"])) + 1
+        q_true, qd_true = data["q"][:, :steps], data["qd"][:, :steps]
+        model64 = self._float64_accel()
+        with torch.set_grad_enabled(self.hparams.variant == "lnn"):  # only the generic solve needs autograd
+            m = rollout_metrics(model64, self.system, q_true.to(self.device), qd_true.to(self.device),
+                                data["params"].to(self.device), data["dt"], "rk4", (self.hparams.val_threshold,))
+        self.log(f"{prefix}/energy_drift", m["energy_drift_mean"].mean(), sync_dist=True)
+        self.log(f"{prefix}/energy_drift_max", m["energy_drift_max"].max(), sync_dist=True)
+        self.log(f"{prefix}/divergence_time", m[f"divergence_time@{self.hparams.val_threshold:g}"].median(),
+                 sync_dist=True)
+        every = self.hparams.figure_every_n_epochs
+        if prefix == "val" and every and self.current_epoch % every == 0 and self.trainer.is_global_zero:
+            self._log_figures(q_true, m, data)
+
+    def _float64_accel(self):
+        """Model accelerations in float64 (rollouts are compared in float64; the weights are cast on the fly)."""
+        model = self.model
+
+        def fn(q, qd, p):
+            dtype = next(model.parameters()).dtype
+            return model.acceleration(q.to(dtype), qd.to(dtype), p.to(dtype), check=False).to(q.dtype).detach()
+
+        return fn
+
+    def _log_figures(self, q_true, metrics, data) -> None:
+        from lightning.pytorch.loggers import TensorBoardLogger
+
+        loggers = [lg for lg in self.loggers if isinstance(lg, TensorBoardLogger)]
+        if not loggers:
+            return
+        from .plots import energy_figure, trajectory_figure
+
+        dt = data["dt"]
+        fig1 = trajectory_figure(q_true[0].cpu(), metrics["q"][0].cpu(), dt, self.system.coord_names)
+        fig2 = energy_figure(self.system, metrics["q"].cpu(), metrics["qd"].cpu(), data["params"], dt)
+        for lg in loggers:
+            lg.experiment.add_figure("val/trajectory", fig1, global_step=self.global_step)
+            lg.experiment.add_figure("val/energy", fig2, global_step=self.global_step)
+
+    # ------------------------------------------------------------------ prediction
+    def predict_step(self, batch, batch_idx):
+        pred, true = self._eval_step(batch)
+        return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
+                "qdd_true": true, "qdd_pred": pred}

@@ -1,0 +1,238 @@
+"""Training and use: DataModule chunks and splits, LNNModule, TensorBoard tags, checkpoints, CLI."""
+
+import glob
+import subprocess
+import sys
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch import LNNModule, rollout
+from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
+from lnn_torch.data.datamodule import TrajectoryDataModule
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = dict(scene="double_pendulum", num_trajectories=20, duration=2.0, dt=0.005, seed=5)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "dp.h5"
+    generate_dataset(DatasetSpec(**SPEC), path)
+    return path
+
+
+def make_dm(path, **kw):
+    args = dict(path=str(path), spec=SPEC, chunk_len=16, chunks_per_batch=4, steps_per_epoch=5, eval_stride=20)
+    args.update(kw)
+    return TrajectoryDataModule(**args)
+
+
+def quiet_trainer(tmp_path, **kw):
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    args = dict(max_epochs=1, inference_mode=False, enable_progress_bar=False, enable_model_summary=False,
+                logger=TensorBoardLogger(str(tmp_path), name="lightning_logs", default_hp_metric=False),
+                log_every_n_steps=1, default_root_dir=str(tmp_path), accelerator="cpu", devices=1)
+    args.update(kw)
+    return L.Trainer(**args)
+
+
+def test_chunks_are_contiguous_pieces_of_training_trajectories(dataset):
+    dm = make_dm(dataset)
+    dm.setup("fit")
+    f = read_dataset(dataset)
+    q_all = f.read("q")
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["q"].shape == (4, 16, 2) and batch["params"].shape == (4, 16, 4)
+    train = set(f.splits["train"].tolist())
+    for c in range(4):
+        chunk = batch["q"][c].double().numpy()
+        hits = [(i, s) for i in range(len(q_all)) for s in range(q_all.shape[1] - 15)
+                if np.allclose(q_all[i, s : s + 16], chunk, atol=1e-6)]
+        assert hits and hits[0][0] in train
+
+
+def test_chunk_sampling_is_seeded_per_epoch_and_worker_safe(dataset):
+    a, b = make_dm(dataset), make_dm(dataset, num_workers=2, in_memory=False)
+    for dm in (a, b):
+        dm.setup("fit")
+    first = [x["q"] for x in a.train_dataloader()]
+    second = [x["q"] for x in b.train_dataloader()]
+    for x, y in zip(first, second):
+        torch.testing.assert_close(x, y)
+    a.set_epoch(1)
+    other = [x["q"] for x in a.train_dataloader()]
+    assert not torch.equal(first[0], other[0])
+
+
+def test_eval_sets_are_fixed_and_use_the_split(dataset):
+    dm = make_dm(dataset)
+    dm.setup("validate")
+    f = read_dataset(dataset)
+    v1 = [x for x in dm.val_dataloader()]
+    v2 = [x for x in dm.val_dataloader()]
+    torch.testing.assert_close(v1[0]["q"], v2[0]["q"])
+    assert torch.cat([x["trajectory"] for x in v1]).tolist() == f.splits["val"].tolist()
+    assert torch.cat([x["trajectory"] for x in dm.test_dataloader()]).tolist() == f.splits["test"].tolist()
+
+
+def test_normalisation_comes_from_the_training_split_only(dataset):
+    dm = make_dm(dataset)
+    f = read_dataset(dataset)
+    stats = dm.normalization_data()
+    np.testing.assert_array_equal(stats["params"].numpy(), f.read("params")[f.splits["train"]])
+
+
+def test_missing_file_is_generated(tmp_path):
+    dm = make_dm(tmp_path / "new.h5", spec=dict(SPEC, num_trajectories=10, duration=0.5))
+    dm.setup("fit")
+    assert (tmp_path / "new.h5").exists()
+
+
+def _fit(dataset, tmp_path, **model_kw):
+    model = LNNModule(val_rollouts=2, val_rollout_seconds=0.5, hidden_dims=[32, 32], figure_every_n_epochs=1, **model_kw)
+    trainer = quiet_trainer(tmp_path, max_epochs=2)
+    trainer.fit(model, make_dm(dataset))
+    return model, trainer
+
+
+def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    model, trainer = _fit(dataset, tmp_path, energy_weight=0.1)
+    events = glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "events.*"))
+    assert events
+    acc = EventAccumulator(str(Path(events[0]).parent), size_guidance={"images": 0, "scalars": 0})
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    for tag in ("train/loss", "train/huber", "train/energy_var", "val/acc_rel_err", "val/acc_rel_err_theta1",
+                "val/acc_rel_err_theta2", "val/energy_drift", "val/divergence_time", "train/lr",
+                "train/skipped_steps"):
+        assert tag in tags, tag
+    assert {"val/trajectory", "val/energy"} <= set(acc.Tags()["images"])
+    assert "hp_metric" not in tags
+    # the HParams plugin data (hyper-parameters logged with the metric keys)
+    plugin = acc.PluginTagToContent("hparams")
+    assert plugin, "no hparams summary"
+
+    ckpt = tmp_path / "model.ckpt"
+    trainer.save_checkpoint(ckpt)
+    loaded = LNNModule.load_from_checkpoint(ckpt)
+    assert bool(loaded.normalizer_fitted)
+    torch.testing.assert_close(loaded.model.normalizer.time_scale, model.model.normalizer.time_scale)
+    q = torch.tensor([[0.3, -0.2], [1.0, 0.5]])
+    qd = torch.tensor([[0.1, 0.2], [-0.5, 0.3]])
+    params = torch.tensor([[1.0, 0.5, 1.2, 1.3], [1.5, 1.0, 1.0, 1.0]])
+    with torch.no_grad():
+        a1, a2 = model.acceleration(q, qd, params), loaded.acceleration(q, qd, params)
+        qs, qds = loaded.rollout(q, qd, params, 0.01, 10)
+    torch.testing.assert_close(a1, a2)
+    assert qs.shape == (2, 11, 2) and torch.isfinite(qs).all()
+
+
+def test_non_finite_loss_skips_the_step(dataset, tmp_path):
+    model = LNNModule(val_rollouts=0, hidden_dims=[16])
+    dm = make_dm(dataset)
+    dm.setup("fit")
+
+    class Poisoned(torch.utils.data.Dataset):
+        def __init__(self, base):
+            self.base = base
+
+        def __len__(self):
+            return len(self.base)
+
+        def __getitem__(self, i):
+            item = self.base[i]
+            item["qdd"] = item["qdd"] * float("nan")
+            return item
+
+    dm.train_set = Poisoned(dm.train_set)
+    dm.setup = lambda stage=None: None
+    model.model.normalizer.fit(*(dm.normalization_data()[k] for k in ("q", "qd", "qdd", "params")))
+    model.normalizer_fitted.fill_(True)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0)
+    trainer.fit(model, dm)
+    assert int(model.skipped_steps) == 5
+    for k, v in model.state_dict().items():
+        if k != "skipped_steps":
+            torch.testing.assert_close(v, before[k], msg=k)
+
+
+def test_rollout_function_methods_and_no_grad():
+    from lnn_torch.systems import get_system
+
+    system = get_system("pendulum")
+    params = torch.tensor([[1.0, 1.0]], dtype=torch.float64)
+    q0 = torch.tensor([[0.1]], dtype=torch.float64)
+    qd0 = torch.zeros_like(q0)
+    exact_period = 2 * np.pi / np.sqrt(9.81)
+    for method in ("rk4", "leapfrog", "semi_implicit_euler", "rk8"):
+        with torch.no_grad():
+            q, qd = rollout(system.acceleration, q0, qd0, params, 0.001, 1000, method=method)
+        assert q.shape == (1, 1001, 1) and not q.requires_grad
+        assert abs(q[0, -1, 0].item() - 0.1 * np.cos(2 * np.pi / exact_period)) < 5e-3
+    with pytest.raises(ValueError, match="unknown integrator 'euler2'"):
+        rollout(system.acceleration, q0, qd0, params, 0.01, 1, method="euler2")
+
+
+@pytest.mark.parametrize("method, order", [("rk4", 4), ("leapfrog", 2), ("semi_implicit_euler", 1), ("rk8", 8)])
+def test_integrator_convergence_orders(method, order):
+    """Halving dt divides the global error by 2^order (harmonic oscillator, exact solution)."""
+    from lnn_torch.systems import get_system
+
+    system = get_system("mass_spring")
+    params = torch.tensor([[1.0, 4.0]], dtype=torch.float64)  # omega = 2
+    q0, qd0 = torch.tensor([[1.0]], dtype=torch.float64), torch.tensor([[0.0]], dtype=torch.float64)
+    errs = []
+    base = {1: 0.01, 2: 0.02, 4: 0.05, 8: 0.2}[order]
+    for dt in (base, base / 2):
+        n = int(round(2.0 / dt))
+        q, _ = rollout(system.acceleration, q0, qd0, params, dt, n, method=method)
+        errs.append(abs(q[0, -1, 0].item() - np.cos(2 * 2.0)))
+    measured = np.log2(errs[0] / errs[1])
+    assert abs(measured - order) < 0.35, measured
+
+
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
+def test_every_shipped_config_instantiates(config):
+    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
+    from lnn_torch.data.datamodule import TrajectoryDataModule as DM
+
+    cli = LNNCLI(LNNModule, DM, args=["-c", str(config)], run=False, trainer_defaults=TRAINER_DEFAULTS)
+    assert isinstance(cli.model, LNNModule) and isinstance(cli.datamodule, DM)
+    assert cli.trainer.validate_loop.inference_mode is False and cli.trainer.predict_loop.inference_mode is False
+
+
+def _cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "lnn_torch.cli", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_cli_fit_test_predict(dataset, tmp_path):
+    common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+              "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+              "--model.hidden_dims=[16,16]", "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false"]
+    out = _cli("fit", *common, "--trainer.fast_dev_run=true", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    out = _cli("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    ckpts = sorted(glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "*.ckpt")))
+    assert ckpts
+    out = _cli("test", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "test/acc_rel_err" in out.stdout
+    out = _cli("predict", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    files = glob.glob(str(tmp_path / "lightning_logs" / "*" / "predictions.npz"))
+    assert files
+    pred = np.load(files[0])
+    assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
