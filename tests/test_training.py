@@ -236,3 +236,30 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert files
     pred = np.load(files[0])
     assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
+
+
+def test_ddp_two_cpu_processes(dataset, tmp_path):
+    """Lightning's own DDP strategy: two CPU processes, one writer of logs and checkpoints."""
+    common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+              "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+              "--model.hidden_dims=[16,16]", "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false",
+              "--trainer.max_epochs=1", "--data.steps_per_epoch=4", "--trainer.strategy=ddp", "--trainer.devices=2",
+              "--trainer.accelerator=cpu"]
+    out = _cli("fit", *common, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    versions = glob.glob(str(tmp_path / "lightning_logs" / "version_*"))
+    assert len(versions) == 1
+    assert len(glob.glob(versions[0] + "/events.*")) == 1
+    assert glob.glob(versions[0] + "/checkpoints/last.ckpt")
+
+
+def test_distributed_chunk_sampling_is_rank_aware(dataset):
+    """Under DDP, Lightning's DistributedSampler splits the epoch's chunk indices between ranks."""
+    from torch.utils.data.distributed import DistributedSampler
+
+    dm = make_dm(dataset)
+    dm.setup("fit")
+    ranks = [list(DistributedSampler(dm.train_set, num_replicas=2, rank=r, shuffle=False)) for r in (0, 1)]
+    assert set(ranks[0]).isdisjoint(ranks[1]) and len(ranks[0]) + len(ranks[1]) == len(dm.train_set)
+    chunks = [dm.train_set[i]["q"] for i in ranks[0][:2]] + [dm.train_set[i]["q"] for i in ranks[1][:2]]
+    assert not torch.equal(chunks[0], chunks[2])

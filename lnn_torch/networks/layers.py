@@ -57,11 +57,13 @@ class FiLM(nn.Module):
 class TangentMLP(nn.Module):
     """MLP ``in_dim -> hidden_dims -> out_dim`` with optional FiLM after each hidden activation."""
 
-    def __init__(self, in_dim: int, hidden_dims: list[int], out_dim: int, activation: str = "tanh") -> None:
+    def __init__(self, in_dim: int, hidden_dims: list[int], out_dim: int, activation: str = "tanh",
+                 out_bias: bool = True) -> None:
         super().__init__()
         dims = [in_dim, *hidden_dims]
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
-        self.out = nn.Linear(dims[-1], out_dim)
+        # energies are defined up to a constant: their output bias would be a parameter without gradient
+        self.out = nn.Linear(dims[-1], out_dim, bias=out_bias)
         self.activation = activation
         self._act, self._dact = _act(activation)
 
@@ -72,7 +74,8 @@ class TangentMLP(nn.Module):
             nn.init.normal_(layer.weight, std=(2.2 if i == 0 else 0.58 * i) / math.sqrt(n))
             nn.init.zeros_(layer.bias)
         nn.init.normal_(self.out.weight, std=n / math.sqrt(n))
-        nn.init.zeros_(self.out.bias)
+        if self.out.bias is not None:
+            nn.init.zeros_(self.out.bias)
 
     def forward(self, x: torch.Tensor, dx: torch.Tensor | None = None, film=None):
         """x ``(B, in)``; dx ``(K, B, in)`` or None; film: list of (gamma, beta) per hidden layer.
@@ -101,7 +104,7 @@ class TangentMLP(nn.Module):
             dz = zz[1:] * da  # (K, B, H)
             h = torch.cat([a[None], dz], 0)
         yy = h @ self.out.weight.T
-        return yy[0] + self.out.bias, yy[1:]
+        return (yy[0] if self.out.bias is None else yy[0] + self.out.bias), yy[1:]
 
     def value_and_input_grad(self, x: torch.Tensor, film=None):
         """Scalar-output MLP (``out_dim == 1``): ``y (B,)`` and ``dy/dx (B, in)`` by a hand-written

@@ -154,7 +154,7 @@ class StructuredLagrangian(DynamicsModel):
         self.num_chol = dof * (dof + 1) // 2
         kin_in = F if conditioning == "film" else F + P
         self.kinetic_net = TangentMLP(kin_in, hidden_dims, self.num_chol, activation)
-        self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation)
+        self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
         self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if conditioning == "film" else None
         self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (conditioning == "film" and potential_film) else None
         # scatter of the Cholesky entries into a lower-triangular matrix: diagonal first
@@ -234,7 +234,8 @@ class BlackBoxLagrangian(DynamicsModel):
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", lnn_init: bool = False,
                  damping: float = 0.0) -> None:
         super().__init__(scene)
-        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1, activation)
+        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1,
+                              activation, out_bias=False)
         if lnn_init:
             self.net.lnn_init()
         self.damping = float(damping)
