@@ -134,24 +134,34 @@ def structured_acceleration(
 
 
 def structured_acceleration_from_factor(
-    chol: torch.Tensor, dchol: torch.Tensor, qd: torch.Tensor, dV_dq: torch.Tensor, eps: float
-) -> torch.Tensor:
+    chol: torch.Tensor, dchol: torch.Tensor, qd: torch.Tensor, dV_dq: torch.Tensor, eps: float,
+    return_kinetic: bool = False,
+):
     """Accelerations of ``L = 1/2 qd^T M qd - V`` from a Cholesky factor and its q-derivatives.
 
     ``M = chol chol^T + eps I``. With ``u = chol^T qd`` and ``du_k = dchol_k^T qd``:
-    ``dT/dq_k = u . du_k`` and ``Mdot qd = sum_k qd_k (dchol_k u + chol du_k)``; then
-    ``M qdd = dT/dq - dV/dq - Mdot qd`` is solved with ``cholesky_solve``.
+    ``dT/dq_k = u . du_k`` and ``Mdot qd = cdot u + chol cdot^T qd`` with
+    ``cdot = sum_k qd_k dchol_k``; then ``M qdd = dT/dq - dV/dq - Mdot qd`` is solved with
+    ``cholesky_solve`` on the Cholesky factor of M.
 
     Args:
         chol: ``(B, dof, dof)`` lower-triangular factor.
         dchol: ``(dof, B, dof, dof)``: ``dchol[k] = d chol / d q_k``.
         qd: ``(B, dof)``; dV_dq: ``(B, dof)``.
+        return_kinetic: also return ``T = 1/2 qd^T M qd``, shape ``(B,)``.
     """
     dof = chol.shape[-1]
-    u = torch.einsum("bji,bj->bi", chol, qd)  # (B, dof)
-    du = torch.einsum("kbji,bj->kbi", dchol, qd)  # (K, B, dof)
-    dT_dq = (u[None] * du).sum(-1).T  # (B, K)
-    mdot_qd = torch.einsum("kbij,bj,bk->bi", dchol, u, qd) + torch.einsum("bij,kbj,bk->bi", chol, du, qd)
-    M = chol @ chol.mT + eps * torch.eye(dof, dtype=chol.dtype, device=chol.device)
+    qd_col = qd[..., None]  # (B, dof, 1)
+    u = chol.mT @ qd_col  # (B, dof, 1)
+    du = dchol.mT @ qd_col  # (K, B, dof, 1)
+    dT_dq = (du * u).sum((-2, -1)).mT  # (B, K)
+    cdot = torch.einsum("kbij,bk->bij", dchol, qd)  # (B, dof, dof)
+    mdot_qd = torch.baddbmm(cdot @ u, chol, cdot.mT @ qd_col)  # (B, dof, 1)
+    eye = torch.eye(dof, dtype=chol.dtype, device=chol.device)
+    M = torch.baddbmm(eye * eps, chol, chol.mT)
     factor, _ = torch.linalg.cholesky_ex(M)
-    return torch.cholesky_solve((dT_dq - dV_dq - mdot_qd)[..., None], factor)[..., 0]
+    qdd = torch.cholesky_solve((dT_dq - dV_dq)[..., None] - mdot_qd, factor)[..., 0]
+    if not return_kinetic:
+        return qdd
+    T = 0.5 * (u.square().sum((-2, -1)) + eps * qd.square().sum(-1))
+    return qdd, T

@@ -1,15 +1,18 @@
 """Time acceleration evaluation and one training step for every model variant and solve path.
 
-Medians after warm-up, one thread by default, default network sizes (2 hidden layers of 128).
-Every row also gives the ratio to the scene's closed-form acceleration timed in the same run.
+Medians after warm-up, one thread by default, default network sizes (2 hidden layers of 128),
+float32 and float64. A training step is forward + backward + AdamW on ONE 512-point chunk with the
+energy term (Huber + 0.1 x energy variance over the chunk). Every row also gives the ratio to the
+scene's closed-form acceleration timed in the same run.
 
     python scripts/benchmark_dynamics.py                 # full table (a few minutes)
-    python scripts/benchmark_dynamics.py --quick         # fewer repeats, no batch 8192
+    python scripts/benchmark_dynamics.py --quick         # fewer repeats, no batch 8192, no compile
 """
 
 from __future__ import annotations
 
 import argparse
+import platform
 import statistics
 import time
 
@@ -19,6 +22,7 @@ import torch
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration
 from lnn_torch.losses import acceleration_loss, energy_variance
 from lnn_torch.networks import build_model
+from lnn_torch.perf import configure_cpu
 from lnn_torch.systems import get_system
 
 
@@ -33,20 +37,36 @@ def median_ms(fn, repeats: int, warmup: int = 3) -> float:
     return 1e3 * statistics.median(times)
 
 
-def paths(model, variant):
-    """Solve paths of a model: name -> accel_norm(q_n, qd_n, p_n)."""
+def paths(model, variant, compile_fast: bool):
+    """Solve paths of a model: name -> (accel_norm(q_n, qd_n, p_n), train_pass, needs_grad).
+
+    ``train_pass`` returns ``(qdd, H, T, V)`` (or ``(qdd,)`` for models without an energy)."""
+    fused = model.acceleration_and_energy_norm if model.has_energy else (lambda q, qd, p: (model.acceleration_norm(q, qd, p),))
     out = {}
     if variant in ("film_lnn", "delan"):
-        out["structured (hand tangents)"] = model.acceleration_norm
-        out["structured (torch.func jvp/vjp)"] = lambda q, qd, p: structured_acceleration(
-            lambda q1, p1: model.cholesky(q1[None], p1[None])[0][0],
-            lambda q1, p1: model.potential_norm(q1[None], p1[None])[0][0], q, qd, p, eps=model.eps)
-        out["generic (torch.func hessian)"] = lambda q, qd, p: generic_acceleration(model.lagrangian_norm, q, qd, p,
-                                                                                      check=False)
+        out["structured (hand tangents)"] = (model.acceleration_norm, fused, False)
+        if compile_fast:
+            out["structured (hand tangents, torch.compile)"] = (
+                torch.compile(model.acceleration_norm, dynamic=False), torch.compile(fused, dynamic=False), False)
+
+        def func_ref(q, qd, p):
+            return structured_acceleration(lambda q1, p1: model.cholesky(q1[None], p1[None])[0][0],
+                                           lambda q1, p1: model.potential_norm(q1[None], p1[None])[0][0],
+                                           q, qd, p, eps=model.eps)
+
+        def with_energy(fn):
+            return lambda q, qd, p: (fn(q, qd, p), *model.energy_norm(q, qd, p))
+
+        out["structured (torch.func jvp/vjp)"] = (func_ref, with_energy(func_ref), True)
+        generic = lambda q, qd, p: generic_acceleration(model.lagrangian_norm, q, qd, p, check=False)  # noqa: E731
+        out["generic (torch.func hessian)"] = (generic, with_energy(generic), True)
     elif variant == "lnn":
-        out["generic (torch.func hessian)"] = lambda q, qd, p: model.acceleration_norm(q, qd, p)
+        out["generic (torch.func hessian)"] = (model.acceleration_norm, fused, True)
     else:
-        out["direct"] = model.acceleration_norm
+        out["direct"] = (model.acceleration_norm, fused, False)
+        if compile_fast:
+            out["direct (torch.compile)"] = (torch.compile(model.acceleration_norm, dynamic=False),
+                                             torch.compile(fused, dynamic=False), False)
     return out
 
 
@@ -55,40 +75,41 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     ap.add_argument("--variants", nargs="*", default=["film_lnn", "delan", "lnn", "mlp"])
     args = ap.parse_args()
-    torch.set_num_threads(args.threads)
-    torch.set_flush_denormal(True)
+    configure_cpu(args.threads)
     repeats = 7 if args.quick else args.repeats
     batches = (1, 512) if args.quick else (1, 512, 8192)
+    compile_fast = not (args.quick or args.no_compile)
     system = get_system("double_pendulum")
     rng = np.random.default_rng(0)
     n = max(batches)
     params = torch.tensor(system.sample_params(rng, n))
     q, qd = (torch.tensor(x) for x in system.sample_state(rng, n))
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, medians of {repeats}")
+    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, threads "
+          f"{torch.get_num_threads()}, medians of {repeats} after warm-up")
     print("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
-          + " | train step 8x64 (ms) | accel B=512 / closed form |")
+          + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
     print("|---" * (5 + len(batches)) + "|")
     for dtype in (torch.float32, torch.float64):
         qq, qqd, pp = q.to(dtype), qd.to(dtype), params.to(dtype)
         closed = {b: median_ms(lambda b=b: system.acceleration(qq[:b], qqd[:b], pp[:b]), repeats) for b in batches}
         print(f"| closed form | analytic | {str(dtype)[6:]} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
-              + " | - | 1 |")
+              + " | - | 1 |", flush=True)
         for variant in args.variants:
             torch.manual_seed(0)
             model = build_model(variant, system).to(dtype)
             model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
             qn, qdn, pn = model.normalize(qq, qqd, pp)
             target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))
-            opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
-            for name, fn in paths(model, variant).items():
+            opt = torch.optim.AdamW(model.parameters(), lr=1e-5)
+            for name, (fn, train_pass, grad) in paths(model, variant, compile_fast).items():
                 cells = []
                 for b in batches:
-                    if b == 8192 and "generic" in name or (b == 8192 and "torch.func" in name):
+                    if b > 512 and grad:  # the torch.func paths take seconds there
                         cells.append("-")
                         continue
-                    grad = variant == "lnn" or "generic" in name or "torch.func" in name
 
                     def ev(b=b, fn=fn, grad=grad):
                         with torch.set_grad_enabled(grad):
@@ -96,18 +117,18 @@ def main() -> None:
 
                     cells.append(f"{median_ms(ev, repeats):.3f}")
 
-                def step(fn=fn):
+                def step(train_pass=train_pass):
                     opt.zero_grad()
-                    pred = fn(qn[:512], qdn[:512], pn[:512])
+                    pred, *energies = train_pass(qn[:512], qdn[:512], pn[:512])
                     loss = acceleration_loss(pred, target[:512], model.normalizer.accel_rms.to(dtype))
-                    if model.has_energy:
-                        H, T, V = (x.reshape(8, 64) for x in model.energy_norm(qn[:512], qdn[:512], pn[:512]))
+                    if energies:
+                        H, T, V = (x.reshape(1, 512) for x in energies)
                         loss = loss + 0.1 * energy_variance(H, T, V)
                     loss.backward()
                     opt.step()
 
                 st = median_ms(step, max(5, repeats // 2))
-                ratio = float(cells[1]) / closed[512] if cells[1] != "-" else float("nan")
+                ratio = float(cells[1]) / closed[512]
                 print(f"| {variant} | {name} | {str(dtype)[6:]} | " + " | ".join(cells) + f" | {st:.2f} | {ratio:.0f} |",
                       flush=True)
 

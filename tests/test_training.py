@@ -254,12 +254,14 @@ def test_ddp_two_cpu_processes(dataset, tmp_path):
 
 
 def test_distributed_chunk_sampling_is_rank_aware(dataset):
-    """Under DDP, Lightning's DistributedSampler splits the epoch's chunk indices between ranks."""
+    """Under DDP, Lightning's DistributedSampler splits the epoch's batches between ranks (each
+    item of the training set is a whole batch of chunks)."""
     from torch.utils.data.distributed import DistributedSampler
 
-    dm = make_dm(dataset)
+    dm = make_dm(dataset, steps_per_epoch=6)
     dm.setup("fit")
     ranks = [list(DistributedSampler(dm.train_set, num_replicas=2, rank=r, shuffle=False)) for r in (0, 1)]
     assert set(ranks[0]).isdisjoint(ranks[1]) and len(ranks[0]) + len(ranks[1]) == len(dm.train_set)
-    chunks = [dm.train_set[i]["q"] for i in ranks[0][:2]] + [dm.train_set[i]["q"] for i in ranks[1][:2]]
-    assert not torch.equal(chunks[0], chunks[2])
+    batches = [[dm.train_set[i]["q"] for i in r] for r in ranks]
+    for b0 in batches[0]:
+        assert all(not torch.equal(b0, b1) for b1 in batches[1])

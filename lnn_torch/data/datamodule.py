@@ -63,24 +63,42 @@ class _Source:
         out["params"] = self.params[j].expand(out["q"].shape[0], -1)
         return out
 
+    def chunks(self, js: np.ndarray, starts: np.ndarray, length: int) -> dict:
+        """``len(js)`` chunks of ``length`` consecutive points: each field ``(C, length, .)``."""
+        if self._arrays is None:
+            parts = [self.chunk(int(j), int(s), length) for j, s in zip(js, starts)]
+            return {k: torch.stack([p[k] for p in parts]) for k in (*FIELDS, "params")}
+        rows = torch.as_tensor(js)[:, None]  # (C, 1)
+        cols = torch.as_tensor(starts)[:, None] + torch.arange(length)  # (C, L)
+        out = {k: self._arrays[k][rows, cols] for k in FIELDS}  # one gather per field
+        out["params"] = self.params[rows[:, 0]][:, None, :].expand(-1, length, -1)
+        return out
+
 
 class ChunkDataset(Dataset):
-    """Random contiguous chunks of training trajectories; item i of epoch e from seed (seed, e, i)."""
+    """Training batches of random contiguous chunks: item ``i`` of epoch ``e`` is a whole batch of
+    ``chunks_per_batch`` chunks drawn from the seed sequence ``(seed, e, i)`` (reproducible; under
+    DDP the distributed sampler gives each rank distinct items, hence distinct chunks)."""
 
-    def __init__(self, source: _Source, num_points: int, chunk_len: int, num_chunks: int, seed: int) -> None:
+    def __init__(self, source: _Source, num_points: int, chunk_len: int, chunks_per_batch: int, num_batches: int,
+                 seed: int) -> None:
         if chunk_len > num_points:
             raise ValueError(f"chunk_len {chunk_len} exceeds the trajectory length {num_points}")
-        self.source, self.num_points, self.chunk_len, self.num_chunks, self.seed = source, num_points, chunk_len, num_chunks, seed
+        if chunk_len < 1 or chunks_per_batch < 1 or num_batches < 1:
+            raise ValueError("chunk_len, chunks_per_batch and steps_per_epoch must be >= 1, got "
+                             f"{chunk_len}, {chunks_per_batch}, {num_batches}")
+        self.source, self.num_points, self.chunk_len = source, num_points, chunk_len
+        self.chunks_per_batch, self.num_batches, self.seed = chunks_per_batch, num_batches, seed
         self.epoch = 0
 
     def __len__(self) -> int:
-        return self.num_chunks
+        return self.num_batches
 
     def __getitem__(self, i: int) -> dict:
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.epoch, int(i))))
-        j = int(rng.integers(len(self.source.indices)))
-        start = int(rng.integers(self.num_points - self.chunk_len + 1))
-        return self.source.chunk(j, start, self.chunk_len)
+        js = rng.integers(len(self.source.indices), size=self.chunks_per_batch)
+        starts = rng.integers(self.num_points - self.chunk_len + 1, size=self.chunks_per_batch)
+        return self.source.chunks(js, starts, self.chunk_len)
 
 
 class PointDataset(Dataset):
@@ -158,7 +176,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         f = self._open()
         if stage in ("fit", None):
             self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
-                                          self.hparams.steps_per_epoch * self.hparams.chunks_per_batch, self.hparams.seed)
+                                          self.hparams.chunks_per_batch, self.hparams.steps_per_epoch, self.hparams.seed)
         for split in ("val", "test"):
             if len(f.splits[split]) == 0 and stage in (split if split == "test" else "validate", "fit"):
                 raise ValueError(f"{self.path} has an empty '{split}' split")
@@ -169,8 +187,9 @@ class TrajectoryDataModule(L.LightningDataModule):
 
     # ------------------------------------------------------------------ loaders
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(self.train_set, batch_size=self.hparams.chunks_per_batch, shuffle=False,
-                          num_workers=self.hparams.num_workers, persistent_workers=False, drop_last=True)
+        # each item is already a whole batch (batch_size=None: no collation)
+        return DataLoader(self.train_set, batch_size=None, shuffle=False, num_workers=self.hparams.num_workers,
+                          persistent_workers=False)
 
     def _points(self, split: str) -> DataLoader:
         f = self._open()

@@ -68,6 +68,7 @@ class DynamicsModel(nn.Module):
         self.register_buffer("sel_angle", torch.eye(dof)[:, angles], persistent=False)
         self.register_buffer("sel_linear", torch.eye(dof)[:, linear], persistent=False)
         self.num_features = 2 * len(angles) + len(linear)
+        self.all_angles = not linear
 
     # ------------------------------------------------------------------ features
     def features(self, q_norm: torch.Tensor, tangents: bool = False):
@@ -76,24 +77,33 @@ class DynamicsModel(nn.Module):
         Angles are wrapped to [-pi, pi) for the features only (exact periodicity, accurate sin/cos
         for large angles); the dynamics never see wrapped angles.
         """
-        qa = q_norm[..., self.angle_idx]
-        qa = torch.remainder(qa + math.pi, 2 * math.pi) - math.pi
-        s, c = torch.sin(qa), torch.cos(qa)
-        ql = q_norm[..., self.linear_idx]
-        phi = torch.cat([s, c, ql], -1)
-        if not tangents:
-            return phi, None
-        sa = self.sel_angle.to(q_norm.dtype)[:, None, :]
-        sl = self.sel_linear.to(q_norm.dtype)[:, None, :]
-        B = q_norm.shape[0]
-        dphi = torch.cat([sa * c, -sa * s, sl.expand(-1, B, -1)], -1)  # (dof, B, F)
+        phi, dphi, _ = self._features(q_norm, tangents)
         return phi, dphi
 
-    def features_vjp(self, q_norm: torch.Tensor, g_phi: torch.Tensor) -> torch.Tensor:
+    def _features(self, q_norm: torch.Tensor, tangents: bool):
+        """``features`` plus ``(sin, cos)`` of the angles (reused by ``features_vjp``)."""
+        qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+        qa = torch.remainder(qa + math.pi, 2 * math.pi) - math.pi
+        s, c = torch.sin(qa), torch.cos(qa)
+        phi = torch.cat([s, c] if self.all_angles else [s, c, q_norm[..., self.linear_idx]], -1)
+        if not tangents:
+            return phi, None, (s, c)
+        sa = self.sel_angle.to(q_norm.dtype)[:, None, :]  # (dof, 1, n_angles)
+        parts = [sa * c, sa * -s]
+        if not self.all_angles:
+            parts.append(self.sel_linear.to(q_norm.dtype)[:, None, :].expand(-1, q_norm.shape[0], -1))
+        return phi, torch.cat(parts, -1), (s, c)  # dphi: (dof, B, F)
+
+    def features_vjp(self, q_norm: torch.Tensor, g_phi: torch.Tensor, sin_cos=None) -> torch.Tensor:
         """Pull a feature gradient ``(B, F)`` back to ``(B, dof)`` through ``features``."""
-        qa = q_norm[..., self.angle_idx]
-        na = qa.shape[-1]
-        g_angle = g_phi[..., :na] * torch.cos(qa) - g_phi[..., na : 2 * na] * torch.sin(qa)
+        na = int(self.angle_idx.numel())
+        if sin_cos is None:
+            qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+            sin_cos = torch.sin(qa), torch.cos(qa)
+        s, c = sin_cos
+        g_angle = g_phi[..., :na] * c - g_phi[..., na : 2 * na] * s
+        if self.all_angles:
+            return g_angle
         g_lin = g_phi[..., 2 * na :]
         return g_angle @ self.sel_angle.to(g_phi.dtype).T + g_lin @ self.sel_linear.to(g_phi.dtype).T
 
@@ -104,6 +114,10 @@ class DynamicsModel(nn.Module):
     def energy_norm(self, q_norm, qd_norm, params_norm):
         """The model's own Hamiltonian ``H``, kinetic-like ``T`` and potential-like ``V`` (normalised)."""
         raise NotImplementedError(f"variant '{self.variant}' has no energy")
+
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm):
+        """``(qdd, H, T, V)`` in normalised units; subclasses share work between the two."""
+        return (self.acceleration_norm(q_norm, qd_norm, params_norm), *self.energy_norm(q_norm, qd_norm, params_norm))
 
     def check_inputs(self, q, qd, params) -> None:
         dof, P = self.scene.dof, self.scene.num_params
@@ -164,34 +178,29 @@ class StructuredLagrangian(DynamicsModel):
         scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
         self.register_buffer("chol_scatter", scatter, persistent=False)
 
-    def _cond_input(self, phi, dphi, params_norm):
-        if self.conditioning == "film":
-            return phi, dphi
-        x = torch.cat([phi, params_norm], -1)
-        dx = None if dphi is None else torch.cat([dphi, dphi.new_zeros(dphi.shape[0], *params_norm.shape)], -1)
-        return x, dx
-
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
         """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
-        dof = self.scene.dof
         phi, dphi = self.features(q_norm, tangents)
-        x, dx = self._cond_input(phi, dphi, params_norm)
+        return self._cholesky(phi, dphi, params_norm)
+
+    def _cholesky(self, phi, dphi, params_norm):
+        dof, B = self.scene.dof, phi.shape[0]
+        x = phi if self.conditioning == "film" else torch.cat([phi, params_norm], -1)
         film = self.kinetic_film(params_norm) if self.kinetic_film is not None else None
-        raw, draw = self.kinetic_net(x, dx, film)
-        diag_raw, off = raw[..., :dof], raw[..., dof:]
-        entries = torch.cat([nn.functional.softplus(diag_raw) + self.diag_shift, off], -1)
-        S = self.chol_scatter.to(raw.dtype)
-        chol = (entries @ S).reshape(-1, dof, dof)
-        if not tangents:
+        raw, draw = self.kinetic_net(x, dphi, film)  # (B, n_chol), (K, B, n_chol)
+        diag_raw = raw[:, :dof]
+        entries = torch.cat([nn.functional.softplus(diag_raw) + self.diag_shift, raw[:, dof:]], -1)
+        S = self.chol_scatter.to(raw.dtype)  # (n_chol, dof^2)
+        chol = (entries @ S).view(B, dof, dof)
+        if dphi is None:
             return chol, None
-        dentries = torch.cat([torch.sigmoid(diag_raw) * draw[..., :dof], draw[..., dof:]], -1)
-        dchol = (dentries @ S).reshape(dof, -1, dof, dof)
-        return chol, dchol
+        dentries = torch.cat([draw[..., :dof] * torch.sigmoid(diag_raw), draw[..., dof:]], -1)
+        return chol, (dentries @ S).view(-1, B, dof, dof)
 
     def mass_matrix_norm(self, q_norm, params_norm):
         chol, _ = self.cholesky(q_norm, params_norm)
         eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
-        return chol @ chol.mT + self.eps * eye
+        return torch.baddbmm(eye * self.eps, chol, chol.mT)
 
     def mass_matrix(self, q, params):
         """The learned mass matrix in normalised units, ``(B, dof, dof)`` (physical M up to a scale per system)."""
@@ -200,18 +209,32 @@ class StructuredLagrangian(DynamicsModel):
 
     def potential_norm(self, q_norm, params_norm, grad: bool = False):
         """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass)."""
-        phi, _ = self.features(q_norm)
+        phi, _, sin_cos = self._features(q_norm, False)
+        return self._potential(q_norm, phi, sin_cos, params_norm, grad)
+
+    def _potential(self, q_norm, phi, sin_cos, params_norm, grad: bool):
         x = torch.cat([phi, params_norm], -1)
         film = self.potential_film(params_norm) if self.potential_film is not None else None
         if not grad:
             return self.potential_net(x, None, film)[0][..., 0], None
-        V, dV_dx = self.potential_net.value_and_input_grad(x, film)
-        return V, self.features_vjp(q_norm, dV_dx[..., : self.num_features])
+        V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
+        return V, self.features_vjp(q_norm, dV_dphi, sin_cos)
 
     def acceleration_norm(self, q_norm, qd_norm, params_norm):
-        chol, dchol = self.cholesky(q_norm, params_norm, tangents=True)
-        _, dV = self.potential_norm(q_norm, params_norm, grad=True)
-        return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
+        return self._solve(q_norm, qd_norm, params_norm, energy=False)
+
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm):
+        """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network."""
+        return self._solve(q_norm, qd_norm, params_norm, energy=True)
+
+    def _solve(self, q_norm, qd_norm, params_norm, energy: bool):
+        phi, dphi, sin_cos = self._features(q_norm, True)
+        chol, dchol = self._cholesky(phi, dphi, params_norm)
+        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, grad=True)
+        if not energy:
+            return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
+        qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True)
+        return qdd, T + V, T, V
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         M = self.mass_matrix_norm(q_norm, params_norm)

@@ -1,0 +1,51 @@
+"""CPU performance settings for small-network workloads (the ``lnn-torch`` command applies them).
+
+Lagrangian networks on a CPU run many small tensor operations on arrays of a few hundred KB. Two
+process-wide defaults cost more time than the arithmetic there:
+
+* glibc's allocator returns freed blocks above its mmap/trim thresholds to the operating system,
+  so the next allocation of the same size page-faults it back in. Raising both thresholds keeps
+  those blocks in the heap (measured here: structured acceleration of 512 states 4.9 -> 2.9 ms).
+* tanh/softplus tails produce denormal floats, which slow CPU arithmetic by up to 30x.
+
+``configure_cpu`` applies both; on platforms without glibc the allocator part is a no-op.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import sys
+
+import torch
+
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_ALLOCATOR_TUNED = False
+
+
+def tune_allocator(threshold_bytes: int = 1 << 30) -> bool:
+    """Raise glibc's mmap and trim thresholds (Linux only). Returns True if applied."""
+    global _ALLOCATOR_TUNED
+    if _ALLOCATOR_TUNED:
+        return True
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    # glibc caps M_MMAP_THRESHOLD at HEAP_MAX (32 MiB on 64-bit); mallopt returns 1 on success
+    mmap_ok = mallopt(_M_MMAP_THRESHOLD, min(threshold_bytes, 32 << 20)) == 1
+    trim_ok = mallopt(_M_TRIM_THRESHOLD, threshold_bytes) == 1
+    _ALLOCATOR_TUNED = mmap_ok and trim_ok
+    return _ALLOCATOR_TUNED
+
+
+def configure_cpu(num_threads: int | None = None) -> None:
+    """Flush denormals, tune the allocator and (if given) set the number of torch threads."""
+    torch.set_flush_denormal(True)
+    tune_allocator()
+    if num_threads:
+        torch.set_num_threads(int(num_threads))
