@@ -72,7 +72,13 @@ def lightning_main(argv: list[str]) -> int:
     return 0
 
 
-COMMANDS = {"generate": generate_main, **{c: lightning_main for c in LIGHTNING_COMMANDS}}
+def evaluate_main(argv: list[str]) -> int:
+    from .evaluate import main as evaluate
+
+    return evaluate(argv)
+
+
+COMMANDS = {"generate": generate_main, "evaluate": evaluate_main, **{c: lightning_main for c in LIGHTNING_COMMANDS}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,10 +89,14 @@ def main(argv: list[str] | None = None) -> int:
               "  fit        train a model (LightningCLI; -c configs/quickstart.yaml)\n"
               "  validate   validation metrics of a checkpoint (--ckpt_path)\n"
               "  test       test-split metrics of a checkpoint (--ckpt_path)\n"
-              "  predict    write test-split predictions to a file (--ckpt_path)\n\n"
+              "  predict    write test-split predictions to a file (--ckpt_path)\n"
+              "  evaluate   report of a checkpoint: errors, rollouts, energy drift, plots\n\n"
               "Run 'lnn-torch COMMAND --help' for a command's options.")
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
+    from .perf import configure_cpu
+
+    configure_cpu()
     if command not in COMMANDS:
         print(f"lnn-torch: error: unknown command '{command}' (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2

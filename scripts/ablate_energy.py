@@ -26,7 +26,7 @@ def run(weight: float, args) -> dict:
             f"--trainer.max_epochs={args.epochs}", f"--data.steps_per_epoch={args.steps_per_epoch}",
             f"--data.chunk_len={args.chunk_len}", f"--data.chunks_per_batch={args.chunks}",
             "--trainer.enable_progress_bar=false", "--trainer.check_val_every_n_epoch=1000",
-            "--trainer.logger.init_args.name=ablate_energy", f"--model.val_rollout_seconds={args.rollout_seconds}",
+            "--trainer.logger.init_args.save_dir=lightning_logs", "--trainer.logger.init_args.name=ablate_energy", f"--model.val_rollout_seconds={args.rollout_seconds}",
             f"--model.val_rollouts={args.rollouts}"]
     cli = LNNCLI(LNNModule, TrajectoryDataModule, args=argv, run=False, trainer_defaults=TRAINER_DEFAULTS)
     start = time.perf_counter()
