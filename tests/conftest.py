@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 import torch
 
-torch.set_num_threads(2)
+from lnn_torch.systems import SYSTEMS, get_system
+
+torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
+
+# every scene, and the chain at other lengths (N = 1, 2, 5) than its default of 3
+SCENES = [(name, {}) for name in sorted(SYSTEMS)] + [("chain_pendulum", {"num_links": n}) for n in (1, 2, 5)]
+SCENE_IDS = [name + "".join(f"-{k}={v}" for k, v in kw.items()) for name, kw in SCENES]
+QUADRATIC = [(n, kw) for n, kw in SCENES if get_system(n, **kw).quadratic_kinetic]
+QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES) if (n, kw) in QUADRATIC]
 
 
 @pytest.fixture
@@ -17,4 +25,21 @@ def random_batch(system, rng, n, dtype=torch.float64):
     # widen the state distribution beyond the sampler's so that every term of the dynamics matters
     q = torch.tensor(q * 2.0, dtype=dtype)
     qd = torch.tensor(qd * 5.0, dtype=dtype)
+    if system.speed_limit is not None:  # stay inside the valid states (|qd| < c)
+        qd = torch.tensor(rng.uniform(-0.97, 0.97, qd.shape), dtype=dtype) * system.speed_limit
     return q, qd, params
+
+
+def dop853_reference(system, q0, qd0, params, t_eval) -> np.ndarray:
+    """One trajectory by scipy's DOP853 at rtol = atol = 1e-12: ``(len(t_eval), 2 dof)`` of (q, qd)."""
+    from scipy.integrate import solve_ivp
+
+    dof = system.dof
+    p = torch.as_tensor(params, dtype=torch.float64)
+
+    def f(t, y):
+        yt = torch.from_numpy(y)
+        return np.concatenate([y[dof:], system.acceleration(yt[:dof], yt[dof:], p).numpy()])
+
+    y0 = np.concatenate([np.asarray(q0), np.asarray(qd0)])
+    return solve_ivp(f, (0, t_eval[-1]), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval).y.T

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from .base import GRAVITY, InputError, Range, System
+from .chain_pendulum import ChainPendulum
 from .double_pendulum import DoublePendulum
 from .mass_spring import MassSpring
 from .pendulum import Pendulum
+from .relativistic_particle import RelativisticParticle
 
 SYSTEMS: dict[str, type[System]] = {
-    cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring)
+    cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring, ChainPendulum, RelativisticParticle)
 }
 
 
@@ -25,4 +27,4 @@ def get_system(name: str, **config) -> System:
 
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
-           "DoublePendulum", "Pendulum", "MassSpring"]
+           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle"]

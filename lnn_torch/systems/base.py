@@ -77,6 +77,7 @@ class System(abc.ABC):
     quadratic_kinetic: bool = True
     conventions: str = ""
     gravity: float = GRAVITY
+    speed_limit: float | None = None  # |qd| must stay below this (the relativistic particle's c = 1)
 
     @property
     def num_params(self) -> int:

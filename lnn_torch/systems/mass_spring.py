@@ -25,6 +25,7 @@ class MassSpring(System):
     param_units = ("kg", "N/m")
     quadratic_kinetic = True
     conventions = "q=(x,): displacement from rest, m; params=(m, k) in kg, N/m; no gravity"
+    gravity = 0.0
 
     def __init__(self, m_range=(0.5, 2.0), k_range=(0.5, 4.0), x_range=(-1.0, 1.0), v_range=(-1.0, 1.0)) -> None:
         self.m_range = as_range(m_range, "m_range")
