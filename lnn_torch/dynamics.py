@@ -70,9 +70,11 @@ def generic_acceleration(
         lagrangian_fn: scalar Lagrangian of one sample (see ``euler_lagrange_terms``).
         q, qd: ``(*batch, dof)``; params: ``(*batch, P)``.
         damping: the singular-Hessian policy. ``0`` (default) solves exactly and raises
-            ``SingularHessianError`` where the solve fails; ``> 0`` solves ``(H + damping I)``
-            (Levenberg-style damping, relative to the mean |diagonal| of H) instead.
-        check: raise on singular Hessians (costs one sync); set False inside compiled code.
+            ``SingularHessianError`` where the solve fails; ``> 0`` solves
+            ``H + damping (mean|diag H| + 1) I`` instead (Levenberg-style damping, relative to the
+            Hessian's scale with a floor, in the units of ``lagrangian_fn``).
+        check: raise ``SingularHessianError`` on singular Hessians (costs one sync). With
+            ``check=False`` the accelerations of singular states are NaN (never silently wrong).
 
     Returns:
         ``qdd`` of shape ``(*batch, dof)``, same dtype and device as ``q``.
@@ -80,18 +82,19 @@ def generic_acceleration(
     batch, qf, qdf, pf = _flatten(q, qd, params)
     H, rhs = euler_lagrange_terms(lagrangian_fn, qf, qdf, pf)
     if damping > 0:
-        scale = H.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True).clamp_min(torch.finfo(H.dtype).tiny)
+        # relative to the Hessian's scale, with a floor of 1 so that a vanishing Hessian is regularised too
+        scale = H.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True) + 1
         H = H + damping * scale[..., None] * torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
     qdd, info = torch.linalg.solve_ex(H, rhs[..., None])
     qdd = qdd[..., 0]
-    if check and damping == 0:
-        bad = (info != 0) | ~torch.isfinite(qdd).all(-1)
-        if bad.any():
-            n = int(bad.sum())
-            raise SingularHessianError(
-                f"the velocity Hessian d2L/dqd2 is singular for {n} of {bad.numel()} states; "
-                "accelerations are undefined there (pass damping > 0 to regularise)"
-            )
+    bad = (info != 0) | ~torch.isfinite(qdd).all(-1)  # (B,)
+    if check and bad.any():
+        n = int(bad.sum())
+        raise SingularHessianError(
+            f"the velocity Hessian d2L/dqd2 is singular for {n} of {bad.numel()} states; "
+            "accelerations are undefined there (pass damping > 0 to regularise)"
+        )
+    qdd = torch.where(bad[:, None], torch.full_like(qdd, float("nan")), qdd)
     return qdd.reshape(*batch, q.shape[-1])
 
 

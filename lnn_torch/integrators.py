@@ -1,16 +1,19 @@
-"""Fixed-step integrators for second-order systems ``qdd = accel_fn(q, qd, params)``.
+"""Fixed-step integrators for second-order systems ``qdd = accel_fn(q, qd, params)`` and for
+first-order systems ``ydot = vector_field_fn(y, params)`` (e.g. Hamiltonian networks in (q, p)).
 
-One entry point, ``rollout``, picks a method by name from ``METHODS``. Each method is a step
-function ``step(accel_fn, q, qd, params, dt) -> (q, qd)`` with an ``order`` attribute.
+Entry points: ``rollout`` (second order) and ``rollout_first_order``, each picking a method by name.
+Every step function has an ``order`` attribute.
 
-* ``rk4``: classical Runge-Kutta, order 4.
+* ``rk4``: classical Runge-Kutta, order 4 (first and second order systems).
 * ``rk8``: the 12-stage, 8th-order Dormand-Prince tableau (the one DOP853 uses) as a fixed step;
-  used to generate ground truth.
+  used to generate ground truth (first and second order systems).
 * ``semi_implicit_euler``: kick then drift (symplectic Euler for velocity-independent forces), order 1.
 * ``leapfrog``: kick-drift-kick (velocity Verlet) with the velocity in the second kick taken from an
   explicit half-step estimate; symplectic and order 2 for velocity-independent forces.
 
-Pure tensor functions; shapes ``(*batch, dof)``.
+Explicit Runge-Kutta methods are one function, ``explicit_rk_step``, driven by a Butcher tableau; a
+second-order system is integrated as the first-order system ``y = (q, qd)``. Pure tensor functions;
+shapes ``(*batch, dof)``.
 """
 
 from __future__ import annotations
@@ -20,19 +23,9 @@ from typing import Callable
 import torch
 
 AccelFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+VectorFieldFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
-
-def rk4_step(accel_fn: AccelFn, q, qd, params, dt):
-    k1q, k1v = qd, accel_fn(q, qd, params)
-    k2q, k2v = qd + 0.5 * dt * k1v, accel_fn(q + 0.5 * dt * k1q, qd + 0.5 * dt * k1v, params)
-    k3q, k3v = qd + 0.5 * dt * k2v, accel_fn(q + 0.5 * dt * k2q, qd + 0.5 * dt * k2v, params)
-    k4q, k4v = qd + dt * k3v, accel_fn(q + dt * k3q, qd + dt * k3v, params)
-    q_new = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
-    qd_new = qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    return q_new, qd_new
-
-
-rk4_step.order = 4
+_RK4_TABLEAU = ([[], [0.5], [0.0, 0.5], [0.0, 0.0, 1.0]], [1 / 6, 1 / 3, 1 / 3, 1 / 6])
 
 
 def _dop853_tableau():
@@ -40,41 +33,73 @@ def _dop853_tableau():
     from scipy.integrate._ivp import dop853_coefficients as dc
 
     s = dc.N_STAGES
-    return dc.A[:s, :s].tolist(), dc.B.tolist(), dc.C[:s].tolist()
+    return [dc.A[i, :i].tolist() for i in range(s)], dc.B.tolist()
 
 
-_RK8: dict = {}
+def _dop853_error_weights():
+    """The embedded 5th- and 3rd-order error weights of DOP853 (13 stages, the last one FSAL)."""
+    from scipy.integrate._ivp import dop853_coefficients as dc
+
+    return dc.E5.tolist(), dc.E3.tolist()
 
 
-def _rk8_coefficients(dtype, device):
-    key = (dtype, device)
-    if key not in _RK8:
-        A, B, _ = _dop853_tableau()
-        _RK8[key] = (
-            [torch.tensor(row[:i], dtype=dtype, device=device) for i, row in enumerate(A)],
-            torch.tensor(B, dtype=dtype, device=device),
-        )
-    return _RK8[key]
+_TABLEAUX = {"rk4": lambda: _RK4_TABLEAU, "rk8": _dop853_tableau}
+_COEFFICIENTS: dict = {}
 
 
-def rk8_step(accel_fn: AccelFn, q, qd, params, dt):
-    A, B = _rk8_coefficients(q.dtype, q.device)
-    dof = q.shape[-1]
-    y = torch.cat([q, qd], dim=-1)  # (*batch, 2 dof)
+def _coefficients(name: str, dtype, device):
+    key = (name, dtype, device)
+    if key not in _COEFFICIENTS:
+        A, B = _TABLEAUX[name]()
+        _COEFFICIENTS[key] = ([torch.tensor(row, dtype=dtype, device=device) for row in A],
+                              torch.tensor(B, dtype=dtype, device=device))
+    return _COEFFICIENTS[key]
+
+
+def explicit_rk_step(name: str, fn: VectorFieldFn, y: torch.Tensor, params: torch.Tensor, dt: float) -> torch.Tensor:
+    """One step of the explicit Runge-Kutta method ``name`` (``rk4`` or ``rk8``) for ``ydot = fn(y, params)``."""
+    A, B = _coefficients(name, y.dtype, y.device)
     ks = []
-    for i, a in enumerate(A):
-        if i == 0:
-            yi = y
-        else:
-            # (i,) x (i, *batch, 2 dof) -> (*batch, 2 dof)
-            yi = y + dt * torch.tensordot(a, torch.stack(ks), dims=1)
-        qi, vi = yi[..., :dof], yi[..., dof:]
-        ks.append(torch.cat([vi, accel_fn(qi, vi, params)], dim=-1))
-    y_new = y + dt * torch.tensordot(B, torch.stack(ks), dims=1)
-    return y_new[..., :dof], y_new[..., dof:]
+    for a in A:
+        # (i,) x (i, *batch, n) -> (*batch, n)
+        yi = y if not ks else y + dt * torch.tensordot(a, torch.stack(ks), dims=1)
+        ks.append(fn(yi, params))
+    return y + dt * torch.tensordot(B, torch.stack(ks), dims=1)
 
 
-rk8_step.order = 8
+def _second_order_rk(name: str, order: int):
+    def step(accel_fn: AccelFn, q, qd, params, dt):
+        dof = q.shape[-1]
+
+        def fn(y, p):  # y = (q, qd) -> (qd, qdd)
+            return torch.cat([y[..., dof:], accel_fn(y[..., :dof], y[..., dof:], p)], dim=-1)
+
+        y = explicit_rk_step(name, fn, torch.cat([q, qd], dim=-1), params, dt)
+        return y[..., :dof], y[..., dof:]
+
+    step.order = order
+    step.__name__ = f"{name}_step"
+    return step
+
+
+def rk4_step(accel_fn: AccelFn, q, qd, params, dt):
+    """Classical RK4 written out for ``qdd = accel_fn(q, qd, params)`` (fewer ops per stage than the
+    tableau form, which matters for small batches; a test checks it against ``explicit_rk_step``)."""
+    h = 0.5 * dt
+    a1 = accel_fn(q, qd, params)
+    v2 = torch.add(qd, a1, alpha=h)
+    a2 = accel_fn(torch.add(q, qd, alpha=h), v2, params)
+    v3 = torch.add(qd, a2, alpha=h)
+    a3 = accel_fn(torch.add(q, v2, alpha=h), v3, params)
+    v4 = torch.add(qd, a3, alpha=dt)
+    a4 = accel_fn(torch.add(q, v3, alpha=dt), v4, params)
+    q_new = torch.add(q, qd + 2 * (v2 + v3) + v4, alpha=dt / 6)
+    qd_new = torch.add(qd, a1 + 2 * (a2 + a3) + a4, alpha=dt / 6)
+    return q_new, qd_new
+
+
+rk4_step.order = 4
+rk8_step = _second_order_rk("rk8", 8)
 
 
 def semi_implicit_euler_step(accel_fn: AccelFn, q, qd, params, dt):
@@ -103,6 +128,7 @@ METHODS = {
     "semi_implicit_euler": semi_implicit_euler_step,
     "leapfrog": leapfrog_step,
 }
+FIRST_ORDER_METHODS = {"rk4": 4, "rk8": 8}  # name -> order
 
 
 def rollout(
@@ -150,3 +176,116 @@ def rollout(
         if callback is not None:
             callback(i)
     return torch.stack(qs, dim=1), torch.stack(qds, dim=1)
+
+
+def rollout_first_order(
+    vector_field_fn: VectorFieldFn,
+    y0: torch.Tensor,
+    params: torch.Tensor,
+    dt: float,
+    num_steps: int,
+    method: str = "rk4",
+) -> torch.Tensor:
+    """Integrate ``ydot = vector_field_fn(y, params)`` with a fixed step.
+
+    Args:
+        vector_field_fn: ``(y (B, n), params (B, P)) -> (B, n)``.
+        y0: ``(B, n)``; params: ``(B, P)``; dt: step; num_steps: number of steps.
+        method: ``rk4`` or ``rk8`` (the symplectic methods need a second-order system).
+
+    Returns:
+        ``y`` of shape ``(B, num_steps + 1, n)``, starting with ``y0``.
+    """
+    if method not in FIRST_ORDER_METHODS:
+        raise ValueError(f"integrator '{method}' is not available for first-order systems; "
+                         f"known: {', '.join(FIRST_ORDER_METHODS)}")
+    if y0.ndim != 2 or params.ndim != 2 or params.shape[0] != y0.shape[0]:
+        raise ValueError(f"y0 must be (batch, n) and params (batch, P), got {tuple(y0.shape)} and {tuple(params.shape)}")
+    if not dt > 0 or num_steps < 0:
+        raise ValueError(f"need dt > 0 and num_steps >= 0; got {dt}, {num_steps}")
+    ys, y = [y0], y0
+    for _ in range(num_steps):
+        y = explicit_rk_step(method, vector_field_fn, y, params, dt)
+        ys.append(y)
+    return torch.stack(ys, dim=1)
+
+
+def rollout_adaptive(
+    vector_field_fn: VectorFieldFn,
+    y0: torch.Tensor,
+    params: torch.Tensor,
+    dt: float,
+    num_steps: int,
+    rtol: float = 1e-11,
+    atol: float = 1e-11,
+    max_iterations: int = 10_000_000,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Integrate ``ydot = vector_field_fn(y, params)`` with adaptive DOP853 steps, per trajectory.
+
+    Every trajectory has its own step size, controlled by the embedded error estimate of the
+    Dormand-Prince 8(5,3) pair (Hairer, Norsett & Wanner); trajectories advance in lockstep (one
+    attempted step each per iteration, only those not yet finished are evaluated), and steps are
+    clipped to land exactly on the output times ``k dt``. Meant for ground truth on stiff or fast
+    trajectories (the light first mass of a double pendulum whipping round).
+
+    Args:
+        y0: ``(B, n)``; params ``(B, P)``; dt: output interval; num_steps: number of outputs after y0.
+        rtol, atol: tolerances of the error norm (scaled per component as in scipy's DOP853).
+
+    Returns:
+        ``y (B, num_steps + 1, n)`` and the accepted steps per trajectory ``(B,)``. A trajectory
+        whose step size collapses (below 1e-12 dt) or turns non-finite is NaN from there on.
+    """
+    A, Bw = _coefficients("rk8", y0.dtype, y0.device)
+    E5, E3 = (torch.tensor(w, dtype=y0.dtype, device=y0.device) for w in _dop853_error_weights())
+    safety, min_factor, max_factor, exponent = 0.9, 0.2, 10.0, -1.0 / 8.0
+    B, n = y0.shape
+    out = y0.new_full((B, num_steps + 1, n), float("nan"))
+    out[:, 0] = y0
+    y, f = y0.clone(), vector_field_fn(y0, params)
+    t = torch.zeros(B, dtype=torch.float64, device=y0.device)
+    h = torch.full((B,), float(dt), dtype=torch.float64, device=y0.device)
+    k = torch.ones(B, dtype=torch.long, device=y0.device)  # index of the next output
+    rejected = torch.zeros(B, dtype=torch.bool, device=y0.device)
+    accepted_steps = torch.zeros(B, dtype=torch.long, device=y0.device)
+    for _ in range(max_iterations):
+        idx = torch.nonzero(k <= num_steps)[:, 0]
+        if idx.numel() == 0:
+            break
+        ya, fa, pa = y[idx], f[idx], params[idx]
+        target = k[idx].to(torch.float64) * dt
+        h_try = torch.minimum(h[idx], target - t[idx])  # (b,)
+        hc = h_try.to(y0.dtype)[:, None]
+        ks = [fa]
+        for a in A[1:]:
+            ks.append(vector_field_fn(ya + hc * torch.tensordot(a, torch.stack(ks), dims=1), pa))
+        y_new = ya + hc * torch.tensordot(Bw, torch.stack(ks), dims=1)
+        f_new = vector_field_fn(y_new, pa)
+        K = torch.stack(ks + [f_new])  # (13, b, n)
+        scale = atol + rtol * torch.maximum(ya.abs(), y_new.abs())
+        e5 = (torch.tensordot(E5, K, dims=1) / scale).square().sum(-1)
+        e3 = (torch.tensordot(E3, K, dims=1) / scale).square().sum(-1)
+        denom = e5 + 0.01 * e3
+        err = torch.where(denom > 0, h_try.abs() * e5 / torch.sqrt(denom * n).clamp_min(1e-300), torch.zeros_like(e5))
+        ok = (err < 1) & torch.isfinite(err) & torch.isfinite(y_new).all(-1)
+        factor = torch.where(err > 0, safety * err.clamp_min(1e-300) ** exponent, torch.full_like(err, max_factor))
+        factor = factor.clamp(min_factor, max_factor)
+        factor = torch.where(ok & rejected[idx], factor.clamp(max=1.0), factor)  # no growth right after a rejection
+        factor = torch.where(torch.isfinite(err), factor, torch.full_like(err, min_factor))
+        acc = idx[ok]
+        t_new = t[idx] + h_try
+        reached = ok & (t_new >= target - 1e-9 * dt)
+        y[acc], f[acc] = y_new[ok], f_new[ok]
+        t[acc] = torch.where(reached[ok], target[ok], t_new[ok])
+        accepted_steps[acc] += 1
+        hit = idx[reached]
+        out[hit, k[hit]] = y[hit]
+        k[hit] += 1
+        h[idx] = torch.clamp(h_try * factor, max=float(dt))
+        rejected[idx] = ~ok
+        dead = idx[(h[idx] < 1e-12 * dt)]
+        if dead.numel():  # the step size collapsed: give up on these trajectories (NaN from here)
+            k[dead] = num_steps + 1
+    else:
+        raise RuntimeError(f"rollout_adaptive: more than {max_iterations} iterations")
+    return out, accepted_steps

@@ -208,7 +208,8 @@ class TrajectoryDataModule(L.LightningDataModule):
 
     # ------------------------------------------------------------------ for the model
     def normalization_data(self, max_points: int = 200_000) -> dict:
-        """Training-split samples (float64) for the normaliser: q, qd, qdd ``(n, dof)``, params ``(m, P)``."""
+        """Training-split samples (float64) for the normaliser: q, qd, qdd ``(n, dof)``, params ``(m, P)``
+        per trajectory and ``params_points (n, P)`` aligned with the points."""
         f = self._open()
         src = self.source("train", torch.float64)
         n_traj = len(src.indices)
@@ -216,13 +217,15 @@ class TrajectoryDataModule(L.LightningDataModule):
         parts = [src.chunk(j, 0, (f.num_points + stride - 1) // stride, stride) for j in range(n_traj)]
         out = {k: torch.cat([p[k] for p in parts]) for k in FIELDS}
         out["params"] = src.params
+        out["params_points"] = torch.cat([p["params"] for p in parts])
         return out
 
-    def rollout_data(self, split: str = "val", num_trajectories: int = 4, num_points: int | None = None) -> dict:
-        """Whole trajectories (float64) of a split for rollout metrics: q, qd ``(n, T, dof)``, params, dt."""
+    def rollout_data(self, split: str = "val", num_trajectories: int | None = 4, num_points: int | None = None) -> dict:
+        """Whole trajectories (float64) of a split for rollout metrics: q, qd ``(n, T, dof)``, params, dt
+        (the first ``num_trajectories`` of the split; None: all)."""
         f = self._open()
         src = self.source(split, torch.float64)
-        n = min(num_trajectories, len(src.indices))
+        n = len(src.indices) if num_trajectories is None else min(num_trajectories, len(src.indices))
         T = f.num_points if num_points is None else min(num_points, f.num_points)
         parts = [src.chunk(j, 0, T) for j in range(n)]
         dt = float(f.read("t", slice(0, 2))[1])

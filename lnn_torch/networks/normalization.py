@@ -28,6 +28,9 @@ class Normalizer(nn.Module):
         self.register_buffer("param_log_mean", torch.zeros(num_params))
         self.register_buffer("param_log_std", torch.ones(num_params))
         self.register_buffer("accel_rms", torch.ones(dof))
+        # Hamiltonian models: one momentum scale, and the rms of each vector-field component
+        self.register_buffer("momentum_scale", torch.ones(()))
+        self.register_buffer("vector_field_rms", torch.ones(2 * dof))
 
     @torch.no_grad()
     def fit(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor) -> "Normalizer":
@@ -61,3 +64,14 @@ class Normalizer(nn.Module):
 
     def accel_to_phys(self, qdd_norm):
         return qdd_norm * (self.coord_scale.to(qdd_norm.dtype) / self.time_scale.to(qdd_norm.dtype) ** 2)
+
+    def state_to_phys(self, q_norm, qd_norm):
+        scale = self.coord_scale.to(q_norm.dtype)
+        return q_norm * scale + self.coord_shift.to(q_norm.dtype), qd_norm * (scale / self.time_scale.to(q_norm.dtype))
+
+    def params_to_phys(self, params_norm):
+        return (params_norm * self.param_log_std.to(params_norm.dtype) + self.param_log_mean.to(params_norm.dtype)).exp()
+
+    def momentum_to_norm(self, p):
+        """Canonical momenta: ``p_norm = p * coord_scale / momentum_scale`` (keeps (q_norm, p_norm) canonical)."""
+        return p * (self.coord_scale.to(p.dtype) / self.momentum_scale.to(p.dtype))
