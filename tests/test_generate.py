@@ -9,12 +9,13 @@ import h5py
 import numpy as np
 import pytest
 import torch
-from scipy.integrate import solve_ivp
 
 from lnn_torch.cli import main
 from lnn_torch.data import DatasetFileError, DatasetSpec, generate_dataset, read_dataset, simulate
 from lnn_torch.data.generate import sample_initial_conditions
 from lnn_torch.systems import InputError
+
+from .conftest import dop853_reference
 
 
 def small_spec(**kw):
@@ -34,14 +35,7 @@ def test_matches_dop853_and_conserves_energy():
     # state against DOP853 at rtol = atol = 1e-12 over the first 5 s (bound 1e-8; measured ~3e-9)
     t_eval = arrays["t"][arrays["t"] <= 5.0 + 1e-12]
     for i in range(4):
-        p = torch.from_numpy(arrays["params"][i])
-
-        def f(t, y):
-            yt = torch.from_numpy(y)
-            return np.concatenate([y[2:], system.acceleration(yt[:2], yt[2:], p).numpy()])
-
-        y0 = np.concatenate([arrays["q"][i, 0], arrays["qd"][i, 0]])
-        ref = solve_ivp(f, (0, t_eval[-1]), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval).y.T
+        ref = dop853_reference(system, arrays["q"][i, 0], arrays["qd"][i, 0], arrays["params"][i], t_eval)
         ours = np.concatenate([arrays["q"][i, : len(t_eval)], arrays["qd"][i, : len(t_eval)]], -1)
         assert np.abs(ours - ref).max() < 1e-8
     # targets are the closed-form accelerations of the stored states

@@ -11,6 +11,7 @@ name               shape            meaning
 ``qdd``            ``(N, T, dof)``  accelerations (rad/s^2 or m/s^2): closed form by default
 ``params``         ``(N, P)``       physical parameters (SI, order in attribute ``param_names``)
 ``energy``         ``(N, T)``       the scene's closed-form total energy, J
+``integrator_steps`` ``(N,)``       integrator steps each trajectory took (more where refined)
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
 =================  ===============  =====================================================
 
@@ -33,6 +34,7 @@ import numpy as np
 FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "qdd", "params", "energy")
+OPTIONAL_ARRAYS = ("integrator_steps",)  # integrator steps each trajectory took (adaptive refinement)
 SPLITS = ("train", "val", "test")
 
 
@@ -58,7 +60,7 @@ def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, ove
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
-            for name in ARRAYS:
+            for name in ARRAYS + tuple(n for n in OPTIONAL_ARRAYS if n in arrays):
                 data = np.asarray(arrays[name])
                 chunks = (1,) + data.shape[1:] if data.ndim == 3 else None
                 f.create_dataset(name, data=data, chunks=chunks)
@@ -155,3 +157,21 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
     except OSError as err:
         raise DatasetFileError(f"cannot read {path}: {err}") from None
     return TrajectoryFile(path, attrs, splits, n, t, dof, num_params)
+
+
+def write_arrays(path: str | Path, arrays: dict, attrs: dict, overwrite: bool = False) -> Path:
+    """Write named arrays and attributes to an HDF5 file atomically (e.g. a simulated trajectory)."""
+    h5py = _h5py()
+    path = check_writable(path, overwrite)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            for name, value in arrays.items():
+                f.create_dataset(name, data=np.asarray(value))
+            for key, value in attrs.items():
+                f.attrs[key] = value
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path

@@ -22,7 +22,12 @@ class DatasetSpec:
         seed: master seed; trajectory ``i`` uses the seed sequence ``(seed, i)``.
         split: train/val/test fractions by trajectory.
         integrator: fixed-step method of ``lnn_torch.integrators`` used for ground truth.
-        substeps: integrator steps per sampling interval.
+        substeps: fixed integrator steps per sampling interval (first pass).
+        energy_tol: a trajectory whose energy drifts by more than this fraction of the scene's energy
+            scale in the fixed-step pass is integrated again with adaptive DOP853 steps (per
+            trajectory, ``rtol = atol = adaptive_tol``); if it still drifts beyond ``energy_tol``,
+            generation fails with an error naming the trajectories.
+        adaptive_tol: tolerances of the adaptive pass.
         targets: ``"analytic"`` (the scene's closed-form accelerations, default) or
             ``"finite_difference"`` (second-order central differences of qd, as for measured data).
     """
@@ -36,12 +41,15 @@ class DatasetSpec:
     split: tuple[float, float, float] = (0.8, 0.1, 0.1)
     integrator: str = "rk8"
     substeps: int = 1
+    energy_tol: float = 1e-10
+    adaptive_tol: float = 1e-11
     targets: str = "analytic"
 
     def __post_init__(self) -> None:
         try:  # values from command lines and YAML may arrive as strings
             self.num_trajectories, self.seed, self.substeps = int(self.num_trajectories), int(self.seed), int(self.substeps)
             self.duration, self.dt = float(self.duration), float(self.dt)
+            self.energy_tol, self.adaptive_tol = float(self.energy_tol), float(self.adaptive_tol)
             self.split = tuple(float(x) for x in self.split)
         except (TypeError, ValueError) as err:
             raise InputError(f"dataset spec: {err}") from None
@@ -71,6 +79,10 @@ class DatasetSpec:
             raise InputError("split: the training fraction must be positive")
         if int(self.substeps) < 1:
             raise InputError(f"substeps must be >= 1, got {self.substeps}")
+        for name in ("energy_tol", "adaptive_tol"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(f"{name} must be positive, got {value}")
         if self.targets not in ("analytic", "finite_difference"):
             raise InputError(f"targets must be 'analytic' or 'finite_difference', got '{self.targets}'")
         from ..integrators import METHODS

@@ -1,0 +1,136 @@
+"""Numerical stability on hard cases: extreme parameters, high energy, large angles, zero velocity.
+
+``hard_cases(system)`` builds the cases for a scene (the double pendulum gets the mass- and
+length-ratio cases of the issue: m2/m1 = 1e-3 and 1e3, l2/l1 = 0.1 and 10); ``run_hard_cases``
+rolls a dynamics model (or the closed form) out on each and reports, per case:
+
+* ``non_finite_fraction``: trajectories whose rollout has a NaN or Inf anywhere;
+* ``max_energy_drift``: max over finite trajectories of |E(t) - E(0)| / (V_max - V_min), with the
+  scene's true energy;
+* ``max_cond``: the largest condition number of the learned mass matrix along the rollouts
+  (structured models only);
+* ``error``: the message, where the model refuses the input with a clear error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .evaluation import energy_drift
+from .systems.base import InputError
+
+
+@dataclass
+class HardCase:
+    name: str
+    q0: torch.Tensor  # (B, dof)
+    qd0: torch.Tensor  # (B, dof)
+    params: torch.Tensor  # (B, P)
+    dt: float = 0.005
+    num_steps: int = 1000
+
+
+def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps: int = 1000) -> list[HardCase]:
+    """The hard cases of a scene, ``num`` trajectories each (float64)."""
+    rng = np.random.default_rng(seed)
+    f64 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float64)  # noqa: E731
+    base_p = f64(system.sample_params(rng, num))
+    q0, qd0 = (f64(x) for x in system.sample_state(rng, num))
+    angles = torch.tensor(system.angle_mask)
+    cases = [HardCase("nominal", q0, qd0, base_p)]
+
+    def with_params(name, values):
+        p = f64(values)[None].expand(num, -1).clone()
+        cases.append(HardCase(name, q0, qd0, p))
+
+    if system.name == "double_pendulum":
+        with_params("m2/m1 = 1e-3", [1.0, 1e-3, 1.2, 1.2])
+        with_params("m2/m1 = 1e3", [0.1, 100.0, 1.2, 1.2])
+        with_params("l2/l1 = 0.1", [1.0, 0.6, 1.5, 0.15])
+        with_params("l2/l1 = 10", [1.0, 0.6, 0.3, 3.0])
+    cases.append(HardCase("parameters x10", q0, qd0, base_p * 10))
+    cases.append(HardCase("parameters x0.1", q0, qd0, base_p * 0.1))
+    if system.speed_limit is None:
+        if angles.any():
+            inverted = torch.where(angles, math.pi + f64(rng.uniform(-0.1, 0.1, q0.shape)), q0)
+            fast = f64(rng.choice([-10.0, 10.0], qd0.shape))
+            cases.append(HardCase("inverted, |qd0| = 10 rad/s", inverted, fast, base_p))
+            cases.append(HardCase("whirling from rest position", torch.zeros_like(q0), fast, base_p))
+        else:
+            cases.append(HardCase("|qd0| x 10", q0, qd0 * 10, base_p))
+    else:  # the relativistic particle: close to the speed of light
+        cases.append(HardCase("|qd0| = 0.99 c", q0, torch.sign(qd0) * 0.99 * system.speed_limit, base_p))
+    if angles.any():
+        turns = 2 * math.pi * torch.round(torch.tensor(1e4) / (2 * math.pi))
+        cases.append(HardCase("angles +1e4 rad", torch.where(angles, q0 + turns, q0), qd0, base_p))
+        cases.append(HardCase("angles -1e4 rad", torch.where(angles, q0 - turns, q0), qd0, base_p))
+    cases.append(HardCase("zero velocity", q0, torch.zeros_like(qd0), base_p))
+    cases.append(HardCase("tiny velocity 1e-9", q0, torch.full_like(qd0, 1e-9), base_p))
+    for c in cases:
+        c.dt, c.num_steps = dt, num_steps
+    return cases
+
+
+def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
+    """Largest condition number of the learned mass matrix over rollout states (structured models)."""
+    if not hasattr(model, "mass_matrix_norm"):
+        return None
+    B, T, dof = q.shape
+    finite = torch.isfinite(q).all(-1).all(-1)
+    if not finite.any():
+        return float("nan")
+    qf = q[finite][:, :: max(1, T // 200)]  # at most ~200 states per trajectory
+    p = params[finite][:, None].expand(-1, qf.shape[1], -1)
+    dtype = model.dtype
+    with torch.no_grad():
+        M = model.mass_matrix(qf.reshape(-1, dof).to(dtype), p.reshape(-1, p.shape[-1]).to(dtype)).double()
+    eig = torch.linalg.eigvalsh(M)
+    return float((eig[..., -1] / eig[..., 0]).max())
+
+
+def run_hard_cases(rollout_fn, system, cases: list[HardCase], model=None, method: str = "rk4") -> list[dict]:
+    """Roll ``rollout_fn`` ``(q0, qd0, params, dt, num_steps, method) -> (q, qd)`` out on every case.
+
+    ``model``: the dynamics model (for the condition number of its mass matrix), or None.
+    """
+    rows = []
+    for case in cases:
+        row = {"case": case.name, "num_trajectories": int(case.q0.shape[0]), "steps": case.num_steps, "dt": case.dt}
+        try:
+            q, qd = rollout_fn(case.q0, case.qd0, case.params, case.dt, case.num_steps, method)
+        except InputError as err:
+            row["error"] = str(err)
+            rows.append(row)
+            continue
+        q, qd = q.detach().double(), qd.detach().double()
+        finite = torch.isfinite(q).all(-1).all(-1) & torch.isfinite(qd).all(-1).all(-1)
+        row["non_finite_fraction"] = float(1 - finite.double().mean())
+        if finite.any():
+            drift = energy_drift(system, q[finite], qd[finite], case.params[finite])
+            row["max_energy_drift"] = float(drift.max())
+        else:
+            row["max_energy_drift"] = float("nan")
+        if model is not None:
+            row["max_cond"] = _max_cond(model, q, case.params)
+        rows.append(row)
+    return rows
+
+
+def stability_markdown(results: dict[str, list[dict]]) -> str:
+    """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M)."""
+    lines = ["| case | model | non-finite fraction | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
+    cases = [r["case"] for r in next(iter(results.values()))]
+    for case in cases:
+        for name, rows in results.items():
+            r = next(x for x in rows if x["case"] == case)
+            if "error" in r:
+                lines.append(f"| {case} | {name} | refused: {r['error']} | - | - |")
+                continue
+            cond = r.get("max_cond")
+            cond_s = "-" if cond is None else f"{cond:.3g}"
+            lines.append(f"| {case} | {name} | {r['non_finite_fraction']:.2f} | {r['max_energy_drift']:.2e} | {cond_s} |")
+    return "\n".join(lines)
