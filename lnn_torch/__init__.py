@@ -2,7 +2,8 @@
 
 Public names: ``LNNModule`` (Lightning training shell; loading checkpoints), ``rollout``
 (fixed-step integration of any ``accel_fn``), ``get_system`` (ground-truth scenes),
-``build_model`` (plain ``nn.Module`` variants).
+``build_model`` (plain ``nn.Module`` variants), ``load_pretrained`` (shipped trained models),
+``TrajectoryDataModule`` (HDF5 trajectories for Lightning).
 """
 
 __version__ = "0.1.0"
@@ -21,6 +22,10 @@ def __getattr__(name):
         from .networks import build_model
 
         return build_model
+    if name == "load_pretrained":
+        from .pretrained import load_pretrained
+
+        return load_pretrained
     if name == "TrajectoryDataModule":
         from .data.datamodule import TrajectoryDataModule
 
@@ -28,4 +33,5 @@ def __getattr__(name):
     raise AttributeError(f"module 'lnn_torch' has no attribute '{name}'")
 
 
-__all__ = ["__version__", "rollout", "get_system", "LNNModule", "build_model", "TrajectoryDataModule"]
+__all__ = ["__version__", "rollout", "get_system", "LNNModule", "build_model", "TrajectoryDataModule",
+           "load_pretrained"]

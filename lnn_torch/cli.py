@@ -78,7 +78,14 @@ def evaluate_main(argv: list[str]) -> int:
     return evaluate(argv)
 
 
-COMMANDS = {"generate": generate_main, "evaluate": evaluate_main, **{c: lightning_main for c in LIGHTNING_COMMANDS}}
+def simulate_main(argv: list[str]) -> int:
+    from .simulate import main as simulate
+
+    return simulate(argv)
+
+
+COMMANDS = {"generate": generate_main, "evaluate": evaluate_main, "simulate": simulate_main,
+            **{c: lightning_main for c in LIGHTNING_COMMANDS}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
               "  validate   validation metrics of a checkpoint (--ckpt_path)\n"
               "  test       test-split metrics of a checkpoint (--ckpt_path)\n"
               "  predict    write test-split predictions to a file (--ckpt_path)\n"
-              "  evaluate   report of a checkpoint: errors, rollouts, energy drift, plots\n\n"
+              "  evaluate   report of a checkpoint: errors, rollouts, energy drift, stability, plots\n"
+              "  simulate   roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot\n\n"
               "Run 'lnn-torch COMMAND --help' for a command's options.")
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]

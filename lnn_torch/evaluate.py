@@ -9,7 +9,13 @@ Reports (JSON, Markdown and PNG plots in ``--output-dir``):
 * true-energy drift |E(t) - E(0)| / (V_max - V_min) of the model's rollouts (closed-form energy);
 * mass-matrix error against the scene's M (relative Frobenius after the best scale per system) and
   the condition number of the learned M (structured variants);
-* the reference design's four out-of-distribution double-pendulum cases.
+* the reference design's four out-of-distribution double-pendulum cases;
+* a stability table on hard cases (``lnn_torch.stability``): non-finite fraction, max true-energy
+  drift and the condition number of the learned mass matrix, including a long horizon of 1e5 RK4
+  steps.
+
+The checkpoint may be ``pretrained:<name>`` for a shipped model. A missing data file is generated
+from the dataset specification the checkpoint records.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .evaluation import divergence_time, energy_drift, relative_l2
+from .evaluation import counting_failures, divergence_time, energy_drift, relative_l2
 from .integrators import rollout
 
 OOD_CASES = [  # (m1, m2, l1, l2), [theta1, theta2, thetad1, thetad2]
@@ -40,16 +46,21 @@ def _quartiles(x: torch.Tensor) -> dict:
 
 
 def model_accel_fn(module):
-    """Float64 in, float64 out; the model runs in its own dtype."""
+    """Float64 in, float64 out; the model runs in its own dtype. Undefined accelerations are NaN."""
     model = module.model
-    dtype = next(model.parameters()).dtype
-    grad = module.hparams.variant == "lnn"
 
     def fn(q, qd, p):
-        with torch.set_grad_enabled(grad):
-            return model.acceleration(q.to(dtype), qd.to(dtype), p.to(dtype), check=False).detach().to(q.dtype)
+        with torch.set_grad_enabled(model.needs_autograd), counting_failures(model):
+            return model.acceleration(q, qd, p, check=False).detach()
 
     return fn
+
+
+def model_rollout(module, q0, qd0, params, dt, num_steps, method):
+    """The model's rollout; trajectories through undefined accelerations become NaN (counted)."""
+    with torch.set_grad_enabled(module.model.needs_autograd), counting_failures(module.model):
+        q, qd = module.model.rollout(q0, qd0, params, dt, num_steps, method)
+    return q.detach(), qd.detach()
 
 
 def mass_matrix_metrics(module, system, q: torch.Tensor, params: torch.Tensor) -> dict | None:
@@ -79,8 +90,22 @@ def mass_matrix_metrics(module, system, q: torch.Tensor, params: torch.Tensor) -
             "cond_median": float(cond.median()), "cond_max": float(cond.max())}
 
 
+def stability(module, stability_seconds: float = 5.0, long_horizon_steps: int = 100_000) -> list[dict]:
+    """The hard cases of ``lnn_torch.stability`` for this model, plus a long horizon (2 trajectories)."""
+    from .stability import HardCase, hard_cases, run_hard_cases
+
+    system = module.system
+    cases = hard_cases(system, num=8, num_steps=int(round(stability_seconds / 0.005)))
+    if long_horizon_steps:
+        nominal = cases[0]
+        cases.append(HardCase(f"long horizon: {long_horizon_steps:.0e} RK4 steps", nominal.q0[:2], nominal.qd0[:2],
+                              nominal.params[:2], dt=0.005, num_steps=long_horizon_steps))
+    return run_hard_cases(lambda *a: model_rollout(module, *a), system, cases, model=module.model)
+
+
 def evaluate(module, data_path: str | Path, split: str = "test", method: str = "rk4", dt: float | None = None,
-             horizon: float = 15.0, max_trajectories: int | None = None, perturbation: float = 1e-6) -> dict:
+             horizon: float = 15.0, max_trajectories: int | None = None, perturbation: float = 1e-6,
+             stability_seconds: float = 5.0, long_horizon_steps: int = 100_000) -> dict:
     """Compute every metric of the report; returns a JSON-ready dict (plus ``_arrays`` for plots)."""
     from .data import read_dataset
 
@@ -125,7 +150,7 @@ def evaluate(module, data_path: str | Path, split: str = "test", method: str = "
     steps = min(int(round(horizon / dt)), (q.shape[1] - 1) // stride)
     q_true, qd_true = q[:, : steps * stride + 1 : stride], qd[:, : steps * stride + 1 : stride]
     start = time.perf_counter()
-    q_m, qd_m = rollout(accel, q_true[:, 0], qd_true[:, 0], params, dt, steps, method)
+    q_m, qd_m = model_rollout(module, q_true[:, 0], qd_true[:, 0], params, dt, steps, method)
     out["rollout_seconds"] = time.perf_counter() - start
     q_x, _ = rollout(system.acceleration, q_true[:, 0] + perturbation, qd_true[:, 0], params, dt, steps, method)
     for thr in THRESHOLDS:
@@ -149,7 +174,7 @@ def evaluate(module, data_path: str | Path, split: str = "test", method: str = "
         n = int(round(horizon / dt))
         qt, qdt = rollout(system.acceleration, q0, qd0, p_ood, dt / 4, 4 * n, "rk8")
         qt, qdt = qt[:, ::4], qdt[:, ::4]
-        qm, qdm = rollout(accel, q0, qd0, p_ood, dt, n, method)
+        qm, qdm = model_rollout(module, q0, qd0, p_ood, dt, n, method)
         a_true = system.acceleration(qt, qdt, p_ood[:, None].expand(-1, n + 1, -1))
         a_pred = accel(qt.reshape(-1, 2), qdt.reshape(-1, 2), p_ood[:, None].expand(-1, n + 1, -1).reshape(-1, 4))
         a_pred = a_pred.reshape(a_true.shape)
@@ -160,6 +185,8 @@ def evaluate(module, data_path: str | Path, split: str = "test", method: str = "
                        "energy_drift_mean": float(d[i].mean()), "energy_drift_max": float(d[i].max())}
                       for i, c in enumerate(OOD_CASES)]
         out["_ood_arrays"] = {"q_true": qt, "q_model": qm, "params": p_ood}
+    if stability_seconds > 0:
+        out["stability"] = stability(module, stability_seconds, long_horizon_steps)
     out["_arrays"] = {"q_true": q_true, "q_model": q_m, "qd_model": qd_m, "q_exact": q_x, "params": params,
                       "drift": drift}
     return out
@@ -200,6 +227,11 @@ def write_report(result: dict, output_dir: Path, system) -> list[Path]:
         for c in clean["ood"]:
             lines.append(f"| {tuple(c['params'])} | {c['state0']} | {c['acc_rel_err']:.4f} | "
                          f"{c['divergence_time@0.1']:.2f} | {c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |")
+    if "stability" in clean:
+        from .stability import stability_markdown
+
+        lines += ["", "Stability on hard cases (RK4, dt = 0.005 s; `lnn_torch.stability`):", "",
+                  stability_markdown({clean["checkpoint_variant"]: clean["stability"]})]
     lines += ["", "Plots: " + ", ".join(p.name for p in pngs)]
     (output_dir / "report.md").write_text("\n".join(lines) + "\n")
     return [output_dir / "metrics.json", output_dir / "report.md", *pngs]
@@ -208,34 +240,59 @@ def write_report(result: dict, output_dir: Path, system) -> list[Path]:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="lnn-torch evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit")
+    ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit, or pretrained:<name> for a shipped model")
     ap.add_argument("--data", default=None, help="HDF5 dataset (default: the checkpoint's data path)")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"))
     ap.add_argument("--integrator", default="rk4", help="rk4, rk8, leapfrog or semi_implicit_euler")
     ap.add_argument("--dt", type=float, default=None, help="rollout step, s (default: the data's)")
     ap.add_argument("--horizon", type=float, default=15.0, help="rollout length, s")
     ap.add_argument("--max-trajectories", type=int, default=None)
+    ap.add_argument("--stability-seconds", type=float, default=5.0, help="horizon of the hard cases (0: skip them)")
+    ap.add_argument("--long-horizon-steps", type=int, default=100_000, help="RK4 steps of the long-horizon case (0: skip)")
     ap.add_argument("--output-dir", "-o", default=None, help="default: <checkpoint folder>/../evaluation")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    torch.set_flush_denormal(True)
-    from .module import LNNModule
+    from .perf import configure_cpu
 
-    ckpt = Path(args.checkpoint)
-    if not ckpt.exists():
-        raise FileNotFoundError(f"checkpoint {ckpt} does not exist")
-    module = LNNModule.load_from_checkpoint(ckpt, map_location="cpu")
-    module.eval()
-    data = args.data
+    configure_cpu(args.threads)
+    module, saved = load_checkpoint(args.checkpoint)
+    data = args.data or saved.get("path")
     if data is None:
-        saved = torch.load(ckpt, map_location="cpu", weights_only=False).get("datamodule_hyper_parameters", {})
-        data = saved.get("path")
-        if data is None:
-            raise ValueError("the checkpoint records no data path: pass --data")
-    result = evaluate(module, data, args.split, args.integrator, args.dt, args.horizon, args.max_trajectories)
-    out_dir = Path(args.output_dir) if args.output_dir else ckpt.parent.parent / "evaluation"
+        raise ValueError("the checkpoint records no data path: pass --data")
+    if not Path(data).exists():
+        from .data import DatasetSpec, generate_dataset
+
+        spec = DatasetSpec(**(saved.get("spec") or {}))
+        print(f"dataset {data} not found: generating it from the checkpoint's specification "
+              f"({spec.num_trajectories} trajectories)")
+        generate_dataset(spec, data, progress=True)
+    result = evaluate(module, data, args.split, args.integrator, args.dt, args.horizon, args.max_trajectories,
+                      stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
+    if args.output_dir:
+        out_dir = Path(args.output_dir)
+    elif args.checkpoint.startswith("pretrained:"):
+        out_dir = Path("evaluation") / args.checkpoint.split(":", 1)[1]
+    else:
+        out_dir = Path(args.checkpoint).parent.parent / "evaluation"
     files = write_report(result, out_dir, module.system)
     print((out_dir / "report.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files))
     return 0
+
+
+def load_checkpoint(checkpoint: str):
+    """``(LNNModule in eval mode, the datamodule hyper-parameters it records)``."""
+    from .module import LNNModule
+
+    if checkpoint.startswith("pretrained:"):
+        from .pretrained import info, load_pretrained
+
+        name = checkpoint.split(":", 1)[1]
+        return load_pretrained(name), info(name).get("datamodule_hyper_parameters", {})
+    ckpt = Path(checkpoint)
+    if not ckpt.exists():
+        raise FileNotFoundError(f"checkpoint {ckpt} does not exist")
+    module = LNNModule.load_from_checkpoint(ckpt, map_location="cpu")
+    module.eval()
+    saved = torch.load(ckpt, map_location="cpu", weights_only=False).get("datamodule_hyper_parameters", {})
+    return module, saved

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import statistics
 import sys
+import time
 
 import torch
 
@@ -49,3 +51,15 @@ def configure_cpu(num_threads: int | None = None) -> None:
     tune_allocator()
     if num_threads:
         torch.set_num_threads(int(num_threads))
+
+
+def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
+    """Median wall time of ``fn()`` over ``repeats`` calls after ``warmup`` calls, in seconds."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)

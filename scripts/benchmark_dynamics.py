@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 
 import numpy as np
 import torch
@@ -22,19 +20,12 @@ import torch
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration
 from lnn_torch.losses import acceleration_loss, energy_variance
 from lnn_torch.networks import build_model
-from lnn_torch.perf import configure_cpu
+from lnn_torch.perf import configure_cpu, median_seconds
 from lnn_torch.systems import get_system
 
 
 def median_ms(fn, repeats: int, warmup: int = 3) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(times)
+    return 1e3 * median_seconds(fn, repeats, warmup)
 
 
 def paths(model, variant, compile_fast: bool):

@@ -1,0 +1,42 @@
+"""Trained models shipped inside the package: ``lnn_torch.load_pretrained(name)``.
+
+Each model is a slim Lightning checkpoint (weights, normalisation buffers and hyper-parameters; no
+optimizer state) written by ``scripts/export_pretrained.py``, with a JSON file beside it recording
+the command that trained it and its measured test metrics.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def available() -> list[str]:
+    """Names of the shipped models."""
+    return sorted(p.stem for p in HERE.glob("*.ckpt"))
+
+
+def info(name: str) -> dict:
+    """How the shipped model ``name`` was trained and what it measured (its JSON card)."""
+    path = HERE / f"{name}.json"
+    if not path.exists():
+        raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
+    return json.loads(path.read_text())
+
+
+def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
+    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
+
+    >>> model = load_pretrained("double_pendulum")
+    >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
+    """
+    path = HERE / f"{name}.ckpt"
+    if not path.exists():
+        raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
+    from ..module import LNNModule
+
+    model = LNNModule.load_from_checkpoint(path, map_location=map_location)
+    model.eval()
+    return model

@@ -1,0 +1,376 @@
+"""Speed against error, measured in one run on this machine, for one scene.
+
+Every applicable model variant is trained on the same data, with the same seed and the same
+wall-clock budget (the cosine schedule ends with the budget); the validation error is recorded
+against training time (time-to-accuracy curves). Then, on the test split, for every integrator and
+step size: acceleration throughput (states/s), rollout cost (s per 1000 steps for a batch of 64),
+held-out relative L2 acceleration error, median time until the angle error first exceeds 0.1, and
+the mean true-energy drift |E(t) - E(0)| / (V_max - V_min). The scene's closed form is the ceiling
+row of both speed and accuracy. Timings run on one thread after warm-up (medians); training on
+``--threads``.
+
+    python scripts/benchmark.py --scene double_pendulum --minutes 5      # ~35 min
+    python scripts/benchmark.py --scene relativistic_particle --minutes 2
+    python scripts/benchmark.py --report                                 # merge into results/benchmark/README.md
+
+Writes ``results/benchmark/<scene>.json``, ``<scene>.md``, ``<scene>_curves.png`` and
+``<scene>_pareto.png`` (and, for the double pendulum, the stability table of every variant).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lnn_torch.perf import median_seconds
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "results" / "benchmark"
+
+# per scene: dataset (generated if missing), default budget (minutes), rollout horizon (s), threshold
+SCENES = {
+    "double_pendulum": dict(path="data/quickstart.h5", spec=dict(num_trajectories=200, duration=20.0, seed=0),
+                            minutes=5.0, horizon=10.0, threshold=0.1),
+    "chain_pendulum": dict(path="data/chain_pendulum.h5", spec=dict(num_trajectories=200, duration=20.0, seed=0),
+                           minutes=4.0, horizon=10.0, threshold=0.1),
+    "pendulum": dict(path="data/pendulum.h5", spec=dict(num_trajectories=200, duration=10.0, seed=0),
+                     minutes=1.0, horizon=10.0, threshold=0.1),
+    "mass_spring": dict(path="data/mass_spring.h5", spec=dict(num_trajectories=200, duration=10.0, seed=0),
+                        minutes=1.0, horizon=10.0, threshold=0.1),
+    "relativistic_particle": dict(path="data/relativistic_particle.h5",
+                                  spec=dict(num_trajectories=200, duration=10.0, seed=0),
+                                  minutes=2.0, horizon=10.0, threshold=0.1),
+}
+INTEGRATORS = [("rk4", 0.005), ("rk4", 0.01), ("leapfrog", 0.005), ("leapfrog", 0.01),
+               ("semi_implicit_euler", 0.005), ("semi_implicit_euler", 0.001)]
+
+
+def variants_for(system) -> list[tuple[str, dict]]:
+    """(row name, LNNModule overrides) of every variant that applies to the scene."""
+    rows = [("film_lnn", {"variant": "film_lnn"}), ("delan", {"variant": "delan"})] if system.quadratic_kinetic else []
+    rows += [("lnn", {"variant": "lnn"}), ("mlp", {"variant": "mlp"}),
+             ("hnn (canonical p)", {"variant": "hnn", "hnn_coordinates": "canonical"})]
+    if not system.quadratic_kinetic:  # the LNN paper's point: an HNN fed (q, qd) fails here
+        rows.append(("hnn (q, qd)", {"variant": "hnn", "hnn_coordinates": "velocity"}))
+    return rows
+
+
+# ---------------------------------------------------------------------------- training
+def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
+    import lightning as L
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from lnn_torch import LNNModule, TrajectoryDataModule
+
+    class Curve(L.Callback):
+        """Validation error on a fixed sample of validation points against training time (the
+        evaluation time itself is excluded)."""
+
+        def __init__(self, sample, every_s):
+            self.sample, self.every_s, self.points = sample, every_s, []
+            self.train_s, self.mark = 0.0, None
+
+        def on_train_start(self, trainer, module):
+            self.mark = time.perf_counter()
+            self._record(module)
+
+        def on_train_batch_end(self, trainer, module, *a):
+            now = time.perf_counter()
+            self.train_s += now - self.mark
+            self.mark = now
+            if not self.points or self.train_s - self.points[-1][0] >= self.every_s:
+                self._record(module)
+                self.mark = time.perf_counter()
+
+        def on_train_end(self, trainer, module):
+            self.train_s += time.perf_counter() - self.mark
+            self._record(module)
+
+        def _record(self, module):
+            q, qd, qdd, p = self.sample
+            with torch.set_grad_enabled(module.model.needs_autograd):
+                pred = module.model.acceleration(q, qd, p, check=False).detach()
+            self.points.append((self.train_s, float((pred - qdd).norm() / qdd.norm())))
+
+    torch.manual_seed(args.seed)
+    dm = TrajectoryDataModule(path=str(ROOT / cfg["path"]), spec=dict(scene=scene, **cfg["spec"]),
+                              chunk_len=8, chunks_per_batch=64, steps_per_epoch=500, seed=args.seed)
+    dm.prepare_data()
+    val = dm.rollout_data("val", 64)
+    idx = slice(0, None, 50)
+    sample = [val["q"][:, idx].reshape(-1, val["q"].shape[-1]).float(),
+              val["qd"][:, idx].reshape(-1, val["q"].shape[-1]).float(), None, None]
+    from lnn_torch.data import read_dataset
+
+    f = read_dataset(ROOT / cfg["path"])
+    with f.open() as h:
+        vi = np.sort(f.splits["val"])[:64]
+        sample[2] = torch.from_numpy(h["qdd"][vi][:, idx]).reshape(-1, val["q"].shape[-1]).float()
+    T = val["q"][:, idx].shape[1]
+    sample[3] = val["params"][:, None].expand(-1, T, -1).reshape(-1, val["params"].shape[-1]).float()
+    model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, **overrides)
+    curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
+    trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
+                        num_sanity_val_steps=0, inference_mode=False, gradient_clip_val=1.0,
+                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                        logger=TensorBoardLogger(str(ROOT / "lightning_logs"), name=f"benchmark_{scene}",
+                                                 default_hp_metric=False),
+                        callbacks=[curve], accelerator="cpu", devices=1)
+    start = time.perf_counter()
+    trainer.fit(model, dm)
+    model.eval()
+    return model, dm, {"train_seconds": time.perf_counter() - start, "steps": trainer.global_step,
+                       "skipped_steps": int(model.skipped_steps), "curve": curve.points}
+
+
+# ---------------------------------------------------------------------------- evaluation
+def evaluate_dynamics(name: str, accel_fn, rollout_fn, system, test: dict, cfg: dict, needs_grad: bool,
+                      first_order: bool) -> list[dict]:
+    """Rows (one per integrator x dt) of speed and accuracy for one dynamics model."""
+    from lnn_torch.evaluation import divergence_time, energy_drift, relative_l2
+
+    torch.set_num_threads(1)
+    dof = system.dof
+    q, qd, qdd, params, data_dt = test["q"], test["qd"], test["qdd"], test["params"], test["dt"]
+    B = q.shape[0]
+    sub = slice(0, None, 10)
+    Tn = q[:, sub].shape[1]
+    with torch.set_grad_enabled(needs_grad):
+        pred = accel_fn(q[:, sub].reshape(-1, dof), qd[:, sub].reshape(-1, dof),
+                        params[:, None].expand(-1, Tn, -1).reshape(-1, params.shape[-1])).detach()
+    acc_err = float(relative_l2(pred, qdd[:, sub].reshape(-1, dof)))
+    # throughput: float32 batches of 8192 states (the model's own dtype), one thread
+    n = 8192
+    rep = lambda x: x.reshape(-1, x.shape[-1])[torch.arange(n) % (B * Tn)]  # noqa: E731
+    qq, qqd = rep(q[:, sub]).float(), rep(qd[:, sub]).float()
+    pp = rep(params[:, None].expand(-1, Tn, -1)).float()
+
+    def ev():
+        with torch.set_grad_enabled(needs_grad):
+            accel_fn(qq, qqd, pp)
+
+    throughput = n / median_seconds(ev, repeats=5)
+    rows = []
+    horizon = cfg["horizon"]
+    for method, dt in INTEGRATORS:
+        row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc_err, "states_per_s": throughput}
+        if first_order and method not in ("rk4", "rk8"):
+            row["note"] = "n/a: a Hamiltonian network integrates its own first-order flow (RK methods only)"
+            rows.append(row)
+            continue
+        stride = int(round(dt / data_dt))
+        if stride < 1 or abs(stride * data_dt - dt) > 1e-9:
+            steps = int(round(horizon / dt))
+            q_true = None
+        else:
+            steps = min(int(round(horizon / dt)), (q.shape[1] - 1) // stride)
+            q_true = q[:, : steps * stride + 1 : stride]
+        # rollout cost: batch 64 (test states repeated), 200 steps, scaled to 1000 steps
+        idx = torch.arange(64) % B
+        with torch.set_grad_enabled(needs_grad):
+            cost = median_seconds(lambda: rollout_fn(q[idx, 0], qd[idx, 0], params[idx], dt, 200, method),
+                                  repeats=3, warmup=1) * 5
+            qm, qdm = rollout_fn(q[:, 0], qd[:, 0], params, dt, steps, method)
+        qm, qdm = qm.detach(), qdm.detach()
+        finite = torch.isfinite(qm).all(-1).all(-1) & torch.isfinite(qdm).all(-1).all(-1)
+        drift = energy_drift(system, qm[finite], qdm[finite], params[finite]) if finite.any() else torch.full((1, 1), float("nan"))
+        row.update({"rollout_s_per_1000_steps_b64": cost, "non_finite_fraction": float(1 - finite.double().mean()),
+                    "energy_drift_mean": float(drift.mean()), "energy_drift_max": float(drift.max())})
+        if q_true is not None:
+            # the data's dt must divide dt for the comparison; non-finite rollouts diverge at t = 0
+            div = divergence_time(torch.nan_to_num(qm, nan=1e6, posinf=1e6, neginf=-1e6), q_true, dt,
+                                  cfg["threshold"], system.angle_mask)
+            row["divergence_time_median"] = float(div.median())
+            row["divergence_time_q25"] = float(torch.quantile(div.double(), 0.25))
+        rows.append(row)
+    torch.set_num_threads(THREADS)
+    return rows
+
+
+def test_data(dm, max_trajectories: int = 64) -> dict:
+    from lnn_torch.data import read_dataset
+
+    f = read_dataset(dm.path)
+    idx = np.sort(f.splits["test"])[:max_trajectories]
+    with f.open() as h:
+        out = {k: torch.from_numpy(h[k][idx]) for k in ("q", "qd", "qdd")}
+        out["params"] = torch.from_numpy(h["params"][idx])
+        t = h["t"][:2]
+    out["dt"] = float(t[1] - t[0])
+    return out
+
+
+# ---------------------------------------------------------------------------- report
+def fmt(x, spec):
+    return "-" if x is None or (isinstance(x, float) and np.isnan(x)) else format(x, spec)
+
+
+def markdown(result: dict) -> str:
+    scene = result["scene"]
+    lines = [f"### {scene}", "",
+             f"{result['machine']}; each variant trained {result['minutes']:g} min on {result['train_threads']} threads "
+             f"(same data, seed, budget); speed on 1 thread; {result['num_test']} test trajectories, rollouts over "
+             f"{result['horizon']:g} s. Command: `{result['command']}`", "",
+             "| model | integrator | dt (s) | accel. throughput (states/s) | rollout cost (s / 1000 steps, batch 64) | "
+             "x closed form | test acc. rel. L2 | time to 0.1 error, median (s) | true-energy drift, mean |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    ceiling = {(r["integrator"], r["dt"]): r for r in result["rows"] if r["model"] == "closed form"}
+    for r in result["rows"]:
+        if "note" in r:
+            lines.append(f"| {r['model']} | {r['integrator']} | {r['dt']:g} | {r['states_per_s']:.3g} | {r['note']} "
+                         f"| - | {r['acc_rel_err']:.4f} | - | - |")
+            continue
+        base = ceiling.get((r["integrator"], r["dt"]), {}).get("rollout_s_per_1000_steps_b64")
+        ratio = r["rollout_s_per_1000_steps_b64"] / base if base else None
+        lines.append(f"| {r['model']} | {r['integrator']} | {r['dt']:g} | {r['states_per_s']:.3g} | "
+                     f"{r['rollout_s_per_1000_steps_b64']:.3g} | {fmt(ratio, '.0f')} | {r['acc_rel_err']:.4f} | "
+                     f"{fmt(r.get('divergence_time_median'), '.2f')} | {fmt(r['energy_drift_mean'], '.2e')} |")
+    lines += ["", "Training (same budget): steps done, skipped steps, final validation error:", "",
+              "| model | steps | skipped | val. acc. rel. L2 at the end |", "|---|---|---|---|"]
+    for name, t in result["training"].items():
+        lines.append(f"| {name} | {t['steps']} | {t['skipped_steps']} | {t['curve'][-1][1]:.4f} |")
+    if result.get("stability"):
+        from lnn_torch.stability import stability_markdown
+
+        lines += ["", f"Stability on hard cases (trained models, RK4, dt = 0.005 s, "
+                      f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
+                  stability_markdown(result["stability"])]
+    return "\n".join(lines) + "\n"
+
+
+def plots(result: dict, out: Path) -> None:
+    from lnn_torch.plots import plt
+
+    scene = result["scene"]
+    fig, ax = plt.subplots(figsize=(6.5, 3.6))
+    for name, t in result["training"].items():
+        xs, ys = zip(*t["curve"])
+        ax.loglog(np.maximum(xs, 1.0), ys, label=name)
+    ax.set_xlabel("training time (s)")
+    ax.set_ylabel("validation acc. rel. L2")
+    ax.set_title(f"{scene}: time to accuracy")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / f"{scene}_curves.png", dpi=110)
+    plt.close(fig)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for i, model in enumerate(dict.fromkeys(r["model"] for r in result["rows"])):
+        rows = [r for r in result["rows"] if r["model"] == model and "note" not in r]
+        if not rows:
+            continue
+        axes[0].scatter([1 / rows[0]["states_per_s"]], [max(rows[0]["acc_rel_err"], 1e-16)], color=f"C{i}", label=model)
+        xs = [r["rollout_s_per_1000_steps_b64"] for r in rows]
+        ys = [max(r["energy_drift_mean"], 1e-16) for r in rows]
+        axes[1].scatter(xs, ys, color=f"C{i}", label=model)
+        for r, x, y in zip(rows, xs, ys):
+            axes[1].annotate(f"{r['integrator'][:4]} {r['dt']:g}", (x, y), fontsize=6)
+    axes[0].set(xscale="log", yscale="log", xlabel="seconds per state (accel., batch 8192, 1 thread)",
+                ylabel="test acc. rel. L2", title="acceleration: cost vs error")
+    axes[1].set(xscale="log", yscale="log", xlabel="rollout cost (s / 1000 steps, batch 64)",
+                ylabel="true-energy drift, mean", title="rollouts: cost vs energy drift")
+    axes[1].legend(fontsize=7)
+    fig.suptitle(scene)
+    fig.tight_layout()
+    fig.savefig(out / f"{scene}_pareto.png", dpi=110)
+    plt.close(fig)
+
+
+def report(out: Path) -> None:
+    parts = ["# Benchmark: speed against error", ""]
+    for path in sorted(out.glob("*.json")):
+        result = json.loads(path.read_text())
+        parts.append(markdown(result))
+        parts.append(f"![{result['scene']} curves]({result['scene']}_curves.png) "
+                     f"![{result['scene']} pareto]({result['scene']}_pareto.png)\n")
+    (out / "README.md").write_text("\n".join(parts))
+    print(f"wrote {out / 'README.md'}")
+
+
+# ---------------------------------------------------------------------------- main
+THREADS = 2
+
+
+def main() -> None:
+    global THREADS
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", choices=sorted(SCENES), default="double_pendulum")
+    ap.add_argument("--minutes", type=float, default=None, help="training budget per variant (default: per scene)")
+    ap.add_argument("--variants", nargs="*", default=None, help="row names to run (default: all applicable)")
+    ap.add_argument("--energy-weight", type=float, default=None, help="default: LNNModule's default")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
+    ap.add_argument("--stability-seconds", type=float, default=2.0)
+    ap.add_argument("--output", default=str(OUT))
+    ap.add_argument("--report", action="store_true", help="only merge existing results into README.md")
+    args = ap.parse_args()
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.report:
+        report(out)
+        return
+    from lnn_torch import LNNModule
+    from lnn_torch.evaluation import closed_form_rollout, counting_failures
+    from lnn_torch.perf import configure_cpu
+    from lnn_torch.stability import hard_cases, run_hard_cases
+    from lnn_torch.systems import get_system
+
+    THREADS = args.threads
+    configure_cpu(args.threads)
+    cfg = SCENES[args.scene]
+    args.minutes = args.minutes if args.minutes is not None else cfg["minutes"]
+    if args.energy_weight is None:
+        import inspect
+
+        args.energy_weight = inspect.signature(LNNModule.__init__).parameters["energy_weight"].default
+    system = get_system(args.scene)
+    rows_spec = [v for v in variants_for(system) if args.variants is None or v[0] in args.variants]
+    result = {"scene": args.scene, "minutes": args.minutes, "train_threads": args.threads,
+              "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
+              "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
+              "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
+                                                                   (("scene", args.scene), ("minutes", args.minutes))),
+              "rows": [], "training": {}, "stability": {}, "stability_seconds": args.stability_seconds}
+    test = None
+    for name, overrides in rows_spec:
+        print(f"[{args.scene}] training {name} for {args.minutes:g} min", flush=True)
+        module, dm, info = train(name, overrides, args.scene, cfg, args)
+        result["training"][name] = info
+        if test is None:
+            test = test_data(dm)
+            result["num_test"] = int(test["q"].shape[0])
+            result["rows"] += evaluate_dynamics("closed form", system.acceleration, closed_form_rollout(system), system,
+                                                test, cfg, False, False)
+        model = module.model
+
+        def accel(q, qd, p, model=model):
+            return model.acceleration(q, qd, p, check=False)
+
+        with counting_failures(model):  # undefined accelerations (singular Hessians) count as non-finite
+            result["rows"] += evaluate_dynamics(name, accel, model.rollout, system, test, cfg, model.needs_autograd,
+                                                overrides.get("variant") == "hnn")
+            if args.scene == "double_pendulum":
+                steps = int(round(args.stability_seconds / 0.005))
+                with torch.set_grad_enabled(model.needs_autograd):
+                    cases = hard_cases(system, num=8, num_steps=steps)
+                    result["stability"][name] = run_hard_cases(model.rollout, system, cases, model=model)
+        (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))
+        print(markdown(result), flush=True)
+    if args.scene == "double_pendulum":
+        steps = int(round(args.stability_seconds / 0.005))
+        result["stability"] = {"closed form": run_hard_cases(closed_form_rollout(system), system,
+                                                             hard_cases(system, num=8, num_steps=steps)),
+                               **result["stability"]}
+    (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))
+    (out / f"{args.scene}.md").write_text(markdown(result))
+    plots(result, out)
+    print(markdown(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,49 @@
+"""Export a trained checkpoint as a shipped model: ``lnn_torch/pretrained/<name>.ckpt`` + ``<name>.json``.
+
+The exported file keeps what ``LNNModule.load_from_checkpoint`` needs (weights, normalisation
+buffers, hyper-parameters) and drops the optimizer and scheduler states.
+
+    python scripts/export_pretrained.py lightning_logs/double_pendulum/version_0/checkpoints/last.ckpt \\
+        --name double_pendulum --command "lnn-torch fit -c configs/double_pendulum.yaml" \\
+        --metrics results/double_pendulum_test.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint")
+    ap.add_argument("--name", default="double_pendulum")
+    ap.add_argument("--command", required=True, help="the command that trained the checkpoint")
+    ap.add_argument("--metrics", default=None, help="a JSON file of measured test metrics to record")
+    ap.add_argument("--note", default="", help="free text for the model card (training time, machine)")
+    ap.add_argument("--overwrite", action="store_true")
+    args = ap.parse_args()
+    out = ROOT / "lnn_torch" / "pretrained" / f"{args.name}.ckpt"
+    if out.exists() and not args.overwrite:
+        raise SystemExit(f"{out} exists; pass --overwrite to replace it")
+    ckpt = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
+    slim = {k: ckpt[k] for k in ("state_dict", "hyper_parameters", "pytorch-lightning_version", "epoch", "global_step")
+            if k in ckpt}
+    slim["state_dict"] = {k: v.clone() for k, v in slim["state_dict"].items()}
+    torch.save(slim, out)
+    card = {"name": args.name, "command": args.command, "source_checkpoint": str(args.checkpoint),
+            "global_step": ckpt.get("global_step"), "hyper_parameters": ckpt["hyper_parameters"],
+            "datamodule_hyper_parameters": ckpt.get("datamodule_hyper_parameters", {}), "note": args.note}
+    if args.metrics:
+        card["test_metrics"] = json.loads(Path(args.metrics).read_text())
+    (out.with_suffix(".json")).write_text(json.dumps(card, indent=2, default=str) + "\n")
+    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB) and {out.with_suffix('.json')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""The shipped model: it loads with no other argument, is small, is accurate where its card says,
+and simulates from the command line; ``lnn-torch evaluate`` writes its report."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch import load_pretrained
+from lnn_torch.cli import main
+from lnn_torch.pretrained import HERE, available, info
+from lnn_torch.systems import get_system
+
+
+def test_shipped_model_is_small_and_has_a_card():
+    assert "double_pendulum" in available()
+    path = HERE / "double_pendulum.ckpt"
+    assert path.stat().st_size < 1_000_000
+    card = info("double_pendulum")
+    assert card["command"].startswith("lnn-torch fit -c configs/double_pendulum.yaml")
+    assert card["test_metrics"]["test/acc_rel_err"] <= 0.005
+    with pytest.raises(KeyError, match="no pretrained model 'triple'"):
+        load_pretrained("triple")
+
+
+def test_shipped_model_loads_and_matches_the_closed_form():
+    """In distribution its accelerations are within ~1 % of the scene's (card: test error <= 0.5 %)."""
+    model = load_pretrained("double_pendulum")
+    system = get_system("double_pendulum")
+    rng = np.random.default_rng(0)
+    params = torch.tensor(system.sample_params(rng, 512))
+    q, qd = (torch.tensor(x) for x in system.sample_state(rng, 512))
+    with torch.no_grad():
+        a = model.acceleration(q, qd, params)
+    assert a.dtype == torch.float64 and a.shape == (512, 2)
+    true = system.acceleration(q, qd, params)
+    assert ((a - true).norm() / true.norm()) < 0.01  # measured ~0.2 % on these initial states
+
+
+def test_simulate_writes_csv_and_plot_and_refuses_to_overwrite(tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    argv = ["simulate", "--params", "1.0", "0.6", "1.2", "1.1", "--q0", "0.8", "-0.4", "--qd0", "0", "0",
+            "--duration", "2", "--dt", "0.01", "-o", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "wrote" in text and "true-energy drift" in text
+    data = np.loadtxt(out, delimiter=",")
+    header = [line for line in out.read_text().splitlines() if line.startswith("#")][-1]
+    assert header.lstrip("# ").split(",")[:3] == ["t", "theta1", "theta2"]
+    assert data.shape == (201, 1 + 2 + 2 + 2 + 2)
+    np.testing.assert_allclose(data[0, 1:3], [0.8, -0.4])
+    assert np.abs(data[:, 1:3] - data[:, 5:7]).max() < 0.05  # model vs exact over 2 s
+    assert (tmp_path / "sim.png").exists()
+    assert main(argv) == 2
+    assert "refusing to overwrite" in capsys.readouterr().err
+    assert main(argv[:3] + ["1.0", "0.6"] + argv[5:] + ["--overwrite"]) == 2
+    assert "params needs 4 values (m1, m2, l1, l2)" in capsys.readouterr().err
+
+
+def test_simulate_hdf5(tmp_path):
+    import h5py
+
+    out = tmp_path / "sim.h5"
+    assert main(["simulate", "--params", "1.0", "0.6", "1.2", "1.1", "--q0", "0.5", "0.5", "--duration", "1",
+                 "-o", str(out), "--no-exact"]) == 0
+    with h5py.File(out) as f:
+        assert f["q"].shape == (201, 2) and "q_exact" not in f
+        assert json.loads(f.attrs["meta"])["variant"] == "film_lnn"
+
+
+def test_evaluate_report_of_the_shipped_model(tmp_path):
+    """``lnn-torch evaluate`` on a small dataset: JSON, Markdown and plots with every section."""
+    from lnn_torch.data import DatasetSpec, generate_dataset
+
+    data = generate_dataset(DatasetSpec(num_trajectories=20, duration=4.0, seed=9), tmp_path / "d.h5")
+    out = tmp_path / "eval"
+    assert main(["evaluate", "pretrained:double_pendulum", "--data", str(data), "--horizon", "3",
+                 "--stability-seconds", "0.5", "--long-horizon-steps", "200", "-o", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("acc_rel_err", "divergence_time@0.1", "divergence_time@0.5", "energy_drift", "mass_matrix", "ood",
+                "stability"):
+        assert key in metrics, key
+    assert metrics["acc_rel_err"]["total"] < 0.02
+    assert len(metrics["ood"]) == 4
+    assert any(r["case"].startswith("long horizon") for r in metrics["stability"])
+    assert all(r["non_finite_fraction"] == 0 for r in metrics["stability"])
+    assert math.isfinite(metrics["mass_matrix"]["cond_max"])
+    report = (out / "report.md").read_text()
+    assert "Out-of-distribution" in report and "Stability" in report
+    for png in ("trajectory.png", "energy_drift.png", "error_growth.png", "frames_ood_case1.png"):
+        assert (out / png).stat().st_size > 1000, png
