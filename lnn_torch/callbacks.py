@@ -1,4 +1,4 @@
-"""Lightning callbacks: writing ``predict`` results to a file."""
+"""Lightning callbacks: writing ``predict`` results and ``test`` metrics to files."""
 
 from __future__ import annotations
 
@@ -41,3 +41,18 @@ class PredictionWriter(BasePredictionWriter):
         if self.output:
             return Path(self.output)
         return Path(trainer.log_dir or ".") / "predictions.npz"
+
+
+class TestMetricsWriter(L.Callback):
+    """Writes the metrics of ``test`` to ``<log_dir>/test_metrics.json`` (as ``lnn-torch test`` prints them)."""
+
+    def on_test_end(self, trainer: L.Trainer, pl_module) -> None:
+        if not trainer.is_global_zero:
+            return
+        import json
+
+        metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
+        path = Path(trainer.log_dir or ".") / "test_metrics.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(metrics, indent=2) + "\n")
+        print(f"test metrics written to {path}")

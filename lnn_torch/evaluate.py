@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .evaluation import counting_failures, divergence_time, energy_drift, relative_l2
+from .evaluation import (condition_numbers, counting_failures, divergence_time, energy_drift, learned_mass_matrix,
+                         relative_l2)
 from .integrators import rollout
 
 OOD_CASES = [  # (m1, m2, l1, l2), [theta1, theta2, thetad1, thetad2]
@@ -70,22 +71,19 @@ def mass_matrix_metrics(module, system, q: torch.Tensor, params: torch.Tensor) -
     ``qd_n = qd * tau / scale``, i.e. it equals ``D M_n D`` (``D = diag(tau / scale)``) in SI units.
     """
     model = module.model
-    if not hasattr(model, "mass_matrix_norm"):
-        return None
     B, T, dof = q.shape
-    dtype = next(model.parameters()).dtype
     p = params[:, None, :].expand(-1, T, -1).reshape(-1, params.shape[-1])
     qf = q.reshape(-1, dof)
-    with torch.no_grad():
-        M_n = model.mass_matrix(qf.to(dtype), p.to(dtype)).double()
+    M_n = learned_mass_matrix(model, qf, p)
+    if M_n is None:
+        return None
     norm = model.normalizer
     D = (norm.time_scale.double() / norm.coord_scale.double())
     M_model = (D[:, None] * M_n * D[None, :]).reshape(B, T, dof, dof)
     M_true = system.mass_matrix(qf, p).reshape(B, T, dof, dof)
     c = (M_true * M_model).sum((1, 2, 3)) / (M_model * M_model).sum((1, 2, 3))
     err = ((M_true - c[:, None, None, None] * M_model).pow(2).sum((1, 2, 3)) / M_true.pow(2).sum((1, 2, 3))).sqrt()
-    eig = torch.linalg.eigvalsh(M_n)
-    cond = eig[..., -1] / eig[..., 0]
+    cond = condition_numbers(M_n)
     return {"rel_frobenius_median": float(err.median()), "rel_frobenius_max": float(err.max()),
             "cond_median": float(cond.median()), "cond_max": float(cond.max())}
 

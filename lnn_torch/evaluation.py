@@ -100,3 +100,18 @@ def counting_failures(model):
     finally:
         if previous is not None:
             model.raise_on_singular = previous
+
+
+def learned_mass_matrix(model, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
+    """The model's mass matrix in its normalised units (float64) at SI states ``q (n, dof)``,
+    ``params (n, P)``: ``(n, dof, dof)``; None for models without one (lnn, mlp, hnn)."""
+    if not hasattr(model, "mass_matrix_norm"):
+        return None
+    with torch.no_grad():
+        return model.mass_matrix(q.to(model.dtype), params.to(model.dtype)).double()
+
+
+def condition_numbers(M: torch.Tensor) -> torch.Tensor:
+    """Condition numbers of symmetric positive definite matrices ``(..., n, n)`` -> ``(...)``."""
+    eig = torch.linalg.eigvalsh(M)
+    return eig[..., -1] / eig[..., 0]

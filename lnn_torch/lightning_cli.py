@@ -24,6 +24,7 @@ CALLBACKS = [
      "init_args": {"monitor": "val/acc_rel_err", "mode": "min", "save_last": True,
                    "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
     {"class_path": "lnn_torch.callbacks.PredictionWriter"},
+    {"class_path": "lnn_torch.callbacks.TestMetricsWriter"},
 ]
 
 

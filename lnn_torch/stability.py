@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .evaluation import energy_drift
+from .evaluation import condition_numbers, energy_drift, learned_mass_matrix
 from .systems.base import InputError
 
 
@@ -85,11 +85,8 @@ def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
         return float("nan")
     qf = q[finite][:, :: max(1, T // 200)]  # at most ~200 states per trajectory
     p = params[finite][:, None].expand(-1, qf.shape[1], -1)
-    dtype = model.dtype
-    with torch.no_grad():
-        M = model.mass_matrix(qf.reshape(-1, dof).to(dtype), p.reshape(-1, p.shape[-1]).to(dtype)).double()
-    eig = torch.linalg.eigvalsh(M)
-    return float((eig[..., -1] / eig[..., 0]).max())
+    M = learned_mass_matrix(model, qf.reshape(-1, dof), p.reshape(-1, p.shape[-1]))
+    return float(condition_numbers(M).max())
 
 
 def run_hard_cases(rollout_fn, system, cases: list[HardCase], model=None, method: str = "rk4") -> list[dict]:

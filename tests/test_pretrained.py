@@ -56,7 +56,7 @@ def test_simulate_writes_csv_and_plot_and_refuses_to_overwrite(tmp_path, capsys)
     assert (tmp_path / "sim.png").exists()
     assert main(argv) == 2
     assert "refusing to overwrite" in capsys.readouterr().err
-    assert main(argv[:3] + ["1.0", "0.6"] + argv[5:] + ["--overwrite"]) == 2
+    assert main(argv[:2] + ["1.0", "0.6"] + argv[6:] + ["--overwrite"]) == 2
     assert "params needs 4 values (m1, m2, l1, l2)" in capsys.readouterr().err
 
 

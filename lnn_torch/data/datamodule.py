@@ -12,7 +12,9 @@ training split only (``normalization_data``).
 
 from __future__ import annotations
 
+import json
 import os
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 
@@ -159,6 +161,13 @@ class TrajectoryDataModule(L.LightningDataModule):
             if self.file.attrs["scene"] != self.spec.scene:
                 raise ValueError(f"{self.path} holds scene '{self.file.attrs['scene']}', but the data spec "
                                  f"says '{self.spec.scene}'")
+            recorded, configured = self.file.spec, asdict(self.spec)
+            differ = sorted(k for k in configured if k in recorded and json.dumps(recorded[k], sort_keys=True)
+                            != json.dumps(configured[k], sort_keys=True))
+            if differ:
+                warnings.warn(f"{self.path} was generated with a different specification than configured "
+                              f"({', '.join(f'{k}: file {recorded[k]!r} vs config {configured[k]!r}' for k in differ)}); "
+                              "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning)
         return self.file
 
     def source(self, split: str, dtype=torch.float32) -> _Source:
