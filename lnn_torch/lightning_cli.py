@@ -3,6 +3,8 @@ Euler-Lagrange solves differentiate with respect to their inputs even in evaluat
 
 from __future__ import annotations
 
+import sys
+
 from lightning.pytorch.cli import LightningCLI
 
 from .data.datamodule import TrajectoryDataModule
@@ -29,5 +31,7 @@ CALLBACKS = [
 
 
 def run_cli(argv: list[str]) -> LNNCLI:
-    return LNNCLI(LNNModule, TrajectoryDataModule, args=argv, trainer_defaults=TRAINER_DEFAULTS,
+    # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
+    args = None if argv == sys.argv[1:] else argv
+    return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
                   save_config_kwargs={"overwrite": True}, seed_everything_default=0)

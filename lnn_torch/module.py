@@ -27,7 +27,7 @@ class LNNModule(L.LightningModule):
     Args:
         scene: scene name (``lnn_torch.systems``); linked to the data's scene by the CLI.
         scene_config: scene sampler configuration (only structural options matter to the model).
-        variant: one of ``film_lnn`` (default), ``lnn``, ``delan``, ``mlp``.
+        variant: one of ``film_lnn`` (default), ``lnn``, ``delan``, ``mlp``, ``hnn``.
         hidden_dims: hidden widths of each MLP.
         activation: ``tanh``, ``softplus``, ``sigmoid``, ``isru``; default: the variant's (softplus for
             ``lnn``, as in the LNN paper; tanh otherwise).

@@ -72,7 +72,7 @@ def main() -> None:
     rows = [run(s[0], s[1:], args) for s in args.setting]
     budget = f"{args.steps} steps" if args.steps else f"{args.minutes:g} min"
     lines = [f"config {Path(args.config).name}, {budget} of training per setting on {args.threads} threads, "
-             f"seed {args.seed}; test split; RK4 rollouts (data dt) of {args.rollouts} test trajectories over "
+             f"seed {args.seed} unless a setting sets one; test split; RK4 rollouts (data dt) of {args.rollouts} test trajectories over "
              f"{args.rollout_seconds:g} s", "",
              "| setting | steps | train time (s) | test acc. rel. L2 | median time to 0.1 rad (s) | mean true-energy drift "
              "| skipped steps |", "|---|---|---|---|---|---|---|"]

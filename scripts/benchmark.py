@@ -11,7 +11,7 @@ row of both speed and accuracy. Timings run on one thread after warm-up (medians
 
     python scripts/benchmark.py --scene double_pendulum --minutes 5      # ~35 min
     python scripts/benchmark.py --scene relativistic_particle --minutes 2
-    python scripts/benchmark.py --report                                 # merge into results/benchmark/README.md
+    python scripts/benchmark.py --report          # merge into results/benchmark/README.md and summary.md
 
 Writes ``results/benchmark/<scene>.json``, ``<scene>.md``, ``<scene>_curves.png`` and
 ``<scene>_pareto.png`` (and, for the double pendulum, the stability table of every variant).
@@ -298,15 +298,34 @@ def plots(result: dict, out: Path) -> None:
     plt.close(fig)
 
 
+def summary(result: dict, integrator: str = "rk4", dt: float = 0.005) -> str:
+    """One row per model: its row at ``integrator``/``dt``, with both costs relative to the closed form."""
+    rows = [r for r in result["rows"] if r["integrator"] == integrator and r["dt"] == dt]
+    ceiling = next(r for r in rows if r["model"] == "closed form")
+    lines = [f"**{result['scene']}** ({result['minutes']:g} min of training per model on {result['train_threads']} "
+             f"thread(s); {result['num_test']} test trajectories; {integrator}, dt = {dt:g} s, {result['horizon']:g} s "
+             f"rollouts; `{result['command']}`)", "",
+             "| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | true-energy drift, mean | "
+             "accel. cost x closed form | rollout cost x closed form |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        steps = result["training"].get(r["model"], {}).get("steps")
+        lines.append(f"| {r['model']} | {fmt(steps, ',')} | {acc_cell(r)} | {fmt(r.get('divergence_time_median'), '.2f')} | "
+                     f"{drift_cell(r)} | {ceiling['states_per_s'] / r['states_per_s']:.0f} | "
+                     f"{r['rollout_s_per_1000_steps_b64'] / ceiling['rollout_s_per_1000_steps_b64']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
 def report(out: Path) -> None:
-    parts = ["# Benchmark: speed against error", ""]
+    parts, short = ["# Benchmark: speed against error", ""], ["# Benchmark summary (RK4, dt = 0.005 s)", ""]
     for path in sorted(out.glob("*.json")):
         result = json.loads(path.read_text())
         parts.append(markdown(result))
         parts.append(f"![{result['scene']} curves]({result['scene']}_curves.png) "
                      f"![{result['scene']} pareto]({result['scene']}_pareto.png)\n")
+        short.append(summary(result))
     (out / "README.md").write_text("\n".join(parts))
-    print(f"wrote {out / 'README.md'}")
+    (out / "summary.md").write_text("\n".join(short))
+    print(f"wrote {out / 'README.md'} and {out / 'summary.md'}")
 
 
 # ---------------------------------------------------------------------------- main
