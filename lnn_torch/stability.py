@@ -131,3 +131,25 @@ def stability_markdown(results: dict[str, list[dict]]) -> str:
             cond_s = "-" if cond is None else f"{cond:.3g}"
             lines.append(f"| {case} | {name} | {r['non_finite_fraction']:.2f} | {r['max_energy_drift']:.2e} | {cond_s} |")
     return "\n".join(lines)
+
+
+def stability_pivot(results: dict[str, list[dict]]) -> str:
+    """The same results as a Markdown grid: one row per case, one column per model; each cell is the
+    max true-energy drift, with the non-finite fraction where it is not 0 and cond(M) where known."""
+    names = list(results)
+    lines = ["| case | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for case in [r["case"] for r in next(iter(results.values()))]:
+        cells = []
+        for name in names:
+            r = next(x for x in results[name] if x["case"] == case)
+            if "error" in r:
+                cells.append("refused")
+                continue
+            cell = f"{r['max_energy_drift']:.1e}"
+            if r.get("max_cond") is not None:
+                cell += f" (cond {r['max_cond']:.3g})"
+            if r["non_finite_fraction"] > 0:
+                cell += f", **{100 * r['non_finite_fraction']:.0f} % non-finite**"
+            cells.append(cell)
+        lines.append(f"| {case.replace('|', '&#124;')} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -323,6 +323,12 @@ def report(out: Path) -> None:
         parts.append(f"![{result['scene']} curves]({result['scene']}_curves.png) "
                      f"![{result['scene']} pareto]({result['scene']}_pareto.png)\n")
         short.append(summary(result))
+        if result.get("stability"):
+            from lnn_torch.stability import stability_pivot
+
+            short += [f"Stability on hard cases (max true-energy drift / (V_max - V_min), RK4, dt = 0.005 s, "
+                      f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
+                      stability_pivot(result["stability"]), ""]
     (out / "README.md").write_text("\n".join(parts))
     (out / "summary.md").write_text("\n".join(short))
     print(f"wrote {out / 'README.md'} and {out / 'summary.md'}")

@@ -299,3 +299,17 @@ def test_datamodule_refuses_empty_chunks(tmp_path):
         dm = TrajectoryDataModule(path=str(path), spec=spec, **kw)
         with pytest.raises(ValueError, match=message):
             dm.setup("fit")
+
+
+def test_stability_pivot_has_a_row_per_case_and_flags_non_finite_rollouts():
+    from lnn_torch.stability import stability_pivot
+
+    rows = lambda nf: [{"case": "nominal", "non_finite_fraction": 0.0, "max_energy_drift": 1e-3, "max_cond": 5.0},  # noqa: E731
+                       {"case": "inverted, |qd0| = 10", "non_finite_fraction": nf, "max_energy_drift": 2.0,
+                        "max_cond": None}]
+    table = stability_pivot({"a": rows(0.0), "b": rows(0.25), "c": [{"case": "nominal", "error": "x"},
+                                                                     {"case": "inverted, |qd0| = 10", "error": "x"}]})
+    lines = table.splitlines()
+    assert lines[0] == "| case | a | b | c |" and len(lines) == 4
+    assert lines[2] == "| nominal | 1.0e-03 (cond 5) | 1.0e-03 (cond 5) | refused |"
+    assert "&#124;qd0&#124;" in lines[3] and "25 % non-finite" in lines[3] and lines[3].count("non-finite") == 1
