@@ -313,3 +313,36 @@ def test_stability_pivot_has_a_row_per_case_and_flags_non_finite_rollouts():
     assert lines[0] == "| case | a | b | c |" and len(lines) == 4
     assert lines[2] == "| nominal | 1.0e-03 (cond 5) | 1.0e-03 (cond 5) | refused |"
     assert "&#124;qd0&#124;" in lines[3] and "25 % non-finite" in lines[3] and lines[3].count("non-finite") == 1
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_rollouts_under_no_grad_build_no_autograd_graph(variant):
+    """Long rollouts stay in constant memory: under no_grad no step's accelerations carry a graph
+    (the generic solve of ``lnn`` differentiates with torch.func whatever the grad mode; when grad
+    was forced on for it, a rollout kept every step's graph alive, ~5 MB per step at batch 64).
+    With gradients on, a rollout stays differentiable."""
+    from lnn_torch import LNNModule
+
+    module = LNNModule(variant=variant, hidden_dims=[16, 16])
+    module.model.normalizer.fit(torch.randn(50, 2), torch.randn(50, 2), torch.randn(50, 2), torch.rand(10, 4) + 0.5)
+    seen = []
+    inner = module.model.acceleration_norm
+
+    def spy(*args, **kwargs):
+        out = inner(*args, **kwargs)
+        seen.append(out.requires_grad)
+        return out
+
+    module.model.acceleration_norm = spy
+    q0, qd0, params = torch.tensor([[1.0, -0.5]]), torch.zeros(1, 2), torch.tensor([[1.0, 0.6, 1.2, 1.1]])
+    if variant == "hnn":  # integrates its own flow, not accelerations
+        with torch.no_grad():
+            q, _ = module.rollout(q0, qd0, params, 0.01, 5)
+        assert not q.requires_grad
+        return
+    with torch.no_grad():
+        q, _ = module.rollout(q0, qd0, params, 0.01, 5)
+        module.acceleration(q0, qd0, params)
+    assert seen and not any(seen) and not q.requires_grad
+    q, _ = module.rollout(q0, qd0, params, 0.01, 2)
+    assert q.requires_grad

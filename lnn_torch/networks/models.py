@@ -66,7 +66,9 @@ class DynamicsModel(nn.Module):
 
     variant = ""
     has_energy = True  # the model has its own Hamiltonian H = T + V for the energy regulariser
-    needs_autograd = False  # its accelerations differentiate a network (even in evaluation)
+    # True for a model whose accelerations call torch.autograd (which needs grad mode on, even in
+    # evaluation); torch.func transforms do not, so every built-in model runs evaluation under no_grad
+    needs_autograd = False
 
     def __init__(self, scene) -> None:
         super().__init__()
@@ -308,7 +310,10 @@ class BlackBoxLagrangian(DynamicsModel):
     """The LNN paper's model: an MLP ``L(q, qd, theta)`` and the generic Euler-Lagrange solve."""
 
     variant = "lnn"
-    needs_autograd = True
+    # The generic solve differentiates the network with torch.func transforms, which work whatever
+    # the outer grad mode: evaluation and rollouts run under no_grad and build no autograd graph
+    # (with grad forced on, a rollout kept every step's graph alive: ~5 MB per step at batch 64).
+    needs_autograd = False
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
                  damping: float = 0.0) -> None:
