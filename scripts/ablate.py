@@ -39,7 +39,7 @@ def run(name: str, overrides: list[str], args) -> dict:
     argv = ["-c", str(args.config), *budget, "--trainer.enable_progress_bar=false",
             f"--trainer.check_val_every_n_epoch={args.val_every}", "--trainer.logger.init_args.save_dir=lightning_logs",
             f"--trainer.logger.init_args.name={args.log_name}", f"--model.val_rollout_seconds={args.rollout_seconds}",
-            f"--model.val_rollouts=0", f"--model.test_rollouts={args.rollouts}", f"--seed_everything={args.seed}"]
+            "--model.val_rollouts=0", f"--model.test_rollouts={args.rollouts}", f"--seed_everything={args.seed}"]
     argv += [o if o.startswith("--") else f"--{o}" for o in overrides]
     cli = LNNCLI(LNNModule, TrajectoryDataModule, args=argv, run=False, trainer_defaults=TRAINER_DEFAULTS)
     start = time.perf_counter()

@@ -1,7 +1,6 @@
 """Dataset generation: accuracy against DOP853, conservation, reproducibility, schema, refusals."""
 
 import json
-import os
 import subprocess
 import sys
 

@@ -1,9 +1,7 @@
 """Networks and Euler-Lagrange solves: fast structured path vs torch.func references, SPD mass
 matrices, batch independence, gradcheck, shapes and error messages."""
 
-import math
 
-import numpy as np
 import pytest
 import torch
 

@@ -3,7 +3,6 @@ and simulates from the command line; ``lnn-torch evaluate`` writes its report.""
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -225,8 +225,8 @@ CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
 def test_every_shipped_config_instantiates(config):
-    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
     from lnn_torch.data.datamodule import TrajectoryDataModule as DM
+    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
 
     cli = LNNCLI(LNNModule, DM, args=["-c", str(config)], run=False, trainer_defaults=TRAINER_DEFAULTS)
     assert isinstance(cli.model, LNNModule) and isinstance(cli.datamodule, DM)

@@ -24,7 +24,6 @@ Default sampler: ``g ~ U(0.05, 0.25)``, ``x0 ~ U(-1, 1)``, ``qd0 ~ U(-0.6, 0.6)`
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
 from .base import InputError, System, as_range
