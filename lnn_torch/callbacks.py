@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import lightning as L
@@ -49,8 +50,6 @@ class TestMetricsWriter(L.Callback):
     def on_test_end(self, trainer: L.Trainer, pl_module) -> None:
         if not trainer.is_global_zero:
             return
-        import json
-
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
         path = Path(trainer.log_dir or ".") / "test_metrics.json"
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -117,13 +117,17 @@ def run_hard_cases(rollout_fn, system, cases: list[HardCase], model=None, method
     return rows
 
 
+def _by_case(results: dict[str, list[dict]]):
+    """``(case, {model: its row for that case})`` in the order of the cases."""
+    for case in [r["case"] for r in next(iter(results.values()))]:
+        yield case, {name: next(x for x in rows if x["case"] == case) for name, rows in results.items()}
+
+
 def stability_markdown(results: dict[str, list[dict]]) -> str:
     """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M)."""
     lines = ["| case | model | non-finite fraction | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
-    cases = [r["case"] for r in next(iter(results.values()))]
-    for case in cases:
-        for name, rows in results.items():
-            r = next(x for x in rows if x["case"] == case)
+    for case, row_of in _by_case(results):
+        for name, r in row_of.items():
             if "error" in r:
                 lines.append(f"| {case} | {name} | refused: {r['error']} | - | - |")
                 continue
@@ -138,10 +142,9 @@ def stability_pivot(results: dict[str, list[dict]]) -> str:
     max true-energy drift, with the non-finite fraction where it is not 0 and cond(M) where known."""
     names = list(results)
     lines = ["| case | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
-    for case in [r["case"] for r in next(iter(results.values()))]:
+    for case, row_of in _by_case(results):
         cells = []
-        for name in names:
-            r = next(x for x in results[name] if x["case"] == case)
+        for r in row_of.values():
             if "error" in r:
                 cells.append("refused")
                 continue
