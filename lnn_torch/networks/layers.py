@@ -17,12 +17,36 @@ import torch.nn.functional as F
 from torch import nn
 
 
+_ONE, _TWO = torch.tensor(1.0), torch.tensor(2.0)
+
+
+def _one(x: torch.Tensor) -> torch.Tensor:
+    """A 0-dim one for ``x``'s device (a cached CPU constant on the CPU: no allocation per call)."""
+    return _ONE if x.device.type == "cpu" else x.new_ones(())
+
+
+def _tanh(z: torch.Tensor) -> torch.Tensor:
+    """``tanh(z)`` as ``2 sigmoid(2 z) - 1``.
+
+    On CPUs torch's vectorised tanh kernel is about twice as slow as its sigmoid kernel (measured
+    here on a (512, 128) float32 array: 0.22 ms against 0.10 ms for this composite, 0.42 ms against
+    0.22 ms in float64), and tanh is the largest elementwise cost of a structured solve. The
+    rounding differs from ``torch.tanh`` by at most ~2 ulp of 1 (1.8e-7 in float32, 3e-16 in
+    float64); every path of a model (hand tangents, torch.func, autograd) uses this same function.
+    On other devices ``torch.tanh`` is used.
+    """
+    if z.device.type != "cpu":
+        return torch.tanh(z)
+    # 0-dim tensor constants: a Python scalar operand costs a tensor conversion per call
+    return torch.sigmoid(torch.add(z, z)).mul(_TWO).sub_(_ONE)
+
+
 def _act(name: str):
     """(activation, derivative given (z, act(z))), each a single fused op where possible."""
     if name == "softplus":
         return F.softplus, lambda z, a: torch.sigmoid(z)
     if name == "tanh":
-        return torch.tanh, lambda z, a: torch.addcmul(a.new_ones(()), a, a, value=-1)  # 1 - a^2
+        return _tanh, lambda z, a: torch.addcmul(_one(a), a, a, value=-1)  # 1 - a^2
     if name == "sigmoid":
         return torch.sigmoid, lambda z, a: torch.addcmul(a, a, a, value=-1)  # a - a^2
     if name == "isru":  # inverse square-root unit z / sqrt(1 + z^2): smooth, tanh-shaped, no exp
@@ -51,12 +75,17 @@ class FiLM(nn.Module):
         # weight decay pulls FiLM towards the identity, not towards gamma = 0
         nn.init.zeros_(self.net[-1].weight)
         nn.init.zeros_(self.net[-1].bias)
+        # the constant 1 of gamma = 1 + g, added to the output bias (a vector) instead of to every row
+        offset = torch.cat([torch.ones(sum(self.sizes)), torch.zeros(sum(self.sizes))])
+        self.register_buffer("gamma_offset", offset, persistent=False)
 
     def forward(self, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """``cond (B, cond_dim)`` -> ``[(gamma, beta), ...]`` per hidden layer, each ``(B, size)``."""
-        out = self.net(cond)  # (B, 2 * sum(sizes))
+        first, act, last = self.net
+        bias = last.bias + self.gamma_offset.to(last.bias.dtype)
+        out = torch.addmm(bias, act(first(cond)), last.weight.t())  # (B, 2 * sum(sizes)): [gammas | betas]
         gammas, betas = out.split(sum(self.sizes), dim=-1)
-        return [(1 + g, b) for g, b in zip(gammas.split(self.sizes, -1), betas.split(self.sizes, -1))]
+        return list(zip(gammas.split(self.sizes, -1), betas.split(self.sizes, -1)))
 
 
 class TangentMLP(nn.Module):
@@ -82,7 +111,7 @@ class TangentMLP(nn.Module):
         if self.out.bias is not None:
             nn.init.zeros_(self.out.bias)
 
-    def forward(self, x: torch.Tensor, dx: torch.Tensor | None = None, film=None):
+    def forward(self, x: torch.Tensor, dx: torch.Tensor | None = None, film=None, out_map: torch.Tensor | None = None):
         """Output and (optionally) its forward-mode tangents.
 
         Args:
@@ -90,17 +119,22 @@ class TangentMLP(nn.Module):
             dx: ``(K, B, n)`` tangents of the first ``n <= in_dim`` inputs (the others are held
                 fixed, e.g. conditioning parameters), or None.
             film: list of ``(gamma, beta)`` per hidden layer, each ``(B, H)`` or ``(B, 1)``.
+            out_map: ``(out, m)``: return ``y @ out_map`` instead of ``y`` (a linear map of the
+                outputs, folded into the output layer's weights: no extra pass over the batch).
 
         Returns:
-            ``y (B, out)`` and ``dy (K, B, out)`` (None without tangents).
+            ``y (B, out)`` and ``dy (K, B, out)`` (None without tangents); ``m`` columns with ``out_map``.
         """
+        W_out, b_out = self.out.weight, self.out.bias  # (out, H), (out,)
+        if out_map is not None:
+            W_out, b_out = out_map.t() @ W_out, (None if b_out is None else b_out @ out_map)
         if dx is None:
             h = x
             for i, layer in enumerate(self.hidden):
                 h = self._act(layer(h))
                 if film is not None:
                     h = torch.addcmul(film[i][1], film[i][0], h)
-            return self.out(h), None
+            return (torch.mm(h, W_out.t()) if b_out is None else torch.addmm(b_out, h, W_out.t())), None
         K, B = dx.shape[0], x.shape[0]
         h, dh = x, dx.reshape(K * B, dx.shape[-1])  # primal (B, in); tangents (K B, n)
         for i, layer in enumerate(self.hidden):
@@ -114,9 +148,8 @@ class TangentMLP(nn.Module):
                 a = torch.addcmul(beta, gamma, a)
                 d = d * gamma
             h, dh = a, (dz.view(K, B, -1) * d).view(K * B, -1)
-        W = self.out.weight
-        y = torch.mm(h, W.t()) if self.out.bias is None else torch.addmm(self.out.bias, h, W.t())
-        return y, torch.mm(dh, W.t()).view(K, B, -1)
+        y = torch.mm(h, W_out.t()) if b_out is None else torch.addmm(b_out, h, W_out.t())
+        return y, torch.mm(dh, W_out.t()).view(K, B, -1)
 
     def value_and_input_grad(self, x: torch.Tensor, film=None, num_grad_inputs: int | None = None):
         """Scalar-output MLP (``out_dim == 1``): ``y (B,)`` and ``dy/dx`` by a hand-written reverse

@@ -28,7 +28,7 @@ from torch import nn
 from .. import integrators
 from ..dynamics import generic_acceleration, structured_acceleration_from_factor
 from ..systems.base import InputError
-from .layers import FiLM, TangentMLP
+from .layers import FiLM, TangentMLP, _one
 from .normalization import Normalizer
 
 
@@ -228,12 +228,14 @@ class StructuredLagrangian(DynamicsModel):
         self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
         self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if conditioning == "film" else None
         self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (conditioning == "film" and potential_film) else None
-        # scatter of the Cholesky entries into a lower-triangular matrix: diagonal first
+        # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
+        # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
         rows, cols = torch.tril_indices(dof, dof)
         order = torch.cat([torch.nonzero(rows == cols)[:, 0], torch.nonzero(rows != cols)[:, 0]])
         scatter = torch.zeros(self.num_chol, dof * dof)
         scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
         self.register_buffer("chol_scatter", scatter, persistent=False)
+        self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
 
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
         """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
@@ -244,15 +246,14 @@ class StructuredLagrangian(DynamicsModel):
         dof, B = self.scene.dof, phi.shape[0]
         x = phi if self.conditioning == "film" else torch.cat([phi, params_norm], -1)
         film = self.kinetic_film(params_norm) if self.kinetic_film is not None else None
-        raw, draw = self.kinetic_net(x, dphi, film)  # (B, n_chol), (K, B, n_chol)
-        diag_raw = raw[:, :dof]
-        entries = torch.cat([nn.functional.softplus(diag_raw) + self.diag_shift, raw[:, dof:]], -1)
-        S = self.chol_scatter.to(raw.dtype)  # (n_chol, dof^2)
-        chol = (entries @ S).view(B, dof, dof)
+        S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
+        raw, draw = self.kinetic_net(x, dphi, film, out_map=S)  # (B, dof^2), (K, B, dof^2); 0 above the diagonal
+        # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
+        chol = torch.where(self.chol_diag, nn.functional.softplus(raw) + self.diag_shift, raw).view(B, dof, dof)
         if dphi is None:
             return chol, None
-        dentries = torch.cat([draw[..., :dof] * torch.sigmoid(diag_raw), draw[..., dof:]], -1)
-        return chol, (dentries @ S).view(-1, B, dof, dof)
+        dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), _one(raw))  # d softplus = sigmoid
+        return chol, dchol.view(-1, B, dof, dof)
 
     def mass_matrix_norm(self, q_norm, params_norm):
         chol, _ = self.cholesky(q_norm, params_norm)
