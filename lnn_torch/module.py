@@ -21,6 +21,16 @@ from .perf import configure_cpu
 from .systems import get_system
 
 
+def adamw(parameters, **kwargs) -> torch.optim.AdamW:
+    """AdamW with the fused kernel where torch has one for the device (CPU and GPU), else the loop.
+    The fused kernel is about 4x faster than the per-parameter loop for these networks."""
+    parameters = list(parameters)
+    try:
+        return torch.optim.AdamW(parameters, fused=True, **kwargs)
+    except (RuntimeError, TypeError, ValueError):
+        return torch.optim.AdamW(parameters, **kwargs)
+
+
 class LNNModule(L.LightningModule):
     """Train a Lagrangian (or baseline) model of a scene.
 
@@ -128,11 +138,7 @@ class LNNModule(L.LightningModule):
             dm.set_epoch(self.current_epoch)
 
     def configure_optimizers(self):
-        kwargs = dict(lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        try:  # the fused kernel (CPU and GPU) is 4x faster than the per-parameter loop here
-            opt = torch.optim.AdamW(self.parameters(), fused=True, **kwargs)
-        except (RuntimeError, TypeError, ValueError):
-            opt = torch.optim.AdamW(self.parameters(), **kwargs)
+        opt = adamw(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         floor = self.hparams.lr_min / self.hparams.lr
         sched = torch.optim.lr_scheduler.LambdaLR(
             opt, lambda step: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * self._progress(step))))

@@ -2,8 +2,8 @@
 
 Medians after warm-up, one thread by default, default network sizes (2 hidden layers of 128),
 float32 and float64. A training step is forward + backward + AdamW on ONE 512-point chunk with the
-energy term (Huber + 0.1 x energy variance over the chunk). Every row also gives the ratio to the
-scene's closed-form acceleration timed in the same run.
+energy term (Huber + 0.1 x energy variance over the chunk), with the fused AdamW that training uses.
+Every row also gives the ratio to the scene's closed-form acceleration timed in the same run.
 
     python scripts/benchmark_dynamics.py                 # full table (a few minutes)
     python scripts/benchmark_dynamics.py --quick         # fewer repeats, no batch 8192, no compile
@@ -19,6 +19,7 @@ import torch
 
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration
 from lnn_torch.losses import acceleration_loss, energy_variance
+from lnn_torch.module import adamw
 from lnn_torch.networks import build_model
 from lnn_torch.perf import configure_cpu, median_seconds
 from lnn_torch.systems import get_system
@@ -94,7 +95,7 @@ def main() -> None:
             model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
             qn, qdn, pn = model.normalize(qq, qqd, pp)
             target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))
-            opt = torch.optim.AdamW(model.parameters(), lr=1e-5)
+            opt = adamw(model.parameters(), lr=1e-5)  # as in training
             for name, (fn, train_pass, grad) in paths(model, variant, compile_fast).items():
                 cells = []
                 for b in batches:
