@@ -206,8 +206,12 @@ def test_angle_features_are_exact_at_1e4_rad(dtype, tol):
     if dtype == torch.float32:
         naive = torch.remainder(q + math.pi, 2 * math.pi) - math.pi
         assert (torch.sin(naive).double() - torch.sin(exact)).abs().max() > 100 * tol
+    # the model's features at these angles, in this dtype, match float64 sin/cos of the stored angle
+    model = fresh_model("film_lnn").to(dtype)
+    phi = model.features(q)[0]
+    torch.testing.assert_close(phi.double(), torch.cat([torch.sin(exact), torch.cos(exact)], -1), rtol=0, atol=tol)
     # features are periodic: q and q + 2 pi k give the same network input (float64)
-    model = fresh_model("film_lnn")
+    model = fresh_model("film_lnn").double()
     q64 = torch.randn(5, 2, dtype=torch.float64)
     phi = model.features(q64)[0]
     for k in (1, 100, 1591):
