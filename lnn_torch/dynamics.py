@@ -152,8 +152,9 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
     """
     d = M.shape[-1]
     if d > SMALL_SPD:
-        factor, _ = torch.linalg.cholesky_ex(M)
-        return torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+        factor, info = torch.linalg.cholesky_ex(M)
+        x = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+        return torch.where((info != 0)[..., None], torch.full_like(x, float("nan")), x)
     L = [[None] * d for _ in range(d)]
     inv = [None] * d  # 1 / L[j][j]
     for j in range(d):

@@ -342,3 +342,72 @@ def test_canonical_hnn_needs_the_scene_momentum_map():
     with pytest.raises(InputError, match="momentum map"):
         build_model("hnn", info)
     build_model("hnn", info, hnn_coordinates="velocity")
+
+
+@pytest.mark.parametrize("activation", ACTIVATIONS)
+@pytest.mark.parametrize("with_film", [False, True])
+def test_tangent_mlp_equals_a_plain_mlp(activation, with_film):
+    """TangentMLP (tanh layers run in sigmoid form, FiLM pairs mapped to (2 gamma, beta - gamma))
+    is the plain MLP ``h = gamma act(W h + b) + beta``: outputs against a straightforward float64
+    implementation with torch's own activations, tangents against torch.func.jvp, input gradients
+    against autograd."""
+    torch.manual_seed(0)
+    net = TangentMLP(6, [24, 24], 3, activation).double()
+    film_net = FiLM(4, [24, 24]).double()
+    with torch.no_grad():
+        for p in film_net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    x, cond = torch.randn(9, 6, dtype=torch.float64), torch.randn(9, 4, dtype=torch.float64)
+    act = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": torch.nn.functional.softplus,
+           "isru": lambda z: z / torch.sqrt(1 + z * z)}[activation]
+
+    def plain(x):
+        h = x
+        for i, layer in enumerate(net.hidden):
+            h = act(h @ layer.weight.T + layer.bias)
+            if with_film:
+                gamma, beta = film_net(cond)[i]
+                h = gamma * h + beta
+        return h @ net.out.weight.T + net.out.bias
+
+    film = film_net(cond, net.sigmoid_form) if with_film else None
+    dx = torch.randn(2, 9, 4, dtype=torch.float64)
+    y, dy = net(x, dx, film)
+    torch.testing.assert_close(y, plain(x), rtol=0, atol=1e-12)
+    torch.testing.assert_close(net(x, None, film)[0], plain(x), rtol=0, atol=1e-12)
+    for k in range(2):
+        ref = torch.func.jvp(plain, (x,), (torch.cat([dx[k], torch.zeros(9, 2, dtype=torch.float64)], -1),))[1]
+        torch.testing.assert_close(dy[k], ref, rtol=0, atol=1e-12)
+    scalar = TangentMLP(6, [24, 24], 1, activation, out_bias=False).double()
+    scalar.hidden, scalar.out.weight = net.hidden, torch.nn.Parameter(net.out.weight[:1].clone())
+    value, grad = scalar.value_and_input_grad(x, film, num_grad_inputs=4)
+    xr = x.clone().requires_grad_(True)
+    ref = (plain(xr)[:, 0] - net.out.bias[0])
+    (ref_grad,) = torch.autograd.grad(ref.sum(), xr)
+    torch.testing.assert_close(value, ref.detach(), rtol=0, atol=1e-12)
+    torch.testing.assert_close(grad, ref_grad[:, :4], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 7])
+def test_spd_solve_equals_linalg_solve(dof):
+    """The Cholesky solve (unrolled up to SMALL_SPD, LAPACK beyond) equals torch.linalg.solve on
+    random and ill-conditioned (cond ~1e8) SPD systems in float64; non-SPD input gives NaN."""
+    from lnn_torch.dynamics import spd_solve
+
+    gen = torch.Generator().manual_seed(dof)
+    A = torch.randn(64, dof, dof, generator=gen, dtype=torch.float64)
+    Q = torch.linalg.qr(A)[0]
+    eig = torch.logspace(-8, 0, dof, dtype=torch.float64) if dof > 1 else torch.ones(1, dtype=torch.float64)
+    for M in (A @ A.mT + 0.1 * torch.eye(dof, dtype=torch.float64), Q @ torch.diag_embed(eig.expand(64, -1)) @ Q.mT):
+        rhs = torch.randn(64, dof, generator=gen, dtype=torch.float64)
+        ref = torch.linalg.solve(M, rhs)
+        x = spd_solve(M, rhs)
+        residual = (M @ x[..., None])[..., 0] - rhs
+        assert residual.abs().max() <= 1e-13 * M.abs().max() * x.abs().max()  # backward stable
+        assert (x - ref).abs().max() <= 1e-12 * torch.linalg.cond(M).max() * ref.abs().max()
+    bad = -torch.eye(dof, dtype=torch.float64).expand(3, -1, -1)
+    assert torch.isnan(spd_solve(bad, torch.ones(3, dof, dtype=torch.float64))).all(-1).any()
+    M = (A @ A.mT + torch.eye(dof, dtype=torch.float64))[:2].requires_grad_(True)
+    rhs = torch.randn(2, dof, dtype=torch.float64, requires_grad=True)
+    sym = lambda m, r: spd_solve(0.5 * (m + m.mT), r)  # noqa: E731  (the solve reads the lower triangle)
+    assert torch.autograd.gradcheck(sym, (M, rhs))
