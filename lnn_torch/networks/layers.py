@@ -29,6 +29,14 @@ def _minus_one(x: torch.Tensor) -> torch.Tensor:
     return _MINUS_ONE if x.device.type == "cpu" else -x.new_ones(())
 
 
+def _affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, scale: float = 1.0) -> torch.Tensor:
+    """``scale * (x @ weight.T + bias)`` as ONE fused ``addmm`` (an ``mm`` without bias)."""
+    if bias is None:
+        y = torch.mm(x, weight.t())
+        return y * scale if scale != 1.0 else y
+    return torch.addmm(bias, x, weight.t(), beta=scale, alpha=scale)
+
+
 def _act(name: str):
     """(activation, derivative given (z, act(z))), each a single fused op where possible."""
     if name == "softplus":
@@ -82,7 +90,7 @@ class FiLM(nn.Module):
             A = self.sigmoid_map.to(weight.dtype)
             weight = torch.mm(A, weight.view(2, -1)).view(weight.shape)
             bias = torch.mm(A, bias.view(2, -1)).view(bias.shape)
-        out = torch.addmm(bias, act(first(cond)), weight.t())  # (B, 2 * sum(sizes)): [gammas | betas]
+        out = _affine(act(_affine(cond, first.weight, first.bias)), weight, bias)  # (B, 2 sum(sizes)): [gammas | betas]
         gammas, betas = out.split(sum(self.sizes), dim=-1)
         return list(zip(gammas.split(self.sizes, -1), betas.split(self.sizes, -1)))
 
@@ -125,13 +133,13 @@ class TangentMLP(nn.Module):
         """
         layer = self.hidden[i]
         if self.sigmoid_form:
-            s = torch.sigmoid(torch.addmm(layer.bias, h, layer.weight.t(), beta=2, alpha=2))
+            s = torch.sigmoid(_affine(h, layer.weight, layer.bias, 2.0))
             ds = torch.addcmul(s, s, s, value=-1) if grad else None  # s (1 - s)
             if film is None:
                 return torch.add(_minus_one(s), s, alpha=2), ds, 4.0
             gamma2, shift = film[i]
             return torch.addcmul(shift, gamma2, s), (ds * gamma2 if grad else None), 2.0
-        z = torch.addmm(layer.bias, h, layer.weight.t())
+        z = _affine(h, layer.weight, layer.bias)
         a = self._act(z)
         d = self._dact(z, a) if grad else None
         if film is None:
@@ -168,7 +176,7 @@ class TangentMLP(nn.Module):
                 W = layer.weight
                 dz = torch.mm(dh, (W[:, : dh.shape[-1]] if i == 0 else W).t())  # (K B, H)
                 dh, scale = (dz.view(K, B, -1) * g).view(K * B, -1), scale * c
-        y = torch.mm(h, W_out.t()) if b_out is None else torch.addmm(b_out, h, W_out.t())
+        y = _affine(h, W_out, b_out)
         if not grad:
             return y, None
         return y, torch.mm(dh, (W_out * scale if scale != 1.0 else W_out).t()).view(K, B, -1)
