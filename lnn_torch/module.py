@@ -163,9 +163,10 @@ class LNNModule(L.LightningModule):
     def _with_energy(self) -> bool:
         return self.hparams.energy_weight > 0 and self.model.has_energy
 
-    def _training_pass(self, q, qd, qdd, params):
-        """Eager training pass on flat SI tensors: ``(pred, target, rms[, H, T, V])`` (``training_terms``)."""
-        return self.model.training_terms(q, qd, qdd, params, energy=self._with_energy())
+    def _training_pass(self, q, qd, qdd, params, chunks=None):
+        """Eager training pass on flat SI tensors: ``(pred, target, rms[, H, T, V])`` (``training_terms``).
+        ``chunks``: the rows are that many trajectory chunks, each with one parameter vector."""
+        return self.model.training_terms(q, qd, qdd, params, energy=self._with_energy(), chunks=chunks)
 
     def _pass_fn(self):
         if not self.hparams.compile or self._compiled is False:
@@ -177,7 +178,10 @@ class LNNModule(L.LightningModule):
     def _training_loss(self, batch, pass_fn):
         C, L, _ = batch["q"].shape  # (chunks, chunk length, dof)
         flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "qdd", "params")]
-        pred, target, rms, *energies = pass_fn(*flat)
+        # chunks of one trajectory share their parameters: the model then conditions once per chunk
+        params = batch["params"]
+        shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
+        pred, target, rms, *energies = pass_fn(*flat, C if shared else None)
         huber = acceleration_loss(pred, target, rms, self.hparams.huber_delta)
         if not energies:
             return huber, huber, None

@@ -1,8 +1,11 @@
 """Time acceleration evaluation and one training step for every model variant and solve path.
 
 Medians after warm-up, one thread by default, default network sizes (2 hidden layers of 128),
-float32 and float64. A training step is forward + backward + AdamW on ONE 512-point chunk with the
-energy term (Huber + 0.1 x energy variance over the chunk), with the fused AdamW that training uses.
+float32 and float64. Accelerations are timed on states whose parameters differ from row to row. A
+training step is forward + backward + AdamW on ONE 512-point chunk with the energy term (Huber +
+0.1 x energy variance over the chunk), with the fused AdamW that training uses; as in training, the
+chunk's points share one parameter vector (one trajectory), so FiLM runs once per chunk on the fast
+path (``--per-row-params``: every point its own parameters, FiLM per point).
 Every row also gives the ratio to the scene's closed-form acceleration timed in the same run.
 
     python scripts/benchmark_dynamics.py                 # full table (a few minutes)
@@ -29,11 +32,15 @@ def median_ms(fn, repeats: int, warmup: int = 3) -> float:
     return 1e3 * median_seconds(fn, repeats, warmup)
 
 
-def paths(model, variant, compile_fast: bool):
+def paths(model, variant, compile_fast: bool, chunks):
     """Solve paths of a model: name -> (accel_norm(q_n, qd_n, p_n), train_pass, needs_grad).
 
-    ``train_pass`` returns ``(qdd, H, T, V)`` (or ``(qdd,)`` for models without an energy)."""
-    fused = model.acceleration_and_energy_norm if model.has_energy else (lambda q, qd, p: (model.acceleration_norm(q, qd, p),))
+    ``train_pass`` returns ``(qdd, H, T, V)`` (or ``(qdd,)`` for models without an energy);
+    ``chunks`` as in ``DynamicsModel.acceleration_and_energy_norm``."""
+    if model.has_energy:
+        fused = lambda q, qd, p: model.acceleration_and_energy_norm(q, qd, p, chunks)  # noqa: E731
+    else:
+        fused = lambda q, qd, p: (model.acceleration_norm(q, qd, p),)  # noqa: E731
     out = {}
     if variant in ("film_lnn", "delan"):
         out["structured (hand tangents)"] = (model.acceleration_norm, fused, False)
@@ -69,6 +76,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     ap.add_argument("--variants", nargs="*", default=["film_lnn", "delan", "lnn", "mlp"])
+    ap.add_argument("--per-row-params", action="store_true",
+                    help="training step on a chunk whose points all have different parameters")
     args = ap.parse_args()
     configure_cpu(args.threads)
     repeats = 7 if args.quick else args.repeats
@@ -96,7 +105,10 @@ def main() -> None:
             qn, qdn, pn = model.normalize(qq, qqd, pp)
             target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))
             opt = adamw(model.parameters(), lr=1e-5)  # as in training
-            for name, (fn, train_pass, grad) in paths(model, variant, compile_fast).items():
+            # the training chunk: one trajectory's parameters on all 512 points (or per point)
+            p_chunk = pn[:512] if args.per_row_params else pn[:1].expand(512, -1)
+            chunks = None if args.per_row_params else 1
+            for name, (fn, train_pass, grad) in paths(model, variant, compile_fast, chunks).items():
                 cells = []
                 for b in batches:
                     if b > 512 and grad:  # the torch.func paths take seconds there
@@ -111,7 +123,7 @@ def main() -> None:
 
                 def step(train_pass=train_pass):
                     opt.zero_grad()
-                    pred, *energies = train_pass(qn[:512], qdn[:512], pn[:512])
+                    pred, *energies = train_pass(qn[:512], qdn[:512], p_chunk)
                     loss = acceleration_loss(pred, target[:512], model.normalizer.accel_rms.to(dtype))
                     if energies:
                         H, T, V = (x.reshape(1, 512) for x in energies)

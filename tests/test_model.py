@@ -411,3 +411,35 @@ def test_spd_solve_equals_linalg_solve(dof):
     rhs = torch.randn(2, dof, dtype=torch.float64, requires_grad=True)
     sym = lambda m, r: spd_solve(0.5 * (m + m.mT), r)  # noqa: E731  (the solve reads the lower triangle)
     assert torch.autograd.gradcheck(sym, (M, rhs))
+
+
+@pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}])
+def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
+    """Training chunks share their parameters: FiLM once per chunk (``chunks=C``) gives the per-row
+    result, values and parameter gradients (float64); parameters that vary inside a chunk are not
+    what chunks means (the result then differs); a batch that does not split evenly is refused."""
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16), **config).double())
+    assert model.chunk_conditioning
+    C, L = 3, 8
+    q, qd, params = random_batch(system, rng, C * L)
+    params = params[::L].repeat_interleave(L, 0)
+    qdd = system.acceleration(q, qd, params)
+    results = []
+    for chunks in (None, C):
+        for energy in (False, True):
+            model.zero_grad()
+            out = model.training_terms(q, qd, qdd, params, energy=energy, chunks=chunks)
+            sum(o.sum() for o in out).backward()
+            results.append((out, [p.grad.clone() for p in model.parameters() if p.grad is not None]))
+    for (o0, g0), (o1, g1) in zip(results[:2], results[2:]):
+        for a, b in zip(o0, o1):
+            torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)
+        assert len(g0) == len(g1)
+        for a, b in zip(g0, g1):
+            torch.testing.assert_close(b, a, rtol=1e-10, atol=1e-12)
+    mixed = params.clone()
+    mixed[1] *= 1.5  # a parameter change inside the first chunk: per-chunk FiLM no longer applies
+    assert (model.training_terms(q, qd, qdd, mixed)[0] - model.training_terms(q, qd, qdd, mixed, chunks=C)[0]).abs().max() > 1e-8
+    with pytest.raises(InputError, match="chunks"):
+        model.training_terms(q, qd, qdd, params, energy=True, chunks=5)

@@ -310,6 +310,30 @@ def test_learning_rate_ten_times_too_high_stays_finite(dataset, tmp_path):
     assert torch.isfinite(model.acceleration(q, q, torch.tensor([[1.0, 0.5, 1.2, 1.3]]))).all()
 
 
+def test_training_conditions_once_per_chunk(dataset):
+    """Datamodule batches are chunks of one trajectory each: the training pass is told so (FiLM once
+    per chunk); a batch whose parameters vary inside a chunk is passed per row."""
+    dm = make_dm(dataset)
+    dm.setup("fit")
+    batch = dm.train_set[0]
+    model = LNNModule(val_rollouts=0, hidden_dims=[16, 16])
+    model.model.fit_normalizer(dm.normalization_data())
+    seen = []
+
+    def spy(*args):
+        seen.append(args[-1])
+        return model._training_pass(*args)
+
+    loss_shared, _, _ = model._training_loss(batch, spy)
+    mixed = dict(batch, params=batch["params"].clone())
+    mixed["params"][0, 1:] *= 1.1
+    model._training_loss(mixed, spy)
+    C = batch["q"].shape[0]
+    assert seen == [C, None]
+    loss_rows, _, _ = model._training_loss(batch, lambda *a: model._training_pass(*a[:-1], None))
+    torch.testing.assert_close(loss_shared, loss_rows, rtol=1e-5, atol=0)
+
+
 def test_compiled_training_matches_eager(dataset, tmp_path):
     """compile=True: on one training batch (the supported size: chunks_per_batch x chunk_len, 4 x 16
     here; evaluation stays eager) the compiled pass gives the eager loss and gradients; and a short

@@ -37,6 +37,17 @@ def _affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, sc
     return torch.addmm(bias, x, weight.t(), beta=scale, alpha=scale)
 
 
+def _film_apply(op, *args: torch.Tensor) -> torch.Tensor:
+    """``op(*args)`` of ``(B, H)`` activations and FiLM tensors that are per row ``(B, H)`` or per
+    chunk ``(C, 1, H)`` (the activations are then viewed as ``(C, B / C, H)``); result ``(B, H)``."""
+    film = next((a for a in args if a.dim() == 3), None)
+    if film is None:
+        return op(*args)
+    C = film.shape[0]
+    out = op(*(a.view(C, -1, a.shape[-1]) if a.dim() == 2 else a for a in args))
+    return out.view(-1, out.shape[-1])
+
+
 def _act(name: str):
     """(activation, derivative given (z, act(z))), each a single fused op where possible."""
     if name == "softplus":
@@ -91,8 +102,8 @@ class FiLM(nn.Module):
             weight = torch.mm(A, weight.view(2, -1)).view(weight.shape)
             bias = torch.mm(A, bias.view(2, -1)).view(bias.shape)
         out = _affine(act(_affine(cond, first.weight, first.bias)), weight, bias)  # (B, 2 sum(sizes)): [gammas | betas]
-        gammas, betas = out.split(sum(self.sizes), dim=-1)
-        return list(zip(gammas.split(self.sizes, -1), betas.split(self.sizes, -1)))
+        parts = out.split(self.sizes + self.sizes, dim=-1)  # ONE split: its backward is one cat
+        return list(zip(parts[: len(self.sizes)], parts[len(self.sizes):]))
 
 
 class TangentMLP(nn.Module):
@@ -124,7 +135,7 @@ class TangentMLP(nn.Module):
         """Hidden layer ``i``: ``(h_next, g, c)`` with ``d h_next = c * g * dz`` (``z`` its pre-activation,
         ``c`` a Python number; ``g`` is None unless ``grad``).
 
-        Tanh layers run in sigmoid form: ``s = sigmoid(2 z)`` (the 2 folded into the ``addmm``),
+        Tanh layers run in sigmoid form: ``s = sigmoid(2 z)`` (the 2 folded into the weights),
         ``tanh(z) = 2 s - 1`` and ``tanh'(z) = 4 s (1 - s)``; with FiLM pairs ``(2 gamma, beta - gamma)``
         (``FiLM(..., sigmoid_form=True)``) the layer output is ONE fused ``addcmul``. On CPUs torch's
         tanh kernel is also about twice as slow as its sigmoid kernel (measured here on a (512, 128)
@@ -133,19 +144,20 @@ class TangentMLP(nn.Module):
         """
         layer = self.hidden[i]
         if self.sigmoid_form:
-            s = torch.sigmoid(_affine(h, layer.weight, layer.bias, 2.0))
+            # the 2 on the (small) weights, not on the output: its backward is then no (B, H) product
+            s = torch.sigmoid(_affine(h, layer.weight + layer.weight, layer.bias + layer.bias))
             ds = torch.addcmul(s, s, s, value=-1) if grad else None  # s (1 - s)
             if film is None:
                 return torch.add(_minus_one(s), s, alpha=2), ds, 4.0
             gamma2, shift = film[i]
-            return torch.addcmul(shift, gamma2, s), (ds * gamma2 if grad else None), 2.0
+            return _film_apply(torch.addcmul, shift, gamma2, s), (_film_apply(torch.mul, ds, gamma2) if grad else None), 2.0
         z = _affine(h, layer.weight, layer.bias)
         a = self._act(z)
         d = self._dact(z, a) if grad else None
         if film is None:
             return a, d, 1.0
         gamma, beta = film[i]
-        return torch.addcmul(beta, gamma, a), (d * gamma if grad else None), 1.0
+        return _film_apply(torch.addcmul, beta, gamma, a), (_film_apply(torch.mul, d, gamma) if grad else None), 1.0
 
     def forward(self, x: torch.Tensor, dx: torch.Tensor | None = None, film=None, out_map: torch.Tensor | None = None):
         """Output and (optionally) its forward-mode tangents.
@@ -154,7 +166,8 @@ class TangentMLP(nn.Module):
             x: ``(B, in_dim)`` inputs.
             dx: ``(K, B, n)`` tangents of the first ``n <= in_dim`` inputs (the others are held
                 fixed, e.g. conditioning parameters), or None.
-            film: list of per-hidden-layer pairs, each ``(B, H)`` or ``(B, 1)``, from
+            film: list of per-hidden-layer pairs, each ``(B, H)`` or ``(B, 1)`` (per row) or
+                ``(C, 1, H)`` (per chunk of ``B / C`` consecutive rows), from
                 ``FiLM(cond, sigmoid_form=self.sigmoid_form)``.
             out_map: ``(out, m)``: return ``y @ out_map`` instead of ``y`` (a linear map of the
                 outputs, folded into the output layer's weights: no extra pass over the batch).

@@ -69,6 +69,8 @@ class DynamicsModel(nn.Module):
     # True for a model whose accelerations call torch.autograd (which needs grad mode on, even in
     # evaluation); torch.func transforms do not, so every built-in model runs evaluation under no_grad
     needs_autograd = False
+    # the model computes its parameter conditioning once per chunk when given ``chunks``
+    chunk_conditioning = False
 
     def __init__(self, scene) -> None:
         super().__init__()
@@ -134,8 +136,12 @@ class DynamicsModel(nn.Module):
         """The model's own Hamiltonian ``H``, kinetic-like ``T`` and potential-like ``V`` (normalised)."""
         raise NotImplementedError(f"variant '{self.variant}' has no energy")
 
-    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm):
-        """``(qdd, H, T, V)`` in normalised units; subclasses share work between the two."""
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None):
+        """``(qdd, H, T, V)`` in normalised units; subclasses share work between the two.
+
+        ``chunks``: the batch is ``chunks`` runs of consecutive rows, each with ONE parameter vector
+        (training chunks of one trajectory each); a model may compute its parameter conditioning
+        once per run. The parameters must then be constant within each run (not checked here)."""
         return (self.acceleration_norm(q_norm, qd_norm, params_norm), *self.energy_norm(q_norm, qd_norm, params_norm))
 
     def check_inputs(self, q, qd, params) -> None:
@@ -162,19 +168,19 @@ class DynamicsModel(nn.Module):
         per trajectory and ``params_points (n, P)`` aligned with the points."""
         self.normalizer.fit(stats["q"], stats["qd"], stats["qdd"], stats["params"])
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False):
+    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
         """What the training loss compares, from a batch in SI units (``(B, dof)``, ``(B, P)``).
 
         Returns ``(pred, target, rms)`` in normalised units (``rms`` weights each component), plus
         the model's own ``(H, T, V)`` when ``energy``. Lagrangian models and the direct MLP predict
-        accelerations.
+        accelerations. ``chunks``: see ``acceleration_and_energy_norm``.
         """
         q_n, qd_n, p_n = self.normalize(q, qd, params)
         target = self.normalizer.accel_to_norm(qdd)
         rms = self.normalizer.accel_rms.to(q.dtype)
-        if energy:
-            pred, H, T, V = self.acceleration_and_energy_norm(q_n, qd_n, p_n)
-            return pred, target, rms, H, T, V
+        if energy or (chunks is not None and self.chunk_conditioning):
+            pred, H, T, V = self.acceleration_and_energy_norm(q_n, qd_n, p_n, chunks)
+            return (pred, target, rms, H, T, V) if energy else (pred, target, rms)
         return self.acceleration_norm(q_n, qd_n, p_n), target, rms
 
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
@@ -240,16 +246,28 @@ class StructuredLagrangian(DynamicsModel):
         scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
         self.register_buffer("chol_scatter", scatter, persistent=False)
         self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
+        self.chunk_conditioning = conditioning == "film"
 
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
         """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
         phi, dphi = self.features(q_norm, tangents)
         return self._cholesky(phi, dphi, params_norm)
 
-    def _cholesky(self, phi, dphi, params_norm):
+    @staticmethod
+    def _film(film_net, net, params_norm, chunks):
+        """FiLM pairs for ``net``: per row ``(B, H)``, or per chunk ``(C, 1, H)`` when the batch is
+        ``chunks`` runs of rows that share their parameters (one FiLM evaluation per chunk)."""
+        if film_net is None:
+            return None
+        if chunks is None:
+            return film_net(params_norm, net.sigmoid_form)
+        cond = params_norm.view(chunks, -1, params_norm.shape[-1])[:, 0]
+        return [(g[:, None], b[:, None]) for g, b in film_net(cond, net.sigmoid_form)]
+
+    def _cholesky(self, phi, dphi, params_norm, chunks=None):
         dof, B = self.scene.dof, phi.shape[0]
         x = phi if self.conditioning == "film" else torch.cat([phi, params_norm], -1)
-        film = self.kinetic_film(params_norm, self.kinetic_net.sigmoid_form) if self.kinetic_film is not None else None
+        film = self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks)
         S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
         raw, draw = self.kinetic_net(x, dphi, film, out_map=S)  # (B, dof^2), (K, B, dof^2); 0 above the diagonal
         # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
@@ -274,9 +292,9 @@ class StructuredLagrangian(DynamicsModel):
         phi, _, sin_cos = self._features(q_norm, False)
         return self._potential(q_norm, phi, sin_cos, params_norm, grad)
 
-    def _potential(self, q_norm, phi, sin_cos, params_norm, grad: bool):
+    def _potential(self, q_norm, phi, sin_cos, params_norm, grad: bool, chunks=None):
         x = torch.cat([phi, params_norm], -1)
-        film = self.potential_film(params_norm, self.potential_net.sigmoid_form) if self.potential_film is not None else None
+        film = self._film(self.potential_film, self.potential_net, params_norm, chunks)
         if not grad:
             return self.potential_net(x, None, film)[0][..., 0], None
         V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
@@ -285,14 +303,18 @@ class StructuredLagrangian(DynamicsModel):
     def acceleration_norm(self, q_norm, qd_norm, params_norm):
         return self._solve(q_norm, qd_norm, params_norm, energy=False)
 
-    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm):
-        """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network."""
-        return self._solve(q_norm, qd_norm, params_norm, energy=True)
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None):
+        """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network
+        (``chunks``: FiLM once per chunk, see ``DynamicsModel.acceleration_and_energy_norm``)."""
+        B = q_norm.shape[0]
+        if chunks is not None and (chunks < 1 or B % chunks):
+            raise InputError(f"a batch of {B} rows cannot be split into {chunks} chunks of equal length")
+        return self._solve(q_norm, qd_norm, params_norm, energy=True, chunks=chunks)
 
-    def _solve(self, q_norm, qd_norm, params_norm, energy: bool):
+    def _solve(self, q_norm, qd_norm, params_norm, energy: bool, chunks=None):
         phi, dphi, sin_cos = self._features(q_norm, True)
-        chol, dchol = self._cholesky(phi, dphi, params_norm)
-        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, grad=True)
+        chol, dchol = self._cholesky(phi, dphi, params_norm, chunks)
+        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, grad=True, chunks=chunks)
         if not energy:
             return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
         qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True)
