@@ -443,3 +443,15 @@ def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
     assert (model.training_terms(q, qd, qdd, mixed)[0] - model.training_terms(q, qd, qdd, mixed, chunks=C)[0]).abs().max() > 1e-8
     with pytest.raises(InputError, match="chunks"):
         model.training_terms(q, qd, qdd, params, energy=True, chunks=5)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_every_variant_takes_the_chunk_structure(variant, rng):
+    """``training_terms(..., chunks=C)`` is accepted by every variant (used or not) and changes nothing."""
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16)).double())
+    q, qd, params = random_batch(system, rng, 8)
+    params = params[:1].expand(8, -1)
+    qdd = system.acceleration(q, qd, params)
+    for a, b in zip(model.training_terms(q, qd, qdd, params), model.training_terms(q, qd, qdd, params, chunks=2)):
+        torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)

@@ -370,7 +370,7 @@ class BlackBoxLagrangian(DynamicsModel):
         return generic_acceleration(self.lagrangian_norm, q_norm, qd_norm, params_norm, damping=self.damping,
                                     check=check)
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False):
+    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
         q_n, qd_n, p_n = self.normalize(q, qd, params)
         pred = self.acceleration_norm(q_n, qd_n, p_n, check_singular=False)
         out = (pred, self.normalizer.accel_to_norm(qdd), self.normalizer.accel_rms.to(q.dtype))
@@ -482,7 +482,7 @@ class HamiltonianNN(DynamicsModel):
     def energy_norm(self, q_n, qd_n, params_n):
         raise NotImplementedError("the HNN's Hamiltonian is a function of (q, m): use hamiltonian_and_grads")
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False):
+    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
         q_n, qd_n, p_n = self.normalize(q, qd, params)
         m_n, mdot_n = self._momentum_and_rate_norm(q, qd, qdd, params)
         dq, dm = self.vector_field_norm(q_n, m_n, p_n)
