@@ -15,17 +15,23 @@ Every row also gives the ratio to the scene's closed-form acceleration timed in 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
+import warnings
 
-import numpy as np
-import torch
+# compile in this process: inductor's pool of compile workers would otherwise compete for the
+# cores while the rows are timed (before torch is imported)
+os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 
-from lnn_torch.dynamics import generic_acceleration, structured_acceleration
-from lnn_torch.losses import acceleration_loss, energy_variance
-from lnn_torch.module import adamw
-from lnn_torch.networks import build_model
-from lnn_torch.perf import configure_cpu, median_seconds
-from lnn_torch.systems import get_system
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # noqa: E402
+from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.module import adamw  # noqa: E402
+from lnn_torch.networks import build_model  # noqa: E402
+from lnn_torch.perf import configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.systems import get_system  # noqa: E402
 
 
 def median_ms(fn, repeats: int, warmup: int = 3) -> float:
@@ -80,6 +86,8 @@ def main() -> None:
                     help="training step on a chunk whose points all have different parameters")
     args = ap.parse_args()
     configure_cpu(args.threads)
+    # inductor's own use of a deprecated torch helper (torch 2.13), not ours
+    warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
     repeats = 7 if args.quick else args.repeats
     batches = (1, 512) if args.quick else (1, 512, 8192)
     compile_fast = not (args.quick or args.no_compile)
@@ -99,6 +107,7 @@ def main() -> None:
         print(f"| closed form | analytic | {str(dtype)[6:]} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
               + " | - | 1 |", flush=True)
         for variant in args.variants:
+            torch._dynamo.reset()  # fresh compile caches per model: no recompile limit across rows
             torch.manual_seed(0)
             model = build_model(variant, system).to(dtype)
             model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
