@@ -15,6 +15,7 @@ Every row also gives the ratio to the scene's closed-form acceleration timed in 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import platform
 import warnings
@@ -28,13 +29,14 @@ import torch  # noqa: E402
 
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # noqa: E402
 from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
-from lnn_torch.module import adamw  # noqa: E402
+
 from lnn_torch.networks import build_model  # noqa: E402
-from lnn_torch.perf import configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.perf import adamw, configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
 
-def median_ms(fn, repeats: int, warmup: int = 3) -> float:
+def median_ms(fn, repeats: int, warmup: int = 5) -> float:
+    gc.collect()  # a compilation leaves much garbage: collect it before, not during, the timings
     return 1e3 * median_seconds(fn, repeats, warmup)
 
 

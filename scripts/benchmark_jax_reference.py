@@ -40,12 +40,23 @@ Needs jax next to the project (``pip install jax``; optax is optional, ``pip ins
     python scripts/benchmark_jax_reference.py             # full table
     python scripts/benchmark_jax_reference.py --quick     # fewer repeats, no batch 8192
     python scripts/benchmark_jax_reference.py --check     # correctness checks only (no timing)
+    python scripts/benchmark_jax_reference.py --interleaved   # JAX and lnn_torch in turn, same process
+
+``--interleaved`` answers "how fast is lnn_torch against the original here" under the same load:
+on a shared machine, timings drift by tens of percent over minutes, so two separate runs can
+disagree more than the two codes do. It times, float32, one thread, in round-robin order (per
+round, each candidate is called twice and the second call timed, so that the caches hold its data): 512 accelerations and one training step on a 512-point chunk of one
+trajectory (its points share one parameter vector) for the JAX reference, lnn_torch's film_lnn
+eagerly, and film_lnn under torch.compile; it reports each median and the median per-round ratio
+to JAX.
 """
 
 from __future__ import annotations
 
 import os
 
+# lnn_torch's torch.compile rows (--interleaved) compile in this process, without a worker pool
+os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 # Before jax is imported: single-threaded Eigen in XLA, float64 available (float32 arrays stay float32).
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -318,6 +329,92 @@ def run_benchmark(repeats: int, batches) -> None:
         print(row)
 
 
+def run_interleaved(rounds: int) -> None:
+    """JAX reference, film_lnn eager and film_lnn compiled, float32, timed in turn (see the docstring)."""
+    import statistics
+    import warnings
+
+    from lnn_torch.losses import acceleration_loss, energy_variance
+    from lnn_torch.perf import adamw
+    from lnn_torch.networks import build_model
+
+    warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
+    B = 512
+    system, q, qd, qdd, params = sample_data(B)
+    # JAX reference
+    model = init_model(0, jnp.float32)
+    qn, qdn, pn, tn = normalise(q, qd, qdd, params, jnp.float32)
+    jargs = tuple(jax.block_until_ready(x) for x in (qn, qdn, pn))
+    # the training chunk: one trajectory's parameter vector on all its points
+    jchunk = tuple(jax.block_until_ready(x) for x in (qn, qdn, jnp.broadcast_to(pn[:1], pn.shape), tn))
+    opt_init, train_step = make_train_step()
+    jstate = [model, opt_init(model)]
+
+    def jax_accel():
+        accel_jit(model, *jargs).block_until_ready()
+
+    def jax_step():
+        jstate[0], jstate[1], loss = train_step(jstate[0], jstate[1], *jchunk)
+        jax.block_until_ready((jstate[0], loss))
+
+    # lnn_torch film_lnn, as in benchmark_dynamics.py
+    torch.manual_seed(0)
+    tm = build_model("film_lnn", system)
+    tq, tqd, tp = (torch.tensor(x, dtype=torch.float32) for x in (q, qd, params))
+    tm.normalizer.fit(tq, tqd, system.acceleration(tq, tqd, tp), tp)
+    tqn, tqdn, tpn = tm.normalize(tq, tqd, tp)
+    target = tm.normalizer.accel_to_norm(system.acceleration(tq, tqd, tp))
+    tpc = tpn[:1].expand(B, -1)
+    opt = adamw(tm.parameters(), lr=1e-5)
+    fused = lambda a, b, c: tm.acceleration_and_energy_norm(a, b, c, 1)  # noqa: E731
+    fused_c = torch.compile(fused, dynamic=False)
+    accel_c = torch.compile(tm.acceleration_norm, dynamic=False)
+
+    def torch_accel(fn):
+        def run():
+            with torch.no_grad():
+                fn(tqn, tqdn, tpn)
+        return run
+
+    def torch_step(fn):
+        def run():
+            opt.zero_grad()
+            pred, H, T, V = fn(tqn, tqdn, tpc)
+            loss = acceleration_loss(pred, target, tm.normalizer.accel_rms) + 0.1 * energy_variance(
+                H.reshape(1, B), T.reshape(1, B), V.reshape(1, B))
+            loss.backward()
+            opt.step()
+        return run
+
+    cands = {
+        "accel B=512: jax reference (jit)": jax_accel,
+        "accel B=512: film_lnn eager": torch_accel(tm.acceleration_norm),
+        "accel B=512: film_lnn torch.compile": torch_accel(accel_c),
+        "train step: jax reference (jit)": jax_step,
+        "train step: film_lnn eager": torch_step(fused),
+        "train step: film_lnn torch.compile": torch_step(fused_c),
+    }
+    for fn in cands.values():  # compile and warm up
+        for _ in range(5):
+            fn()
+    times = {k: [] for k in cands}
+    for _ in range(rounds):
+        for k, fn in cands.items():
+            fn()  # untimed: the caches hold this candidate's data, not the previous one's
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    print(f"jax {jax.__version__}, torch {torch.__version__}, {platform.processor() or platform.machine()}, "
+          f"one thread each, float32, {rounds} rounds in turn (per round and candidate: one untimed call, "
+          "then one timed call), medians")
+    print("| what | median (ms) | median per-round ratio to JAX |")
+    print("|---|---|---|")
+    for k, v in times.items():
+        ref = times["accel B=512: jax reference (jit)" if k.startswith("accel") else "train step: jax reference (jit)"]
+        ratio = statistics.median(a / b for a, b in zip(v, ref))
+        print(f"| {k} | {1e3 * statistics.median(v):.2f} | {ratio:.2f} |")
+
+
 # ------------------------------------------------------------------------------------------ checks
 def run_checks() -> None:
     system, q, qd, qdd, params = sample_data(512)
@@ -374,10 +471,15 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--quick", action="store_true", help="7 repeats, batches 1 and 512 only")
     ap.add_argument("--check", action="store_true", help="run the correctness checks instead of the timings")
+    ap.add_argument("--interleaved", type=int, nargs="?", const=300, default=0, metavar="ROUNDS",
+                    help="JAX reference and lnn_torch film_lnn timed in turn in this process (default 300 rounds)")
     args = ap.parse_args()
     configure_cpu(1)  # as benchmark_dynamics.py: flush denormals, allocator, one torch thread
     if args.check:
         run_checks()
+        return
+    if args.interleaved:
+        run_interleaved(args.interleaved)
         return
     repeats = 7 if args.quick else args.repeats
     batches = (1, 512) if args.quick else (1, 512, 8192)
