@@ -46,9 +46,10 @@ class LNNModule(L.LightningModule):
         figure_every_n_epochs: log trajectory/energy figures this often (0: never).
         hnn_coordinates: ``canonical`` (p = dL/dqd from the scene) or ``velocity`` (the non-canonical
             (q, qd) of the LNN paper's counter-example), for the ``hnn`` variant.
-        compile: run the training pass through ``torch.compile`` (about 25-45 % faster per step here,
-            after a one-off compilation of 10-20 s). If compilation or the compiled backward fails,
-            training warns once and continues eagerly. Evaluation always runs eagerly.
+        compile: run the training pass through ``torch.compile`` (3-44 % faster per step, median
+            23 %, over the recorded benchmark runs here, after a one-off compilation of 10-20 s).
+            If compilation or the compiled backward fails, training warns once and continues
+            eagerly. Evaluation always runs eagerly.
 
     The learning rate follows a cosine from ``lr`` to ``lr_min`` that ends with the run: at the
     trainer's step budget or, when ``max_time`` is set, its time budget, whichever comes first.

@@ -29,12 +29,9 @@ def _minus_one(x: torch.Tensor) -> torch.Tensor:
     return _MINUS_ONE if x.device.type == "cpu" else -x.new_ones(())
 
 
-def _affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, scale: float = 1.0) -> torch.Tensor:
-    """``scale * (x @ weight.T + bias)`` as ONE fused ``addmm`` (an ``mm`` without bias)."""
-    if bias is None:
-        y = torch.mm(x, weight.t())
-        return y * scale if scale != 1.0 else y
-    return torch.addmm(bias, x, weight.t(), beta=scale, alpha=scale)
+def _affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``x @ weight.T + bias`` as ONE fused ``addmm`` (an ``mm`` without bias)."""
+    return torch.mm(x, weight.t()) if bias is None else torch.addmm(bias, x, weight.t())
 
 
 def _film_apply(op, *args: torch.Tensor) -> torch.Tensor:
@@ -208,9 +205,7 @@ class TangentMLP(nn.Module):
             h, g, c = self._layer(i, h, film, True)
             derivs.append(g)
             scale *= c
-        y = torch.mm(h, self.out.weight.t())[:, 0]
-        if self.out.bias is not None:
-            y = y + self.out.bias
+        y = _affine(h, self.out.weight, self.out.bias)[:, 0]
         delta = self.out.weight * scale if scale != 1.0 else self.out.weight  # (1, H): dy/dh, times the layers' c
         for i in range(len(self.hidden) - 1, -1, -1):
             W = self.hidden[i].weight
