@@ -346,18 +346,20 @@ def test_canonical_hnn_needs_the_scene_momentum_map():
 
 @pytest.mark.parametrize("activation", ACTIVATIONS)
 @pytest.mark.parametrize("with_film", [False, True])
-def test_tangent_mlp_equals_a_plain_mlp(activation, with_film):
+@pytest.mark.parametrize("B", [5, 9])
+def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
     """TangentMLP (tanh layers run in sigmoid form, FiLM pairs mapped to (2 gamma, beta - gamma))
     is the plain MLP ``h = gamma act(W h + b) + beta``: outputs against a straightforward float64
     implementation with torch's own activations, tangents against torch.func.jvp, input gradients
-    against autograd."""
+    against autograd. Batches of 5 and 9 rows: the products with few output columns take their
+    transposed form (``layers._mm_t``) only when the batch has more rows than outputs."""
     torch.manual_seed(0)
     net = TangentMLP(6, [24, 24], 3, activation).double()
     film_net = FiLM(4, [24, 24]).double()
     with torch.no_grad():
         for p in film_net.parameters():
             p.add_(0.3 * torch.randn_like(p))
-    x, cond = torch.randn(9, 6, dtype=torch.float64), torch.randn(9, 4, dtype=torch.float64)
+    x, cond = torch.randn(B, 6, dtype=torch.float64), torch.randn(B, 4, dtype=torch.float64)
     act = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": torch.nn.functional.softplus,
            "isru": lambda z: z / torch.sqrt(1 + z * z)}[activation]
 
@@ -371,12 +373,12 @@ def test_tangent_mlp_equals_a_plain_mlp(activation, with_film):
         return h @ net.out.weight.T + net.out.bias
 
     film = film_net(cond, net.sigmoid_form) if with_film else None
-    dx = torch.randn(2, 9, 4, dtype=torch.float64)
+    dx = torch.randn(2, B, 4, dtype=torch.float64)
     y, dy = net(x, dx, film)
     torch.testing.assert_close(y, plain(x), rtol=0, atol=1e-12)
     torch.testing.assert_close(net(x, None, film)[0], plain(x), rtol=0, atol=1e-12)
     for k in range(2):
-        ref = torch.func.jvp(plain, (x,), (torch.cat([dx[k], torch.zeros(9, 2, dtype=torch.float64)], -1),))[1]
+        ref = torch.func.jvp(plain, (x,), (torch.cat([dx[k], torch.zeros(B, 2, dtype=torch.float64)], -1),))[1]
         torch.testing.assert_close(dy[k], ref, rtol=0, atol=1e-12)
     scalar = TangentMLP(6, [24, 24], 1, activation, out_bias=False).double()
     scalar.hidden, scalar.out.weight = net.hidden, torch.nn.Parameter(net.out.weight[:1].clone())

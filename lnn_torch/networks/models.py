@@ -275,7 +275,7 @@ class StructuredLagrangian(DynamicsModel):
         if dphi is None:
             return chol, None
         dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), _one(raw))  # d softplus = sigmoid
-        return chol, dchol.view(-1, B, dof, dof)
+        return chol, dchol.reshape(-1, B, dof, dof)
 
     def mass_matrix_norm(self, q_norm, params_norm):
         chol, _ = self.cholesky(q_norm, params_norm)
