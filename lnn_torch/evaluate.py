@@ -249,11 +249,15 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--long-horizon-steps", type=int, default=100_000, help="RK4 steps of the long-horizon case (0: skip)")
     ap.add_argument("--output-dir", "-o", default=None, help="default: <checkpoint folder>/../evaluation")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--compile", action="store_true",
+                    help="accelerations through torch.compile (compiled once per batch shape; falls back to eager)")
     args = ap.parse_args(argv)
     from .perf import configure_cpu
 
     configure_cpu(args.threads)
     module, saved = load_checkpoint(args.checkpoint)
+    if args.compile:
+        module.model.compile_dynamics()
     data = args.data or saved.get("path")
     if data is None:
         raise ValueError("the checkpoint records no data path: pass --data")

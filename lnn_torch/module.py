@@ -17,7 +17,7 @@ import torch
 from .evaluation import counting_failures, rollout_metrics
 from .losses import acceleration_loss, energy_variance
 from .networks import VARIANTS, build_model
-from .perf import adamw, configure_cpu
+from .perf import adamw, compile_fn, configure_cpu
 from .systems import get_system
 
 
@@ -163,7 +163,7 @@ class LNNModule(L.LightningModule):
         if not self.hparams.compile or self._compiled is False:
             return self._training_pass
         if self._compiled is None:
-            self._compiled = torch.compile(self._training_pass, dynamic=False)
+            self._compiled = compile_fn(self._training_pass, self.device)
         return self._compiled
 
     def _training_loss(self, batch, pass_fn):

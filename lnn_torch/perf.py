@@ -18,6 +18,7 @@ import ctypes.util
 import statistics
 import sys
 import time
+import warnings
 
 import torch
 
@@ -63,6 +64,17 @@ def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return statistics.median(times)
+
+
+def compile_fn(fn, device: torch.device | str = "cpu"):
+    """``torch.compile(fn)`` as lnn_torch compiles its dynamics: static shapes (one graph per batch
+    shape, dtype and grad mode) and, on the CPU, inductor's C++ wrapper (the generated code calls
+    its kernels and matrix products from C++, not Python: measured here in one process, 512
+    structured accelerations 6 % and a training step 3 % faster than the Python wrapper)."""
+    # inductor's own call of a deprecated torch helper (torch 2.13) warns on every compilation
+    warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
+    options = {"cpp_wrapper": True} if torch.device(device).type == "cpu" else None
+    return torch.compile(fn, dynamic=False, options=options)
 
 
 def adamw(parameters, **kwargs) -> torch.optim.AdamW:

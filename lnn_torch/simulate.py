@@ -39,6 +39,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--plot", default=None, help="plot file (default: the output with .png)")
     ap.add_argument("--no-exact", action="store_true", help="skip the closed-form reference trajectory")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    ap.add_argument("--compile", action="store_true",
+                    help="accelerations through torch.compile (pays off for long rollouts; falls back to eager)")
     return ap
 
 
@@ -138,6 +140,8 @@ def main(argv: list[str]) -> int:
         if p.exists() and not args.overwrite:
             raise FileExistsError(f"{p} exists; refusing to overwrite it (pass --overwrite)")
     model = load_model(args.pretrained, args.checkpoint)
+    if args.compile:
+        model.model.compile_dynamics()
     qd0 = args.qd0 if args.qd0 is not None else [0.0] * model.system.dof
     result = simulate(model, args.params, args.q0, qd0, args.duration, args.dt, args.method, exact=not args.no_exact)
     meta = {"model": args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}",

@@ -18,7 +18,6 @@ import argparse
 import gc
 import os
 import platform
-import warnings
 
 # compile in this process: inductor's pool of compile workers would otherwise compete for the
 # cores while the rows are timed (before torch is imported)
@@ -31,7 +30,7 @@ from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # 
 from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
 
 from lnn_torch.networks import build_model  # noqa: E402
-from lnn_torch.perf import adamw, configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.perf import adamw, compile_fn, configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
 
@@ -54,7 +53,7 @@ def paths(model, variant, compile_fast: bool, chunks):
         out["structured (hand tangents)"] = (model.acceleration_norm, fused, False)
         if compile_fast:
             out["structured (hand tangents, torch.compile)"] = (
-                torch.compile(model.acceleration_norm, dynamic=False), torch.compile(fused, dynamic=False), False)
+                compile_fn(model.acceleration_norm), compile_fn(fused), False)
 
         def func_ref(q, qd, p):
             return structured_acceleration(lambda q1, p1: model.cholesky(q1[None], p1[None])[0][0],
@@ -72,8 +71,7 @@ def paths(model, variant, compile_fast: bool, chunks):
     else:
         out["direct"] = (model.acceleration_norm, fused, False)
         if compile_fast:
-            out["direct (torch.compile)"] = (torch.compile(model.acceleration_norm, dynamic=False),
-                                             torch.compile(fused, dynamic=False), False)
+            out["direct (torch.compile)"] = (compile_fn(model.acceleration_norm), compile_fn(fused), False)
     return out
 
 
@@ -88,8 +86,6 @@ def main() -> None:
                     help="training step on a chunk whose points all have different parameters")
     args = ap.parse_args()
     configure_cpu(args.threads)
-    # inductor's own use of a deprecated torch helper (torch 2.13), not ours
-    warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
     repeats = 7 if args.quick else args.repeats
     batches = (1, 512) if args.quick else (1, 512, 8192)
     compile_fast = not (args.quick or args.no_compile)

@@ -335,7 +335,7 @@ def run_interleaved(rounds: int) -> None:
     import warnings
 
     from lnn_torch.losses import acceleration_loss, energy_variance
-    from lnn_torch.perf import adamw
+    from lnn_torch.perf import adamw, compile_fn
     from lnn_torch.networks import build_model
 
     warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
@@ -367,8 +367,8 @@ def run_interleaved(rounds: int) -> None:
     tpc = tpn[:1].expand(B, -1)
     opt = adamw(tm.parameters(), lr=1e-5)
     fused = lambda a, b, c: tm.acceleration_and_energy_norm(a, b, c, 1)  # noqa: E731
-    fused_c = torch.compile(fused, dynamic=False)
-    accel_c = torch.compile(tm.acceleration_norm, dynamic=False)
+    fused_c = compile_fn(fused)
+    accel_c = compile_fn(tm.acceleration_norm)
 
     def torch_accel(fn):
         def run():

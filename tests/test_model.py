@@ -457,3 +457,62 @@ def test_every_variant_takes_the_chunk_structure(variant, rng):
     qdd = system.acceleration(q, qd, params)
     for a, b in zip(model.training_terms(q, qd, qdd, params), model.training_terms(q, qd, qdd, params, chunks=2)):
         torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)
+
+
+def test_compiled_dynamics_equal_eager(rng):
+    """compile_dynamics(): accelerations and a rollout through torch.compile (C++ wrapper) equal the
+    eager ones, at batch sizes 1 and 5, under no_grad and with autograd; the compiled code is
+    dropped by copies."""
+    import copy
+
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16)))
+    q, qd, params = (x.float() for x in random_batch(system, rng, 5))
+    eager_accel = model.acceleration(q, qd, params)
+    eager_q, eager_qd = model.rollout(q, qd, params, 0.01, 3)
+    model.compile_dynamics()
+    with torch.no_grad():
+        torch.testing.assert_close(model.acceleration(q[:1], qd[:1], params[:1]), eager_accel[:1], rtol=1e-5, atol=1e-5)
+        q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
+    torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
+    assert model._compile is True and model._compiled is not None  # no fallback happened
+    assert copy.deepcopy(model)._compiled is None
+    model.compile_dynamics(False)
+    torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
+
+
+def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
+    """A failing compiled call warns once and the model continues eagerly with the eager result;
+    the model's own errors (singular Hessian) pass through and are not taken for a compile failure."""
+    import lnn_torch.networks.models as models
+
+    def broken(fn, device):
+        def run(*args):
+            raise RuntimeError("inductor: C++ compile failed")
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", broken)
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
+    q, qd, params = random_batch(system, rng, 4)
+    expected = model.acceleration(q, qd, params)
+    model.compile_dynamics()
+    with pytest.warns(RuntimeWarning, match="C\\+\\+ compile failed.*continuing eagerly"):
+        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
+    assert model._compile == "failed"
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
+
+    def singular(fn, device):
+        def run(*args):
+            raise SingularHessianError("the velocity Hessian d2L/dqd2 is singular")
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", singular)
+    model.compile_dynamics()
+    with pytest.raises(SingularHessianError):
+        model.acceleration(q, qd, params)
+    assert model._compile is True

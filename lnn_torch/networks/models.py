@@ -20,13 +20,15 @@ returns SI units. Shapes: ``q, qd (B, dof)``, ``params (B, P)`` -> ``(B, dof)``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 from .. import integrators
-from ..dynamics import generic_acceleration, structured_acceleration_from_factor
+from ..dynamics import SingularHessianError, generic_acceleration, structured_acceleration_from_factor
+from ..perf import compile_fn
 from ..systems.base import InputError
 from .layers import FiLM, TangentMLP, _one
 from .normalization import Normalizer
@@ -200,12 +202,49 @@ class DynamicsModel(nn.Module):
         """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)``.
 
         The networks run in their own dtype; the result has the dtype and device of ``q``.
+        Compiled after ``compile_dynamics()``.
         """
         if check:
             self.check_inputs(q, qd, params)
         dtype = self.dtype
-        qdd_n = self.acceleration_norm(*self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype)))
+        qdd_n = self._acceleration_norm_fast(*self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype)))
         return self.normalizer.accel_to_phys(qdd_n).to(q.dtype)
+
+    # ------------------------------------------------------------------ opt-in compilation
+    _compile = False  # False, True (compile on first use) or "failed"
+    _compiled = None
+
+    def compile_dynamics(self, enabled: bool = True) -> "DynamicsModel":
+        """Opt in (or out) of running ``acceleration``, and so ``rollout``, through ``torch.compile``.
+
+        Compiled on first use for each batch shape, dtype and grad mode (10-30 s each; inductor
+        caches compiled code on disk across processes); the C++ wrapper on the CPU
+        (``lnn_torch.perf.compile_fn``). If compilation or a compiled call fails, a warning is
+        issued once and the model continues eagerly. Returns the model.
+        """
+        self._compile, self._compiled = bool(enabled), None
+        return self
+
+    def _acceleration_norm_fast(self, q_norm, qd_norm, params_norm):
+        if self._compile is not True:
+            return self.acceleration_norm(q_norm, qd_norm, params_norm)
+        if self._compiled is None:
+            self._compiled = compile_fn(self.acceleration_norm, q_norm.device)
+        try:
+            return self._compiled(q_norm, qd_norm, params_norm)
+        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
+            raise
+        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
+            warnings.warn(f"compiled accelerations failed ({type(err).__name__}: "
+                          f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
+                          RuntimeWarning, stacklevel=3)
+            self._compile, self._compiled = "failed", None
+            return self.acceleration_norm(q_norm, qd_norm, params_norm)
+
+    def __getstate__(self):
+        state = super().__getstate__()  # a copy of __dict__
+        state.pop("_compiled", None)  # compiled code is rebuilt on first use (copies, pickles)
+        return state
 
     @property
     def dtype(self) -> torch.dtype:
