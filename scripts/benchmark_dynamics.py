@@ -6,7 +6,9 @@ training step is forward + backward + AdamW on ONE 512-point chunk with the ener
 0.1 x energy variance over the chunk), with the fused AdamW that training uses; as in training, the
 chunk's points share one parameter vector (one trajectory), so FiLM runs once per chunk on the fast
 path (``--per-row-params``: every point its own parameters, FiLM per point).
-Every row also gives the ratio to the scene's closed-form acceleration timed in the same run.
+Every row also gives the ratio to the scene's closed-form acceleration timed in the same run. For
+the structured variants, a last row times the matrix products of one acceleration call alone (same
+shapes and weights): the floor that the rest of the call (activations, FiLM, solve, dispatch) adds to.
 
     python scripts/benchmark_dynamics.py                 # full table (a few minutes)
     python scripts/benchmark_dynamics.py --quick         # fewer repeats, no batch 8192, no compile
@@ -73,6 +75,43 @@ def paths(model, variant, compile_fast: bool, chunks):
         if compile_fast:
             out["direct (torch.compile)"] = (compile_fn(model.acceleration_norm), compile_fn(fused), False)
     return out
+
+
+def matmul_floor(model, batch: int, dtype):
+    """The matrix products of ONE structured acceleration call of ``model`` (film_lnn or delan) at
+    ``batch`` states, alone: the same shapes, kinds and weights as the model's call, on random
+    inputs. The rest of a call (activations, FiLM, the solve, dispatch) comes on top of this."""
+    from lnn_torch.networks.layers import _affine, _mm_t
+
+    gen = torch.Generator().manual_seed(0)
+
+    def rand(*shape):
+        return torch.randn(*shape, generator=gen, dtype=dtype)
+
+    K = model.scene.dof  # tangents of the kinetic network
+    nets = [(model.kinetic_net, model.kinetic_film, False), (model.potential_net, model.potential_film, True)]
+    inputs = [(rand(batch, net.hidden[0].in_features), rand(K * batch, model.num_features),
+               None if film is None else rand(batch, film.net[0].in_features)) for net, film, _ in nets]
+
+    def products():
+        for (net, film, reverse), (x, dx, cond) in zip(nets, inputs):
+            if film is not None:
+                first, _, last = film.net
+                _affine(_affine(cond, first.weight, first.bias), last.weight, last.bias)
+            h, dh = x, dx
+            for i, layer in enumerate(net.hidden):
+                h = _affine(h, layer.weight, layer.bias)
+                if not reverse:
+                    dh = torch.mm(dh, (layer.weight[:, : dh.shape[-1]] if i == 0 else layer.weight).t())
+            _affine(h, net.out.weight, net.out.bias)
+            if reverse:  # the hand-written reverse pass to the features
+                for i in range(len(net.hidden) - 1, -1, -1):
+                    W = net.hidden[i].weight
+                    h = _mm_t(h, (W[:, : model.num_features] if i == 0 else W).t())
+            else:
+                _mm_t(dh, net.out.weight)
+
+    return products
 
 
 def main() -> None:
@@ -142,6 +181,11 @@ def main() -> None:
                 ratio = float(cells[1]) / closed[512]
                 print(f"| {variant} | {name} | {str(dtype)[6:]} | " + " | ".join(cells) + f" | {st:.2f} | {ratio:.0f} |",
                       flush=True)
+            if variant in ("film_lnn", "delan"):
+                with torch.no_grad():
+                    cells = [median_ms(matmul_floor(model, b, dtype), repeats) for b in batches]
+                print(f"| {variant} | its matrix products alone | {str(dtype)[6:]} | "
+                      + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} |", flush=True)
 
 
 if __name__ == "__main__":

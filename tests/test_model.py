@@ -476,8 +476,8 @@ def test_compiled_dynamics_equal_eager(rng):
         q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
     torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
-    assert model._compile is True and model._compiled is not None  # no fallback happened
-    assert copy.deepcopy(model)._compiled is None
+    assert model._compile is True and set(model._compiled) == {"acceleration_norm", "_acceleration_norm_films"}
+    assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
     model.compile_dynamics(False)
     torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
 
@@ -516,3 +516,22 @@ def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
     with pytest.raises(SingularHessianError):
         model.acceleration(q, qd, params)
     assert model._compile is True
+
+
+@pytest.mark.parametrize("variant, kw", [("film_lnn", {}), ("film_lnn", {"potential_film": False}), ("delan", {})])
+def test_rollout_conditions_once(variant, kw, rng):
+    """A rollout computes FiLM once (acceleration_fn) and equals, to the bit, integrating
+    model.acceleration, which computes it at every stage; other parameters are refused."""
+    from lnn_torch import integrators
+
+    system = get_system("double_pendulum")
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16), **kw).double())
+    q, qd, params = random_batch(system, rng, 6)
+    reference = integrators.rollout(lambda a, b, p: model.acceleration(a, b, p, check=False), q, qd, params, 0.01, 5)
+    for got, want in zip(model.rollout(q, qd, params, 0.01, 5), reference):
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    accel = model.acceleration_fn(params)
+    torch.testing.assert_close(accel(q, qd, params), model.acceleration(q, qd, params), rtol=0, atol=0)
+    if model.kinetic_film is not None:
+        with pytest.raises(InputError, match="other parameters"):
+            accel(q, qd, params.clone())

