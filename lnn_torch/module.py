@@ -46,10 +46,12 @@ class LNNModule(L.LightningModule):
         figure_every_n_epochs: log trajectory/energy figures this often (0: never).
         hnn_coordinates: ``canonical`` (p = dL/dqd from the scene) or ``velocity`` (the non-canonical
             (q, qd) of the LNN paper's counter-example), for the ``hnn`` variant.
-        compile: run the training pass through ``torch.compile`` (3-44 % faster per step, median
-            23 %, over the recorded benchmark runs here, after a one-off compilation of 10-20 s).
+        compile: run the training pass through ``torch.compile`` (``lnn_torch.perf.compile_fn``;
+            26 % faster per step at the median of the 11 recorded benchmark runs here, -4 to 53 %,
+            after a one-off compilation of 10-30 s).
             If compilation or the compiled backward fails, training warns once and continues
-            eagerly. Evaluation always runs eagerly.
+            eagerly. Validation and test run eagerly (``model.compile_dynamics()`` compiles
+            accelerations and rollouts).
 
     The learning rate follows a cosine from ``lr`` to ``lr_min`` that ends with the run: at the
     trainer's step budget or, when ``max_time`` is set, its time budget, whichever comes first.

@@ -1,0 +1,77 @@
+"""Eager against torch.compile's two wrappers, timed in turn in one process (same load for all).
+
+The film_lnn structured accelerations of 512 float32 states under ``torch.no_grad()`` (default
+network 2 x 128, default initialisation, one thread), three ways: eager; ``torch.compile`` with
+inductor's default Python wrapper; and ``lnn_torch.perf.compile_fn`` (static shapes, the C++
+wrapper on the CPU: what ``compile_dynamics()``, the training pass and the benchmarks use). Each
+round times each candidate (median of ``--repeats`` calls after warm-up); the script prints
+every candidate's median and range over the rounds and the median per-round ratio to eager.
+
+    python scripts/compare_compile.py             # 12 rounds, ~1 min plus compilation
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+
+os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")  # no compile workers beside the timings
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from lnn_torch.networks import build_model  # noqa: E402
+from lnn_torch.perf import compile_fn, configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.systems import get_system  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rounds", type=int, default=12)
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--batch", type=int, default=512)
+    args = ap.parse_args()
+    configure_cpu(1)
+    system = get_system("double_pendulum")
+    rng = np.random.default_rng(0)
+    params = torch.tensor(system.sample_params(rng, args.batch)).float()
+    q, qd = (torch.tensor(x).float() for x in system.sample_state(rng, args.batch))
+    torch.manual_seed(0)
+    model = build_model("film_lnn", system).float()
+    model.normalizer.fit(q, qd, system.acceleration(q, qd, params), params)
+    inputs = model.normalize(q, qd, params)
+    candidates = {
+        "eager": model.acceleration_norm,
+        "torch.compile, Python wrapper": torch.compile(model.acceleration_norm, dynamic=False),
+        "compile_fn (C++ wrapper)": compile_fn(model.acceleration_norm),
+    }
+    with torch.no_grad():
+        reference = model.acceleration_norm(*inputs)
+        for name, fn in candidates.items():  # compiles
+            err = (fn(*inputs) - reference).abs().max().item()
+            print(f"{name}: max |difference| to eager {err:.1e}")
+
+    def timed(fn):
+        def call():
+            with torch.no_grad():
+                fn(*inputs)
+        return call
+
+    times = {name: [] for name in candidates}
+    for _ in range(args.rounds):
+        for name, fn in candidates.items():
+            times[name].append(1e3 * median_seconds(timed(fn), args.repeats, 5))
+    print(f"\ntorch {torch.__version__}, one thread, float32, {args.batch} states, {args.rounds} rounds in turn, "
+          f"medians of {args.repeats} calls per round")
+    print("| path | median (ms) | range over rounds (ms) | median per-round ratio to eager |")
+    print("|---|---|---|---|")
+    for name, t in times.items():
+        ratio = statistics.median(a / b for a, b in zip(t, times["eager"]))
+        print(f"| {name} | {statistics.median(t):.3f} | {min(t):.3f} – {max(t):.3f} | {ratio:.3f} |")
+    cpp, py = times["compile_fn (C++ wrapper)"], times["torch.compile, Python wrapper"]
+    print(f"\nC++ / Python wrapper, median per-round ratio: {statistics.median(a / b for a, b in zip(cpp, py)):.3f}")
+
+
+if __name__ == "__main__":
+    main()
