@@ -69,8 +69,8 @@ def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
 def compile_fn(fn, device: torch.device | str = "cpu"):
     """``torch.compile(fn)`` as lnn_torch compiles its dynamics: static shapes (one graph per batch
     shape, dtype and grad mode) and, on the CPU, inductor's C++ wrapper (the generated code calls
-    its kernels and matrix products from C++, not Python: measured here in one process, 512
-    structured accelerations 6 % and a training step 3 % faster than the Python wrapper)."""
+    its kernels and matrix products from C++, not Python; ``scripts/compare_compile.py`` times
+    both wrappers against eager: ``results/compare_compile.md``)."""
     # inductor's own call of a deprecated torch helper (torch 2.13) warns on every compilation
     warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
     options = {"cpp_wrapper": True} if torch.device(device).type == "cpu" else None
