@@ -213,9 +213,14 @@ class DynamicsModel(nn.Module):
         """
         if check:
             self.check_inputs(q, qd, params)
+        return self._acceleration_si(self.acceleration_norm, q, qd, self.normalizer.params(params.to(self.dtype)))
+
+    def _acceleration_si(self, fn, q, qd, params_norm, *extra):
+        """SI accelerations from ``fn(q_norm, qd_norm, params_norm, *extra)`` (normalised units), run
+        through ``_run`` (compiled after ``compile_dynamics()``); the result has ``q``'s dtype."""
         dtype = self.dtype
-        qdd_n = self._acceleration_norm_fast(*self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype)))
-        return self.normalizer.accel_to_phys(qdd_n).to(q.dtype)
+        q_norm, qd_norm = self.normalizer.state(q.to(dtype), qd.to(dtype))
+        return self.normalizer.accel_to_phys(self._run(fn, q_norm, qd_norm, params_norm, *extra)).to(q.dtype)
 
     # ------------------------------------------------------------------ opt-in compilation
     _compile = False  # False, True (compile on first use) or "failed"
@@ -231,9 +236,6 @@ class DynamicsModel(nn.Module):
         """
         self._compile, self._compiled = bool(enabled), {}
         return self
-
-    def _acceleration_norm_fast(self, q_norm, qd_norm, params_norm):
-        return self._run(self.acceleration_norm, q_norm, qd_norm, params_norm)
 
     def _run(self, fn, *args):
         """``fn(*args)``, compiled after ``compile_dynamics()`` (with the eager fallback)."""
@@ -255,9 +257,8 @@ class DynamicsModel(nn.Module):
 
     def __getstate__(self):
         state = super().__getstate__()  # a copy of __dict__
-        state.pop("_compiled", None)  # compiled code is rebuilt on first use (copies, pickles)
-        if self._compile is True:
-            state["_compiled"] = {}
+        if "_compiled" in state:
+            state["_compiled"] = {}  # compiled code is rebuilt on first use (copies, pickles)
         return state
 
     @property
@@ -390,16 +391,13 @@ class StructuredLagrangian(DynamicsModel):
         every call (an RK4 step makes four)."""
         if self.kinetic_film is None and self.potential_film is None:
             return super().acceleration_fn(params)
-        dtype = self.dtype
-        params_norm = self.normalizer.params(params.to(dtype))
+        params_norm = self.normalizer.params(params.to(self.dtype))
         films = self._films(params_norm)
 
         def accel(q, qd, p):
             if p is not params:
                 raise InputError("acceleration_fn(params) was called with other parameters than its own")
-            q_norm, qd_norm = self.normalizer.state(q.to(dtype), qd.to(dtype))
-            qdd_n = self._run(self._acceleration_norm_films, q_norm, qd_norm, params_norm, films)
-            return self.normalizer.accel_to_phys(qdd_n).to(q.dtype)
+            return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films)
 
         return accel
 
