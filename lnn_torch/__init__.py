@@ -1,9 +1,10 @@
 """lnn_torch: Lagrangian Neural Networks for mechanical systems, in PyTorch.
 
-Public names: ``LNNModule`` (Lightning training shell; loading checkpoints), ``rollout``
-(fixed-step integration of any ``accel_fn``), ``get_system`` (ground-truth scenes),
-``build_model`` (plain ``nn.Module`` variants), ``load_pretrained`` (shipped trained models),
-``TrajectoryDataModule`` (HDF5 trajectories for Lightning).
+Public names: ``LNNModule`` (Lightning training shell), ``load_model`` (a checkpoint path or
+``pretrained:<name>``), ``load_pretrained`` (shipped trained models), ``rollout`` (fixed-step
+integration of any ``accel_fn``), ``get_system`` (ground-truth scenes), ``build_model`` (plain
+``nn.Module`` variants), ``evaluate_model`` (the one evaluation pipeline), ``TrajectoryDataModule``
+(HDF5 trajectories for Lightning).
 """
 
 __version__ = "0.1.0"
@@ -26,6 +27,14 @@ def __getattr__(name):
         from .pretrained import load_pretrained
 
         return load_pretrained
+    if name == "load_model":
+        from .checkpoints import load_model
+
+        return load_model
+    if name == "evaluate_model":
+        from .evaluation import evaluate_model
+
+        return evaluate_model
     if name == "TrajectoryDataModule":
         from .data.datamodule import TrajectoryDataModule
 
@@ -34,4 +43,4 @@ def __getattr__(name):
 
 
 __all__ = ["__version__", "rollout", "get_system", "LNNModule", "build_model", "TrajectoryDataModule",
-           "load_pretrained"]
+           "load_pretrained", "load_model", "evaluate_model"]

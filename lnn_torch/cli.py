@@ -1,67 +1,22 @@
-"""The ``lnn-torch`` command: ``generate`` (and, with Lightning, ``fit``/``validate``/``test``/``predict``)."""
+"""The ``lnn-torch`` command: a dispatcher over ``generate``, ``evaluate``, ``simulate`` (modules of
+``lnn_torch.commands``) and Lightning's ``fit``/``validate``/``test``/``predict``."""
 
 from __future__ import annotations
 
-import argparse
-import json
+import importlib
 import sys
-import time
-from pathlib import Path
-
-from .systems import SYSTEMS
-
-
-def _generate_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="lnn-torch generate",
-        description=(
-            "Generate a ground-truth trajectory dataset (HDF5): closed-form accelerations, seeded per "
-            "trajectory, integrated in float64 with a fixed-step 8th-order Runge-Kutta method. "
-            "The default is the reference double-pendulum set: 2000 trajectories x 20 s at dt=0.005 s."
-        ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    p.add_argument("--scene", default="double_pendulum", help=f"scene: one of {', '.join(sorted(SYSTEMS))}")
-    p.add_argument("--scene-config", default="{}", metavar="JSON",
-                   help='sampler ranges of the scene as JSON, e.g. \'{"l1_range": [1.0, 1.5]}\'')
-    p.add_argument("--num-trajectories", "-n", type=int, default=2000)
-    p.add_argument("--duration", type=float, default=20.0, help="seconds per trajectory")
-    p.add_argument("--dt", type=float, default=0.005, help="sampling interval, s")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--split", type=float, nargs=3, default=(0.8, 0.1, 0.1), metavar=("TRAIN", "VAL", "TEST"))
-    p.add_argument("--integrator", default="rk8", help="fixed-step integrator for the ground truth")
-    p.add_argument("--substeps", type=int, default=1, help="integrator steps per sampling interval")
-    p.add_argument("--targets", choices=("analytic", "finite_difference"), default="analytic",
-                   help="qdd targets: closed form (default) or finite differences of qd")
-    p.add_argument("--output", "-o", default=None, help="output file (default: data/<scene>.h5)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--threads", type=int, default=2, help="torch threads")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return p
-
-
-def generate_main(argv: list[str]) -> int:
-    from .data import DatasetSpec, generate_dataset
-
-    args = _generate_parser().parse_args(argv)
-    try:
-        scene_config = json.loads(args.scene_config)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"--scene-config is not valid JSON: {err}") from None
-    spec = DatasetSpec(scene=args.scene, scene_config=scene_config, num_trajectories=args.num_trajectories,
-                       duration=args.duration, dt=args.dt, seed=args.seed, split=tuple(args.split),
-                       integrator=args.integrator, substeps=args.substeps, targets=args.targets)
-    output = Path(args.output or f"data/{args.scene}.h5")
-    start = time.perf_counter()
-    path = generate_dataset(spec, output, overwrite=args.overwrite, progress=not args.no_progress,
-                            num_threads=args.threads)
-    size = path.stat().st_size / 2**20
-    print(f"wrote {path.resolve()} ({size:.1f} MiB; {spec.num_trajectories} trajectories x {spec.num_points} points) "
-          f"in {time.perf_counter() - start:.1f} s")
-    return 0
-
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+# command -> (module of lnn_torch.commands, one-line help)
+COMMANDS = {
+    "generate": ("generate", "write a ground-truth trajectory dataset (HDF5)"),
+    "fit": (None, "train a model (LightningCLI; -c configs/quickstart.yaml)"),
+    "validate": (None, "validation metrics of a checkpoint (--ckpt_path)"),
+    "test": (None, "test-split metrics of a checkpoint (--ckpt_path)"),
+    "predict": (None, "write test-split predictions to a file (--ckpt_path)"),
+    "evaluate": ("evaluate", "report of a checkpoint: errors, rollouts, energy drift, stability, plots"),
+    "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
+}
 
 
 def lightning_main(argv: list[str]) -> int:
@@ -72,46 +27,28 @@ def lightning_main(argv: list[str]) -> int:
     return 0
 
 
-def evaluate_main(argv: list[str]) -> int:
-    from .evaluate import main as evaluate
-
-    return evaluate(argv)
-
-
-def simulate_main(argv: list[str]) -> int:
-    from .simulate import main as simulate
-
-    return simulate(argv)
-
-
-COMMANDS = {"generate": generate_main, "evaluate": evaluate_main, "simulate": simulate_main,
-            **{c: lightning_main for c in LIGHTNING_COMMANDS}}
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
+        width = max(map(len, COMMANDS))
         print("usage: lnn-torch {" + ",".join(COMMANDS) + "} ...\n\n"
-              "  generate   write a ground-truth trajectory dataset (HDF5)\n"
-              "  fit        train a model (LightningCLI; -c configs/quickstart.yaml)\n"
-              "  validate   validation metrics of a checkpoint (--ckpt_path)\n"
-              "  test       test-split metrics of a checkpoint (--ckpt_path)\n"
-              "  predict    write test-split predictions to a file (--ckpt_path)\n"
-              "  evaluate   report of a checkpoint: errors, rollouts, energy drift, stability, plots\n"
-              "  simulate   roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot\n\n"
-              "Run 'lnn-torch COMMAND --help' for a command's options.")
+              + "\n".join(f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items())
+              + "\n\nRun 'lnn-torch COMMAND --help' for a command's options.")
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
-    from .perf import configure_cpu
-
-    configure_cpu()
     if command not in COMMANDS:
         print(f"lnn-torch: error: unknown command '{command}' (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
+    from .perf import configure_cpu
+
+    configure_cpu()
     try:
-        return COMMANDS[command](argv if command in LIGHTNING_COMMANDS else rest)
-    except (ValueError, OSError, RuntimeError) as err:  # InputError, DatasetFileError, FileExistsError, ...
-        print(f"lnn-torch {command}: error: {err}", file=sys.stderr)
+        if command in LIGHTNING_COMMANDS:
+            return lightning_main(argv)
+        return importlib.import_module(f"lnn_torch.commands.{COMMANDS[command][0]}").main(rest)
+    except (ValueError, OSError, RuntimeError, KeyError) as err:  # InputError, DatasetFileError, FileExistsError, ...
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"lnn-torch {command}: error: {message}", file=sys.stderr)
         return 2
 
 

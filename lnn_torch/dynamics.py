@@ -6,7 +6,7 @@ For ``L(q, qd)`` the Euler-Lagrange equations ``d/dt dL/dqd = dL/dq`` give
 
 * ``generic_acceleration`` solves this for ANY scalar Lagrangian with ``torch.func`` (hessian,
   jacrev, vmap) and ``torch.linalg.solve_ex``. A singular or indefinite-at-machine-precision
-  Hessian is reported (``SingularHessianError``), or damped when asked for.
+  Hessian is reported (``SingularHessianError``), or regularised when asked for (``hessian_reg``).
 * ``structured_acceleration`` solves ``M qdd = dL/dq - Mdot qd`` for ``L = 1/2 qd^T M(q) qd - V(q)``
   with the model's own Cholesky factor of M (no Hessian of L).
 
@@ -15,6 +15,7 @@ Pure tensor functions: no networks, no Lightning.
 
 from __future__ import annotations
 
+import warnings
 from typing import Callable
 
 import torch
@@ -61,30 +62,36 @@ def generic_acceleration(
     q: torch.Tensor,
     qd: torch.Tensor,
     params: torch.Tensor,
-    damping: float = 0.0,
+    hessian_reg: float = 0.0,
     check: bool = True,
+    damping: float | None = None,
 ) -> torch.Tensor:
     """Accelerations of any Lagrangian by the generic Euler-Lagrange solve.
 
     Args:
         lagrangian_fn: scalar Lagrangian of one sample (see ``euler_lagrange_terms``).
         q, qd: ``(*batch, dof)``; params: ``(*batch, P)``.
-        damping: the singular-Hessian policy. ``0`` (default) solves exactly and raises
+        hessian_reg: the singular-Hessian policy. ``0`` (default) solves exactly and raises
             ``SingularHessianError`` where the solve fails; ``> 0`` solves
-            ``H + damping (mean|diag H| + 1) I`` instead (Levenberg-style damping, relative to the
-            Hessian's scale with a floor, in the units of ``lagrangian_fn``).
+            ``H + hessian_reg (mean|diag H| + 1) I`` instead (Levenberg-style regularisation,
+            relative to the Hessian's scale with a floor, in the units of ``lagrangian_fn``).
         check: raise ``SingularHessianError`` on singular Hessians (costs one sync). With
             ``check=False`` the accelerations of singular states are NaN (never silently wrong).
+        damping: the former name of ``hessian_reg`` (deprecated: "damping" now means physical
+            dissipation).
 
     Returns:
         ``qdd`` of shape ``(*batch, dof)``, same dtype and device as ``q``.
     """
+    if damping is not None:
+        warnings.warn("generic_acceleration(damping=...) is renamed hessian_reg=...", DeprecationWarning, stacklevel=2)
+        hessian_reg = damping
     batch, qf, qdf, pf = _flatten(q, qd, params)
     H, rhs = euler_lagrange_terms(lagrangian_fn, qf, qdf, pf)
-    if damping > 0:
+    if hessian_reg > 0:
         # relative to the Hessian's scale, with a floor of 1 so that a vanishing Hessian is regularised too
         scale = H.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True) + 1
-        H = H + damping * scale[..., None] * torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
+        H = H + hessian_reg * scale[..., None] * torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
     qdd, info = torch.linalg.solve_ex(H, rhs[..., None])
     qdd = qdd[..., 0]
     bad = (info != 0) | ~torch.isfinite(qdd).all(-1)  # (B,)
@@ -92,7 +99,7 @@ def generic_acceleration(
         n = int(bad.sum())
         raise SingularHessianError(
             f"the velocity Hessian d2L/dqd2 is singular for {n} of {bad.numel()} states; "
-            "accelerations are undefined there (pass damping > 0 to regularise)"
+            "accelerations are undefined there (pass hessian_reg > 0 to regularise)"
         )
     qdd = torch.where(bad[:, None], torch.full_like(qdd, float("nan")), qdd)
     return qdd.reshape(*batch, q.shape[-1])
@@ -145,8 +152,8 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
 
     For ``d <= SMALL_SPD`` the factorisation (``potrf``) and the two triangular solves (``potrs``)
     are unrolled over the entries: the same algorithm as LAPACK's, as a few elementwise ops on
-    ``(B,)`` columns instead of one LAPACK call per matrix (measured here for 512 2x2 systems in
-    float32: ~0.05 ms against ~0.2 ms for ``cholesky_ex`` + ``cholesky_solve``). Larger systems use
+    ``(B,)`` columns instead of one LAPACK call per matrix (cheaper for batches of small systems;
+    ``scripts/benchmark_dynamics.py`` times the whole solve). Larger systems use
     ``torch.linalg.cholesky_ex`` and ``torch.cholesky_solve``. Only the lower triangle of ``M`` is
     read. A matrix that is not positive definite gives NaN (never a silently wrong solution).
     """

@@ -1,91 +1,68 @@
-"""Evaluation metrics (pure functions): acceleration error, rollout divergence, true-energy drift.
+"""One evaluation pipeline: ``evaluate_model(model, system, data, ...) -> dict``.
 
-Energies are always the scene's closed-form energy of the model's rollout, relative to the scene's
-energy scale ``V_max - V_min`` -- never the model's own (normalised) energy.
+The LightningModule's validation and test, ``lnn-torch evaluate`` and ``scripts/benchmark.py`` all
+call it. A report is made of *sections*, each one function of an ``EvalContext`` registered in
+``SECTIONS`` (a new metric: one function plus its ``@section`` line):
+
+* ``accelerations``: relative L2 acceleration error (total, per coordinate, per-trajectory median
+  and 90th percentile) at every ``accel_stride``-th point of every trajectory;
+* ``rollouts``: rollouts from the true initial states with a chosen integrator and step, and the
+  time until the coordinate error first exceeds each threshold (quartiles over trajectories);
+* ``energy``: the scene's true energy along those rollouts, drift relative to ``V_max - V_min``;
+* ``predictability``: the same divergence times for the exact system started ``perturbation`` off
+  (the limit any model can reach on chaotic trajectories);
+* ``mass_matrix``: the learned mass matrix against the scene's (structured models);
+* ``ood``: the scene's own out-of-distribution cases (``System.ood_cases``);
+* ``stability``: the scene's hard cases (``lnn_torch.stability``) and a long horizon.
+
+Models are anything with ``acceleration(q, qd, params, check=False)`` and ``rollout(q0, qd0,
+params, dt, num_steps, method)`` in SI units (every ``DynamicsModel``; ``ClosedForm(system)`` for
+the scene's own dynamics). The exact reference is ``lnn_torch.ground_truth.reference_rollout``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import time
+from dataclasses import dataclass, field
 from typing import Callable
 
 import torch
 
+from .data.trajectories import Trajectories
+from .ground_truth import reference_rollout
 from .integrators import rollout
+from .metrics import (acceleration_errors, condition_numbers, divergence_time, energy_drift, quartiles,  # noqa: F401
+                      relative_l2, scaled_matrix_error)
+
+SECTIONS: dict[str, Callable[["EvalContext"], dict]] = {}
+DEFAULT_SECTIONS = ("accelerations", "rollouts", "energy")
+REPORT_SECTIONS = ("accelerations", "rollouts", "energy", "predictability", "mass_matrix", "ood", "stability")
 
 
-def relative_l2(pred: torch.Tensor, true: torch.Tensor, dim=None) -> torch.Tensor:
-    """``||pred - true|| / ||true||`` over all entries (``dim=None``) or along ``dim``."""
-    if dim is None:
-        return (pred - true).norm() / true.norm().clamp_min(1e-30)
-    return (pred - true).norm(dim=dim) / true.norm(dim=dim).clamp_min(1e-30)
+def section(name: str):
+    """Register a report section: ``fn(ctx: EvalContext) -> dict`` (merged into the result; ``{}``
+    when it does not apply)."""
+    def register(fn):
+        SECTIONS[name] = fn
+        return fn
+    return register
 
 
-def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None) -> dict:
-    """Relative L2 errors: ``total`` and per coordinate. pred, true ``(..., dof)``."""
-    flat_p, flat_t = pred.reshape(-1, pred.shape[-1]), true.reshape(-1, true.shape[-1])
-    out = {"total": float(relative_l2(flat_p, flat_t))}
-    names = coord_names or [f"q{i}" for i in range(pred.shape[-1])]
-    for i, name in enumerate(names):
-        out[name] = float(relative_l2(flat_p[:, i], flat_t[:, i]))
-    return out
+# ---------------------------------------------------------------------------- models
+class ClosedForm:
+    """A scene's closed-form dynamics behind the model interface (the ceiling rows of reports)."""
 
+    variant = "closed form"
 
-def divergence_time(q_pred: torch.Tensor, q_true: torch.Tensor, dt: float, threshold: float,
-                    angle_mask=None) -> torch.Tensor:
-    """Time (s) until the max coordinate error first exceeds ``threshold``; the horizon if never.
+    def __init__(self, system) -> None:
+        self.system = system
 
-    ``q_pred, q_true``: ``(B, T, dof)``. Angle errors are wrapped to (-pi, pi]. A non-finite
-    prediction counts as beyond the threshold.
-    """
-    err = q_pred - q_true
-    if angle_mask is not None:
-        mask = torch.as_tensor(angle_mask, dtype=torch.bool, device=err.device)
-        wrapped = torch.remainder(err + torch.pi, 2 * torch.pi) - torch.pi
-        err = torch.where(mask, wrapped, err)
-    over = ~(err.abs().amax(-1) <= threshold)  # (B, T); NaN counts as over
-    T = over.shape[1]
-    first = torch.where(over.any(1), over.float().argmax(1), torch.full_like(over[:, 0], T - 1, dtype=torch.long))
-    return first.to(q_pred.dtype) * dt
+    def acceleration(self, q, qd, params, check: bool = False):
+        return self.system.acceleration(q, qd, params)
 
-
-def energy_drift(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-    """``|E(t) - E(0)| / (V_max - V_min)`` of the scene's closed-form energy: ``(B, T)``."""
-    p = params[:, None, :].expand(-1, q.shape[1], -1)
-    E = system.energy(q, qd, p)
-    return (E - E[:, :1]).abs() / system.energy_scale(params)[:, None]
-
-
-def rollout_metrics(rollout_fn: Callable, system, q_true: torch.Tensor, qd_true: torch.Tensor, params: torch.Tensor,
-                    dt: float, method: str = "rk4", thresholds=(0.1, 0.5)) -> dict:
-    """Roll a model out from the true initial states and compare with the true trajectories.
-
-    Args:
-        rollout_fn: ``(q0, qd0, params, dt, num_steps, method) -> (q, qd)`` each ``(B, T, dof)``,
-            e.g. ``model.rollout`` or ``closed_form_rollout(system)``.
-        q_true, qd_true: ``(B, T, dof)`` true trajectories sampled every ``dt``; params ``(B, P)``.
-
-    Returns per-trajectory tensors: ``divergence_time@<thr>`` for each threshold, ``energy_drift_mean``
-    and ``energy_drift_max`` (closed-form energy; NaN for a non-finite rollout), ``finite`` (bool),
-    and the rolled-out ``q``/``qd``.
-    """
-    q, qd = rollout_fn(q_true[:, 0], qd_true[:, 0], params, dt, q_true.shape[1] - 1, method)
-    drift = energy_drift(system, q, qd, params)
-    out = {f"divergence_time@{thr:g}": divergence_time(q, q_true, dt, thr, system.angle_mask) for thr in thresholds}
-    out["finite"] = torch.isfinite(q).all(-1).all(-1) & torch.isfinite(qd).all(-1).all(-1)
-    out["energy_drift_mean"] = drift.mean(1)
-    out["energy_drift_max"] = drift.amax(1)
-    out["q"], out["qd"] = q, qd
-    return out
-
-
-def closed_form_rollout(system) -> Callable:
-    """``rollout_fn`` of a scene's closed-form dynamics (the ceiling rows of reports)."""
-
-    def fn(q0, qd0, params, dt, num_steps, method="rk4"):
-        return rollout(system.acceleration, q0, qd0, params, dt, num_steps, method)
-
-    return fn
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
+        return rollout(self.system.acceleration, q0, qd0, params, dt, num_steps, method)
 
 
 @contextlib.contextmanager
@@ -102,16 +79,225 @@ def counting_failures(model):
             model.raise_on_singular = previous
 
 
-def learned_mass_matrix(model, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
-    """The model's mass matrix in its normalised units (float64) at SI states ``q (n, dof)``,
-    ``params (n, P)``: ``(n, dof, dof)``; None for models without one (lnn, mlp, hnn)."""
-    if not hasattr(model, "mass_matrix_norm"):
-        return None
+def model_accelerations(model, q, qd, params, max_batch: int = 16384) -> torch.Tensor:
+    """A model's accelerations at states ``(B, T, dof)`` of trajectories with parameters ``(B, P)``:
+    ``(B, T, dof)`` in ``q``'s dtype; NaN where undefined. No autograd graph."""
+    B, T, dof = q.shape
+    flat_q, flat_qd = q.reshape(-1, dof), qd.reshape(-1, dof)
+    flat_p = params[:, None, :].expand(-1, T, -1).reshape(-1, params.shape[-1])
+    out = []
+    with torch.no_grad(), counting_failures(model):
+        for i in range(0, B * T, max_batch):
+            sl = slice(i, i + max_batch)
+            out.append(model.acceleration(flat_q[sl], flat_qd[sl], flat_p[sl], check=False))
+    return torch.cat(out).reshape(B, T, dof)
+
+
+def model_rollout(model, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
+    """A model's rollout without an autograd graph; trajectories through undefined accelerations
+    become NaN (counted by the metrics)."""
+    with torch.no_grad(), counting_failures(model):
+        q, qd = model.rollout(q0, qd0, params, dt, num_steps, method)
+    return q.detach(), qd.detach()
+
+
+# ---------------------------------------------------------------------------- the pipeline
+@dataclass
+class EvalContext:
+    """What every section sees; ``rollouts()`` is computed once and shared."""
+
+    model: object
+    system: object
+    data: Trajectories
+    integrator: str = "rk4"
+    dt: float | None = None
+    horizon: float | None = None
+    thresholds: tuple = (0.1, 0.5)
+    accel_stride: int = 10
+    num_rollouts: int | None = None
+    options: dict = field(default_factory=dict)
+    _rollouts: dict | None = None
+
+    def grid(self) -> tuple[float, int, int, int]:
+        """``(rollout dt, stride, sub, steps)``: the rollout takes ``steps * sub`` steps of ``dt`` and
+        is compared every ``sub`` steps with every ``stride``-th data point (a step coarser than the
+        data's is a multiple of it, a finer one divides it)."""
+        data_dt = self.data.dt
+        dt = self.dt or data_dt
+        stride, sub = max(1, int(round(dt / data_dt))), max(1, int(round(data_dt / dt)))
+        if abs(stride * data_dt / sub - dt) > 1e-9 * data_dt:
+            raise ValueError(f"dt = {dt} and the data's sampling interval {data_dt} are not multiples of each other")
+        available = (self.data.num_points - 1) // stride
+        steps = available if self.horizon is None else min(int(round(self.horizon / (stride * data_dt))), available)
+        return dt, stride, sub, steps
+
+    def rollouts(self) -> dict:
+        """The model's rollouts of the first ``num_rollouts`` trajectories from their true initial
+        states: ``q_true``, ``qd_true``, ``q``, ``qd`` (each ``(B, steps + 1, dof)`` on the compared
+        grid), ``params``, ``grid_dt`` and the wall time."""
+        if self._rollouts is None:
+            data = self.data.head(self.num_rollouts)
+            dt, stride, sub, steps = self.grid()
+            q_true = data.q[:, : steps * stride + 1 : stride]
+            qd_true = data.qd[:, : steps * stride + 1 : stride]
+            start = time.perf_counter()
+            q, qd = model_rollout(self.model, q_true[:, 0], qd_true[:, 0], data.params, dt, steps * sub, self.integrator)
+            self._rollouts = {"q_true": q_true, "qd_true": qd_true, "q": q[:, ::sub], "qd": qd[:, ::sub],
+                              "params": data.params, "grid_dt": stride * self.data.dt,
+                              "seconds": time.perf_counter() - start}
+        return self._rollouts
+
+
+def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIONS, integrator: str = "rk4",
+                   dt: float | None = None, horizon: float | None = None, thresholds=(0.1, 0.5),
+                   accel_stride: int = 10, num_rollouts: int | None = None, **options) -> dict:
+    """Evaluate ``model`` on trajectories of ``system`` (SI units).
+
+    Args:
+        model: a ``DynamicsModel`` (``module.model``), ``ClosedForm(system)`` or any object with the
+            same ``acceleration``/``rollout`` methods.
+        data: the reference trajectories (``Trajectories``, float64).
+        sections: names in ``SECTIONS`` to compute.
+        integrator, dt: the rollouts' method and step (default: the data's sampling interval).
+        horizon: rollout length in s (default: the whole trajectories).
+        thresholds: coordinate errors (rad or m) that define divergence times.
+        accel_stride: accelerations are evaluated at every ``accel_stride``-th point.
+        num_rollouts: roll out only the first so many trajectories (default: all).
+        options: section options (``perturbation``, ``stability_seconds``, ``long_horizon_steps``).
+
+    Returns a JSON-ready dict; keys starting with ``_`` hold tensors for plots.
+    """
+    unknown = [s for s in sections if s not in SECTIONS]
+    if unknown:
+        raise ValueError(f"unknown evaluation sections {unknown}; known: {', '.join(SECTIONS)}")
+    ctx = EvalContext(model, system, data, integrator, dt, horizon, tuple(thresholds), accel_stride, num_rollouts,
+                      dict(options))
+    out: dict = {"variant": getattr(model, "variant", type(model).__name__), "num_trajectories": len(data),
+                 "integrator": integrator, "dt": ctx.grid()[0], "horizon_s": ctx.grid()[3] * ctx.grid()[1] * data.dt}
+    for name in sections:
+        for key, value in SECTIONS[name](ctx).items():
+            if isinstance(value, dict) and isinstance(out.get(key), dict):
+                out[key].update(value)  # sections may add to each other's entries
+            else:
+                out[key] = value
+    return out
+
+
+# ---------------------------------------------------------------------------- sections
+@section("accelerations")
+def _accelerations(ctx: EvalContext) -> dict:
+    data = ctx.data
+    if data.qdd is None:
+        return {}
+    sub = slice(0, None, ctx.accel_stride)
+    start = time.perf_counter()
+    pred = model_accelerations(ctx.model, data.q[:, sub], data.qd[:, sub], data.params)
+    seconds = time.perf_counter() - start
+    return {"acc_rel_err": acceleration_errors(pred, data.qdd[:, sub], ctx.system.coord_names),
+            "acceleration_eval_seconds": seconds}
+
+
+@section("rollouts")
+def _rollouts(ctx: EvalContext) -> dict:
+    r = ctx.rollouts()
+    finite = torch.isfinite(r["q"]).all(-1).all(-1) & torch.isfinite(r["qd"]).all(-1).all(-1)
+    out = {f"divergence_time@{thr:g}": {"model": quartiles(divergence_time(r["q"], r["q_true"], r["grid_dt"], thr,
+                                                                           ctx.system.angle_mask))}
+           for thr in ctx.thresholds}
+    out["rollout_non_finite_fraction"] = float(1 - finite.double().mean())
+    out["rollout_seconds"] = r["seconds"]
+    out["_arrays"] = {"q_true": r["q_true"], "q_model": r["q"], "qd_model": r["qd"], "params": r["params"],
+                      "dt": r["grid_dt"]}
+    return out
+
+
+@section("energy")
+def _energy(ctx: EvalContext) -> dict:
+    r = ctx.rollouts()
+    drift = energy_drift(ctx.system, r["q"], r["qd"], r["params"])
+    finite = torch.isfinite(drift).all(1)
+    nan = float("nan")
+    return {"energy_drift": {"mean": float(drift[finite].mean()) if finite.any() else nan,
+                             "max": float(drift[finite].max()) if finite.any() else nan,
+                             "non_finite_fraction": float(1 - finite.double().mean())},
+            "_arrays": {"drift": drift}}
+
+
+@section("predictability")
+def _predictability(ctx: EvalContext) -> dict:
+    r = ctx.rollouts()
+    perturbation = ctx.options.get("perturbation", 1e-6)
+    steps = r["q_true"].shape[1] - 1
+    q_x, _ = reference_rollout(ctx.system, r["q_true"][:, 0] + perturbation, r["qd_true"][:, 0], r["params"],
+                               r["grid_dt"], steps)
+    out = {f"divergence_time@{thr:g}": {"exact_perturbed": quartiles(
+        divergence_time(q_x, r["q_true"], r["grid_dt"], thr, ctx.system.angle_mask))} for thr in ctx.thresholds}
+    out["perturbation"] = perturbation
+    out["_arrays"] = {"q_exact": q_x}
+    return out
+
+
+@section("mass_matrix")
+def _mass_matrix(ctx: EvalContext) -> dict:
+    """Relative Frobenius error of the learned M after the best scale per trajectory, and cond(M).
+
+    The learned M lives in normalised velocities ``qd_n = qd * tau / scale``: it equals
+    ``D M_n D`` (``D = diag(tau / scale)``) in SI units."""
+    model, system, data = ctx.model, ctx.system, ctx.data
+    if not hasattr(model, "mass_matrix_norm") or not system.quadratic_kinetic:
+        return {}
+    q = data.q[:, :: ctx.accel_stride]
+    B, T, dof = q.shape
+    qf = q.reshape(-1, dof)
+    p = data.params[:, None, :].expand(-1, T, -1).reshape(-1, data.params.shape[-1])
     with torch.no_grad():
-        return model.mass_matrix(q.to(model.dtype), params.to(model.dtype)).double()
+        M_n = model.mass_matrix(qf.to(model.dtype), p.to(model.dtype)).double()
+    norm = model.normalizer
+    D = norm.time_scale.double() / norm.coord_scale.double()
+    M_model = (D[:, None] * M_n * D[None, :]).reshape(B, T, dof, dof)
+    err = scaled_matrix_error(system.mass_matrix(qf, p).reshape(B, T, dof, dof), M_model)
+    cond = condition_numbers(M_n)
+    return {"mass_matrix": {"rel_frobenius_median": float(err.median()), "rel_frobenius_max": float(err.max()),
+                            "cond_median": float(cond.median()), "cond_max": float(cond.max())}}
 
 
-def condition_numbers(M: torch.Tensor) -> torch.Tensor:
-    """Condition numbers of symmetric positive definite matrices ``(..., n, n)`` -> ``(...)``."""
-    eig = torch.linalg.eigvalsh(M)
-    return eig[..., -1] / eig[..., 0]
+@section("ood")
+def _ood(ctx: EvalContext) -> dict:
+    system = ctx.system
+    cases = system.ood_cases()
+    if not cases:
+        return {}
+    f64 = lambda key: torch.tensor([c[key] for c in cases], dtype=torch.float64)  # noqa: E731
+    params, q0, qd0 = f64("params"), f64("q0"), f64("qd0")
+    dt, _, _, _ = ctx.grid()
+    n = int(round((ctx.horizon or ctx.data.dt * (ctx.data.num_points - 1)) / dt))
+    qt, qdt = reference_rollout(system, q0, qd0, params, dt, n)
+    qm, qdm = model_rollout(ctx.model, q0, qd0, params, dt, n, ctx.integrator)
+    a_true = system.acceleration(qt, qdt, params[:, None].expand(-1, n + 1, -1))
+    a_pred = model_accelerations(ctx.model, qt, qdt, params)
+    drift = energy_drift(system, qm, qdm, params)
+    rows = [{"params": list(c["params"]), "state0": [*c["q0"], *c["qd0"]],
+             "acc_rel_err": float(relative_l2(a_pred[i], a_true[i])),
+             "divergence_time@0.1": float(divergence_time(qm[i:i + 1], qt[i:i + 1], dt, 0.1, system.angle_mask)[0]),
+             "energy_drift_mean": float(drift[i].mean()), "energy_drift_max": float(drift[i].max())}
+            for i, c in enumerate(cases)]
+    return {"ood": rows, "_ood_arrays": {"q_true": qt, "q_model": qm, "params": params, "dt": dt}}
+
+
+@section("stability")
+def _stability(ctx: EvalContext) -> dict:
+    from .stability import HardCase, hard_cases, run_hard_cases
+
+    seconds = ctx.options.get("stability_seconds", 5.0)
+    long_steps = ctx.options.get("long_horizon_steps", 100_000)
+    if seconds <= 0:
+        return {}
+    dt = ctx.grid()[0]
+    cases = hard_cases(ctx.system, num=8, dt=dt, num_steps=int(round(seconds / dt)))
+    if long_steps:
+        nominal = cases[0]
+        cases.append(HardCase(f"long horizon: {long_steps:.0e} {ctx.integrator} steps", nominal.q0[:2],
+                              nominal.qd0[:2], nominal.params[:2], dt=dt, num_steps=long_steps))
+    rows = run_hard_cases(lambda *a: model_rollout(ctx.model, *a), ctx.system, cases,
+                          model=ctx.model if hasattr(ctx.model, "mass_matrix_norm") else None, method=ctx.integrator)
+    return {"stability": rows}

@@ -17,6 +17,20 @@ class LNNCLI(LightningCLI):
         parser.link_arguments("data.spec", "model.scene_config", compute_fn=lambda spec: (spec or {}).get("scene_config", {}))
         parser.set_defaults({"trainer.logger": LOGGER, "trainer.callbacks": CALLBACKS})
 
+    def before_instantiate_classes(self) -> None:
+        """``--trainer.default_root_dir DIR`` moves the default TensorBoard logger (and so the
+        checkpoints, which go under the logger's folder) to DIR, as Lightning's own default logger
+        would; a logger given its own ``save_dir`` keeps it."""
+        config = self.config[self.subcommand] if self.subcommand else self.config
+        trainer = config.get("trainer")
+        root = trainer.get("default_root_dir") if trainer is not None else None
+        logger = trainer.get("logger") if trainer is not None else None
+        if not root or logger is None or isinstance(logger, (bool, list)):
+            return
+        init = logger.get("init_args") if hasattr(logger, "get") else None
+        if logger.get("class_path") == LOGGER["class_path"] and init is not None and init.get("save_dir") == ".":
+            init["save_dir"] = str(root)
+
 
 TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
 LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",

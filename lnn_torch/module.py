@@ -3,8 +3,8 @@
 Loss = Huber on normalised accelerations + ``energy_weight`` x the scale-invariant variance of the
 model's own Hamiltonian over each contiguous chunk (``lnn_torch.losses.energy_variance``).
 A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
-Validation: relative L2 acceleration error and rollouts of a few validation trajectories with their
-true-energy drift and divergence time.
+Validation and test call ``lnn_torch.evaluation.evaluate_model`` (relative L2 acceleration error,
+rollouts of some trajectories with their true-energy drift and divergence time) and log its result.
 """
 
 from __future__ import annotations
@@ -14,11 +14,17 @@ import math
 import lightning as L
 import torch
 
-from .evaluation import counting_failures, rollout_metrics
+from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
 from .losses import acceleration_loss, energy_variance
-from .networks import VARIANTS, build_model
+from .networks import build_model
+from .networks import model_options as model_options_of
 from .perf import adamw, compile_fn, configure_cpu
 from .systems import get_system
+
+# options that older checkpoints record with these values for every variant; a variant that does not
+# take one of them ignores it there (any other value of an option a variant does not take is an error)
+_UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps": 1e-4, "lnn_init": False,
+                             "hnn_coordinates": "canonical"}
 
 
 class LNNModule(L.LightningModule):
@@ -27,14 +33,20 @@ class LNNModule(L.LightningModule):
     Args:
         scene: scene name (``lnn_torch.systems``); linked to the data's scene by the CLI.
         scene_config: scene sampler configuration (only structural options matter to the model).
-        variant: one of ``film_lnn`` (default), ``lnn``, ``delan``, ``mlp``, ``hnn``.
-        hidden_dims: hidden widths of each MLP.
-        activation: ``tanh``, ``softplus``, ``sigmoid``, ``isru``; default: the variant's (softplus for
-            ``lnn``, as in the LNN paper; tanh otherwise).
-        film_mode: ``neuron`` (per-neuron FiLM) or ``layer`` (per-layer scalars, the reference design).
-        potential_film: FiLM on the potential network too.
-        eps: ``M = chol chol^T + eps I``.
-        lnn_init: the LNN paper's initialisation (``lnn`` variant).
+        variant: a model variant (``lnn_torch.networks.VARIANTS``): ``film_lnn`` (default), ``delan``,
+            ``lnn``, ``mlp``, ``hnn``.
+        hidden_dims, activation, film_mode, potential_film, eps, lnn_init, hessian_reg,
+            hnn_coordinates: model options; None (default) takes the variant's own default
+            (``lnn_torch.networks.model_options(variant)``), and an option the variant does not take
+            is an error. ``activation``: ``tanh``, ``softplus``, ``sigmoid``, ``isru`` (softplus for
+            ``lnn``, as in the LNN paper; tanh otherwise). ``film_mode``: ``neuron`` (per-neuron FiLM)
+            or ``layer`` (per-layer scalars, the reference design). ``potential_film``: FiLM on the
+            potential network too. ``eps``: ``M = chol chol^T + eps I``. ``lnn_init``: the LNN
+            paper's initialisation (``lnn``). ``hessian_reg``: regularisation of the black-box LNN's
+            velocity Hessian (``lnn``; 0 raises on singular Hessians). ``hnn_coordinates``:
+            ``canonical`` (p = dL/dqd from the scene) or ``velocity`` (the non-canonical (q, qd) of
+            the LNN paper's counter-example).
+        model_options: further options of the variant (a dict), for variants with options of their own.
         lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run.
         weight_decay: AdamW weight decay.
         huber_delta: Huber threshold (normalised units).
@@ -42,40 +54,38 @@ class LNNModule(L.LightningModule):
         val_rollouts: validation trajectories rolled out each validation epoch.
         val_rollout_seconds: the horizon of validation and test rollouts (s).
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
-        val_threshold: angle error (rad) that defines the divergence time.
+        val_threshold: coordinate error (rad or m) that defines the divergence time.
         figure_every_n_epochs: log trajectory/energy figures this often (0: never).
-        hnn_coordinates: ``canonical`` (p = dL/dqd from the scene) or ``velocity`` (the non-canonical
-            (q, qd) of the LNN paper's counter-example), for the ``hnn`` variant.
         compile: run the training pass through ``torch.compile`` (``lnn_torch.perf.compile_fn``;
-            26 % faster per step at the median of the 11 recorded benchmark runs here, -4 to 53 %,
-            after a one-off compilation of 10-30 s).
-            If compilation or the compiled backward fails, training warns once and continues
-            eagerly. Validation and test run eagerly (``model.compile_dynamics()`` compiles
-            accelerations and rollouts).
+            measured in ``results/README.md``). If compilation or the compiled backward fails,
+            training warns once and continues eagerly. Validation and test run eagerly
+            (``model.compile_dynamics()`` compiles accelerations and rollouts).
 
     The learning rate follows a cosine from ``lr`` to ``lr_min`` that ends with the run: at the
     trainer's step budget or, when ``max_time`` is set, its time budget, whichever comes first.
     """
 
     def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
-                 hidden_dims: list[int] = (128, 128), activation: str | None = None, film_mode: str = "neuron",
-                 potential_film: bool = True, eps: float = 1e-4, lnn_init: bool = False, lr: float = 3e-3,
+                 hidden_dims: list[int] | None = None, activation: str | None = None, film_mode: str | None = None,
+                 potential_film: bool | None = None, eps: float | None = None, lnn_init: bool | None = None,
+                 hessian_reg: float | None = None, hnn_coordinates: str | None = None,
+                 model_options: dict | None = None, lr: float = 3e-3,
                  lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
-                 val_threshold: float = 0.1,
-                 figure_every_n_epochs: int = 5, hnn_coordinates: str = "canonical", compile: bool = False) -> None:
+                 val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool = False) -> None:
         super().__init__()
-        if variant not in VARIANTS:
-            raise ValueError(f"unknown model variant '{variant}'; known: {', '.join(VARIANTS)}")
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
-        self.model = build_model(variant, self.system, hidden_dims=tuple(hidden_dims), activation=activation,
-                                 film_mode=film_mode, potential_film=potential_film, eps=eps, lnn_init=lnn_init,
-                                 hnn_coordinates=hnn_coordinates)
+        options = dict(hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
+                       potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
+                       hnn_coordinates=hnn_coordinates, **(model_options or {}))
+        known = model_options_of(variant)
+        options = {k: v for k, v in options.items()
+                   if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
+        self.model = build_model(variant, self.system, **options)
         self.register_buffer("normalizer_fitted", torch.tensor(False))
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))
         self._skip_this_step = False
-        self._val_outputs: list = []
         self._compiled = None  # the compiled training pass, once built; False after a fallback
         self._last_batch = None
 
@@ -87,17 +97,14 @@ class LNNModule(L.LightningModule):
         """
         self.model.check_inputs(q, qd, params)
         self.system.check_inputs(q, qd, params)
-        with torch.set_grad_enabled(torch.is_grad_enabled() or self.model.needs_autograd):
-            return self.model.acceleration(q, qd, params, check=False)
+        return self.model.acceleration(q, qd, params, check=False)
 
     forward = acceleration
 
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
         """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``."""
         self.system.check_inputs(q0, qd0, params)
-        with torch.set_grad_enabled(torch.is_grad_enabled() or self.model.needs_autograd):
-            q, qd = self.model.rollout(q0, qd0, params, dt, num_steps, method)
-        return (q.detach(), qd.detach()) if not torch.is_grad_enabled() else (q, qd)
+        return self.model.rollout(q0, qd0, params, dt, num_steps, method)
 
     # ------------------------------------------------------------------ set-up
     def setup(self, stage: str) -> None:
@@ -239,69 +246,39 @@ class LNNModule(L.LightningModule):
         self.log("train/lr", optimizer.param_groups[0]["lr"], on_step=True, on_epoch=False)
 
     # ------------------------------------------------------------------ evaluation
-    def _eval_step(self, batch):
-        C, L, dof = batch["q"].shape
-        flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "params")]
-        with torch.set_grad_enabled(self.model.needs_autograd), counting_failures(self.model):
-            pred = self.model.acceleration(*flat, check=False).detach()  # the generic solve differentiates
-        return pred.reshape(C, L, dof), batch["qdd"]
-
-    def validation_step(self, batch, batch_idx):
-        self._val_outputs.append(self._eval_step(batch))
-
-    def test_step(self, batch, batch_idx):
-        self._val_outputs.append(self._eval_step(batch))
-
-    def on_validation_epoch_end(self) -> None:
-        self._finish_eval("val")
-
-    def on_test_epoch_end(self) -> None:
-        self._finish_eval("test")
-
-    def _finish_eval(self, prefix: str) -> None:
-        outputs, self._val_outputs = self._val_outputs, []
-        if not outputs:
-            return
-        pred = torch.cat([p.reshape(-1, p.shape[-1]) for p, _ in outputs])
-        true = torch.cat([t.reshape(-1, t.shape[-1]) for _, t in outputs])
-        finite = torch.isfinite(pred).all(-1)
-        self.log(f"{prefix}/acc_non_finite", 1 - finite.double().mean(), sync_dist=True)
-        pred, true = pred[finite], true[finite]  # undefined accelerations are counted above, not averaged
-        # relative L2 over all ranks' points: sync the sums, not the ratios
-        num = self.all_gather((pred - true).pow(2).sum(0)).reshape(-1, pred.shape[-1]).sum(0)
-        den = self.all_gather(true.pow(2).sum(0)).reshape(-1, pred.shape[-1]).sum(0)
-        self.log(f"{prefix}/acc_rel_err", (num.sum() / den.sum()).sqrt(), sync_dist=False, prog_bar=True)
-        for i, name in enumerate(self.system.coord_names):
-            self.log(f"{prefix}/acc_rel_err_{name}", (num[i] / den[i]).sqrt(), sync_dist=False)
-        self._rollout_metrics(prefix)
-
-    def _rollout_metrics(self, prefix: str) -> None:
-        dm = getattr(self.trainer, "datamodule", None)
+    def _evaluate(self, batch: dict, prefix: str) -> None:
+        """``evaluate_model`` on a whole split (the DataModule's one evaluation item), logged as
+        ``{prefix}/...``; every rank evaluates the same data (identical results)."""
+        data = batch["trajectories"]
         n = self.hparams.val_rollouts if prefix == "val" else self.hparams.get("test_rollouts", -1)
-        if dm is None or not hasattr(dm, "rollout_data") or n == 0:
+        sections = DEFAULT_SECTIONS if n != 0 else ("accelerations",)
+        thr = self.hparams.val_threshold
+        result = evaluate_model(self.model, self.system, data, sections=sections, horizon=self.hparams.val_rollout_seconds,
+                                thresholds=(thr,), accel_stride=int(batch["accel_stride"]),
+                                num_rollouts=n if n > 0 else None)
+        log = lambda name, value, **kw: self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, **kw)  # noqa: E731
+        acc = result["acc_rel_err"]
+        log("acc_rel_err", acc["total"], prog_bar=True)
+        for name in self.system.coord_names:
+            log(f"acc_rel_err_{name}", acc[name])
+        log("acc_non_finite", acc["non_finite_fraction"])
+        if n == 0:
             return
-        split = "val" if prefix == "val" else "test"
-        data = dm.rollout_data(split, n if n > 0 else None)
-        steps = int(round(self.hparams.val_rollout_seconds / data["dt"])) + 1
-        q_true, qd_true = data["q"][:, :steps], data["qd"][:, :steps]
-        # rollouts in float64 (the networks run in their own dtype)
-        with torch.set_grad_enabled(self.model.needs_autograd), counting_failures(self.model):
-            m = rollout_metrics(self.model.rollout, self.system, q_true.to(self.device), qd_true.to(self.device),
-                                data["params"].to(self.device), data["dt"], "rk4", (self.hparams.val_threshold,))
-        m["q"], m["qd"] = m["q"].detach(), m["qd"].detach()
-        finite = m["finite"]
-        nan = torch.tensor(float("nan"), dtype=torch.float64, device=finite.device)
-        self.log(f"{prefix}/energy_drift", m["energy_drift_mean"][finite].mean() if finite.any() else nan, sync_dist=True)
-        self.log(f"{prefix}/energy_drift_max", m["energy_drift_max"][finite].max() if finite.any() else nan,
-                 sync_dist=True)
-        self.log(f"{prefix}/rollout_non_finite", 1 - finite.double().mean(), sync_dist=True)
-        self.log(f"{prefix}/divergence_time", m[f"divergence_time@{self.hparams.val_threshold:g}"].median(),
-                 sync_dist=True)
+        log("energy_drift", result["energy_drift"]["mean"])
+        log("energy_drift_max", result["energy_drift"]["max"])
+        log("rollout_non_finite", result["rollout_non_finite_fraction"])
+        log("divergence_time", result[f"divergence_time@{thr:g}"]["model"]["median"])
         every = self.hparams.figure_every_n_epochs
         if prefix == "val" and every and self.current_epoch % every == 0 and self.trainer.is_global_zero:
-            self._log_figures(q_true, m, data)
+            self._log_figures(result["_arrays"])
 
-    def _log_figures(self, q_true, metrics, data) -> None:
+    def validation_step(self, batch, batch_idx):
+        self._evaluate(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        self._evaluate(batch, "test")
+
+    def _log_figures(self, arrays: dict) -> None:
         from lightning.pytorch.loggers import TensorBoardLogger
 
         loggers = [lg for lg in self.loggers if isinstance(lg, TensorBoardLogger)]
@@ -309,15 +286,15 @@ class LNNModule(L.LightningModule):
             return
         from .plots import energy_figure, trajectory_figure
 
-        dt = data["dt"]
-        fig1 = trajectory_figure(q_true[0].cpu(), metrics["q"][0].cpu(), dt, self.system.coord_names)
-        fig2 = energy_figure(self.system, metrics["q"].cpu(), metrics["qd"].cpu(), data["params"], dt)
+        fig1 = trajectory_figure(arrays["q_true"][0].cpu(), arrays["q_model"][0].cpu(), arrays["dt"],
+                                 self.system.coord_names)
+        fig2 = energy_figure(arrays["drift"].cpu(), arrays["dt"])
         for lg in loggers:
             lg.experiment.add_figure("val/trajectory", fig1, global_step=self.global_step)
             lg.experiment.add_figure("val/energy", fig2, global_step=self.global_step)
 
     # ------------------------------------------------------------------ prediction
     def predict_step(self, batch, batch_idx):
-        pred, true = self._eval_step(batch)
+        pred = model_accelerations(self.model, batch["q"], batch["qd"], batch["params"][:, 0])
         return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
-                "qdd_true": true, "qdd_pred": pred}
+                "qdd_true": batch["qdd"], "qdd_pred": pred}

@@ -23,12 +23,9 @@ def trajectory_figure(q_true: torch.Tensor, q_pred: torch.Tensor, dt: float, nam
     return fig
 
 
-def energy_figure(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, dt: float):
-    """Closed-form energy drift of rollouts ``(B, T, dof)`` relative to V_max - V_min."""
-    from .evaluation import energy_drift
-
-    drift = energy_drift(system, q.double(), qd.double(), params.double())
-    t = torch.arange(q.shape[1]) * dt
+def energy_figure(drift: torch.Tensor, dt: float):
+    """True-energy drift of rollouts ``(B, T)`` relative to V_max - V_min (``lnn_torch.metrics.energy_drift``)."""
+    t = torch.arange(drift.shape[1]) * dt
     fig, ax = plt.subplots(figsize=(7, 2.5))
     for b in range(drift.shape[0]):
         ax.plot(t, drift[b])
@@ -38,70 +35,84 @@ def energy_figure(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tenso
     return fig
 
 
+def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: torch.Tensor, dt: float,
+                  num_frames: int = 6):
+    """Snapshots of one trajectory, true against model: ``q (T, dof)``, ``params (P,)``. The bodies
+    (``System.positions``, any number of links) are drawn as a chain from the origin. None for a
+    scene that is not drawn."""
+    T = q_true.shape[0]
+    frames = [int(i) for i in torch.linspace(0, T - 1, num_frames)]
+    p = params[None].expand(T, -1)
+    xy_true, xy_model = system.positions(q_true, p), system.positions(q_model, p)
+    if xy_true is None:
+        return None
+    finite = torch.isfinite(xy_model)
+    reach = 1.1 * float(torch.cat([xy_true.abs().flatten(), xy_model[finite].abs().flatten()]).max())
+    fig, axes = plt.subplots(1, num_frames, figsize=(2.2 * num_frames, 2.6))
+    for ax, k in zip(axes, frames):
+        for xy, style, label in ((xy_true[k], "k-o", "true"), (xy_model[k], "C1--o", "model")):
+            chain = torch.cat([torch.zeros(1, 2, dtype=xy.dtype), xy])  # from the origin through every body
+            ax.plot(chain[:, 0], chain[:, 1], style, ms=4, label=label)
+        ax.set_xlim(-reach, reach)
+        ax.set_ylim(-reach, reach)
+        ax.set_aspect("equal")
+        ax.set_title(f"t = {k * dt:.1f} s", fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    return fig
+
+
 def evaluation_plots(result: dict, output_dir, system) -> list:
-    """Trajectories, energy drift, error growth vs the predictability limit, and (double pendulum) a
-    frame strip of the first out-of-distribution case. Returns the PNG paths."""
+    """Trajectories, energy drift, error growth against the predictability limit, and a frame strip
+    of the first out-of-distribution case (scenes that define ``positions``). Returns the PNG paths."""
     from pathlib import Path
+
+    from .metrics import coordinate_error
 
     output_dir = Path(output_dir)
     arr = result["_arrays"]
-    dt = result["dt"]
+    dt = arr["dt"]
     paths = []
-    fig = trajectory_figure(arr["q_true"][0], arr["q_model"][0], dt, system.coord_names)
-    paths.append(output_dir / "trajectory.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
 
-    t = torch.arange(arr["drift"].shape[1]) * dt
-    fig, ax = plt.subplots(figsize=(7, 2.8))
-    ax.plot(t, arr["drift"].median(0).values, label="median")
-    ax.plot(t, arr["drift"].amax(0), label="max")
-    ax.set_yscale("log")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("|E(t)-E(0)| / (Vmax-Vmin)")
-    ax.legend()
-    fig.tight_layout()
-    paths.append(output_dir / "energy_drift.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    def save(fig, name):
+        if fig is None:
+            return
+        paths.append(output_dir / name)
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    save(trajectory_figure(arr["q_true"][0], arr["q_model"][0], dt, system.coord_names), "trajectory.png")
+    t = torch.arange(arr["q_true"].shape[1]) * dt
+    if "drift" in arr:
+        fig, ax = plt.subplots(figsize=(7, 2.8))
+        ax.plot(t, arr["drift"].median(0).values, label="median")
+        ax.plot(t, arr["drift"].amax(0), label="max")
+        ax.set_yscale("log")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("|E(t)-E(0)| / (Vmax-Vmin)")
+        ax.legend()
+        fig.tight_layout()
+        save(fig, "energy_drift.png")
 
     def err(q):
-        e = torch.remainder(q - arr["q_true"] + torch.pi, 2 * torch.pi) - torch.pi
-        return e.abs().amax(-1).median(0).values.clamp_min(1e-16)
+        return coordinate_error(q, arr["q_true"], system.angle_mask).median(0).values.clamp_min(1e-16)
 
     fig, ax = plt.subplots(figsize=(7, 2.8))
     ax.plot(t, err(arr["q_model"]), label="model")
-    ax.plot(t, err(arr["q_exact"]), label="exact system, 1e-6 rad off")
+    if "q_exact" in arr:
+        ax.plot(t, err(arr["q_exact"]), label=f"exact system, {result.get('perturbation', 1e-6):g} off")
     ax.axhline(0.1, color="k", lw=0.8, ls=":")
     ax.set_yscale("log")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("median max |angle error| [rad]")
+    ax.set_ylabel("median max |coordinate error|")
     ax.legend()
     fig.tight_layout()
-    paths.append(output_dir / "error_growth.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "error_growth.png")
 
-    if "_ood_arrays" in result and hasattr(system, "positions"):
+    if "_ood_arrays" in result:
         ood = result["_ood_arrays"]
-        n = ood["q_true"].shape[1]
-        frames = [int(i) for i in torch.linspace(0, n - 1, 6)]
-        fig, axes = plt.subplots(1, len(frames), figsize=(2.2 * len(frames), 2.6))
-        p = ood["params"][:1]
-        reach = float(p[0, 2] + p[0, 3]) * 1.1
-        for ax, k in zip(axes, frames):
-            for q, style, label in ((ood["q_true"][0, k], "k-o", "true"), (ood["q_model"][0, k], "C1--o", "model")):
-                xy = system.positions(q[None], p)[0]
-                ax.plot([0, xy[0, 0], xy[1, 0]], [0, xy[0, 1], xy[1, 1]], style, ms=4, label=label)
-            ax.set_xlim(-reach, reach)
-            ax.set_ylim(-reach, reach)
-            ax.set_aspect("equal")
-            ax.set_title(f"t = {k * dt:.1f} s", fontsize=9)
-            ax.set_xticks([])
-            ax.set_yticks([])
-        axes[0].legend(fontsize=7, loc="upper left")
-        fig.tight_layout()
-        paths.append(output_dir / "frames_ood_case1.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        save(frames_figure(system, ood["q_true"][0], ood["q_model"][0], ood["params"][0], ood["dt"]),
+             "frames_ood_case1.png")
     return paths

@@ -93,27 +93,20 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
             self._record(module)
 
         def _record(self, module):
-            q, qd, qdd, p = self.sample
-            with torch.set_grad_enabled(module.model.needs_autograd):
-                pred = module.model.acceleration(q, qd, p, check=False).detach()
+            q, qd, qdd, params = self.sample
+            with torch.no_grad():
+                pred = module.model.acceleration(q, qd, params, check=False)
             self.points.append((self.train_s, float((pred - qdd).norm() / qdd.norm())))
 
     torch.manual_seed(args.seed)
     dm = TrajectoryDataModule(path=str(ROOT / cfg["path"]), spec=dict(scene=scene, **cfg["spec"]),
                               chunk_len=8, chunks_per_batch=64, steps_per_epoch=500, seed=args.seed)
     dm.prepare_data()
-    val = dm.rollout_data("val", 64)
+    val = dm.trajectories("val", 64)
     idx = slice(0, None, 50)
-    sample = [val["q"][:, idx].reshape(-1, val["q"].shape[-1]).float(),
-              val["qd"][:, idx].reshape(-1, val["q"].shape[-1]).float(), None, None]
-    from lnn_torch.data import read_dataset
-
-    f = read_dataset(ROOT / cfg["path"])
-    with f.open() as h:
-        vi = np.sort(f.splits["val"])[:64]
-        sample[2] = torch.from_numpy(h["qdd"][vi][:, idx]).reshape(-1, val["q"].shape[-1]).float()
-    T = val["q"][:, idx].shape[1]
-    sample[3] = val["params"][:, None].expand(-1, T, -1).reshape(-1, val["params"].shape[-1]).float()
+    flat = lambda x: x[:, idx].reshape(-1, x.shape[-1]).float()  # noqa: E731
+    T = val.q[:, idx].shape[1]
+    sample = [flat(val.q), flat(val.qd), flat(val.qdd), flat(val.params[:, None].expand(-1, T, -1))]
     model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
     trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
@@ -130,83 +123,54 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
 
 
 # ---------------------------------------------------------------------------- evaluation
-def evaluate_dynamics(name: str, accel_fn, rollout_fn, system, test: dict, cfg: dict, needs_grad: bool,
-                      first_order: bool) -> list[dict]:
-    """Rows (one per integrator x dt) of speed and accuracy for one dynamics model."""
-    from lnn_torch.evaluation import divergence_time, energy_drift, relative_l2
+def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bool) -> list[dict]:
+    """Rows (one per integrator x dt) of speed and accuracy for one dynamics model: accuracy from
+    ``lnn_torch.evaluation.evaluate_model`` (the same pipeline as ``lnn-torch evaluate`` and
+    validation), speed timed here on one thread."""
+    from lnn_torch.evaluation import evaluate_model, model_rollout
 
     torch.set_num_threads(1)
-    dof = system.dof
-    q, qd, qdd, params, data_dt = test["q"], test["qd"], test["qdd"], test["params"], test["dt"]
-    B = q.shape[0]
-    every10 = slice(0, None, 10)
-    Tn = q[:, every10].shape[1]
-    with torch.set_grad_enabled(needs_grad):
-        pred = accel_fn(q[:, every10].reshape(-1, dof), qd[:, every10].reshape(-1, dof),
-                        params[:, None].expand(-1, Tn, -1).reshape(-1, params.shape[-1])).detach()
-    true = qdd[:, every10].reshape(-1, dof)
-    finite = torch.isfinite(pred).all(-1)  # undefined accelerations (singular Hessians) are counted, not averaged
-    acc_err = float(relative_l2(pred[finite], true[finite]))
-    acc_non_finite = float(1 - finite.double().mean())
+    acc = evaluate_model(model, system, test, sections=("accelerations",), accel_stride=10)["acc_rel_err"]
     # throughput: float32 batches of 8192 states (the model's own dtype), one thread
     n = 8192
-    rep = lambda x: x.reshape(-1, x.shape[-1])[torch.arange(n) % (B * Tn)]  # noqa: E731
-    qq, qqd = rep(q[:, every10]).float(), rep(qd[:, every10]).float()
-    pp = rep(params[:, None].expand(-1, Tn, -1)).float()
+    states = [x[:, ::10].reshape(-1, x.shape[-1]) for x in (test.q, test.qd)]
+    rep = lambda x: x[torch.arange(n) % x.shape[0]].float()  # noqa: E731
+    T = test.q[:, ::10].shape[1]
+    qq, qqd, pp = rep(states[0]), rep(states[1]), rep(test.params[:, None].expand(-1, T, -1).reshape(-1, test.params.shape[-1]))
 
     def ev():
-        with torch.set_grad_enabled(needs_grad):
-            accel_fn(qq, qqd, pp)
+        with torch.no_grad():
+            model.acceleration(qq, qqd, pp, check=False)
 
     throughput = n / median_seconds(ev, repeats=5)
     rows = []
-    horizon = cfg["horizon"]
+    B = len(test)
     for method, dt in INTEGRATORS:
-        row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc_err, "acc_non_finite": acc_non_finite,
-               "states_per_s": throughput}
+        row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc["total"],
+               "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput}
         if first_order and method not in ("rk4", "rk8"):
             row["note"] = "n/a: a Hamiltonian network integrates its own first-order flow (RK methods only)"
             rows.append(row)
             continue
-        # compare on the data's grid: a coarser step takes every stride-th sample, a finer one keeps
-        # every sub-th step of the rollout
-        stride, sub = max(1, int(round(dt / data_dt))), max(1, int(round(data_dt / dt)))
-        steps = int(round(horizon / dt))
-        if abs(stride * data_dt / sub - dt) > 1e-12:
-            raise ValueError(f"dt = {dt} and the data's {data_dt} are not multiples of each other")
-        n_data = min(steps // sub * stride, q.shape[1] - 1)
-        steps = n_data // stride * sub
-        q_true = q[:, : n_data + 1 : stride]
         # rollout cost: batch 64 (test states repeated), 200 steps, scaled to 1000 steps
         idx = torch.arange(64) % B
-        with torch.set_grad_enabled(needs_grad):
-            cost = median_seconds(lambda: rollout_fn(q[idx, 0], qd[idx, 0], params[idx], dt, 200, method),
-                                  repeats=3, warmup=1) * 5
-            qm, qdm = rollout_fn(q[:, 0], qd[:, 0], params, dt, steps, method)
-        qm, qdm = qm.detach()[:, ::sub], qdm.detach()[:, ::sub]
-        finite = torch.isfinite(qm).all(-1).all(-1) & torch.isfinite(qdm).all(-1).all(-1)
-        drift = energy_drift(system, qm[finite], qdm[finite], params[finite]) if finite.any() else torch.full((1, 1), float("nan"))
-        row.update({"rollout_s_per_1000_steps_b64": cost, "non_finite_fraction": float(1 - finite.double().mean()),
-                    "energy_drift_mean": float(drift.mean()), "energy_drift_max": float(drift.max())})
-        div = divergence_time(qm, q_true, stride * data_dt, cfg["threshold"], system.angle_mask)  # NaN = diverged
-        row["divergence_time_median"] = float(div.median())
-        row["divergence_time_q25"] = float(torch.quantile(div.double(), 0.25))
+        cost = median_seconds(lambda: model_rollout(model, test.q[idx, 0], test.qd[idx, 0], test.params[idx], dt, 200,
+                                                    method), repeats=3, warmup=1) * 5
+        r = evaluate_model(model, system, test, sections=("rollouts", "energy"), integrator=method, dt=dt,
+                           horizon=cfg["horizon"], thresholds=(cfg["threshold"],))
+        div = r[f"divergence_time@{cfg['threshold']:g}"]["model"]
+        row.update({"rollout_s_per_1000_steps_b64": cost, "non_finite_fraction": r["rollout_non_finite_fraction"],
+                    "energy_drift_mean": r["energy_drift"]["mean"], "energy_drift_max": r["energy_drift"]["max"],
+                    "divergence_time_median": div["median"], "divergence_time_q25": div["q25"]})
         rows.append(row)
     torch.set_num_threads(THREADS)
     return rows
 
 
-def test_data(dm, max_trajectories: int = 64) -> dict:
+def test_data(dm, max_trajectories: int = 64):
     from lnn_torch.data import read_dataset
 
-    f = read_dataset(dm.path)
-    idx = np.sort(f.splits["test"])[:max_trajectories]
-    with f.open() as h:
-        out = {k: torch.from_numpy(h[k][idx]) for k in ("q", "qd", "qdd")}
-        out["params"] = torch.from_numpy(h["params"][idx])
-        t = h["t"][:2]
-    out["dt"] = float(t[1] - t[0])
-    return out
+    return read_dataset(dm.path).trajectories("test", max_trajectories)
 
 
 # ---------------------------------------------------------------------------- report
@@ -357,7 +321,7 @@ def main() -> None:
         report(out)
         return
     from lnn_torch import LNNModule
-    from lnn_torch.evaluation import closed_form_rollout, counting_failures
+    from lnn_torch.evaluation import ClosedForm, model_rollout
     from lnn_torch.perf import configure_cpu
     from lnn_torch.stability import hard_cases, run_hard_cases
     from lnn_torch.systems import get_system
@@ -385,27 +349,20 @@ def main() -> None:
         result["training"][name] = info
         if test is None:
             test = test_data(dm)
-            result["num_test"] = int(test["q"].shape[0])
-            result["rows"] += evaluate_dynamics("closed form", system.acceleration, closed_form_rollout(system), system,
-                                                test, cfg, False, False)
+            result["num_test"] = len(test)
+            result["rows"] += evaluate_dynamics("closed form", ClosedForm(system), system, test, cfg, False)
         model = module.model
-
-        def accel(q, qd, p, model=model):
-            return model.acceleration(q, qd, p, check=False)
-
-        with counting_failures(model):  # undefined accelerations (singular Hessians) count as non-finite
-            result["rows"] += evaluate_dynamics(name, accel, model.rollout, system, test, cfg, model.needs_autograd,
-                                                overrides.get("variant") == "hnn")
-            if args.scene == "double_pendulum":
-                steps = int(round(args.stability_seconds / 0.005))
-                with torch.set_grad_enabled(model.needs_autograd):
-                    cases = hard_cases(system, num=8, num_steps=steps)
-                    result["stability"][name] = run_hard_cases(model.rollout, system, cases, model=model)
+        result["rows"] += evaluate_dynamics(name, model, system, test, cfg, overrides.get("variant") == "hnn")
+        cases = system.hard_parameter_cases()
+        if cases:  # scenes with extreme parameter cases of their own get the stability grid
+            steps = int(round(args.stability_seconds / 0.005))
+            result["stability"][name] = run_hard_cases(lambda *a: model_rollout(model, *a), system,
+                                                       hard_cases(system, num=8, num_steps=steps), model=model)
         (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))
         print(markdown(result), flush=True)
-    if args.scene == "double_pendulum":
+    if result["stability"]:
         steps = int(round(args.stability_seconds / 0.005))
-        result["stability"] = {"closed form": run_hard_cases(closed_form_rollout(system), system,
+        result["stability"] = {"closed form": run_hard_cases(ClosedForm(system).rollout, system,
                                                              hard_cases(system, num=8, num_steps=steps)),
                                **result["stability"]}
     (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))

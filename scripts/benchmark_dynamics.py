@@ -81,7 +81,8 @@ def matmul_floor(model, batch: int, dtype):
     """The matrix products of ONE structured acceleration call of ``model`` (film_lnn or delan) at
     ``batch`` states, alone: the same shapes, kinds and weights as the model's call, on random
     inputs. The rest of a call (activations, FiLM, the solve, dispatch) comes on top of this."""
-    from lnn_torch.networks.layers import _affine, _mm_t
+    from lnn_torch.networks._kernels import affine as _affine
+    from lnn_torch.networks._kernels import mm_t as _mm_t
 
     gen = torch.Generator().manual_seed(0)
 

@@ -5,8 +5,8 @@ matrices, batch independence, gradcheck, shapes and error messages."""
 import pytest
 import torch
 
-from lnn_torch.dynamics import SingularHessianError, generic_acceleration, structured_acceleration
-from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, build_model
+from lnn_torch.dynamics import SingularHessianError, generic_acceleration
+from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, build_model, reference
 from lnn_torch.networks.layers import ACTIVATIONS, TangentMLP
 from lnn_torch.systems import InputError, get_system
 
@@ -31,18 +31,22 @@ def normalized_batch(model, system, rng, n=64):
 @pytest.mark.parametrize("variant", ["film_lnn", "delan"])
 @pytest.mark.parametrize("activation", ACTIVATIONS)
 def test_structured_fast_path_equals_generic_solve(scene, config, variant, activation, rng):
+    """The fast structured solve (hand tangents, hand reverse pass, unrolled Cholesky, sigmoid-form
+    layers) equals the readable model (``networks.reference``: plain formulas, torch's activations)
+    solved two independent ways: torch.func jvp/vjp + LAPACK Cholesky, and the generic Hessian solve."""
     system = get_system(scene, **config)
     model = perturbed(build_model(variant, system, hidden_dims=(32, 32), activation=activation).double())
     qn, qdn, pn = normalized_batch(model, system, rng)
     fast = model.acceleration_norm(qn, qdn, pn)
-    generic = generic_acceleration(model.lagrangian_norm, qn, qdn, pn)
-    reference = structured_acceleration(
-        lambda q1, p1: model.cholesky(q1[None], p1[None])[0][0],
-        lambda q1, p1: model.potential_norm(q1[None], p1[None])[0][0],
-        qn, qdn, pn, eps=model.eps)
+    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn)
+    structured = reference.structured_model_acceleration(model, qn, qdn, pn)
     scale = generic.abs().max()
     assert (fast - generic).abs().max() <= 1e-10 * scale
-    assert (fast - reference).abs().max() <= 1e-10 * scale
+    assert (fast - structured).abs().max() <= 1e-10 * scale
+    # the model's own Lagrangian (fast networks) is the reference one
+    L = torch.func.vmap(model.lagrangian_norm)(qn, qdn, pn)
+    torch.testing.assert_close(L, torch.func.vmap(lambda a, b, c: reference.lagrangian(model, a, b, c))(qn, qdn, pn),
+                               rtol=1e-12, atol=1e-12)
 
 
 def test_structured_energy_is_legendre_transform(rng):
@@ -222,8 +226,10 @@ def test_generic_solve_reports_singular_hessian():
     params = torch.ones(5, 1, dtype=torch.float64)
     with pytest.raises(SingularHessianError, match="singular for 5 of 5"):
         generic_acceleration(lagrangian, q, qd, params)
-    damped = generic_acceleration(lagrangian, q, qd, params, damping=1e-3)
-    assert torch.isfinite(damped).all()
+    regularised = generic_acceleration(lagrangian, q, qd, params, hessian_reg=1e-3)
+    assert torch.isfinite(regularised).all()
+    with pytest.warns(DeprecationWarning, match="renamed hessian_reg"):  # the former name still works
+        torch.testing.assert_close(generic_acceleration(lagrangian, q, qd, params, damping=1e-3), regularised)
 
 
 def test_generic_solve_double_backward():
@@ -349,10 +355,10 @@ def test_canonical_hnn_needs_the_scene_momentum_map():
 @pytest.mark.parametrize("B", [5, 9])
 def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
     """TangentMLP (tanh layers run in sigmoid form, FiLM pairs mapped to (2 gamma, beta - gamma))
-    is the plain MLP ``h = gamma act(W h + b) + beta``: outputs against a straightforward float64
-    implementation with torch's own activations, tangents against torch.func.jvp, input gradients
-    against autograd. Batches of 5 and 9 rows: the products with few output columns take their
-    transposed form (``layers._mm_t``) only when the batch has more rows than outputs."""
+    is the plain MLP ``h = gamma act(W h + b) + beta`` of ``networks.reference`` (torch's own
+    activations, FiLM's plain formula): outputs in float64, tangents against torch.func.jvp, input
+    gradients against autograd. Batches of 5 and 9 rows: the products with few output columns take
+    their transposed form (``_kernels.mm_t``) only when the batch has more rows than outputs."""
     torch.manual_seed(0)
     net = TangentMLP(6, [24, 24], 3, activation).double()
     film_net = FiLM(4, [24, 24]).double()
@@ -360,18 +366,13 @@ def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
         for p in film_net.parameters():
             p.add_(0.3 * torch.randn_like(p))
     x, cond = torch.randn(B, 6, dtype=torch.float64), torch.randn(B, 4, dtype=torch.float64)
-    act = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": torch.nn.functional.softplus,
-           "isru": lambda z: z / torch.sqrt(1 + z * z)}[activation]
+    pairs = reference.film_pairs(film_net, cond) if with_film else None
 
     def plain(x):
-        h = x
-        for i, layer in enumerate(net.hidden):
-            h = act(h @ layer.weight.T + layer.bias)
-            if with_film:
-                gamma, beta = film_net(cond)[i]
-                h = gamma * h + beta
-        return h @ net.out.weight.T + net.out.bias
+        return reference.mlp(net, x, pairs)
 
+    if with_film:  # the plain FiLM is not the identity here, and differs from the sigmoid-form pairs
+        assert (pairs[0][0] - 1).abs().max() > 0.1
     film = film_net(cond, net.sigmoid_form) if with_film else None
     dx = torch.randn(2, B, 4, dtype=torch.float64)
     y, dy = net(x, dx, film)
@@ -485,7 +486,7 @@ def test_compiled_dynamics_equal_eager(rng):
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
     """A failing compiled call warns once and the model continues eagerly with the eager result;
     the model's own errors (singular Hessian) pass through and are not taken for a compile failure."""
-    import lnn_torch.networks.models as models
+    import lnn_torch.networks.base as models
 
     def broken(fn, device):
         def run(*args):

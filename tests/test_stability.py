@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch.data import DatasetSpec, GenerationError, simulate
+from lnn_torch.data import DatasetSpec, GenerationError, generate_arrays
 from lnn_torch.data.generate import integrate_ground_truth
 from lnn_torch.dynamics import SingularHessianError
-from lnn_torch.evaluation import closed_form_rollout, energy_drift
+from lnn_torch.evaluation import ClosedForm, model_rollout
+from lnn_torch.metrics import energy_drift
 from lnn_torch.integrators import rollout
 from lnn_torch.losses import energy_variance
 from lnn_torch.networks import VARIANTS, build_model
-from lnn_torch.networks.models import wrap_angle
+from lnn_torch.networks.base import wrap_angle
 from lnn_torch.stability import hard_cases, run_hard_cases
 from lnn_torch.systems import InputError, get_system
 
@@ -40,15 +41,6 @@ def fresh_model(variant, system=DP, hidden=(16, 16), dtype=torch.float64, seed=0
     return model
 
 
-def model_rollout(model):
-    def fn(q0, qd0, params, dt, num_steps, method="rk4"):
-        with torch.set_grad_enabled(model.needs_autograd):
-            q, qd = model.rollout(q0, qd0, params, dt, num_steps, method)
-        return q.detach(), qd.detach()
-
-    return fn
-
-
 # ---------------------------------------------------------------------------- every hard case, every variant
 @pytest.mark.parametrize("variant", [v for v in VARIANTS if v != "lnn"])
 def test_every_variant_stays_finite_on_every_hard_case(variant):
@@ -59,10 +51,10 @@ def test_every_variant_stays_finite_on_every_hard_case(variant):
             "inverted, |qd0| = 10 rad/s", "whirling from rest position", "angles +1e4 rad", "angles -1e4 rad",
             "zero velocity", "tiny velocity 1e-9"} <= names
     for case in cases:
-        with torch.set_grad_enabled(model.needs_autograd):
+        with torch.no_grad():
             a = model.acceleration(case.q0, case.qd0, case.params)
         assert torch.isfinite(a).all(), (variant, case.name)
-    rows = run_hard_cases(model_rollout(model), DP, cases, model=model)
+    rows = run_hard_cases(lambda *a: model_rollout(model, *a), DP, cases, model=model)
     for row in rows:
         assert "error" not in row, row
         assert row["non_finite_fraction"] == 0, (variant, row)
@@ -88,7 +80,7 @@ def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
             continue
         assert torch.isfinite(a).all(), case.name
     with counting_failures(model):
-        rows = run_hard_cases(model_rollout(model), DP, cases, model=model)
+        rows = run_hard_cases(lambda *a: model_rollout(model, *a), DP, cases, model=model)
     assert all("error" not in r and 0 <= r["non_finite_fraction"] <= 1 for r in rows)
     assert model.raise_on_singular  # restored after the block
 
@@ -99,7 +91,7 @@ def test_ground_truth_generator_on_every_hard_case():
     alone does not: with m2/m1 = 1e3 the light first mass whips round (measured: 7 of 8 fixed-step
     RK8 trajectories blow up; 64 substeps still drift 5e-7)."""
     whip = next(c for c in hard_cases(DP, num=8, num_steps=1000) if c.name == "m2/m1 = 1e3")
-    fixed = run_hard_cases(closed_form_rollout(DP), DP, [whip], method="rk8")
+    fixed = run_hard_cases(ClosedForm(DP).rollout, DP, [whip], method="rk8")
     assert fixed[0]["non_finite_fraction"] > 0.5
     for case in hard_cases(DP, num=8, num_steps=400):  # 2 s each
         q, qd, steps = integrate_ground_truth(DP, case.q0, case.qd0, case.params, case.dt, case.num_steps)
@@ -115,7 +107,7 @@ def test_generator_refines_hard_trajectories_to_dop853_accuracy():
     match scipy's DOP853 (rtol = atol = 1e-12) over the first 2 s."""
     spec = DatasetSpec(scene="double_pendulum", num_trajectories=6, duration=4.0, seed=11,
                        scene_config={"theta_range": [math.pi - 0.1, math.pi + 0.1], "omega_range": [-10.0, 10.0]})
-    arrays = simulate(spec)
+    arrays = generate_arrays(spec)
     scale = DP.energy_scale(torch.from_numpy(arrays["params"])).numpy()
     e = arrays["energy"]
     assert (np.abs(e - e[:, :1]).max(1) / scale).max() <= spec.energy_tol
@@ -130,7 +122,7 @@ def test_generator_fails_clearly_when_it_cannot_reach_its_tolerance():
     spec = DatasetSpec(scene="double_pendulum", num_trajectories=3, duration=2.0, seed=11, energy_tol=1e-16,
                        adaptive_tol=1e-6, scene_config={"theta_range": [3.0, 3.2], "omega_range": [-10.0, 10.0]})
     with pytest.raises(GenerationError, match=r"trajectories \(indices .*\) drift by up to .* adaptive steps"):
-        simulate(spec)
+        generate_arrays(spec)
 
 
 # ---------------------------------------------------------------------------- invalid input
@@ -178,7 +170,7 @@ def test_mass_matrix_guards_keep_saturated_networks_solvable():
 
 def test_singular_hessian_policy_of_the_black_box_lnn():
     """An lnn whose Lagrangian ignores qd has a singular velocity Hessian: the default policy reports
-    it (a clear error, in acceleration and in rollouts); damping > 0 regularises instead."""
+    it (a clear error, in acceleration and in rollouts); hessian_reg > 0 regularises instead."""
     model = fresh_model("lnn")
     F = model.num_features
     with torch.no_grad():
@@ -189,7 +181,7 @@ def test_singular_hessian_policy_of_the_black_box_lnn():
         model.acceleration(q, q, params)
     with pytest.raises(SingularHessianError):
         model.rollout(q, q, params, 0.01, 2)
-    model.damping = 1e-3
+    model.hessian_reg = 1e-3
     assert torch.isfinite(model.acceleration(q, q, params)).all()
 
 
@@ -258,12 +250,12 @@ def test_models_long_horizon(variant):
     q0, qd0 = (torch.tensor(x) for x in DP.sample_state(rng, 2))
     if variant == "lnn":  # 1000 steps: its generic solve costs ~5 ms a call
         try:
-            q, qd = model_rollout(model)(q0, qd0, params, 0.005, 1000, "rk4")
+            q, qd = model_rollout(model, q0, qd0, params, 0.005, 1000, "rk4")
         except SingularHessianError as err:
             assert "singular" in str(err)
             return
     else:
-        q, qd = model_rollout(model)(q0, qd0, params, 0.005, 10_000, "rk4")
+        q, qd = model_rollout(model, q0, qd0, params, 0.005, 10_000, "rk4")
     assert torch.isfinite(q).all() and torch.isfinite(qd).all()
 
 
@@ -276,7 +268,7 @@ def test_float32_agrees_with_float64(variant):
     rng = np.random.default_rng(5)
     params = torch.tensor(DP.sample_params(rng, 64))
     q, qd = (torch.tensor(x) for x in DP.sample_state(rng, 64))
-    with torch.set_grad_enabled(m64.needs_autograd):
+    with torch.no_grad():
         a64 = m64.acceleration(q, qd, params)
         a32 = m32.acceleration(q.float(), qd.float(), params.float())
     assert a32.dtype == torch.float32

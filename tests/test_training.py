@@ -71,14 +71,19 @@ def test_chunk_sampling_is_seeded_per_epoch_and_worker_safe(dataset):
 
 
 def test_eval_sets_are_fixed_and_use_the_split(dataset):
+    """Validation and test yield the whole split once (what evaluate_model consumes), the same at
+    every epoch; predict yields every eval_stride-th point of each test trajectory."""
     dm = make_dm(dataset)
     dm.setup("validate")
     f = read_dataset(dataset)
-    v1 = [x for x in dm.val_dataloader()]
-    v2 = [x for x in dm.val_dataloader()]
-    torch.testing.assert_close(v1[0]["q"], v2[0]["q"])
-    assert torch.cat([x["trajectory"] for x in v1]).tolist() == f.splits["val"].tolist()
-    assert torch.cat([x["trajectory"] for x in dm.test_dataloader()]).tolist() == f.splits["test"].tolist()
+    v1, v2 = list(dm.val_dataloader()), list(dm.val_dataloader())
+    assert len(v1) == 1 and v1[0]["accel_stride"] == 20
+    torch.testing.assert_close(v1[0]["trajectories"].q, v2[0]["trajectories"].q)
+    assert v1[0]["trajectories"].index.tolist() == f.splits["val"].tolist()
+    np.testing.assert_array_equal(v1[0]["trajectories"].q.numpy(), f.read("q")[np.sort(f.splits["val"])])
+    (test,) = list(dm.test_dataloader())
+    assert test["trajectories"].index.tolist() == f.splits["test"].tolist()
+    assert torch.cat([x["trajectory"] for x in dm.predict_dataloader()]).tolist() == f.splits["test"].tolist()
 
 
 def test_normalisation_comes_from_the_training_split_only(dataset):
@@ -270,6 +275,24 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
 
 
+def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
+    """--trainer.default_root_dir DIR moves the default TensorBoard run and the checkpoints to DIR
+    (the logger's save_dir is no longer fixed to the working directory)."""
+    common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+              "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+              "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2", "--trainer.enable_progress_bar=false",
+              "--trainer.max_epochs=1", "--data.steps_per_epoch=2", f"--trainer.default_root_dir={tmp_path / 'runs'}"]
+    out = _cli("fit", *common, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "events.*"))
+    assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"))
+    assert not (tmp_path / "lightning_logs").exists()
+    # an explicit save_dir still wins
+    out = _cli("fit", *common, f"--trainer.logger.init_args.save_dir={tmp_path / 'mine'}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert glob.glob(str(tmp_path / "mine" / "lightning_logs" / "version_0" / "events.*"))
+
+
 def test_ddp_two_cpu_processes(dataset, tmp_path):
     """Lightning's own DDP strategy: two CPU processes, one writer of logs and checkpoints."""
     common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
@@ -410,10 +433,10 @@ def test_lnn_learns_the_relativistic_particle_where_an_hnn_on_q_qd_fails(tmp_pat
         dm = TrajectoryDataModule(path=str(path), spec=spec, chunk_len=8, chunks_per_batch=32, steps_per_epoch=steps)
         trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False)
         trainer.fit(model, dm)
-        data = dm.rollout_data("test", None)
+        data = dm.trajectories("test")
         with counting_failures(model.model), torch.no_grad():
-            q, _ = model.rollout(data["q"][:, 0], data["qd"][:, 0], data["params"], data["dt"], data["q"].shape[1] - 1)
-        errors[name] = float((q - data["q"]).abs().amax((1, 2)).median())
+            q, _ = model.rollout(data.q[:, 0], data.qd[:, 0], data.params, data.dt, data.num_points - 1)
+        errors[name] = float((q - data.q).abs().amax((1, 2)).median())
     print("relativistic particle, median max position error over 5 s:", errors)
     # measured (medians of 8): lnn 0.022, hnn canonical 0.014, hnn velocity 0.112
     assert errors["lnn"] < 0.06 and errors["hnn canonical"] < 0.06, errors

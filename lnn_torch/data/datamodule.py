@@ -3,8 +3,10 @@
 Training batches are ``chunks_per_batch`` contiguous chunks of ``chunk_len`` points, each from one
 training trajectory (the energy regulariser needs whole chunks of one trajectory). Chunk ``i`` of
 epoch ``e`` is drawn from the seed sequence ``(seed, e, i)``: reproducible, and under DDP the
-distributed sampler gives each rank distinct indices. Validation and test sets are fixed: every
-``eval_stride``-th point of every trajectory of the split, in order.
+distributed sampler gives each rank distinct indices. Validation and test loaders yield ONE item:
+the whole split as ``Trajectories`` (with ``eval_stride``), which the LightningModule hands to
+``lnn_torch.evaluation.evaluate_model``; ``predict`` yields every ``eval_stride``-th point of each
+test trajectory, one trajectory per item.
 
 The file is generated from ``spec`` if it is missing. Normalisation statistics come from the
 training split only (``normalization_data``).
@@ -119,6 +121,23 @@ class PointDataset(Dataset):
         return out
 
 
+class SplitDataset(Dataset):
+    """One item: the whole split ``{"trajectories": Trajectories, "accel_stride": int}`` (under DDP
+    the distributed sampler pads it to one item per rank)."""
+
+    def __init__(self, file: TrajectoryFile, split: str, stride: int) -> None:
+        self.file, self.split, self.stride = file, split, stride
+        self._data = None
+
+    def __len__(self) -> int:
+        return 1
+
+    def __getitem__(self, i: int) -> dict:
+        if self._data is None:
+            self._data = self.file.trajectories(self.split)
+        return {"trajectories": self._data, "accel_stride": self.stride}
+
+
 class TrajectoryDataModule(L.LightningDataModule):
     """Serves an lnn_torch HDF5 dataset (generated from ``spec`` when ``path`` is missing).
 
@@ -206,11 +225,14 @@ class TrajectoryDataModule(L.LightningDataModule):
         return DataLoader(ds, batch_size=self.hparams.eval_trajectories_per_batch, shuffle=False,
                           num_workers=self.hparams.num_workers)
 
+    def _split(self, split: str) -> DataLoader:
+        return DataLoader(SplitDataset(self._open(), split, self.hparams.eval_stride), batch_size=None)
+
     def val_dataloader(self) -> DataLoader:
-        return self._points("val")
+        return self._split("val")
 
     def test_dataloader(self) -> DataLoader:
-        return self._points("test")
+        return self._split("test")
 
     def predict_dataloader(self) -> DataLoader:
         return self._points("test")
@@ -229,17 +251,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         out["params_points"] = torch.cat([p["params"] for p in parts])
         return out
 
-    def rollout_data(self, split: str = "val", num_trajectories: int | None = 4, num_points: int | None = None) -> dict:
-        """Whole trajectories (float64) of a split for rollout metrics: q, qd ``(n, T, dof)``, params, dt
-        (the first ``num_trajectories`` of the split; None: all)."""
-        f = self._open()
-        src = self.source(split, torch.float64)
-        n = len(src.indices) if num_trajectories is None else min(num_trajectories, len(src.indices))
-        T = f.num_points if num_points is None else min(num_points, f.num_points)
-        parts = [src.chunk(j, 0, T) for j in range(n)]
-        dt = float(f.read("t", slice(0, 2))[1])
-        return {"q": torch.stack([p["q"] for p in parts]), "qd": torch.stack([p["qd"] for p in parts]),
-                "params": src.params[:n], "dt": dt}
+    def trajectories(self, split: str = "val", num_trajectories: int | None = None):
+        """Whole trajectories of a split (float64 ``Trajectories``): the first ``num_trajectories``
+        (None: all)."""
+        return self._open().trajectories(split, num_trajectories)
 
     def spec_dict(self) -> dict:
         return asdict(self.spec)

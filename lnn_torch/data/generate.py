@@ -12,7 +12,8 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..integrators import rollout, rollout_adaptive
+from ..ground_truth import integrate_ground_truth
+from ..metrics import energy_drift
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
 
@@ -52,51 +53,7 @@ def split_indices(spec: DatasetSpec) -> dict:
     }
 
 
-class GenerationError(RuntimeError):
-    """Ground truth could not be integrated to the requested accuracy."""
-
-
-def _relative_drift(system, q, qd, params) -> torch.Tensor:
-    """Max over time of |E(t) - E(0)| / energy scale, per trajectory ``(N,)``."""
-    E = system.energy(q, qd, params[:, None, :].expand(-1, q.shape[1], -1))
-    return (E - E[:, :1]).abs().amax(1) / system.energy_scale(params)
-
-
-def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, integrator: str = "rk8",
-                           substeps: int = 1, energy_tol: float = 1e-10, adaptive_tol: float = 1e-11,
-                           callback=None, indices=None):
-    """Ground truth in float64: a fast fixed-step pass for all trajectories, then adaptive DOP853
-    steps for those whose relative energy drift exceeds ``energy_tol`` (stiff or fast ones).
-
-    Returns ``q, qd`` ``(N, num_steps + 1, dof)`` and the integrator steps each trajectory took
-    ``(N,)``. Raises ``GenerationError`` naming the trajectories (``indices``, default 0..N-1) that
-    still drift beyond ``energy_tol`` after the adaptive pass.
-    """
-    q, qd = rollout(system.acceleration, q0, qd0, params, dt, num_steps, integrator, substeps, callback=callback)
-    steps = torch.full((len(params),), num_steps * substeps, dtype=torch.long)
-    drift = _relative_drift(system, q, qd, params)
-    todo = torch.nonzero(~(drift <= energy_tol))[:, 0]  # NaN counts as not converged
-    if todo.numel():
-        dof = system.dof
-
-        def field(y, p):
-            return torch.cat([y[:, dof:], system.acceleration(y[:, :dof], y[:, dof:], p)], -1)
-
-        y, n = rollout_adaptive(field, torch.cat([q0[todo], qd0[todo]], -1), params[todo], dt, num_steps,
-                                rtol=adaptive_tol, atol=adaptive_tol)
-        q[todo], qd[todo], steps[todo] = y[..., :dof], y[..., dof:], n
-        drift[todo] = _relative_drift(system, q[todo], qd[todo], params[todo])
-        bad = todo[~(drift[todo] <= energy_tol)]
-        if bad.numel():
-            names = np.arange(len(params)) if indices is None else np.asarray(list(indices))
-            raise GenerationError(
-                f"{bad.numel()} trajectories (indices {names[bad.numpy()][:10].tolist()}) drift by up to "
-                f"{drift[bad].max().item():.2e} of the energy scale even with adaptive steps at tolerance "
-                f"{adaptive_tol:g} (energy_tol {energy_tol:g}): lower adaptive_tol, raise energy_tol or shorten dt")
-    return q, qd, steps
-
-
-def simulate(spec: DatasetSpec, indices=None, progress: bool = False) -> dict:
+def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> dict:
     """Integrate the given trajectories of ``spec`` (default: all). Returns float64 numpy arrays,
     including ``integrator_steps`` (N,): steps each trajectory took (``integrate_ground_truth``)."""
     system = spec.build_system()
@@ -142,14 +99,12 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         torch.set_num_threads(num_threads)
     try:
         start = time.perf_counter()
-        arrays = simulate(spec, progress=progress)
+        arrays = generate_arrays(spec, progress=progress)
         elapsed = time.perf_counter() - start
     finally:
         torch.set_num_threads(old_threads)
     system = spec.build_system()
-    scale = system.energy_scale(torch.from_numpy(arrays["params"])).numpy()
-    e = arrays["energy"]
-    drift = float((np.abs(e - e[:, :1]).max(axis=1) / scale).max())
+    drift = float(energy_drift(system, *(torch.from_numpy(arrays[k]) for k in ("q", "qd", "params"))).max())
     refined = int((arrays["integrator_steps"] != (spec.num_points - 1) * spec.substeps).sum())
     attrs = {
         "scene": spec.scene,
@@ -180,3 +135,6 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "generation_seconds": elapsed,
     }
     return write_dataset(path, arrays, split_indices(spec), attrs, overwrite=overwrite)
+
+
+simulate = generate_arrays  # the former name (``lnn_torch.data.simulate``)

@@ -124,6 +124,28 @@ class TrajectoryFile:
         with self.open() as f:
             return f[name][()] if index is None else f[name][index]
 
+    @property
+    def dt(self) -> float:
+        """The sampling interval, s."""
+        t = self.read("t", slice(0, 2))
+        return float(t[1] - t[0]) if len(t) > 1 else float("nan")
+
+    def trajectories(self, split: str | None = "test", max_trajectories: int | None = None):
+        """The trajectories of a split (``None``: all), in file order, as float64 ``Trajectories``."""
+        import torch
+
+        from .trajectories import Trajectories
+
+        if split is not None and split not in self.splits:
+            raise DatasetFileError(f"{self.path} has no split '{split}' (splits: {', '.join(self.splits)})")
+        idx = np.arange(self.num_trajectories) if split is None else np.sort(self.splits[split])
+        if len(idx) == 0:
+            raise DatasetFileError(f"{self.path} has an empty '{split}' split")
+        idx = idx[:max_trajectories] if max_trajectories else idx
+        with self.open() as f:
+            arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params")}
+        return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays["qdd"], torch.from_numpy(idx))
+
 
 def read_dataset(path: str | Path) -> TrajectoryFile:
     """Open and validate a dataset file; raise ``DatasetFileError`` naming the problem."""

@@ -1,9 +1,20 @@
-"""Networks: FiLM, the Cholesky mass matrix, potentials, Lagrangian models and baselines (plain nn.Module)."""
+"""Networks (plain ``nn.Module``): FiLM, tangent-carrying MLPs, the normaliser, the model variants and
+their registry.
 
+Where things live: ``base`` (features, normalisation glue, checks, rollouts), ``structured``
+(``film_lnn``, ``delan``), ``blackbox`` (``lnn``), ``direct`` (``mlp``), ``hamiltonian`` (``hnn``),
+``registry`` (name -> class, ``build_model``), ``layers`` (FiLM, TangentMLP), ``reference`` (the
+plain formulas the fast paths are tested against), ``_kernels`` (private CPU-oriented forms).
+"""
+
+from .base import DynamicsModel, SceneInfo
+from .blackbox import BlackBoxLagrangian
+from .direct import DirectMLP
+from .hamiltonian import HamiltonianNN
 from .layers import FiLM, TangentMLP
-from .models import (VARIANTS, BlackBoxLagrangian, DirectMLP, DynamicsModel, HamiltonianNN, SceneInfo,
-                     StructuredLagrangian, build_model)
 from .normalization import Normalizer
+from .registry import MODELS, VARIANTS, build_model, model_options
+from .structured import DeLaN, StructuredLagrangian
 
-__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian",
-           "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "build_model", "VARIANTS"]
+__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "DeLaN",
+           "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model", "model_options"]

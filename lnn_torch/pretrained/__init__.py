@@ -32,11 +32,6 @@ def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
     >>> model = load_pretrained("double_pendulum")
     >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
     """
-    path = HERE / f"{name}.ckpt"
-    if not path.exists():
-        raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
-    from ..module import LNNModule
+    from ..checkpoints import load_model
 
-    model = LNNModule.load_from_checkpoint(path, map_location=map_location)
-    model.eval()
-    return model
+    return load_model(f"pretrained:{name}", map_location)

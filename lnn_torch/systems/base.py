@@ -151,6 +151,22 @@ class System(abc.ABC):
         """The energy scale that drifts are divided by: V_max - V_min over q, shape ``(*batch,)``."""
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ cases and drawing (optional)
+    def ood_cases(self) -> list[dict]:
+        """Out-of-distribution test cases of this scene: ``[{"params": (P,), "q0": (dof,), "qd0": (dof,)}, ...]``
+        (SI tuples). Reported by ``lnn-torch evaluate``; default none."""
+        return []
+
+    def hard_parameter_cases(self) -> dict[str, tuple[float, ...]]:
+        """Named extreme parameter vectors for the stability cases (``lnn_torch.stability``), in
+        addition to the generic ones every scene gets (parameters x10 and x0.1); default none."""
+        return {}
+
+    def positions(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
+        """Cartesian positions of the bodies for drawing, ``(*batch, num_bodies, 2)`` in m, linked as
+        a chain from the origin (pendula); None (default) for scenes that are not drawn."""
+        return None
+
     # ------------------------------------------------------------------ checks
     def check_params(self, params: torch.Tensor) -> None:
         """Raise ``InputError`` for non-finite or non-positive parameters."""

@@ -121,6 +121,16 @@ class DoublePendulum(System):
         m1, m2, l1, l2 = params.unbind(-1)
         return 2 * GRAVITY * ((m1 + m2) * l1 + m2 * l2)
 
+    def ood_cases(self):
+        """The reference design's four out-of-distribution cases (parameters outside the training box)."""
+        cases = [((2.5, 1.5, 1.2, 1.3), (0.4, -0.4, 0.1, -0.1)), ((1.0, 0.8, 2.5, 2.3), (-0.8, 0.8, 0.3, -0.3)),
+                 ((3.0, 2.0, 2.8, 2.5), (-0.6, 0.6, -0.9, 0.9)), ((0.3, 0.2, 0.5, 0.6), (1.5, 1.0, -1.2, 0.35))]
+        return [{"params": p, "q0": s[:2], "qd0": s[2:]} for p, s in cases]
+
+    def hard_parameter_cases(self):
+        return {"m2/m1 = 1e-3": (1.0, 1e-3, 1.2, 1.2), "m2/m1 = 1e3": (0.1, 100.0, 1.2, 1.2),
+                "l2/l1 = 0.1": (1.0, 0.6, 1.5, 0.15), "l2/l1 = 10": (1.0, 0.6, 0.3, 3.0)}
+
     def positions(self, q, params):
         """Cartesian positions of both masses, shape ``(*batch, 2, 2)`` as ``[[x1, y1], [x2, y2]]`` in m."""
         _, _, l1, l2 = params.unbind(-1)

@@ -64,3 +64,8 @@ class Pendulum(System):
     def energy_scale(self, params):
         m, l = params.unbind(-1)
         return 2 * m * GRAVITY * l
+
+    def positions(self, q, params):
+        """Cartesian position of the mass, ``(*batch, 1, 2)`` in m."""
+        _, l = params.unbind(-1)
+        return torch.stack([l * torch.sin(q[..., 0]), -l * torch.cos(q[..., 0])], -1)[..., None, :]

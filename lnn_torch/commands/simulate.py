@@ -1,8 +1,9 @@
 """``lnn-torch simulate``: roll a trained model out from a given state and parameters.
 
 Writes the trajectory (CSV or HDF5, by the output's suffix) and a plot. By default the scene's
-exact (closed-form) trajectory from the same state is written beside it, with the true energy of
-the model's trajectory, so that the output shows how far the model can be trusted.
+exact trajectory from the same state (``lnn_torch.ground_truth.reference_rollout``) is written
+beside it, with the true energy of the model's trajectory, so that the output shows how far the
+model can be trusted.
 
     lnn-torch simulate --params 1.0 0.6 1.2 1.1 --q0 1.0 -0.5 --qd0 0 0 --duration 10 -o sim.csv
     lnn-torch simulate --checkpoint lightning_logs/version_0/checkpoints/last.ckpt --params ... --q0 ...
@@ -17,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .integrators import METHODS
+from ..integrators import METHODS
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .pretrained import available
+    from ..pretrained import available
 
     ap = argparse.ArgumentParser(prog="lnn-torch simulate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -44,24 +45,12 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def load_model(pretrained: str | None, checkpoint: str | None):
-    if checkpoint:
-        from .module import LNNModule
-
-        if not Path(checkpoint).exists():
-            raise FileNotFoundError(f"checkpoint {checkpoint} does not exist")
-        model = LNNModule.load_from_checkpoint(checkpoint, map_location="cpu")
-        model.eval()
-        return model
-    from .pretrained import load_pretrained
-
-    return load_pretrained(pretrained or "double_pendulum")
-
-
-def simulate(model, params, q0, qd0, duration: float, dt: float, method: str = "rk4", exact: bool = True) -> dict:
-    """Roll ``model`` out from one state (float64). Returns numpy arrays: ``t``, ``q``, ``qd`` ``(T, dof)``,
-    the true energy and its drift along the model's trajectory, and (``exact``) the closed-form ``q_exact``."""
-    from .evaluation import energy_drift
+def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: str = "rk4", exact: bool = True) -> dict:
+    """Roll ``model`` (an ``LNNModule``) out from one state (float64). Returns numpy arrays: ``t``,
+    ``q``, ``qd`` ``(T, dof)``, the true energy and its drift along the model's trajectory, and
+    (``exact``) the exact trajectory ``q_exact`` (``lnn_torch.ground_truth.reference_rollout``)."""
+    from ..ground_truth import reference_rollout
+    from ..metrics import energy_drift
 
     system = model.system
     p = torch.tensor([params], dtype=torch.float64)
@@ -79,16 +68,13 @@ def simulate(model, params, q0, qd0, duration: float, dt: float, method: str = "
         out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy(),
                "energy": system.energy(q, qd, p[:, None].expand(-1, steps + 1, -1))[0].numpy(),
                "energy_drift": energy_drift(system, q, qd, p)[0].numpy()}
-        if exact:
-            from .integrators import rollout
-
-            qx, _ = rollout(system.acceleration, q0, qd0, p, dt / 4, 4 * steps, "rk8")
-            out["q_exact"] = qx[0, ::4].numpy()
+    if exact:
+        out["q_exact"] = reference_rollout(system, q0, qd0, p, dt, steps)[0][0].numpy()
     return out
 
 
 def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bool) -> Path:
-    from .data.hdf5 import check_writable, write_arrays
+    from ..data.hdf5 import check_writable, write_arrays
 
     if path.suffix in (".h5", ".hdf5"):
         return write_arrays(path, result, {"scene": system.name, "conventions": system.conventions,
@@ -113,7 +99,7 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
 
 
 def plot_trajectory(path: Path, result: dict, system) -> Path:
-    from .plots import plt
+    from ..plots import plt
 
     names = system.coord_names
     fig, axes = plt.subplots(system.dof + 1, 1, figsize=(7, 1.9 * (system.dof + 1)), sharex=True)
@@ -139,11 +125,14 @@ def main(argv: list[str]) -> int:
     for p in (output, plot):
         if p.exists() and not args.overwrite:
             raise FileExistsError(f"{p} exists; refusing to overwrite it (pass --overwrite)")
-    model = load_model(args.pretrained, args.checkpoint)
+    from ..checkpoints import load_model
+
+    model = load_model(args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}")
     if args.compile:
         model.model.compile_dynamics()
     qd0 = args.qd0 if args.qd0 is not None else [0.0] * model.system.dof
-    result = simulate(model, args.params, args.q0, qd0, args.duration, args.dt, args.method, exact=not args.no_exact)
+    result = simulate_model(model, args.params, args.q0, qd0, args.duration, args.dt, args.method,
+                            exact=not args.no_exact)
     meta = {"model": args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}",
             "variant": model.hparams.variant, "params": args.params, "q0": args.q0, "qd0": qd0,
             "dt": args.dt, "method": args.method}

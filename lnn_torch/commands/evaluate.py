@@ -1,0 +1,135 @@
+"""``lnn-torch evaluate``: a checkpoint against a dataset split, with the closed-form scene as ground truth.
+
+Reports (JSON, Markdown and PNG plots in ``--output-dir``) every section of
+``lnn_torch.evaluation.evaluate_model``:
+
+* relative L2 acceleration error: total, per coordinate, per-trajectory median and 90th percentile;
+* rollouts (chosen integrator and dt) from the true initial states: time until the coordinate error
+  first exceeds 0.1 and 0.5 (median and quartiles), beside the same figure for the exact system
+  started 1e-6 off (the predictability limit);
+* true-energy drift |E(t) - E(0)| / (V_max - V_min) of the model's rollouts (closed-form energy);
+* mass-matrix error against the scene's M (relative Frobenius after the best scale per system) and
+  the condition number of the learned M (structured variants);
+* the scene's out-of-distribution cases;
+* a stability table on the scene's hard cases (``lnn_torch.stability``): non-finite fraction, max
+  true-energy drift and the condition number of the learned mass matrix, including a long horizon
+  of 1e5 RK4 steps.
+
+The checkpoint may be ``pretrained:<name>`` for a shipped model. A missing data file is generated
+from the dataset specification the checkpoint records.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def write_report(result: dict, output_dir: Path, system) -> list[Path]:
+    """metrics.json, report.md and PNG plots."""
+    from ..plots import evaluation_plots
+
+    output_dir.mkdir(parents=True, exist_ok=True)
+    clean = {k: v for k, v in result.items() if not k.startswith("_")}
+    (output_dir / "metrics.json").write_text(json.dumps(clean, indent=2))
+    pngs = evaluation_plots(result, output_dir, system)
+    lines = [f"# Evaluation: {clean['variant']} on {clean.get('data', '?')} ({clean.get('split', '?')} split, "
+             f"{clean['num_trajectories']} trajectories)", "",
+             f"Rollouts: {clean['integrator']}, dt = {clean['dt']:g} s, horizon {clean['horizon_s']:g} s.", "",
+             "| metric | value |", "|---|---|"]
+    for k, v in clean.get("acc_rel_err", {}).items():
+        lines.append(f"| acceleration rel. L2 error ({k}) | {v:.4f} |")
+    units = "rad" if all(system.angle_mask) else "(rad or m)"
+    for key in sorted(k for k in clean if k.startswith("divergence_time@")):
+        d, thr = clean[key], key.split("@")[1]
+        lines.append(f"| time to {thr} {units} error, model: median [q25, q75] (s) | {d['model']['median']:.2f} "
+                     f"[{d['model']['q25']:.2f}, {d['model']['q75']:.2f}] |")
+        if "exact_perturbed" in d:
+            e = d["exact_perturbed"]
+            lines.append(f"| same, exact system started {clean.get('perturbation', 1e-6):g} off (s) | "
+                         f"{e['median']:.2f} [{e['q25']:.2f}, {e['q75']:.2f}] |")
+    if "energy_drift" in clean:
+        e = clean["energy_drift"]
+        lines.append(f"| true-energy drift / (V_max - V_min): mean, max | {e['mean']:.2e}, {e['max']:.2e} |")
+    if "rollout_non_finite_fraction" in clean:
+        lines.append(f"| non-finite rollouts | {clean['rollout_non_finite_fraction']:.3f} |")
+    if "mass_matrix" in clean:
+        m = clean["mass_matrix"]
+        lines.append(f"| mass-matrix rel. Frobenius error (best scale per system): median, max | "
+                     f"{m['rel_frobenius_median']:.4f}, {m['rel_frobenius_max']:.4f} |")
+        lines.append(f"| cond(M) of the learned mass matrix: median, max | {m['cond_median']:.1f}, {m['cond_max']:.1f} |")
+    if "ood" in clean:
+        names = ", ".join(system.param_names)
+        lines += ["", "Out-of-distribution cases (the scene's own):", "",
+                  f"| ({names}) | [q0, qd0] | acc. rel. L2 | time to 0.1 error (s) | energy drift mean / max |",
+                  "|---|---|---|---|---|"]
+        for c in clean["ood"]:
+            lines.append(f"| {tuple(c['params'])} | {c['state0']} | {c['acc_rel_err']:.4f} | "
+                         f"{c['divergence_time@0.1']:.2f} | {c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |")
+    if "stability" in clean:
+        from ..stability import stability_markdown
+
+        lines += ["", f"Stability on hard cases ({clean['integrator']}, dt = {clean['dt']:g} s; `lnn_torch.stability`):", "",
+                  stability_markdown({clean["variant"]: clean["stability"]})]
+    lines += ["", "Plots: " + ", ".join(p.name for p in pngs)]
+    (output_dir / "report.md").write_text("\n".join(lines) + "\n")
+    return [output_dir / "metrics.json", output_dir / "report.md", *pngs]
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="lnn-torch evaluate", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit, or pretrained:<name> for a shipped model")
+    ap.add_argument("--data", default=None, help="HDF5 dataset (default: the checkpoint's data path)")
+    ap.add_argument("--split", default="test", choices=("train", "val", "test"))
+    ap.add_argument("--integrator", default="rk4", help="rk4, rk8, leapfrog or semi_implicit_euler")
+    ap.add_argument("--dt", type=float, default=None, help="rollout step, s (default: the data's)")
+    ap.add_argument("--horizon", type=float, default=15.0, help="rollout length, s")
+    ap.add_argument("--max-trajectories", type=int, default=None)
+    ap.add_argument("--stability-seconds", type=float, default=5.0, help="horizon of the hard cases (0: skip them)")
+    ap.add_argument("--long-horizon-steps", type=int, default=100_000, help="RK4 steps of the long-horizon case (0: skip)")
+    ap.add_argument("--output-dir", "-o", default=None, help="default: <checkpoint folder>/../evaluation")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--compile", action="store_true",
+                    help="accelerations through torch.compile (compiled once per batch shape; falls back to eager)")
+    return ap
+
+
+def main(argv: list[str]) -> int:
+    from ..checkpoints import PRETRAINED, data_hparams, load_model
+    from ..data import DatasetSpec, generate_dataset, read_dataset
+    from ..evaluation import REPORT_SECTIONS, evaluate_model
+    from ..perf import configure_cpu
+
+    args = _parser().parse_args(argv)
+    configure_cpu(args.threads)
+    module = load_model(args.checkpoint)
+    if args.compile:
+        module.model.compile_dynamics()
+    saved = data_hparams(args.checkpoint)
+    data = args.data or saved.get("path")
+    if data is None:
+        raise ValueError("the checkpoint records no data path: pass --data")
+    if not Path(data).exists():
+        spec = DatasetSpec(**(saved.get("spec") or {}))
+        print(f"dataset {data} not found: generating it from the checkpoint's specification "
+              f"({spec.num_trajectories} trajectories)")
+        generate_dataset(spec, data, progress=True)
+    f = read_dataset(data)
+    if f.attrs["scene"] != module.system.name:
+        raise ValueError(f"{data} holds scene '{f.attrs['scene']}' but the checkpoint models '{module.system.name}'")
+    result = evaluate_model(module.model, module.system, f.trajectories(args.split, args.max_trajectories),
+                            sections=REPORT_SECTIONS, integrator=args.integrator, dt=args.dt, horizon=args.horizon,
+                            stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
+    result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}
+    if args.output_dir:
+        out_dir = Path(args.output_dir)
+    elif args.checkpoint.startswith(PRETRAINED):
+        out_dir = Path("evaluation") / args.checkpoint[len(PRETRAINED):]
+    else:
+        out_dir = Path(args.checkpoint).parent.parent / "evaluation"
+    files = write_report(result, out_dir, module.system)
+    print((out_dir / "report.md").read_text())
+    print("wrote " + ", ".join(str(p) for p in files))
+    return 0

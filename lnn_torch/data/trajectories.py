@@ -1,0 +1,62 @@
+"""``Trajectories``: whole trajectories of a dataset split in memory, as evaluations consume them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import torch
+
+
+@dataclass
+class Trajectories:
+    """Trajectories sampled every ``dt`` seconds (SI units, float64 unless converted).
+
+    Attributes:
+        q, qd: ``(B, T, dof)`` coordinates and velocities.
+        params: ``(B, P)`` physical parameters, one vector per trajectory.
+        dt: sampling interval, s.
+        qdd: ``(B, T, dof)`` accelerations (targets), or None where none are known.
+        index: ``(B,)`` trajectory indices in their file, or None.
+    """
+
+    q: torch.Tensor
+    qd: torch.Tensor
+    params: torch.Tensor
+    dt: float
+    qdd: torch.Tensor | None = None
+    index: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        B, T, dof = self.q.shape
+        if self.qd.shape != self.q.shape or (self.qdd is not None and self.qdd.shape != self.q.shape):
+            raise ValueError(f"trajectories: q, qd and qdd shapes differ: {tuple(self.q.shape)}, "
+                             f"{tuple(self.qd.shape)}, {None if self.qdd is None else tuple(self.qdd.shape)}")
+        if self.params.ndim != 2 or self.params.shape[0] != B:
+            raise ValueError(f"trajectories: params must be ({B}, P), got {tuple(self.params.shape)}")
+        if not self.dt > 0:
+            raise ValueError(f"trajectories: dt must be positive, got {self.dt}")
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def num_points(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def dof(self) -> int:
+        return self.q.shape[2]
+
+    def head(self, n: int | None) -> "Trajectories":
+        """The first ``n`` trajectories (all for None)."""
+        if n is None or n >= len(self):
+            return self
+        return self._map(lambda x: x[:n])
+
+    def to(self, *args, **kwargs) -> "Trajectories":
+        """Every tensor ``.to(*args, **kwargs)`` (device, floating dtype; the index keeps its dtype)."""
+        return self._map(lambda x: x.to(*args, **kwargs) if x.is_floating_point() else x)
+
+    def _map(self, fn) -> "Trajectories":
+        return replace(self, **{f.name: fn(getattr(self, f.name)) for f in fields(self)
+                                if isinstance(getattr(self, f.name), torch.Tensor)})

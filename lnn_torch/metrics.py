@@ -1,0 +1,87 @@
+"""Evaluation metrics: pure tensor functions (no models, no files).
+
+Energies are always the scene's closed-form energy of a trajectory, relative to the scene's energy
+scale ``V_max - V_min`` -- never a model's own (normalised) energy. ``lnn_torch.evaluation`` composes
+these into reports.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def relative_l2(pred: torch.Tensor, true: torch.Tensor, dim=None) -> torch.Tensor:
+    """``||pred - true|| / ||true||`` over all entries (``dim=None``) or along ``dim``."""
+    if dim is None:
+        return (pred - true).norm() / true.norm().clamp_min(1e-30)
+    return (pred - true).norm(dim=dim) / true.norm(dim=dim).clamp_min(1e-30)
+
+
+def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None) -> dict:
+    """Relative L2 errors of accelerations ``(B, T, dof)``: ``total``, per coordinate, and the median
+    and 90th percentile over trajectories. Points with a non-finite prediction are left out of the
+    errors and counted in ``non_finite_fraction``."""
+    B, T, dof = pred.shape
+    finite = torch.isfinite(pred).all(-1)  # (B, T)
+    names = list(coord_names or [f"q{i}" for i in range(dof)])
+    p, t = pred[finite], true[finite]  # (n, dof)
+    out = {"total": float(relative_l2(p, t))}
+    for i, name in enumerate(names):
+        out[name] = float(relative_l2(p[:, i], t[:, i]))
+    per_traj = torch.stack([relative_l2(pred[b][finite[b]], true[b][finite[b]]) for b in range(B)])
+    per_traj = per_traj[torch.isfinite(per_traj)]
+    if per_traj.numel():
+        out["per_trajectory_median"] = float(per_traj.median())
+        out["per_trajectory_p90"] = float(torch.quantile(per_traj.double(), 0.9))
+    out["non_finite_fraction"] = float(1 - finite.double().mean())
+    return out
+
+
+def coordinate_error(q_pred: torch.Tensor, q_true: torch.Tensor, angle_mask=None) -> torch.Tensor:
+    """The largest coordinate error at each time, ``(B, T)``; angle errors wrapped to (-pi, pi]."""
+    err = q_pred - q_true
+    if angle_mask is not None:
+        mask = torch.as_tensor(angle_mask, dtype=torch.bool, device=err.device)
+        wrapped = torch.remainder(err + torch.pi, 2 * torch.pi) - torch.pi
+        err = torch.where(mask, wrapped, err)
+    return err.abs().amax(-1)
+
+
+def divergence_time(q_pred: torch.Tensor, q_true: torch.Tensor, dt: float, threshold: float,
+                    angle_mask=None) -> torch.Tensor:
+    """Time (s) until the max coordinate error first exceeds ``threshold``; the horizon if never.
+
+    ``q_pred, q_true``: ``(B, T, dof)``. Angle errors are wrapped to (-pi, pi]. A non-finite
+    prediction counts as beyond the threshold.
+    """
+    over = ~(coordinate_error(q_pred, q_true, angle_mask) <= threshold)  # (B, T); NaN counts as over
+    T = over.shape[1]
+    first = torch.where(over.any(1), over.float().argmax(1), torch.full_like(over[:, 0], T - 1, dtype=torch.long))
+    return first.to(q_pred.dtype) * dt
+
+
+def energy_drift(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """``|E(t) - E(0)| / (V_max - V_min)`` of the scene's closed-form energy along trajectories
+    ``(B, T, dof)`` with parameters ``(B, P)``: ``(B, T)``."""
+    p = params[:, None, :].expand(-1, q.shape[1], -1)
+    E = system.energy(q, qd, p)
+    return (E - E[:, :1]).abs() / system.energy_scale(params)[:, None]
+
+
+def quartiles(x: torch.Tensor) -> dict:
+    """``{"q25", "median", "q75"}`` of a 1-D tensor."""
+    q = torch.quantile(x.double(), torch.tensor([0.25, 0.5, 0.75], dtype=torch.float64, device=x.device))
+    return {"q25": float(q[0]), "median": float(q[1]), "q75": float(q[2])}
+
+
+def condition_numbers(M: torch.Tensor) -> torch.Tensor:
+    """Condition numbers of symmetric positive definite matrices ``(..., n, n)`` -> ``(...)``."""
+    eig = torch.linalg.eigvalsh(M)
+    return eig[..., -1] / eig[..., 0]
+
+
+def scaled_matrix_error(M_true: torch.Tensor, M_model: torch.Tensor) -> torch.Tensor:
+    """Relative Frobenius error of ``M_model`` after the best scale per system: ``(B, T, n, n)`` -> ``(B,)``.
+    (A Lagrangian is defined up to a factor, so a learned mass matrix is compared up to one.)"""
+    c = (M_true * M_model).sum((1, 2, 3)) / (M_model * M_model).sum((1, 2, 3))
+    return ((M_true - c[:, None, None, None] * M_model).pow(2).sum((1, 2, 3)) / M_true.pow(2).sum((1, 2, 3))).sqrt()

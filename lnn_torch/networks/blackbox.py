@@ -1,0 +1,63 @@
+"""The LNN paper's black-box Lagrangian (Cranmer et al.): an MLP ``L(q, qd, theta)`` whose accelerations
+come from the generic Euler-Lagrange solve (``lnn_torch.dynamics.generic_acceleration``: torch.func
+Hessians, which work whatever the outer grad mode, so evaluation and rollouts run under no_grad).
+
+Softplus by default (the LNN paper's choice): tanh saturates the velocity Hessian of the network
+(the measured comparison on the relativistic particle is in ``results/README.md``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..dynamics import generic_acceleration
+from .base import DynamicsModel
+from .layers import TangentMLP
+
+
+class BlackBoxLagrangian(DynamicsModel):
+    """The LNN paper's model: an MLP ``L(q, qd, theta)`` and the generic Euler-Lagrange solve."""
+
+    variant = "lnn"
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
+                 hessian_reg: float = 0.0) -> None:
+        super().__init__(scene)
+        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1,
+                              activation, out_bias=False)
+        if lnn_init:
+            self.net.lnn_init()
+        self.hessian_reg = float(hessian_reg)
+        self.raise_on_singular = True
+
+    def lagrangian_norm(self, q_norm, qd_norm, params_norm):
+        phi, _ = self.features(q_norm[None])
+        return self.net(torch.cat([phi[0], qd_norm, params_norm], -1)[None])[0][0, 0]
+
+    def acceleration_norm(self, q_norm, qd_norm, params_norm, check_singular: bool | None = None):
+        """The generic solve.
+
+        Singular-Hessian policy: the velocity Hessian of an arbitrary network can be indefinite, and
+        singular somewhere (an untrained one always is, somewhere along a rollout). With
+        ``hessian_reg == 0`` (default) such states raise ``SingularHessianError`` (in ``acceleration``
+        and rollouts alike) while ``raise_on_singular`` is True, and give NaN otherwise (training
+        skips those steps; evaluations count those trajectories as non-finite). ``hessian_reg > 0``
+        solves the Levenberg-regularised system ``H + hessian_reg (mean|diag H| + 1) I`` instead.
+        """
+        check = self.raise_on_singular if check_singular is None else check_singular
+        return generic_acceleration(self.lagrangian_norm, q_norm, qd_norm, params_norm, hessian_reg=self.hessian_reg,
+                                    check=check)
+
+    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
+        q_n, qd_n, p_n = self.normalize(q, qd, params)
+        pred = self.acceleration_norm(q_n, qd_n, p_n, check_singular=False)
+        out = (pred, self.normalizer.accel_to_norm(qdd), self.normalizer.accel_rms.to(q.dtype))
+        return (*out, *self.energy_norm(q_n, qd_n, p_n)) if energy else out
+
+    def energy_norm(self, q_norm, qd_norm, params_norm):
+        L_fn = torch.func.vmap(self.lagrangian_norm)
+        L = L_fn(q_norm, qd_norm, params_norm)
+        p = torch.func.vmap(torch.func.grad(self.lagrangian_norm, argnums=1))(q_norm, qd_norm, params_norm)
+        T = 0.5 * (p * qd_norm).sum(-1)
+        H = 2 * T - L
+        return H, T, T - L

@@ -1,0 +1,141 @@
+"""Hamiltonian neural network (Greydanus et al.), the baseline the LNN paper compares with."""
+
+from __future__ import annotations
+
+import torch
+
+from .. import integrators
+from ..systems.base import InputError
+from .base import DynamicsModel
+from .layers import TangentMLP
+
+
+class HamiltonianNN(DynamicsModel):
+    """Hamiltonian neural network (Greydanus et al.): an MLP ``H(q, m, theta)`` with the flow
+    ``qdot = dH/dm``, ``mdot = -dH/dq`` fitted to the data.
+
+    ``hnn_coordinates="canonical"``: ``m`` is the canonical momentum ``p = dL/dqd``, computed from the
+    scene's momentum map (so the model needs the scene, not only its description).
+    ``hnn_coordinates="velocity"``: ``m = qd``, i.e. the HNN is fed non-canonical ``(q, qd)``; it can then
+    only represent dynamics whose accelerations do not depend on ``qd`` in a way a Hamiltonian flow
+    in ``(q, qd)`` can express (it fails on the relativistic particle, the LNN paper's point).
+
+    Normalisation keeps ``(q_norm, m_norm)`` canonical: ``m_norm = p * coord_scale / c`` with one
+    momentum scale ``c`` and one time scale, so ``H_norm = (tau / c) H``.
+    """
+
+    variant = "hnn"
+    has_energy = False  # its Hamiltonian is conserved by construction; no T/V split
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", hnn_coordinates: str = "canonical") -> None:
+        super().__init__(scene)
+        coordinates = hnn_coordinates
+        if coordinates not in ("canonical", "velocity"):
+            raise ValueError(f"hnn coordinates must be 'canonical' or 'velocity', got '{coordinates}'")
+        self.coordinates = coordinates
+        self._momentum_fn = None
+        if coordinates == "canonical":
+            self._momentum_fn = getattr(scene, "momentum", None)
+            if self._momentum_fn is None:
+                raise InputError("the canonical HNN needs the scene's momentum map p = dL/dqd: build it from a "
+                                 "System (lnn_torch.systems), or use hnn_coordinates='velocity'")
+        dof, P, F = self.scene.dof, self.scene.num_params, self.num_features
+        self.net = TangentMLP(F + dof + P, list(hidden_dims), 1, activation, out_bias=False)
+
+    # ------------------------------------------------------------------ coordinates
+    def momentum_norm(self, q, qd, params):
+        """The model's second coordinate ``m_norm`` of SI states ``(B, dof)``."""
+        if self.coordinates == "velocity":
+            return self.normalizer.state(q, qd)[1]
+        return self.normalizer.momentum_to_norm(self._momentum_fn(q, qd, params))
+
+    def _momentum_and_rate_norm(self, q, qd, qdd, params):
+        """``m_norm`` and its time derivative ``d m_norm / d t_norm`` along the data (SI inputs)."""
+        if self.coordinates == "velocity":
+            return self.normalizer.state(q, qd)[1], self.normalizer.accel_to_norm(qdd)
+        p, pdot = torch.func.jvp(lambda a, b: self._momentum_fn(a, b, params), (q, qd), (qd, qdd))
+        tau = self.normalizer.time_scale.to(q.dtype)
+        return self.normalizer.momentum_to_norm(p), self.normalizer.momentum_to_norm(pdot) * tau
+
+    def fit_normalizer(self, stats: dict) -> None:
+        super().fit_normalizer(stats)
+        q, qd, qdd = (stats[k].double() for k in ("q", "qd", "qdd"))
+        if self.coordinates == "canonical":
+            if "params_points" not in stats:
+                raise ValueError("the canonical HNN needs per-point parameters ('params_points') to fit its momentum scale")
+            pp = stats["params_points"].double()
+            p = self._momentum_fn(q, qd, pp) * self.normalizer.coord_scale.double()
+            self.normalizer.momentum_scale.copy_(p.pow(2).mean().sqrt().clamp_min(1e-12))
+        else:
+            pp = None
+        with torch.no_grad():
+            m, mdot = self._momentum_and_rate_norm(q, qd, qdd, pp)
+            qd_n = self.normalizer.state(q, qd)[1]
+        rms = torch.cat([qd_n, mdot], -1).pow(2).mean(0).sqrt().clamp_min(1e-6)
+        self.normalizer.vector_field_rms.copy_(rms)
+
+    # ------------------------------------------------------------------ the flow
+    def hamiltonian_and_grads(self, q_n, m_n, params_n):
+        """``H (B,)``, ``dH/dq_norm (B, dof)``, ``dH/dm_norm (B, dof)`` (hand-written reverse pass)."""
+        F = self.num_features
+        phi, _, sin_cos = self._features(q_n, False)
+        x = torch.cat([phi, m_n, params_n], -1)
+        H, g = self.net.value_and_input_grad(x, None, num_grad_inputs=F + self.scene.dof)
+        return H, self.features_vjp(q_n, g[:, :F], sin_cos), g[:, F:]
+
+    def vector_field_norm(self, q_n, m_n, params_n):
+        """``(dq_norm/dt_norm, dm_norm/dt_norm) = (dH/dm, -dH/dq)``."""
+        _, dH_dq, dH_dm = self.hamiltonian_and_grads(q_n, m_n, params_n)
+        return dH_dm, -dH_dq
+
+    def energy_norm(self, q_n, qd_n, params_n):
+        raise NotImplementedError("the HNN's Hamiltonian is a function of (q, m): use hamiltonian_and_grads")
+
+    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
+        q_n, qd_n, p_n = self.normalize(q, qd, params)
+        m_n, mdot_n = self._momentum_and_rate_norm(q, qd, qdd, params)
+        dq, dm = self.vector_field_norm(q_n, m_n, p_n)
+        return (torch.cat([dq, dm], -1), torch.cat([qd_n, mdot_n], -1),
+                self.normalizer.vector_field_rms.to(q.dtype))
+
+    def acceleration_norm(self, q_n, qd_n, params_n):
+        """Accelerations of the model's flow at ``(q, qd)``.
+
+        ``velocity``: ``qdd = -dH/dq`` at ``m = qd``. ``canonical``: ``m`` from the momentum map,
+        then ``qdd = d/dt (dH/dm) = H_mq qdot + H_mm mdot`` along the flow (a jvp).
+        """
+        if self.coordinates == "velocity":
+            return self.vector_field_norm(q_n, qd_n, params_n)[1]
+        q, qd = self.normalizer.state_to_phys(q_n, qd_n)
+        params = self.normalizer.params_to_phys(params_n)
+        m_n = self.normalizer.momentum_to_norm(self._momentum_fn(q, qd, params))
+        flow = self.vector_field_norm(q_n, m_n, params_n)
+        _, qdd_n = torch.func.jvp(lambda a, b: self.hamiltonian_and_grads(a, b, params_n)[2], (q_n, m_n), flow)
+        return qdd_n
+
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
+        """Integrate the model's own flow in ``(q, m)`` (RK methods); ``qd`` of the result is the
+        model's velocity ``dH/dp`` (canonical) or the state ``m = qd`` (velocity coordinates)."""
+        self.check_inputs(q0, qd0, params)
+        dof = self.scene.dof
+        q_n, _, p_n = self.normalize(q0, qd0, params)
+        m_n = self.momentum_norm(q0, qd0, params)
+
+        dtype = self.dtype
+
+        def field(y, pn):  # the state keeps the input dtype; the network runs in its own
+            y, pn = y.to(dtype), pn.to(dtype)
+            return torch.cat(self.vector_field_norm(y[:, :dof], y[:, dof:], pn), -1).to(q0.dtype)
+
+        tau = float(self.normalizer.time_scale)
+        y = integrators.rollout_first_order(field, torch.cat([q_n, m_n], -1), p_n, dt / tau, num_steps, method)
+        qs_n, ms_n = y[..., :dof], y[..., dof:]  # (B, T, dof)
+        if self.coordinates == "canonical":
+            B, T = qs_n.shape[:2]
+            flat = lambda x: x.reshape(B * T, -1)  # noqa: E731
+            qds_n = self.vector_field_norm(flat(qs_n).to(dtype), flat(ms_n).to(dtype),
+                                           flat(p_n[:, None].expand(-1, T, -1)).to(dtype))[0]
+            qds_n = qds_n.reshape(B, T, dof).to(q0.dtype)
+        else:
+            qds_n = ms_n
+        return self.normalizer.state_to_phys(qs_n, qds_n)

@@ -1,0 +1,96 @@
+"""The readable form of the networks: plain formulas, torch's own activations, torch.func derivatives.
+
+The fast paths (``TangentMLP``, ``FiLM``, ``StructuredLagrangian``) compute the same functions in
+cheaper forms (tanh layers in sigmoid form, FiLM pairs mapped onto the weights, hand-carried
+tangents, a hand-written reverse pass, an unrolled Cholesky solve); the tests compare them with the
+functions here in float64. Nothing here is meant to be fast.
+
+With ``h_0`` the input features and ``(gamma_i, beta_i)`` the FiLM pair of hidden layer ``i``:
+
+    h_i = gamma_i * act(W_i h_{i-1} + b_i) + beta_i,   y = W_out h_n + b_out
+
+and FiLM itself is ``[g | beta] = W_2 silu(W_1 cond + b_1) + b_2``, ``gamma = 1 + g``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from ..dynamics import structured_acceleration
+
+ACTIVATIONS = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": F.softplus,
+               "isru": lambda z: z / torch.sqrt(1 + z * z)}
+
+
+def film_pairs(film, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """FiLM pairs ``[(gamma, beta), ...]`` of a ``FiLM`` module, each ``(B, size)``."""
+    first, _, last = film.net
+    out = F.linear(F.silu(F.linear(cond, first.weight, first.bias)), last.weight, last.bias)
+    n = sum(film.sizes)
+    g, beta = out[..., :n], out[..., n:]
+    gammas, betas = (1 + g).split(film.sizes, -1), beta.split(film.sizes, -1)
+    return list(zip(gammas, betas))
+
+
+def mlp(net, x: torch.Tensor, film=None) -> torch.Tensor:
+    """A ``TangentMLP``'s output ``(B, out)`` by the plain formula (``film``: ``film_pairs`` or None)."""
+    act = ACTIVATIONS[net.activation]
+    h = x
+    for i, layer in enumerate(net.hidden):
+        h = act(F.linear(h, layer.weight, layer.bias))
+        if film is not None:
+            gamma, beta = film[i]
+            h = gamma * h + beta
+    return F.linear(h, net.out.weight, net.out.bias)
+
+
+def features(model, q_norm: torch.Tensor) -> torch.Tensor:
+    """``[sin q_a, cos q_a, q_lin]`` of normalised coordinates ``(B, dof)`` -> ``(B, F)``."""
+    angles = [i for i, a in enumerate(model.scene.angle_mask) if a]
+    linear = [i for i, a in enumerate(model.scene.angle_mask) if not a]
+    qa = q_norm[..., angles]
+    return torch.cat([torch.sin(qa), torch.cos(qa), q_norm[..., linear]], -1)
+
+
+def cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
+    """A structured model's Cholesky factor ``(B, dof, dof)``: lower-triangular, diagonal first in
+    the network's outputs, ``softplus(.) + diag_shift`` on the diagonal."""
+    dof = model.scene.dof
+    phi = features(model, q_norm)
+    film = None if model.kinetic_film is None else film_pairs(model.kinetic_film, params_norm)
+    x = phi if model.kinetic_film is not None else torch.cat([phi, params_norm], -1)
+    entries = mlp(model.kinetic_net, x, film)  # (B, n_chol): the dof diagonal entries, then the rest
+    rows, cols = torch.tril_indices(dof, dof)
+    diagonal = rows == cols
+    rows = torch.cat([rows[diagonal], rows[~diagonal]])
+    cols = torch.cat([cols[diagonal], cols[~diagonal]])
+    values = torch.cat([F.softplus(entries[..., :dof]) + model.diag_shift, entries[..., dof:]], -1)
+    flat = entries.new_zeros(*entries.shape[:-1], dof * dof).index_copy(-1, rows * dof + cols, values)
+    return flat.view(*entries.shape[:-1], dof, dof)
+
+
+def mass_matrix(model, q_norm, params_norm) -> torch.Tensor:
+    """``M = chol chol^T + eps I``, ``(B, dof, dof)``."""
+    chol = cholesky(model, q_norm, params_norm)
+    return chol @ chol.mT + model.eps * torch.eye(model.scene.dof, dtype=chol.dtype, device=chol.device)
+
+
+def potential(model, q_norm, params_norm) -> torch.Tensor:
+    """A structured model's potential ``V (B,)``."""
+    film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
+    return mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
+
+
+def lagrangian(model, q_norm, qd_norm, params_norm) -> torch.Tensor:
+    """``L = 1/2 qd^T M qd - V`` of ONE sample ``(dof,), (dof,), (P,) -> ()`` (for the generic solve)."""
+    M = mass_matrix(model, q_norm[None], params_norm[None])[0]
+    return 0.5 * qd_norm @ M @ qd_norm - potential(model, q_norm[None], params_norm[None])[0]
+
+
+def structured_model_acceleration(model, q_norm, qd_norm, params_norm) -> torch.Tensor:
+    """A structured model's normalised accelerations by torch.func (jvp of M, grads of T and V) and a
+    LAPACK Cholesky solve: ``lnn_torch.dynamics.structured_acceleration`` on the plain networks."""
+    return structured_acceleration(lambda q1, p1: cholesky(model, q1[None], p1[None])[0],
+                                   lambda q1, p1: potential(model, q1[None], p1[None])[0],
+                                   q_norm, qd_norm, params_norm, eps=model.eps)

@@ -1,0 +1,196 @@
+"""Structured Lagrangians ``L = 1/2 qd^T M(q, theta) qd - V(q, theta)`` (variants ``film_lnn`` and ``delan``).
+
+``M = chol chol^T + eps I`` with ``chol`` lower-triangular (softplus + shift on its diagonal), from a
+kinetic MLP; ``V`` from a potential MLP. ``film_lnn`` conditions both networks on the parameters by
+FiLM; ``delan`` (Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs.
+
+The solve needs no Hessian: the kinetic MLP carries forward-mode tangents along each coordinate by
+hand (``d chol / d q_k``), the potential MLP has a hand-written reverse pass (``dV/dq``), and
+``M qdd = dT/dq - dV/dq - Mdot qd`` is solved by Cholesky
+(``lnn_torch.dynamics.structured_acceleration_from_factor``). The plain formulas this computes are
+``lnn_torch.networks.reference``; tests compare the two, and the generic Hessian solve, in float64.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..dynamics import structured_acceleration_from_factor
+from ..systems.base import InputError
+from ._kernels import one
+from .base import DynamicsModel
+from .layers import FiLM, TangentMLP
+
+
+class StructuredLagrangian(DynamicsModel):
+    """``film_lnn``: FiLM-conditioned Cholesky mass matrix and potential.
+
+    Args:
+        scene: a ``System``, its ``describe()`` dict or a ``SceneInfo``.
+        hidden_dims: hidden widths of the kinetic and the potential MLP.
+        activation: ``tanh`` (default), ``softplus``, ``sigmoid`` or ``isru``.
+        film_mode: ``neuron`` (a (gamma, beta) pair per hidden neuron) or ``layer`` (one scalar pair
+            per layer, the reference design).
+        potential_film: FiLM on the potential network too (else it reads the parameters as inputs).
+        film_hidden: hidden width of each FiLM network.
+        eps: ``M = chol chol^T + eps I``.
+        diag_shift: added to the softplus of the Cholesky diagonal.
+    """
+
+    variant = "film_lnn"
+    conditioning = "film"
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", film_mode: str = "neuron",
+                 potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3) -> None:
+        super().__init__(scene)
+        if not self.scene.quadratic_kinetic:
+            raise InputError(
+                f"scene '{self.scene.name}' has a kinetic energy that is not quadratic in the velocities; "
+                "the structured model (T = 1/2 qd^T M qd) cannot represent it: use variant 'lnn'"
+            )
+        dof, P, F = self.scene.dof, self.scene.num_params, self.num_features
+        hidden_dims = list(hidden_dims)
+        self.eps, self.diag_shift = float(eps), float(diag_shift)
+        self.num_chol = dof * (dof + 1) // 2
+        film = self.conditioning == "film" and P > 0
+        self.kinetic_net = TangentMLP(F if film else F + P, hidden_dims, self.num_chol, activation)
+        self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
+        self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
+        self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
+        # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
+        # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
+        rows, cols = torch.tril_indices(dof, dof)
+        order = torch.cat([torch.nonzero(rows == cols)[:, 0], torch.nonzero(rows != cols)[:, 0]])
+        scatter = torch.zeros(self.num_chol, dof * dof)
+        scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
+        self.register_buffer("chol_scatter", scatter, persistent=False)
+        self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
+        self.chunk_conditioning = film
+
+    # ------------------------------------------------------------------ conditioning
+    def films(self, params_norm: torch.Tensor, chunks: int | None = None):
+        """The FiLM pairs ``(kinetic, potential)`` for these parameters (None for a network without
+        FiLM): per row ``(B, H)``, or per chunk ``(C, 1, H)`` when the batch is ``chunks`` runs of
+        rows that share their parameters (one FiLM evaluation per chunk)."""
+        return (self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks),
+                self._film(self.potential_film, self.potential_net, params_norm, chunks))
+
+    @staticmethod
+    def _film(film_net, net, params_norm, chunks):
+        if film_net is None:
+            return None
+        if chunks is None:
+            return film_net(params_norm, net.sigmoid_form)
+        cond = params_norm.view(chunks, -1, params_norm.shape[-1])[:, 0]
+        return [(g[:, None], b[:, None]) for g, b in film_net(cond, net.sigmoid_form)]
+
+    def _inputs(self, phi, params_norm):
+        """The kinetic network's input: the features, plus the parameters where FiLM does not carry them."""
+        return phi if self.kinetic_film is not None else torch.cat([phi, params_norm], -1)
+
+    # ------------------------------------------------------------------ the two networks
+    def cholesky(self, q_norm, params_norm, tangents: bool = False):
+        """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
+        phi, dphi = self.features(q_norm, tangents)
+        return self._cholesky(phi, dphi, params_norm, self.films(params_norm)[0])
+
+    def _cholesky(self, phi, dphi, params_norm, film):
+        dof, B = self.scene.dof, phi.shape[0]
+        S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
+        # (B, dof^2), (K, B, dof^2); 0 above the diagonal
+        raw, draw = self.kinetic_net(self._inputs(phi, params_norm), dphi, film, out_map=S)
+        # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
+        chol = torch.where(self.chol_diag, nn.functional.softplus(raw) + self.diag_shift, raw).view(B, dof, dof)
+        if dphi is None:
+            return chol, None
+        dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), one(raw))  # d softplus = sigmoid
+        return chol, dchol.reshape(-1, B, dof, dof)
+
+    def mass_matrix_norm(self, q_norm, params_norm):
+        chol, _ = self.cholesky(q_norm, params_norm)
+        eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
+        return torch.baddbmm(eye * self.eps, chol, chol.mT)
+
+    def mass_matrix(self, q, params):
+        """The learned mass matrix in normalised units, ``(B, dof, dof)`` (physical M up to a scale per system)."""
+        q_norm, _, params_norm = self.normalize(q, q, params)
+        return self.mass_matrix_norm(q_norm, params_norm)
+
+    def potential_norm(self, q_norm, params_norm, grad: bool = False):
+        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass)."""
+        phi, _, sin_cos = self._features(q_norm, False)
+        return self._potential(q_norm, phi, sin_cos, params_norm, self.films(params_norm)[1], grad)
+
+    def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool):
+        x = torch.cat([phi, params_norm], -1)
+        if not grad:
+            return self.potential_net(x, None, film)[0][..., 0], None
+        V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
+        return V, self.features_vjp(q_norm, dV_dphi, sin_cos)
+
+    # ------------------------------------------------------------------ the solve
+    def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool):
+        """Accelerations (and, with ``energy``, ``H, T, V``) from ONE pass of each network."""
+        kinetic_film, potential_film = films
+        phi, dphi, sin_cos = self._features(q_norm, True)
+        chol, dchol = self._cholesky(phi, dphi, params_norm, kinetic_film)
+        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, potential_film, grad=True)
+        if not energy:
+            return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
+        qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True)
+        return qdd, T + V, T, V
+
+    def acceleration_norm(self, q_norm, qd_norm, params_norm):
+        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False)
+
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None):
+        """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network
+        (``chunks``: FiLM once per chunk, see ``DynamicsModel.acceleration_and_energy_norm``)."""
+        B = q_norm.shape[0]
+        if chunks is not None and (chunks < 1 or B % chunks):
+            raise InputError(f"a batch of {B} rows cannot be split into {chunks} chunks of equal length")
+        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm, chunks), energy=True)
+
+    def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films):
+        return self._solve(q_norm, qd_norm, params_norm, films, energy=False)
+
+    def acceleration_fn(self, params: torch.Tensor):
+        """As ``DynamicsModel.acceleration_fn``, with both networks' FiLM computed once, not at
+        every call (an RK4 step makes four)."""
+        if self.kinetic_film is None and self.potential_film is None:
+            return super().acceleration_fn(params)
+        params_norm = self.normalizer.params(params.to(self.dtype))
+        films = self.films(params_norm)
+
+        def accel(q, qd, p):
+            if p is not params:
+                raise InputError("acceleration_fn(params) was called with other parameters than its own")
+            return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films)
+
+        return accel
+
+    # ------------------------------------------------------------------ energies
+    def energy_norm(self, q_norm, qd_norm, params_norm):
+        M = self.mass_matrix_norm(q_norm, params_norm)
+        T = 0.5 * torch.einsum("bi,bij,bj->b", qd_norm, M, qd_norm)
+        V, _ = self.potential_norm(q_norm, params_norm)
+        return T + V, T, V
+
+    def lagrangian_norm(self, q_norm, qd_norm, params_norm):
+        """Scalar Lagrangian of ONE sample ``(dof,), (dof,), (P,) -> ()`` (for torch.func references)."""
+        M = self.mass_matrix_norm(q_norm[None], params_norm[None])[0]
+        V, _ = self.potential_norm(q_norm[None], params_norm[None])
+        return 0.5 * qd_norm @ M @ qd_norm - V[0]
+
+
+class DeLaN(StructuredLagrangian):
+    """``delan`` (Deep Lagrangian Networks, Lutter et al.): the structured Lagrangian with the
+    parameters concatenated to the inputs of both networks instead of FiLM."""
+
+    variant = "delan"
+    conditioning = "concat"
+
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
+                 diag_shift: float = 1e-3) -> None:
+        super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift)
