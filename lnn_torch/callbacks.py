@@ -1,8 +1,10 @@
-"""Lightning callbacks: writing ``predict`` results and ``test`` metrics to files."""
+"""Lightning callbacks: writing ``predict`` results and ``test`` metrics to files, and a summary at the
+end of ``fit``."""
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import lightning as L
@@ -55,3 +57,27 @@ class TestMetricsWriter(L.Callback):
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(metrics, indent=2) + "\n")
         print(f"test metrics written to {path}")
+
+
+class FitSummary(L.Callback):
+    """Prints, at the end of ``fit``, where the TensorBoard run and the checkpoints are and the last
+    validation metrics, with the command that tests the last checkpoint."""
+
+    def on_fit_end(self, trainer: L.Trainer, pl_module) -> None:
+        log_dir = trainer.log_dir  # every rank: under DDP this is a collective (a broadcast)
+        if not trainer.is_global_zero:
+            return
+        m = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
+        ckpt = next((cb for cb in trainer.checkpoint_callbacks if getattr(cb, "last_model_path", "")), None)
+        path = lambda p: os.path.normpath(p) if p else p  # noqa: E731
+        lines = [f"lnn-torch fit: {trainer.global_step} steps; TensorBoard run: {path(log_dir)}"]
+        if ckpt is not None:
+            lines.append(f"  last checkpoint: {path(ckpt.last_model_path)}")
+        if "val/acc_rel_err" in m:
+            lines.append(f"  validation: acc. rel. L2 error {100 * m['val/acc_rel_err']:.2f} % pooled, "
+                         f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
+                         + (f"; median time within the threshold {m['val/divergence_time']:.1f} s"
+                            if "val/divergence_time" in m else ""))
+        if ckpt is not None:
+            lines.append(f"  test it: lnn-torch test -c <this config> --ckpt_path {path(ckpt.last_model_path)}")
+        print("\n".join(lines))

@@ -1,13 +1,14 @@
 """Euler-Lagrange solves: accelerations from a Lagrangian, never predicted directly.
 
-For ``L(q, qd)`` the Euler-Lagrange equations ``d/dt dL/dqd = dL/dq`` give
+For ``L(q, qd)`` and a generalised force ``Q`` (inputs, dissipation: ``lnn_torch.forces``) the
+Euler-Lagrange equations ``d/dt dL/dqd - dL/dq = Q`` give
 
-    H qdd = dL/dq - J qd,    H = d2L/dqd2 (dof x dof),  J[i, j] = d2L / dqd_i dq_j.
+    H qdd = dL/dq - J qd + Q,    H = d2L/dqd2 (dof x dof),  J[i, j] = d2L / dqd_i dq_j.
 
 * ``generic_acceleration`` solves this for ANY scalar Lagrangian with ``torch.func`` (hessian,
   jacrev, vmap) and ``torch.linalg.solve_ex``. A singular or indefinite-at-machine-precision
   Hessian is reported (``SingularHessianError``), or regularised when asked for (``hessian_reg``).
-* ``structured_acceleration`` solves ``M qdd = dL/dq - Mdot qd`` for ``L = 1/2 qd^T M(q) qd - V(q)``
+* ``structured_acceleration`` solves ``M qdd = dL/dq - Mdot qd + Q`` for ``L = 1/2 qd^T M(q) qd - V(q)``
   with the model's own Cholesky factor of M (no Hessian of L).
 
 Pure tensor functions: no networks, no Lightning.
@@ -65,6 +66,7 @@ def generic_acceleration(
     hessian_reg: float = 0.0,
     check: bool = True,
     damping: float | None = None,
+    force: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Accelerations of any Lagrangian by the generic Euler-Lagrange solve.
 
@@ -79,6 +81,8 @@ def generic_acceleration(
             ``check=False`` the accelerations of singular states are NaN (never silently wrong).
         damping: the former name of ``hessian_reg`` (deprecated: "damping" now means physical
             dissipation).
+        force: a generalised force ``Q (*batch, dof)`` in the units of ``lagrangian_fn`` per
+            coordinate, added to the right-hand side (None: none).
 
     Returns:
         ``qdd`` of shape ``(*batch, dof)``, same dtype and device as ``q``.
@@ -88,6 +92,8 @@ def generic_acceleration(
         hessian_reg = damping
     batch, qf, qdf, pf = _flatten(q, qd, params)
     H, rhs = euler_lagrange_terms(lagrangian_fn, qf, qdf, pf)
+    if force is not None:
+        rhs = rhs + force.reshape(rhs.shape)
     if hessian_reg > 0:
         # relative to the Hessian's scale, with a floor of 1 so that a vanishing Hessian is regularised too
         scale = H.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True) + 1
@@ -112,6 +118,7 @@ def structured_acceleration(
     qd: torch.Tensor,
     params: torch.Tensor,
     eps: float = 0.0,
+    force: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Accelerations of ``L = 1/2 qd^T M qd - V`` with ``M = chol chol^T + eps I`` (torch.func reference).
 
@@ -138,6 +145,8 @@ def structured_acceleration(
         return M, dT_dq - dV_dq - dM @ qd1
 
     M, rhs = vmap(single)(qf, qdf, pf)
+    if force is not None:
+        rhs = rhs + force.reshape(rhs.shape)
     chol = torch.linalg.cholesky(M)
     qdd = torch.cholesky_solve(rhs[..., None], chol)[..., 0]
     return qdd.reshape(*batch, dof)
@@ -192,7 +201,7 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
 
 def structured_acceleration_from_factor(
     chol: torch.Tensor, dchol: torch.Tensor, qd: torch.Tensor, dV_dq: torch.Tensor, eps: float,
-    return_kinetic: bool = False,
+    return_kinetic: bool = False, force: torch.Tensor | None = None,
 ):
     """Accelerations of ``L = 1/2 qd^T M qd - V`` from a Cholesky factor and its q-derivatives.
 
@@ -206,6 +215,7 @@ def structured_acceleration_from_factor(
         dchol: ``(dof, B, dof, dof)``: ``dchol[k] = d chol / d q_k``.
         qd: ``(B, dof)``; dV_dq: ``(B, dof)``.
         return_kinetic: also return ``T = 1/2 qd^T M qd``, shape ``(B,)``.
+        force: a generalised force ``(B, dof)`` added to the right-hand side (None: none).
     """
     qd_col = qd[..., None]  # (B, dof, 1)
     u = torch.bmm(chol.mT, qd_col)  # (B, dof, 1)
@@ -215,7 +225,8 @@ def structured_acceleration_from_factor(
     mdot_qd = torch.baddbmm(cdot @ u, chol, cdot.mT @ qd_col)[..., 0]  # (B, dof)
     M = torch.bmm(chol, chol.mT)
     M.diagonal(dim1=-2, dim2=-1).add_(eps)
-    qdd = spd_solve(M, dT_dq - dV_dq - mdot_qd)
+    rhs = dT_dq - dV_dq - mdot_qd
+    qdd = spd_solve(M, rhs if force is None else rhs + force)
     if not return_kinetic:
         return qdd
     T = 0.5 * (u.square().sum((-2, -1)) + eps * qd.square().sum(-1))

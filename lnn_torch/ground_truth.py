@@ -2,7 +2,11 @@
 generator and by every evaluation that compares a model with the truth (one implementation).
 
 A fast fixed-step pass (8th-order Runge-Kutta by default) for all trajectories, then adaptive DOP853
-steps for those whose relative energy drift exceeds the tolerance (stiff or fast ones).
+steps for those whose accuracy check fails (stiff or fast ones). The check is energy conservation
+for a conservative scene and POWER BALANCE for a scene with inputs or friction: the work of the
+generalised forces is integrated with the state (``y = (q, qd, W_in, W_diss)``, ``dW_in/dt =
+qd . B tau``, ``dW_diss/dt = qd . Q_diss``) and ``E(t) - E(0) - W_in(t) - W_diss(t)`` must stay within
+the tolerance times the scene's energy scale. Inputs are held over each sample interval.
 """
 
 from __future__ import annotations
@@ -10,58 +14,107 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .integrators import rollout, rollout_adaptive
-from .metrics import energy_drift
+from .forces import input_force, power
+from .integrators import rollout, rollout_adaptive, rollout_first_order
 
 
 class GenerationError(RuntimeError):
     """Ground truth could not be integrated to the requested accuracy."""
 
 
-def _relative_drift(system, q, qd, params) -> torch.Tensor:
-    """Max over time of |E(t) - E(0)| / energy scale, per trajectory ``(N,)``."""
-    return energy_drift(system, q, qd, params).amax(1)
+def power_balance_residual(system, q, qd, params, work) -> torch.Tensor:
+    """``|E(t) - E(0) - W(t)| / energy scale`` with ``W (N, T)`` the work of the generalised forces
+    since ``t = 0``: ``(N, T)`` (the energy drift when ``W = 0``)."""
+    E = system.energy(q, qd, params[:, None, :].expand(-1, q.shape[1], -1))
+    return (E - E[:, :1] - work).abs() / system.energy_scale(params)[:, None]
+
+
+def _augmented_field(system):
+    """``y = (q, qd, W_in, W_diss) -> (qd, qdd, qd . B tau, qd . Q_diss)`` of a scene with forces."""
+    dof = system.dof
+
+    def field(y, params, tau=None):
+        q, qd = y[:, :dof], y[:, dof:2 * dof]
+        q_diss = system.dissipative_force(q, qd, params)
+        if tau is None:
+            q_in, q_all = torch.zeros_like(q_diss), q_diss
+        else:
+            q_in = input_force(tau, system._force_maps()[0])
+            q_all = q_in + q_diss
+        return torch.cat([qd, system.forced_acceleration(q, qd, params, q_all), power(qd, q_in)[:, None],
+                          power(qd, q_diss)[:, None]], -1)
+
+    return field
 
 
 def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, integrator: str = "rk8",
                            substeps: int = 1, energy_tol: float = 1e-10, adaptive_tol: float = 1e-11,
-                           callback=None, indices=None):
+                           callback=None, indices=None, tau=None, return_work: bool = False):
     """Ground truth in float64: a fast fixed-step pass for all trajectories, then adaptive DOP853
-    steps for those whose relative energy drift exceeds ``energy_tol`` (stiff or fast ones).
+    steps for those whose relative energy drift (or, with forces, power-balance residual) exceeds
+    ``energy_tol`` (stiff or fast ones).
+
+    ``tau``: inputs ``(N, num_steps, n_u)`` of an actuated scene, held over each interval.
 
     Returns ``q, qd`` ``(N, num_steps + 1, dof)`` and the integrator steps each trajectory took
-    ``(N,)``. Raises ``GenerationError`` naming the trajectories (``indices``, default 0..N-1) that
-    still drift beyond ``energy_tol`` after the adaptive pass.
+    ``(N,)`` (and, with ``return_work``, the work ``(N, num_steps + 1, 2)`` of the inputs and of
+    dissipation since t = 0). Raises ``GenerationError`` naming the trajectories (``indices``,
+    default 0..N-1) that still fail the check after the adaptive pass.
     """
-    q, qd = rollout(system.acceleration, q0, qd0, params, dt, num_steps, integrator, substeps, callback=callback)
+    from .forces import check_inputs
+
+    check_inputs(tau, system.num_inputs, (len(params), num_steps))
+    dof = system.dof
+    if system.has_forces:
+        field = _augmented_field(system)
+        zeros = torch.zeros(len(params), 2, dtype=q0.dtype, device=q0.device)
+        y0 = torch.cat([q0, qd0, zeros], -1)
+        y = rollout_first_order(field, y0, params, dt, num_steps, integrator, substeps, tau, callback)
+    else:
+        q, qd = rollout(system.acceleration, q0, qd0, params, dt, num_steps, integrator, substeps, callback=callback)
+        y = torch.cat([q, qd, torch.zeros(*q.shape[:2], 2, dtype=q.dtype, device=q.device)], -1)
+
+    def residual(rows):
+        yr = y[rows]
+        return power_balance_residual(system, yr[..., :dof], yr[..., dof:2 * dof], params[rows],
+                                      yr[..., 2 * dof:].sum(-1)).amax(1)
+
     steps = torch.full((len(params),), num_steps * substeps, dtype=torch.long)
-    drift = _relative_drift(system, q, qd, params)
-    todo = torch.nonzero(~(drift <= energy_tol))[:, 0]  # NaN counts as not converged
+    every = torch.arange(len(params))
+    check = residual(every)
+    todo = torch.nonzero(~(check <= energy_tol))[:, 0]  # NaN counts as not converged
     if todo.numel():
-        dof = system.dof
+        if system.has_forces:
+            field = _augmented_field(system)
+            y_todo, n = rollout_adaptive(field, y0[todo], params[todo], dt, num_steps, rtol=adaptive_tol,
+                                         atol=adaptive_tol, tau=None if tau is None else tau[todo])
+        else:
+            def field(z, params_):
+                return torch.cat([z[:, dof:], system.acceleration(z[:, :dof], z[:, dof:], params_)], -1)
 
-        def field(y, params_):
-            return torch.cat([y[:, dof:], system.acceleration(y[:, :dof], y[:, dof:], params_)], -1)
-
-        y, n = rollout_adaptive(field, torch.cat([q0[todo], qd0[todo]], -1), params[todo], dt, num_steps,
-                                rtol=adaptive_tol, atol=adaptive_tol)
-        q[todo], qd[todo], steps[todo] = y[..., :dof], y[..., dof:], n
-        drift[todo] = _relative_drift(system, q[todo], qd[todo], params[todo])
-        bad = todo[~(drift[todo] <= energy_tol)]
+            y_state, n = rollout_adaptive(field, torch.cat([q0[todo], qd0[todo]], -1), params[todo], dt, num_steps,
+                                          rtol=adaptive_tol, atol=adaptive_tol)
+            y_todo = torch.cat([y_state, torch.zeros(*y_state.shape[:2], 2, dtype=y.dtype)], -1)
+        y[todo], steps[todo] = y_todo, n
+        check[todo] = residual(todo)
+        bad = todo[~(check[todo] <= energy_tol)]
         if bad.numel():
             names = np.arange(len(params)) if indices is None else np.asarray(list(indices))
+            what = "violate power balance" if system.has_forces else "drift"
             raise GenerationError(
-                f"{bad.numel()} trajectories (indices {names[bad.numpy()][:10].tolist()}) drift by up to "
-                f"{drift[bad].max().item():.2e} of the energy scale even with adaptive steps at tolerance "
+                f"{bad.numel()} trajectories (indices {names[bad.numpy()][:10].tolist()}) {what} by up to "
+                f"{check[bad].max().item():.2e} of the energy scale even with adaptive steps at tolerance "
                 f"{adaptive_tol:g} (energy_tol {energy_tol:g}): lower adaptive_tol, raise energy_tol or shorten dt")
-    return q, qd, steps
+    q, qd = y[..., :dof], y[..., dof:2 * dof]
+    return (q, qd, steps, y[..., 2 * dof:]) if return_work else (q, qd, steps)
 
 
-def reference_rollout(system, q0, qd0, params, dt: float, num_steps: int, energy_tol: float = 1e-10):
-    """The exact trajectories of a scene from ``(q0, qd0)`` ``(B, dof)``: ``(q, qd)`` each
-    ``(B, num_steps + 1, dof)`` in float64, to ``energy_tol`` of the energy scale
-    (``integrate_ground_truth``; raises ``GenerationError`` where that cannot be reached)."""
-    f64 = [torch.as_tensor(x, dtype=torch.float64) for x in (q0, qd0, params)]
+def reference_rollout(system, q0, qd0, params, dt: float, num_steps: int, tau=None, energy_tol: float = 1e-10):
+    """The exact trajectories of a scene from ``(q0, qd0)`` ``(B, dof)`` (with inputs ``tau (B,
+    num_steps, n_u)`` held over each interval): ``(q, qd)`` each ``(B, num_steps + 1, dof)`` in float64,
+    to ``energy_tol`` of the energy scale (``integrate_ground_truth``; raises ``GenerationError``
+    where that cannot be reached)."""
+    f64 = [None if x is None else torch.as_tensor(x, dtype=torch.float64) for x in (q0, qd0, params, tau)]
     with torch.no_grad():
-        q, qd, _ = integrate_ground_truth(system, *f64, dt, num_steps, energy_tol=energy_tol)
+        q, qd, _ = integrate_ground_truth(system, *f64[:3], dt, num_steps, energy_tol=energy_tol, tau=f64[3])
     return q, qd

@@ -14,6 +14,10 @@ Every step function has an ``order`` attribute.
 Explicit Runge-Kutta methods are one function, ``explicit_rk_step``, driven by a Butcher tableau; a
 second-order system is integrated as the first-order system ``y = (q, qd)``. Pure tensor functions;
 shapes ``(*batch, dof)``.
+
+Inputs (``tau``, e.g. motor torques) are held constant over each output interval (zero-order hold,
+as a digital controller applies them): output step ``k`` integrates from ``t_k`` to ``t_{k+1}`` with
+``tau[:, k]``, passed to ``accel_fn(q, qd, params, tau_k)`` at every stage and substep.
 """
 
 from __future__ import annotations
@@ -71,8 +75,8 @@ def _second_order_rk(name: str, order: int):
     def step(accel_fn: AccelFn, q, qd, params, dt):
         dof = q.shape[-1]
 
-        def fn(y, p):  # y = (q, qd) -> (qd, qdd)
-            return torch.cat([y[..., dof:], accel_fn(y[..., :dof], y[..., dof:], p)], dim=-1)
+        def fn(y, params_):  # y = (q, qd) -> (qd, qdd)
+            return torch.cat([y[..., dof:], accel_fn(y[..., :dof], y[..., dof:], params_)], dim=-1)
 
         y = explicit_rk_step(name, fn, torch.cat([q, qd], dim=-1), params, dt)
         return y[..., :dof], y[..., dof:]
@@ -141,6 +145,7 @@ def rollout(
     method: str = "rk4",
     substeps: int = 1,
     callback: Callable[[int], None] | None = None,
+    tau: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Integrate a batch of trajectories with a fixed step.
 
@@ -151,6 +156,8 @@ def rollout(
         num_steps: number of output steps.
         method: a key of ``METHODS``.
         callback: called with the output step index after each step (progress bars).
+        tau: inputs ``(B, num_steps, n_u)``, held over each output interval (zero-order hold);
+            ``accel_fn`` then takes them as a fourth argument, ``(q, qd, params, tau_k)``.
 
     Returns:
         ``(q, qd)`` each of shape ``(B, num_steps + 1, dof)``, starting with the initial state.
@@ -165,17 +172,29 @@ def rollout(
         raise ValueError(f"params must be (batch, num_params) with batch {q0.shape[0]}, got {tuple(params.shape)}")
     if not dt > 0 or num_steps < 0 or substeps < 1:
         raise ValueError(f"need dt > 0, num_steps >= 0, substeps >= 1; got {dt}, {num_steps}, {substeps}")
+    if tau is not None and (tau.ndim != 3 or tau.shape[:2] != (q0.shape[0], num_steps)):
+        raise ValueError(f"tau must be (batch, num_steps, num_inputs) = ({q0.shape[0]}, {num_steps}, n_u), "
+                         f"got {tuple(tau.shape)}")
     h = dt / substeps
     qs, qds = [q0], [qd0]
     q, qd = q0, qd0
     for i in range(num_steps):
+        fn = accel_fn if tau is None else held(accel_fn, tau[:, i])
         for _ in range(substeps):
-            q, qd = step(accel_fn, q, qd, params, h)
+            q, qd = step(fn, q, qd, params, h)
         qs.append(q)
         qds.append(qd)
         if callback is not None:
             callback(i)
     return torch.stack(qs, dim=1), torch.stack(qds, dim=1)
+
+
+def held(fn: Callable, tau_k: torch.Tensor) -> Callable:
+    """``fn`` with the inputs ``tau_k (B, n_u)`` held as its last argument: ``(*args) -> fn(*args, tau_k)``
+    (an ``accel_fn(q, qd, params)`` or a ``vector_field_fn(y, params)``)."""
+    def with_inputs(*args):
+        return fn(*args, tau_k)
+    return with_inputs
 
 
 def rollout_first_order(
@@ -185,13 +204,18 @@ def rollout_first_order(
     dt: float,
     num_steps: int,
     method: str = "rk4",
+    substeps: int = 1,
+    tau: torch.Tensor | None = None,
+    callback: Callable[[int], None] | None = None,
 ) -> torch.Tensor:
     """Integrate ``ydot = vector_field_fn(y, params)`` with a fixed step.
 
     Args:
-        vector_field_fn: ``(y (B, n), params (B, P)) -> (B, n)``.
-        y0: ``(B, n)``; params: ``(B, P)``; dt: step; num_steps: number of steps.
+        vector_field_fn: ``(y (B, n), params (B, P)) -> (B, n)`` (with ``tau``: ``(y, params, tau_k)``).
+        y0: ``(B, n)``; params: ``(B, P)``; dt: output interval; num_steps: number of output steps.
         method: ``rk4`` or ``rk8`` (the symplectic methods need a second-order system).
+        substeps: integrator steps of ``dt / substeps`` per output step.
+        tau: inputs ``(B, num_steps, n_u)`` held over each output interval (zero-order hold).
 
     Returns:
         ``y`` of shape ``(B, num_steps + 1, n)``, starting with ``y0``.
@@ -201,12 +225,16 @@ def rollout_first_order(
                          f"known: {', '.join(FIRST_ORDER_METHODS)}")
     if y0.ndim != 2 or params.ndim != 2 or params.shape[0] != y0.shape[0]:
         raise ValueError(f"y0 must be (batch, n) and params (batch, P), got {tuple(y0.shape)} and {tuple(params.shape)}")
-    if not dt > 0 or num_steps < 0:
-        raise ValueError(f"need dt > 0 and num_steps >= 0; got {dt}, {num_steps}")
+    if not dt > 0 or num_steps < 0 or substeps < 1:
+        raise ValueError(f"need dt > 0, num_steps >= 0 and substeps >= 1; got {dt}, {num_steps}, {substeps}")
     ys, y = [y0], y0
-    for _ in range(num_steps):
-        y = explicit_rk_step(method, vector_field_fn, y, params, dt)
+    for i in range(num_steps):
+        fn = vector_field_fn if tau is None else held(vector_field_fn, tau[:, i])
+        for _ in range(substeps):
+            y = explicit_rk_step(method, fn, y, params, dt / substeps)
         ys.append(y)
+        if callback is not None:
+            callback(i)
     return torch.stack(ys, dim=1)
 
 
@@ -219,6 +247,7 @@ def rollout_adaptive(
     rtol: float = 1e-11,
     atol: float = 1e-11,
     max_iterations: int = 10_000_000,
+    tau: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Integrate ``ydot = vector_field_fn(y, params)`` with adaptive DOP853 steps, per trajectory.
 
@@ -231,6 +260,8 @@ def rollout_adaptive(
     Args:
         y0: ``(B, n)``; params ``(B, P)``; dt: output interval; num_steps: number of outputs after y0.
         rtol, atol: tolerances of the error norm (scaled per component as in scipy's DOP853).
+        tau: inputs ``(B, num_steps, n_u)`` held over each output interval (``vector_field_fn`` then
+            takes ``(y, params, tau_k)``); steps never cross an output time, so each sees one input.
 
     Returns:
         ``y (B, num_steps + 1, n)`` and the accepted steps per trajectory ``(B,)``. A trajectory
@@ -242,7 +273,12 @@ def rollout_adaptive(
     B, n = y0.shape
     out = y0.new_full((B, num_steps + 1, n), float("nan"))
     out[:, 0] = y0
-    y, f = y0.clone(), vector_field_fn(y0, params)
+    def evaluate(y, prm, rows):
+        """The vector field at ``y`` for trajectories ``rows[0]`` in their intervals ``rows[1]``."""
+        return vector_field_fn(y, prm) if tau is None else vector_field_fn(y, prm, tau[rows[0], rows[1]])
+
+    all_rows = (torch.arange(y0.shape[0], device=y0.device), torch.zeros(y0.shape[0], dtype=torch.long, device=y0.device))
+    y, f = y0.clone(), evaluate(y0, params, all_rows)
     t = torch.zeros(B, dtype=torch.float64, device=y0.device)
     h = torch.full((B,), float(dt), dtype=torch.float64, device=y0.device)
     k = torch.ones(B, dtype=torch.long, device=y0.device)  # index of the next output
@@ -253,14 +289,17 @@ def rollout_adaptive(
         if idx.numel() == 0:
             break
         ya, fa, pa = y[idx], f[idx], params[idx]
+        rows = (idx, k[idx] - 1)  # the interval each trajectory is in: its held input
+        if tau is not None:  # the stored derivative may belong to the previous interval's input
+            fa = evaluate(ya, pa, rows)
         target = k[idx].to(torch.float64) * dt
         h_try = torch.minimum(h[idx], target - t[idx])  # (b,)
         hc = h_try.to(y0.dtype)[:, None]
         ks = [fa]
         for a in A[1:]:
-            ks.append(vector_field_fn(ya + hc * torch.tensordot(a, torch.stack(ks), dims=1), pa))
+            ks.append(evaluate(ya + hc * torch.tensordot(a, torch.stack(ks), dims=1), pa, rows))
         y_new = ya + hc * torch.tensordot(Bw, torch.stack(ks), dims=1)
-        f_new = vector_field_fn(y_new, pa)
+        f_new = evaluate(y_new, pa, rows)
         K = torch.stack(ks + [f_new])  # (13, b, n)
         scale = atol + rtol * torch.maximum(ya.abs(), y_new.abs())
         e5 = (torch.tensordot(E5, K, dims=1) / scale).square().sum(-1)

@@ -41,6 +41,7 @@ CALLBACKS = [
                    "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
     {"class_path": "lnn_torch.callbacks.PredictionWriter"},
     {"class_path": "lnn_torch.callbacks.TestMetricsWriter"},
+    {"class_path": "lnn_torch.callbacks.FitSummary"},
 ]
 
 

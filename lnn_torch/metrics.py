@@ -24,10 +24,10 @@ def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None
     B, T, dof = pred.shape
     finite = torch.isfinite(pred).all(-1)  # (B, T)
     names = list(coord_names or [f"q{i}" for i in range(dof)])
-    p, t = pred[finite], true[finite]  # (n, dof)
-    out = {"total": float(relative_l2(p, t))}
+    pred_f, true_f = pred[finite], true[finite]  # (n, dof)
+    out = {"total": float(relative_l2(pred_f, true_f))}
     for i, name in enumerate(names):
-        out[name] = float(relative_l2(p[:, i], t[:, i]))
+        out[name] = float(relative_l2(pred_f[:, i], true_f[:, i]))
     per_traj = torch.stack([relative_l2(pred[b][finite[b]], true[b][finite[b]]) for b in range(B)])
     per_traj = per_traj[torch.isfinite(per_traj)]
     if per_traj.numel():
@@ -63,9 +63,40 @@ def divergence_time(q_pred: torch.Tensor, q_true: torch.Tensor, dt: float, thres
 def energy_drift(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     """``|E(t) - E(0)| / (V_max - V_min)`` of the scene's closed-form energy along trajectories
     ``(B, T, dof)`` with parameters ``(B, P)``: ``(B, T)``."""
+    E = system.energy(q, qd, params[:, None, :].expand(-1, q.shape[1], -1))
+    return (E - E[:, :1]).abs() / system.energy_scale(params)[:, None]
+
+
+def work_along(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, tau: torch.Tensor | None,
+               dt: float) -> torch.Tensor:
+    """The true work of the scene's generalised forces along trajectories ``(B, T, dof)`` sampled every
+    ``dt``, since ``t = 0``: ``(B, T)`` in J. Inputs ``tau (B, T - 1, n_u)`` are held over each
+    interval, so their work ``tau_k . B^T (q_{k+1} - q_k)`` is exact; the dissipated work is the
+    trapezoidal rule of ``qd . Q_diss``."""
+    from .forces import input_force, power
+
+    T = q.shape[1]
+    p = params[:, None, :].expand(-1, T, -1)
+    diss = power(qd, system.dissipative_force(q, qd, p))  # (B, T)
+    step = 0.5 * dt * (diss[:, 1:] + diss[:, :-1])
+    if tau is not None:
+        step = step + power(q[:, 1:] - q[:, :-1], input_force(tau[:, : T - 1], system._force_maps()[0]))
+    return torch.cat([torch.zeros_like(step[:, :1]), step.cumsum(1)], 1)
+
+
+def power_balance_error(system, q, qd, params, tau, dt: float) -> torch.Tensor:
+    """``|E(t) - E(0) - W(t)| / (V_max - V_min)`` along trajectories: ``(B, T)`` (the scene's true
+    energy and work; the energy drift for a conservative scene)."""
     p = params[:, None, :].expand(-1, q.shape[1], -1)
     E = system.energy(q, qd, p)
-    return (E - E[:, :1]).abs() / system.energy_scale(params)[:, None]
+    return (E - E[:, :1] - work_along(system, q, qd, params, tau, dt)).abs() / system.energy_scale(params)[:, None]
+
+
+def normalized_rmse(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    """Per component (last axis): ``sqrt(mean((pred - true)^2) / var(true))`` (Deep Lagrangian
+    Networks' normalised error of torques); ``(..., n) -> (n,)``."""
+    pred, true = pred.reshape(-1, pred.shape[-1]), true.reshape(-1, true.shape[-1])
+    return ((pred - true).pow(2).mean(0) / true.var(0).clamp_min(1e-30)).sqrt()
 
 
 def quartiles(x: torch.Tensor) -> dict:

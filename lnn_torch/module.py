@@ -1,7 +1,10 @@
 """``LNNModule``: a thin LightningModule over a dynamics model (``lnn_torch.networks``).
 
 Loss = Huber on normalised accelerations + ``energy_weight`` x the scale-invariant variance of the
-model's own Hamiltonian over each contiguous chunk (``lnn_torch.losses.energy_variance``).
+model's own Hamiltonian over each contiguous chunk (``lnn_torch.losses.energy_variance``; with
+generalised forces, of ``H - W`` with ``W`` the work of the model's own forces along the chunk: a
+power-balance residual) + ``torque_weight`` x Huber on the inputs the model's inverse dynamics
+predict (structured models of actuated scenes).
 A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
 Validation and test call ``lnn_torch.evaluation.evaluate_model`` (relative L2 acceleration error,
 rollouts of some trajectories with their true-energy drift and divergence time) and log its result.
@@ -50,7 +53,10 @@ class LNNModule(L.LightningModule):
         lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run.
         weight_decay: AdamW weight decay.
         huber_delta: Huber threshold (normalised units).
-        energy_weight: weight of the energy-conservation term (0 disables it).
+        energy_weight: weight of the energy-conservation (power-balance, with forces) term (0 disables it).
+        torque_weight: weight of the inverse-dynamics term: Huber on the inputs (motor torques) that
+            the model's inverse dynamics give for the data's accelerations, normalised by their rms
+            (structured models of actuated scenes; 0 disables it).
         val_rollouts: validation trajectories rolled out each validation epoch.
         val_rollout_seconds: the horizon of validation and test rollouts (s).
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
@@ -71,6 +77,7 @@ class LNNModule(L.LightningModule):
                  hessian_reg: float | None = None, hnn_coordinates: str | None = None,
                  model_options: dict | None = None, lr: float = 3e-3,
                  lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
+                 torque_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool = False) -> None:
         super().__init__()
@@ -83,6 +90,10 @@ class LNNModule(L.LightningModule):
         options = {k: v for k, v in options.items()
                    if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
         self.model = build_model(variant, self.system, **options)
+        if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
+            raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
+                             f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
+        self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)
         self.register_buffer("normalizer_fitted", torch.tensor(False))
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))
         self._skip_this_step = False
@@ -90,21 +101,30 @@ class LNNModule(L.LightningModule):
         self._last_batch = None
 
     # ------------------------------------------------------------------ public physics
-    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)`` (dtype and device of ``q``).
+    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+                     tau: torch.Tensor | None = None) -> torch.Tensor:
+        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P)[, tau (B, n_u)] -> (B, dof)`` (dtype and
+        device of ``q``). ``tau``: the inputs of an actuated scene (N m; required there).
 
         Inputs are checked against the model and the scene (e.g. |qd| < c for the relativistic particle).
         """
-        self.model.check_inputs(q, qd, params)
-        self.system.check_inputs(q, qd, params)
-        return self.model.acceleration(q, qd, params, check=False)
+        self.model.check_inputs(q, qd, params, tau)
+        self.system.check_inputs(q, qd, params, tau)
+        return self.model.acceleration(q, qd, params, tau, check=False)
 
     forward = acceleration
 
-    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
-        """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``."""
-        self.system.check_inputs(q0, qd0, params)
-        return self.model.rollout(q0, qd0, params, dt, num_steps, method)
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
+        """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``.
+        ``tau (B, num_steps, n_u)``: inputs of an actuated scene, held over each step."""
+        self.system.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
+        return self.model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+
+    def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
+        """The inputs ``tau (B, n_u)`` (N m) that produce the accelerations ``qdd`` (structured models
+        of actuated scenes)."""
+        self.system.check_inputs(q, qd, params, inputs="skip")
+        return self.model.inverse_dynamics(q, qd, qdd, params)
 
     # ------------------------------------------------------------------ set-up
     def setup(self, stage: str) -> None:
@@ -119,6 +139,8 @@ class LNNModule(L.LightningModule):
                 raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
             self.model.fit_normalizer(dm.normalization_data())
             self.normalizer_fitted.fill_(True)
+        if dm is not None and hasattr(dm, "dt"):
+            self.data_dt = dm.dt
 
     def on_fit_start(self) -> None:
         from lightning.pytorch.loggers import TensorBoardLogger
@@ -128,8 +150,8 @@ class LNNModule(L.LightningModule):
         for logger in self.loggers:
             if isinstance(logger, TensorBoardLogger):
                 # hyper-parameters with the metric keys, so the HParams tab shows real metrics
-                logger.log_hyperparams(dict(self.hparams), {"val/acc_rel_err": math.nan,
-                                                            "val/energy_drift": math.nan,
+                energy = "val/power_balance" if self.system.has_forces else "val/energy_drift"
+                logger.log_hyperparams(dict(self.hparams), {"val/acc_rel_err": math.nan, energy: math.nan,
                                                             "val/divergence_time": math.nan})
 
     def on_train_epoch_start(self) -> None:
@@ -163,10 +185,11 @@ class LNNModule(L.LightningModule):
     def _with_energy(self) -> bool:
         return self.hparams.energy_weight > 0 and self.model.has_energy
 
-    def _training_pass(self, q, qd, qdd, params, chunks=None):
-        """Eager training pass on flat SI tensors: ``(pred, target, rms[, H, T, V])`` (``training_terms``).
-        ``chunks``: the rows are that many trajectory chunks, each with one parameter vector."""
-        return self.model.training_terms(q, qd, qdd, params, energy=self._with_energy(), chunks=chunks)
+    def _training_pass(self, q, qd, qdd, params, tau=None, chunks=None):
+        """Eager training pass on flat SI tensors: the dict of ``training_terms``. ``chunks``: the
+        rows are that many trajectory chunks, each with one parameter vector."""
+        return self.model.training_terms(q, qd, qdd, params, tau=tau, energy=self._with_energy(), chunks=chunks,
+                                         torque=self.hparams.get("torque_weight", 0) > 0)
 
     def _pass_fn(self):
         if not self.hparams.compile or self._compiled is False:
@@ -176,18 +199,30 @@ class LNNModule(L.LightningModule):
         return self._compiled
 
     def _training_loss(self, batch, pass_fn):
+        """``(loss, parts)``: the total loss and its logged parts (``huber``, ``energy_var``, ``torque``)."""
         C, L, _ = batch["q"].shape  # (chunks, chunk length, dof)
         flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "qdd", "params")]
+        tau = batch["tau"].reshape(C * L, -1) if "tau" in batch else None
         # chunks of one trajectory share their parameters: the model then conditions once per chunk
         params = batch["params"]
         shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
-        pred, target, rms, *energies = pass_fn(*flat, C if shared else None)
-        huber = acceleration_loss(pred, target, rms, self.hparams.huber_delta)
-        if not energies:
-            return huber, huber, None
-        H, T, V = (x.reshape(C, L) for x in energies)
-        evar = energy_variance(H, T, V)
-        return huber + self.hparams.energy_weight * evar, huber, evar
+        out = pass_fn(*flat, tau, C if shared else None)
+        huber = acceleration_loss(out["pred"], out["target"], out["rms"], self.hparams.huber_delta)
+        loss, parts = huber, {"huber": huber}
+        if "H" in out:
+            H, T, V = (out[k].reshape(C, L) for k in ("H", "T", "V"))
+            if "power" in out:  # power balance: H minus the work of the model's own forces (trapezoid)
+                dt_norm = (self.data_dt or 1.0) / float(self.model.normalizer.time_scale)
+                power = out["power"].reshape(C, L)
+                step = 0.5 * dt_norm * (power[:, 1:] + power[:, :-1])
+                H = H - torch.cat([torch.zeros_like(H[:, :1]), step.cumsum(1)], 1)
+            parts["energy_var"] = energy_variance(H, T, V)
+            loss = loss + self.hparams.energy_weight * parts["energy_var"]
+        if "tau_pred" in out:
+            parts["torque"] = acceleration_loss(out["tau_pred"], out["tau_target"], torch.ones_like(out["tau_target"][0]),
+                                                self.hparams.huber_delta)
+            loss = loss + self.hparams.torque_weight * parts["torque"]
+        return loss, parts
 
     def _compile_failed(self, err: Exception) -> None:
         import warnings
@@ -199,16 +234,15 @@ class LNNModule(L.LightningModule):
     def training_step(self, batch, batch_idx):
         self._last_batch = batch
         try:
-            loss, huber, evar = self._training_loss(batch, self._pass_fn())
+            loss, parts = self._training_loss(batch, self._pass_fn())
         except Exception as err:  # a compilation failure: fall back to the eager pass
             if not self._compiled:
                 raise
             self._compile_failed(err)
-            loss, huber, evar = self._training_loss(batch, self._training_pass)
-        if evar is not None:
-            self.log("train/energy_var", evar.detach(), on_step=True, on_epoch=False)
+            loss, parts = self._training_loss(batch, self._training_pass)
+        for name, value in parts.items():
+            self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
         self.log("train/loss", loss.detach(), on_step=True, on_epoch=False, prog_bar=True)
-        self.log("train/huber", huber.detach(), on_step=True, on_epoch=False)
         self._skip_this_step = not bool(torch.isfinite(loss))
         if self._skip_this_step:
             # keep the graph (DDP needs every rank to run backward) but contribute nothing
@@ -223,7 +257,7 @@ class LNNModule(L.LightningModule):
                 raise
             self._compile_failed(err)
             self.zero_grad(set_to_none=True)
-            loss, _, _ = self._training_loss(self._last_batch, self._training_pass)
+            loss, _ = self._training_loss(self._last_batch, self._training_pass)
             if not torch.isfinite(loss):
                 loss = sum(p.sum() for p in self.parameters()) * 0.0
             super().backward(loss, *args, **kwargs)
@@ -261,11 +295,13 @@ class LNNModule(L.LightningModule):
         log("acc_rel_err", acc["total"], prog_bar=True)
         for name in self.system.coord_names:
             log(f"acc_rel_err_{name}", acc[name])
+        log("acc_rel_err_traj_median", acc.get("per_trajectory_median", float("nan")))
         log("acc_non_finite", acc["non_finite_fraction"])
         if n == 0:
             return
-        log("energy_drift", result["energy_drift"]["mean"])
-        log("energy_drift_max", result["energy_drift"]["max"])
+        energy = "power_balance_error" if self.system.has_forces else "energy_drift"
+        log(energy.replace("_error", ""), result[energy]["mean"])
+        log(f"{energy.replace('_error', '')}_max", result[energy]["max"])
         log("rollout_non_finite", result["rollout_non_finite_fraction"])
         log("divergence_time", result[f"divergence_time@{thr:g}"]["model"]["median"])
         every = self.hparams.figure_every_n_epochs

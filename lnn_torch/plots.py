@@ -42,8 +42,8 @@ def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: t
     scene that is not drawn."""
     T = q_true.shape[0]
     frames = [int(i) for i in torch.linspace(0, T - 1, num_frames)]
-    p = params[None].expand(T, -1)
-    xy_true, xy_model = system.positions(q_true, p), system.positions(q_model, p)
+    params = params[None].expand(T, -1)
+    xy_true, xy_model = system.positions(q_true, params), system.positions(q_model, params)
     if xy_true is None:
         return None
     finite = torch.isfinite(xy_model)

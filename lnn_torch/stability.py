@@ -46,8 +46,7 @@ def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps
     cases = [HardCase("nominal", q0, qd0, base_p)]
 
     def with_params(name, values):
-        p = f64(values)[None].expand(num, -1).clone()
-        cases.append(HardCase(name, q0, qd0, p))
+        cases.append(HardCase(name, q0, qd0, f64(values)[None].expand(num, -1).clone()))
 
     for name, values in system.hard_parameter_cases().items():
         with_params(name, values)
@@ -83,22 +82,26 @@ def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
     if not finite.any():
         return float("nan")
     qf = q[finite][:, :: max(1, T // 200)]  # at most ~200 states per trajectory
-    p = params[finite][:, None].expand(-1, qf.shape[1], -1)
+    params = params[finite][:, None].expand(-1, qf.shape[1], -1)
     with torch.no_grad():
-        M = model.mass_matrix(qf.reshape(-1, dof).to(model.dtype), p.reshape(-1, p.shape[-1]).to(model.dtype))
+        M = model.mass_matrix(qf.reshape(-1, dof).to(model.dtype), params.reshape(-1, params.shape[-1]).to(model.dtype))
     return float(condition_numbers(M.double()).max())
 
 
 def run_hard_cases(rollout_fn, system, cases: list[HardCase], model=None, method: str = "rk4") -> list[dict]:
-    """Roll ``rollout_fn`` ``(q0, qd0, params, dt, num_steps, method) -> (q, qd)`` out on every case.
+    """Roll ``rollout_fn`` ``(q0, qd0, params, dt, num_steps, method[, tau=]) -> (q, qd)`` out on every
+    case (an actuated scene's inputs are off: ``tau`` zeros). The energy column is the true-energy
+    drift, and for a scene with friction the energy may only decrease: it is the drift all the same.
 
     ``model``: the dynamics model (for the condition number of its mass matrix), or None.
     """
     rows = []
     for case in cases:
         row = {"case": case.name, "num_trajectories": int(case.q0.shape[0]), "steps": case.num_steps, "dt": case.dt}
+        inputs = {} if not system.num_inputs else {
+            "tau": torch.zeros(case.q0.shape[0], case.num_steps, system.num_inputs, dtype=case.q0.dtype)}
         try:
-            q, qd = rollout_fn(case.q0, case.qd0, case.params, case.dt, case.num_steps, method)
+            q, qd = rollout_fn(case.q0, case.qd0, case.params, case.dt, case.num_steps, method, **inputs)
         except InputError as err:
             row["error"] = str(err)
             rows.append(row)

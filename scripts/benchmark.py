@@ -20,6 +20,7 @@ Writes ``results/benchmark/<scene>.json``, ``<scene>.md``, ``<scene>_curves.png`
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import platform
 import time
@@ -356,7 +357,7 @@ def main() -> None:
         cases = system.hard_parameter_cases()
         if cases:  # scenes with extreme parameter cases of their own get the stability grid
             steps = int(round(args.stability_seconds / 0.005))
-            result["stability"][name] = run_hard_cases(lambda *a: model_rollout(model, *a), system,
+            result["stability"][name] = run_hard_cases(functools.partial(model_rollout, model), system,
                                                        hard_cases(system, num=8, num_steps=steps), model=model)
         (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))
         print(markdown(result), flush=True)

@@ -6,8 +6,10 @@ from lnn_torch.systems import SYSTEMS, get_system
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
 
-# every scene, and the chain at other lengths (N = 1, 2, 5) than its default of 3
-SCENES = [(name, {}) for name in sorted(SYSTEMS)] + [("chain_pendulum", {"num_links": n}) for n in (1, 2, 5)]
+# every scene, the chain at other lengths (N = 1, 2, 5) than its default of 3, and the double
+# pendulum with joint damping (a conservative scene's optional dissipation)
+SCENES = ([(name, {}) for name in sorted(SYSTEMS)] + [("chain_pendulum", {"num_links": n}) for n in (1, 2, 5)]
+          + [("double_pendulum", {"joint_damping": (0.3, 0.2)})])
 SCENE_IDS = [name + "".join(f"-{k}={v}" for k, v in kw.items()) for name, kw in SCENES]
 QUADRATIC = [(n, kw) for n, kw in SCENES if get_system(n, **kw).quadratic_kinetic]
 QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES) if (n, kw) in QUADRATIC]
@@ -28,6 +30,13 @@ def random_batch(system, rng, n, dtype=torch.float64):
     if system.speed_limit is not None:  # stay inside the valid states (|qd| < c)
         qd = torch.tensor(rng.uniform(-0.97, 0.97, qd.shape), dtype=dtype) * system.speed_limit
     return q, qd, params
+
+
+def random_inputs(system, rng, n, dtype=torch.float64):
+    """Random inputs ``(n, num_inputs)`` of an actuated scene (about +-1 N m), None for an unactuated one."""
+    if not system.num_inputs:
+        return None
+    return torch.tensor(rng.uniform(-1.0, 1.0, (n, system.num_inputs)), dtype=dtype)
 
 
 def dop853_reference(system, q0, qd0, params, t_eval) -> np.ndarray:

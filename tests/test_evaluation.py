@@ -45,10 +45,10 @@ def test_a_wrong_model_is_measured_as_wrong(trajectories):
     system = get_system("double_pendulum")
 
     class Off(ClosedForm):
-        def acceleration(self, q, qd, params, check=False):
+        def acceleration(self, q, qd, params, tau=None, check=False):
             return system.acceleration(q, qd, params * torch.tensor([1.0, 1.0, 1.1, 1.1], dtype=params.dtype))
 
-        def rollout(self, q0, qd0, params, dt, num_steps, method="rk4"):
+        def rollout(self, q0, qd0, params, dt, num_steps, method="rk4", tau=None):
             return lnn_torch.rollout(self.acceleration, q0, qd0, params, dt, num_steps, method)
 
     r = evaluate_model(Off(system), system, trajectories, horizon=2.0, sections=("accelerations", "rollouts"))

@@ -10,7 +10,7 @@ from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, build_model, reference
 from lnn_torch.networks.layers import ACTIVATIONS, TangentMLP
 from lnn_torch.systems import InputError, get_system
 
-from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch
+from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch, random_inputs
 
 
 def perturbed(model, scale=0.05, seed=0):
@@ -37,9 +37,13 @@ def test_structured_fast_path_equals_generic_solve(scene, config, variant, activ
     system = get_system(scene, **config)
     model = perturbed(build_model(variant, system, hidden_dims=(32, 32), activation=activation).double())
     qn, qdn, pn = normalized_batch(model, system, rng)
-    fast = model.acceleration_norm(qn, qdn, pn)
-    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn)
-    structured = reference.structured_model_acceleration(model, qn, qdn, pn)
+    # scenes with inputs and friction: the same generalised force on both sides (random inputs)
+    tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
+    force = model.force_norm(qn, qdn, pn, tau_n)
+    assert (force is None) == (not system.has_forces)
+    fast = model.acceleration_norm(qn, qdn, pn, tau_n)
+    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
+    structured = reference.structured_model_acceleration(model, qn, qdn, pn, force)
     scale = generic.abs().max()
     assert (fast - generic).abs().max() <= 1e-10 * scale
     assert (fast - structured).abs().max() <= 1e-10 * scale
@@ -272,7 +276,10 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
         with pytest.raises(InputError, match="not quadratic.*use variant 'lnn'"):
             build_model(variant, system)
         return
-    model = perturbed(build_model(variant, system, hidden_dims=(16, 16)).double())
+    # the untrained black-box Lagrangian's velocity Hessian is indefinite; on the forced scene one of
+    # these random states is singular, so its generic solve is regularised there
+    extra = {"hessian_reg": 1e-3} if variant == "lnn" and system.has_forces else {}
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16), **extra).double())
     n_angles = sum(system.angle_mask)
     assert model.num_features == 2 * n_angles + (system.dof - n_angles)
     if variant == "film_lnn":
@@ -282,11 +289,18 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
     if variant == "delan":
         assert model.kinetic_net.hidden[0].in_features == model.num_features + system.num_params
     q, qd, params = random_batch(system, rng, 7)
-    model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params), "params": params,
-                          "params_points": params})
-    a = model.acceleration(q, qd, params)
+    tau = random_inputs(system, rng, 7)
+    if variant == "hnn" and system.has_forces:  # the velocity-coordinate HNN has no force port
+        with pytest.raises(InputError, match="no port for generalised forces"):
+            build_model(variant, system, hnn_coordinates="velocity")
+    model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
+                          "params_points": params, "tau": tau})
+    # only a scene with forces builds them (a conservative scene: none, no extra parameter)
+    assert (getattr(model, "forces", None) is not None) == (system.has_forces and variant != "mlp")
+    a = model.acceleration(q, qd, params, tau)
     assert a.shape == (7, system.dof) and torch.isfinite(a).all()
-    qs, qds = model.rollout(q[:3], qd[:3], params[:3], 0.001, 4)
+    held = None if tau is None else tau[:3, None].expand(-1, 4, -1)
+    qs, qds = model.rollout(q[:3], qd[:3], params[:3], 0.001, 4, tau=held)
     assert qs.shape == (3, 5, system.dof) and torch.isfinite(qs).all() and torch.isfinite(qds).all()
 
 
@@ -433,17 +447,19 @@ def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
         for energy in (False, True):
             model.zero_grad()
             out = model.training_terms(q, qd, qdd, params, energy=energy, chunks=chunks)
-            sum(o.sum() for o in out).backward()
+            sum(o.sum() for o in out.values()).backward()
             results.append((out, [p.grad.clone() for p in model.parameters() if p.grad is not None]))
     for (o0, g0), (o1, g1) in zip(results[:2], results[2:]):
-        for a, b in zip(o0, o1):
-            torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)
+        assert o0.keys() == o1.keys()
+        for key in o0:
+            torch.testing.assert_close(o1[key], o0[key], rtol=1e-12, atol=1e-12)
         assert len(g0) == len(g1)
         for a, b in zip(g0, g1):
             torch.testing.assert_close(b, a, rtol=1e-10, atol=1e-12)
     mixed = params.clone()
     mixed[1] *= 1.5  # a parameter change inside the first chunk: per-chunk FiLM no longer applies
-    assert (model.training_terms(q, qd, qdd, mixed)[0] - model.training_terms(q, qd, qdd, mixed, chunks=C)[0]).abs().max() > 1e-8
+    assert (model.training_terms(q, qd, qdd, mixed)["pred"]
+            - model.training_terms(q, qd, qdd, mixed, chunks=C)["pred"]).abs().max() > 1e-8
     with pytest.raises(InputError, match="chunks"):
         model.training_terms(q, qd, qdd, params, energy=True, chunks=5)
 
@@ -456,8 +472,10 @@ def test_every_variant_takes_the_chunk_structure(variant, rng):
     q, qd, params = random_batch(system, rng, 8)
     params = params[:1].expand(8, -1)
     qdd = system.acceleration(q, qd, params)
-    for a, b in zip(model.training_terms(q, qd, qdd, params), model.training_terms(q, qd, qdd, params, chunks=2)):
-        torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)
+    a, b = model.training_terms(q, qd, qdd, params), model.training_terms(q, qd, qdd, params, chunks=2)
+    assert a.keys() == b.keys()
+    for key in a:
+        torch.testing.assert_close(b[key], a[key], rtol=1e-12, atol=1e-12)
 
 
 def test_compiled_dynamics_equal_eager(rng):

@@ -6,6 +6,7 @@ zero and tiny velocities; long horizons; float32 against float64; training with 
 10x too high and with constant chunks. Each guard has a test that shows what goes wrong without it.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -54,7 +55,7 @@ def test_every_variant_stays_finite_on_every_hard_case(variant):
         with torch.no_grad():
             a = model.acceleration(case.q0, case.qd0, case.params)
         assert torch.isfinite(a).all(), (variant, case.name)
-    rows = run_hard_cases(lambda *a: model_rollout(model, *a), DP, cases, model=model)
+    rows = run_hard_cases(functools.partial(model_rollout, model), DP, cases, model=model)
     for row in rows:
         assert "error" not in row, row
         assert row["non_finite_fraction"] == 0, (variant, row)
@@ -80,7 +81,7 @@ def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
             continue
         assert torch.isfinite(a).all(), case.name
     with counting_failures(model):
-        rows = run_hard_cases(lambda *a: model_rollout(model, *a), DP, cases, model=model)
+        rows = run_hard_cases(functools.partial(model_rollout, model), DP, cases, model=model)
     assert all("error" not in r and 0 <= r["non_finite_fraction"] <= 1 for r in rows)
     assert model.raise_on_singular  # restored after the block
 

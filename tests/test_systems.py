@@ -10,15 +10,18 @@ from lnn_torch.dynamics import generic_acceleration
 from lnn_torch.integrators import rollout
 from lnn_torch.systems import GRAVITY, InputError, get_system
 
-from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch
+from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch, random_inputs
 
 
 @pytest.mark.parametrize("name, config", SCENES, ids=SCENE_IDS)
 def test_closed_form_acceleration_equals_generic_solve(name, config, rng):
+    """With generalised forces (inputs, friction) the generic solve gets the same force Q = B tau + Q_diss."""
     system = get_system(name, **config)
     q, qd, params = random_batch(system, rng, 256)
-    closed = system.acceleration(q, qd, params)
-    generic = generic_acceleration(system.lagrangian, q, qd, params)
+    tau = random_inputs(system, rng, 256)
+    closed = system.acceleration(q, qd, params, tau)
+    force = system.generalized_force(q, qd, params, tau) if system.has_forces else None
+    generic = generic_acceleration(system.lagrangian, q, qd, params, force=force)
     torch.testing.assert_close(closed, generic, rtol=0, atol=1e-10)
 
 
@@ -27,12 +30,13 @@ def test_every_parameter_matters(name, config, rng):
     """A parameter that is silently ignored would leave the accelerations or energy unchanged."""
     system = get_system(name, **config)
     q, qd, params = random_batch(system, rng, 32)
-    base_a = system.acceleration(q, qd, params)
+    tau = random_inputs(system, rng, 32)
+    base_a = system.acceleration(q, qd, params, tau)
     base_e = system.energy(q, qd, params)
     for i, pname in enumerate(system.param_names):
         p2 = params.clone()
-        p2[:, i] *= 1.3
-        changed = (system.acceleration(q, qd, p2) - base_a).abs().max() + (system.energy(q, qd, p2) - base_e).abs().max()
+        p2[:, i] = p2[:, i] * 1.3 + 0.01  # (+ 0.01: friction coefficients may be sampled at 0)
+        changed = (system.acceleration(q, qd, p2, tau) - base_a).abs().max() + (system.energy(q, qd, p2) - base_e).abs().max()
         assert changed > 1e-6, f"parameter {pname} has no effect"
 
 
@@ -143,19 +147,23 @@ def test_samplers_follow_the_reference_distribution():
 
 @pytest.mark.parametrize("name, config", QUADRATIC, ids=QUADRATIC_IDS)
 def test_energy_scale_is_the_potential_range(name, config, rng):
-    """V_max - V_min over q: pendula reach their extremes hanging down and all upright."""
+    """V_max - V_min over q: pendula reach their extremes hanging down and all upright (all absolute
+    angles pi; in joint angles, the first joint at pi and the others straight)."""
     system = get_system(name, **config)
     if name == "mass_spring":
         pytest.skip("V is unbounded; the scale is documented as the sampled amplitude bound")
     params = torch.tensor(system.sample_params(rng, 8))
     down = torch.zeros(8, system.dof, dtype=torch.float64)
-    span = system.potential(down + math.pi, params) - system.potential(down, params)
+    first_up = down.clone()
+    first_up[:, 0] = math.pi
+    V_down = system.potential(down, params)
+    span = torch.maximum(system.potential(down + math.pi, params), system.potential(first_up, params)) - V_down
     torch.testing.assert_close(span, system.energy_scale(params), rtol=1e-12, atol=0)
     # and no other configuration goes beyond
     q = torch.rand(8, 200, system.dof, dtype=torch.float64) * 2 * math.pi
     V = system.potential(q, params[:, None].expand(-1, 200, -1))
-    assert (V >= system.potential(down, params)[:, None] - 1e-12).all()
-    assert (V <= system.potential(down + math.pi, params)[:, None] + 1e-12).all()
+    assert (V >= V_down[:, None] - 1e-12).all()
+    assert (V <= (V_down + span)[:, None] + 1e-12).all()
 
 
 def test_chain_of_two_is_the_double_pendulum_and_chain_of_one_the_pendulum(rng):

@@ -2,6 +2,7 @@
 
 import glob
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -122,6 +123,7 @@ def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
     acc.Reload()
     tags = set(acc.Tags()["scalars"])
     for tag in ("train/loss", "train/huber", "train/energy_var", "val/acc_rel_err", "val/acc_rel_err_theta1",
+                "val/acc_rel_err_traj_median",
                 "val/acc_rel_err_theta2", "val/energy_drift", "val/divergence_time", "train/lr",
                 "train/skipped_steps"):
         assert tag in tags, tag
@@ -258,10 +260,14 @@ def test_cli_fit_test_predict(dataset, tmp_path):
               "--model.hidden_dims=[16,16]", "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false"]
     out = _cli("fit", *common, "--trainer.fast_dev_run=true", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
-    out = _cli("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3", cwd=tmp_path)
+    out = _cli("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3",
+               "--trainer.check_val_every_n_epoch=1", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     ckpts = sorted(glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "*.ckpt")))
     assert ckpts
+    # the end-of-fit summary: where the run and the checkpoint are, and the validation error
+    assert "TensorBoard run: lightning_logs/version_0" in out.stdout and "last.ckpt" in out.stdout
+    assert re.search(r"validation: acc\. rel\. L2 error [0-9.]+ % pooled, [0-9.]+ % per-trajectory median", out.stdout)
     out = _cli("test", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "test/acc_rel_err" in out.stdout
@@ -347,13 +353,13 @@ def test_training_conditions_once_per_chunk(dataset):
         seen.append(args[-1])
         return model._training_pass(*args)
 
-    loss_shared, _, _ = model._training_loss(batch, spy)
+    loss_shared, _ = model._training_loss(batch, spy)
     mixed = dict(batch, params=batch["params"].clone())
     mixed["params"][0, 1:] *= 1.1
     model._training_loss(mixed, spy)
     C = batch["q"].shape[0]
     assert seen == [C, None]
-    loss_rows, _, _ = model._training_loss(batch, lambda *a: model._training_pass(*a[:-1], None))
+    loss_rows, _ = model._training_loss(batch, lambda *a: model._training_pass(*a[:-1], None))
     torch.testing.assert_close(loss_shared, loss_rows, rtol=1e-5, atol=0)
 
 
@@ -370,7 +376,7 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
     results = []
     for pass_fn in (model._training_pass, torch.compile(model._training_pass, dynamic=False)):
         model.zero_grad()
-        loss, _, _ = model._training_loss(batch, pass_fn)
+        loss, _ = model._training_loss(batch, pass_fn)
         loss.backward()
         results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
     (l0, g0), (l1, g1) = results
@@ -400,8 +406,8 @@ def test_compile_failure_falls_back_to_eager(where, dataset, tmp_path, monkeypat
         def compiled(*args):
             if where == "forward":
                 raise RuntimeError("compilation failed")
-            pred, *rest = fn(*args)
-            return (Boom.apply(pred), *rest)
+            out = fn(*args)
+            return {**out, "pred": Boom.apply(out["pred"])}
 
         return compiled
 

@@ -53,10 +53,10 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
     from ..metrics import energy_drift
 
     system = model.system
-    p = torch.tensor([params], dtype=torch.float64)
+    params = torch.tensor([params], dtype=torch.float64)
     q0 = torch.tensor([q0], dtype=torch.float64)
     qd0 = torch.tensor([qd0], dtype=torch.float64)
-    for name, x, n in (("params", p, system.num_params), ("q0", q0, system.dof), ("qd0", qd0, system.dof)):
+    for name, x, n in (("params", params, system.num_params), ("q0", q0, system.dof), ("qd0", qd0, system.dof)):
         if x.shape[-1] != n:
             expected = system.param_names if name == "params" else system.coord_names
             raise ValueError(f"{name} needs {n} values ({', '.join(expected)}), got {x.shape[-1]}")
@@ -64,12 +64,12 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
         raise ValueError(f"need dt > 0 and duration >= dt, got dt={dt}, duration={duration}")
     steps = int(round(duration / dt))
     with torch.no_grad():
-        q, qd = model.rollout(q0, qd0, p, dt, steps, method)
+        q, qd = model.rollout(q0, qd0, params, dt, steps, method)
         out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy(),
-               "energy": system.energy(q, qd, p[:, None].expand(-1, steps + 1, -1))[0].numpy(),
-               "energy_drift": energy_drift(system, q, qd, p)[0].numpy()}
+               "energy": system.energy(q, qd, params[:, None].expand(-1, steps + 1, -1))[0].numpy(),
+               "energy_drift": energy_drift(system, q, qd, params)[0].numpy()}
     if exact:
-        out["q_exact"] = reference_rollout(system, q0, qd0, p, dt, steps)[0][0].numpy()
+        out["q_exact"] = reference_rollout(system, q0, qd0, params, dt, steps)[0][0].numpy()
     return out
 
 
@@ -122,9 +122,9 @@ def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     output = Path(args.output)
     plot = Path(args.plot) if args.plot else output.with_suffix(".png")
-    for p in (output, plot):
-        if p.exists() and not args.overwrite:
-            raise FileExistsError(f"{p} exists; refusing to overwrite it (pass --overwrite)")
+    for path in (output, plot):
+        if path.exists() and not args.overwrite:
+            raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite)")
     from ..checkpoints import load_model
 
     model = load_model(args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}")

@@ -37,12 +37,13 @@ class _Source:
 
     def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype) -> None:
         self.file, self.indices, self.in_memory, self.dtype = file, np.asarray(indices), in_memory, dtype
+        self.fields = FIELDS + (("tau",) if file.num_inputs else ())
         self.params = torch.as_tensor(file.read("params")[self.indices], dtype=dtype)
         self._arrays = None
         self._handle, self._pid = None, None
         if in_memory:
             with file.open() as f:
-                self._arrays = {k: torch.as_tensor(f[k][np.sort(self.indices)], dtype=dtype) for k in FIELDS}
+                self._arrays = {k: torch.as_tensor(f[k][np.sort(self.indices)], dtype=dtype) for k in self.fields}
             order = np.argsort(np.argsort(self.indices))
             self._arrays = {k: v[order] for k, v in self._arrays.items()}
 
@@ -60,10 +61,10 @@ class _Source:
         """Points ``start, start + stride, ...`` (``length`` of them) of the j-th trajectory."""
         sl = slice(start, start + length * stride, stride)
         if self._arrays is not None:
-            out = {k: self._arrays[k][j, sl] for k in FIELDS}
+            out = {k: self._arrays[k][j, sl] for k in self.fields}
         else:
             f = self._h5()
-            out = {k: torch.as_tensor(f[k][int(self.indices[j]), sl], dtype=self.dtype) for k in FIELDS}
+            out = {k: torch.as_tensor(f[k][int(self.indices[j]), sl], dtype=self.dtype) for k in self.fields}
         out["params"] = self.params[j].expand(out["q"].shape[0], -1)
         return out
 
@@ -71,10 +72,10 @@ class _Source:
         """``len(js)`` chunks of ``length`` consecutive points: each field ``(C, length, .)``."""
         if self._arrays is None:
             parts = [self.chunk(int(j), int(s), length) for j, s in zip(js, starts)]
-            return {k: torch.stack([p[k] for p in parts]) for k in (*FIELDS, "params")}
+            return {k: torch.stack([p[k] for p in parts]) for k in (*self.fields, "params")}
         rows = torch.as_tensor(js)[:, None]  # (C, 1)
         cols = torch.as_tensor(starts)[:, None] + torch.arange(length)  # (C, L)
-        out = {k: self._arrays[k][rows, cols] for k in FIELDS}  # one gather per field
+        out = {k: self._arrays[k][rows, cols] for k in self.fields}  # one gather per field
         out["params"] = self.params[rows[:, 0]][:, None, :].expand(-1, length, -1)
         return out
 
@@ -200,6 +201,11 @@ class TrajectoryDataModule(L.LightningDataModule):
     def scene(self) -> dict:
         return self._open().scene
 
+    @property
+    def dt(self) -> float:
+        """The data's sampling interval, s."""
+        return self._open().dt
+
     def setup(self, stage: str | None = None) -> None:
         f = self._open()
         if stage in ("fit", None):
@@ -246,7 +252,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         n_traj = len(src.indices)
         stride = max(1, (n_traj * f.num_points) // max_points)
         parts = [src.chunk(j, 0, (f.num_points + stride - 1) // stride, stride) for j in range(n_traj)]
-        out = {k: torch.cat([p[k] for p in parts]) for k in FIELDS}
+        out = {k: torch.cat([p[k] for p in parts]) for k in src.fields}
         out["params"] = src.params
         out["params_points"] = torch.cat([p["params"] for p in parts])
         return out

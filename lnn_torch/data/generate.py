@@ -12,8 +12,7 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..ground_truth import integrate_ground_truth
-from ..metrics import energy_drift
+from ..ground_truth import integrate_ground_truth, power_balance_residual
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
 
@@ -25,18 +24,27 @@ def trajectory_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index),)))
 
 
-def sample_initial_conditions(spec: DatasetSpec, indices=None):
-    """Parameters and initial states of the given trajectories (default: all), float64 arrays."""
+def sample_initial_conditions(spec: DatasetSpec, indices=None, inputs: bool = False):
+    """Parameters and initial states of the given trajectories (default: all), float64 arrays; with
+    ``inputs``, also each trajectory's input signal ``(N, num_points, n_u)`` (``lnn_torch.excitation``;
+    drawn after the state from the same generator, so parameters and states do not depend on it)."""
+    from ..excitation import sample
+
     system = spec.build_system()
     indices = range(spec.num_trajectories) if indices is None else indices
-    params, q0, qd0 = [], [], []
+    t = np.arange(spec.num_points) * spec.dt
+    excitation = spec.input_signal() if inputs else None
+    params, q0, qd0, tau = [], [], [], []
     for i in indices:
         rng = trajectory_rng(spec.seed, i)
         params.append(system.sample_params(rng, 1)[0])
         q, qd = system.sample_state(rng, 1)
         q0.append(q[0])
         qd0.append(qd[0])
-    return np.array(params), np.array(q0), np.array(qd0)
+        if inputs:
+            tau.append(sample(excitation, rng, t, system.num_inputs))
+    out = (np.array(params), np.array(q0), np.array(qd0))
+    return (*out, np.array(tau).reshape(len(q0), spec.num_points, system.num_inputs)) if inputs else out
 
 
 def split_indices(spec: DatasetSpec) -> dict:
@@ -55,9 +63,13 @@ def split_indices(spec: DatasetSpec) -> dict:
 
 def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> dict:
     """Integrate the given trajectories of ``spec`` (default: all). Returns float64 numpy arrays,
-    including ``integrator_steps`` (N,): steps each trajectory took (``integrate_ground_truth``)."""
+    including ``integrator_steps`` (N,): steps each trajectory took (``integrate_ground_truth``), and
+    for an actuated scene the inputs ``tau (N, T, n_u)`` (input k acts on ``[t_k, t_{k+1})``)."""
     system = spec.build_system()
-    params, q0, qd0 = (torch.from_numpy(a) for a in sample_initial_conditions(spec, indices))
+    actuated = system.num_inputs > 0
+    sampled = sample_initial_conditions(spec, indices, inputs=actuated)
+    params, q0, qd0 = (torch.from_numpy(a) for a in sampled[:3])
+    tau = torch.from_numpy(sampled[3]) if actuated else None
     system.check_params(params)
     system.check_state(q0, qd0)
     steps = spec.num_points - 1
@@ -68,22 +80,28 @@ def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> 
         bar = tqdm(total=steps, desc=f"generate {spec.scene}", unit="step", file=sys.stderr, mininterval=1.0)
     try:
         with torch.no_grad():
-            q, qd, n_steps = integrate_ground_truth(
+            q, qd, n_steps, work = integrate_ground_truth(
                 system, q0, qd0, params, spec.dt, steps, spec.integrator, spec.substeps, spec.energy_tol,
-                spec.adaptive_tol, callback=(lambda i: bar.update(1)) if bar else None, indices=indices)
+                spec.adaptive_tol, callback=(lambda i: bar.update(1)) if bar else None, indices=indices,
+                tau=None if tau is None else tau[:, :-1], return_work=True)
     finally:
         if bar:
             bar.close()
     with torch.no_grad():
         p_b = params[:, None, :].expand(-1, q.shape[1], -1)
         if spec.targets == "analytic":
-            qdd = system.acceleration(q, qd, p_b)
+            qdd = system.acceleration(q, qd, p_b, tau)
         else:
             qdd = torch.from_numpy(np.gradient(qd.numpy(), spec.dt, axis=1, edge_order=2))
         energy = system.energy(q, qd, p_b)
     t = np.arange(spec.num_points) * spec.dt
-    return {"t": t, "q": q.numpy(), "qd": qd.numpy(), "qdd": qdd.numpy(), "params": params.numpy(),
-            "energy": energy.numpy(), "integrator_steps": n_steps.numpy()}
+    out = {"t": t, "q": q.numpy(), "qd": qd.numpy(), "qdd": qdd.numpy(), "params": params.numpy(),
+           "energy": energy.numpy(), "integrator_steps": n_steps.numpy()}
+    if system.has_forces:
+        out["work"] = work.numpy()
+    if tau is not None:
+        out["tau"] = tau.numpy()
+    return out
 
 
 def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = False, progress: bool = False,
@@ -104,8 +122,11 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
     finally:
         torch.set_num_threads(old_threads)
     system = spec.build_system()
-    drift = float(energy_drift(system, *(torch.from_numpy(arrays[k]) for k in ("q", "qd", "params"))).max())
+    q, qd, params = (torch.from_numpy(arrays[k]) for k in ("q", "qd", "params"))
+    work = torch.from_numpy(arrays["work"]).sum(-1) if "work" in arrays else torch.zeros(q.shape[:2], dtype=q.dtype)
+    residual = float(power_balance_residual(system, q, qd, params, work).max())
     refined = int((arrays["integrator_steps"] != (spec.num_points - 1) * spec.substeps).sum())
+    check = "power-balance residual |E(t) - E(0) - W(t)|" if system.has_forces else "energy drift"
     attrs = {
         "scene": spec.scene,
         "scene_json": json.dumps(system.describe(), sort_keys=True),
@@ -122,14 +143,20 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "substeps": int(spec.substeps),
         "tolerances": json.dumps({
             "method": f"fixed-step {spec.integrator}, h = dt / substeps = {spec.dt / spec.substeps:g} s; trajectories "
-                      f"whose relative energy drift exceeds {spec.energy_tol:g} are integrated again with adaptive "
-                      f"DOP853 steps (rtol = atol = {spec.adaptive_tol:g})",
+                      f"whose relative {check} exceeds {spec.energy_tol:g} of the energy scale are integrated again "
+                      f"with adaptive DOP853 steps (rtol = atol = {spec.adaptive_tol:g})",
+            "check": check,
             "energy_tol": spec.energy_tol,
             "adaptive_tol": spec.adaptive_tol,
             "refined_trajectories": refined,
-            "max_energy_drift_rel": drift,
+            ("max_power_balance_residual_rel" if system.has_forces else "max_energy_drift_rel"): residual,
         }),
         "targets": spec.targets,
+        **({"inputs": json.dumps({"names": list(system.input_names), "units": ["N m"] * system.num_inputs,
+                                  "input_matrix": system.input_matrix().tolist(), "excitation": spec.input_signal(),
+                                  "hold": "zero-order: input k acts on [t_k, t_k+1); the last sample is the "
+                                          "signal's next value"})}
+           if system.num_inputs else {}),
         "package_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "generation_seconds": elapsed,

@@ -12,14 +12,18 @@ name               shape            meaning
 ``params``         ``(N, P)``       physical parameters (SI, order in attribute ``param_names``)
 ``energy``         ``(N, T)``       the scene's closed-form total energy, J
 ``integrator_steps`` ``(N,)``       integrator steps each trajectory took (more where refined)
+``tau``            ``(N, T, n_u)``  inputs of an actuated scene (N m), held over each interval (optional)
+``work``           ``(N, T, 2)``    work of the inputs and of dissipation since t = 0, J (scenes with forces)
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
 =================  ===============  =====================================================
 
 Root attributes: ``format``, ``format_version``, ``scene``, ``scene_json`` (the scene's full
 description: dof, angle mask, names, units, sampler configuration), ``conventions``, ``units``
 (JSON), ``gravity``, ``param_names``, ``spec`` (the ``DatasetSpec`` as JSON), ``seed``,
-``integrator``, ``substeps``, ``tolerances`` (JSON: measured max relative energy drift),
-``targets``, ``package_version``, ``created``, ``complete``.
+``integrator``, ``substeps``, ``tolerances`` (JSON: the accuracy check, energy drift or power
+balance, and its measured maximum), ``targets``, ``inputs`` (JSON, actuated scenes: names, units,
+input matrix, excitation, hold), ``package_version``, ``created``, ``complete``. Files written before
+``tau`` existed read as unactuated.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import numpy as np
 FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "qdd", "params", "energy")
-OPTIONAL_ARRAYS = ("integrator_steps",)  # integrator steps each trajectory took (adaptive refinement)
+OPTIONAL_ARRAYS = ("integrator_steps", "tau", "work")
 SPLITS = ("train", "val", "test")
 
 
@@ -107,6 +111,7 @@ class TrajectoryFile:
     num_points: int
     dof: int
     num_params: int
+    num_inputs: int = 0
 
     @property
     def scene(self) -> dict:
@@ -143,8 +148,9 @@ class TrajectoryFile:
             raise DatasetFileError(f"{self.path} has an empty '{split}' split")
         idx = idx[:max_trajectories] if max_trajectories else idx
         with self.open() as f:
-            arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params")}
-        return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays["qdd"], torch.from_numpy(idx))
+            arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params", "tau") if k in f}
+        return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays["qdd"], torch.from_numpy(idx),
+                            arrays.get("tau"))
 
 
 def read_dataset(path: str | Path) -> TrajectoryFile:
@@ -176,9 +182,12 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
             if len(all_idx) and (all_idx.min() < 0 or all_idx.max() >= n):
                 raise DatasetFileError(f"{path} is malformed: split indices out of range [0, {n})")
             num_params = f["params"].shape[1]
+            num_inputs = f["tau"].shape[2] if "tau" in f else 0
+            if "tau" in f and f["tau"].shape[:2] != (n, t):
+                raise DatasetFileError(f"{path} is malformed: 'tau' has shape {f['tau'].shape}, expected {(n, t)} + (n_u,)")
     except OSError as err:
         raise DatasetFileError(f"cannot read {path}: {err}") from None
-    return TrajectoryFile(path, attrs, splits, n, t, dof, num_params)
+    return TrajectoryFile(path, attrs, splits, n, t, dof, num_params, num_inputs)
 
 
 def write_arrays(path: str | Path, arrays: dict, attrs: dict, overwrite: bool = False) -> Path:

@@ -22,14 +22,17 @@ class DatasetSpec:
         seed: master seed; trajectory ``i`` uses the seed sequence ``(seed, i)``.
         split: train/val/test fractions by trajectory.
         integrator: fixed-step method of ``lnn_torch.integrators`` used for ground truth.
-        substeps: fixed integrator steps per sampling interval (first pass).
-        energy_tol: a trajectory whose energy drifts by more than this fraction of the scene's energy
-            scale in the fixed-step pass is integrated again with adaptive DOP853 steps (per
-            trajectory, ``rtol = atol = adaptive_tol``); if it still drifts beyond ``energy_tol``,
-            generation fails with an error naming the trajectories.
+        substeps: fixed integrator steps per sampling interval (first pass); None: the scene's
+            ``ground_truth_substeps``.
+        energy_tol: a trajectory whose energy drifts (with inputs or friction: whose power balance
+            is violated) by more than this fraction of the scene's energy scale in the fixed-step
+            pass is integrated again with adaptive DOP853 steps (per trajectory, ``rtol = atol =
+            adaptive_tol``); if it still fails, generation fails with an error naming the trajectories.
         adaptive_tol: tolerances of the adaptive pass.
         targets: ``"analytic"`` (the scene's closed-form accelerations, default) or
             ``"finite_difference"`` (second-order central differences of qd, as for measured data).
+        excitation: the input signals of an actuated scene (``lnn_torch.excitation``); empty: the
+            scene's ``default_excitation()``. Refused for a scene without inputs.
     """
 
     scene: str = "double_pendulum"
@@ -40,12 +43,15 @@ class DatasetSpec:
     seed: int = 0
     split: tuple[float, float, float] = (0.8, 0.1, 0.1)
     integrator: str = "rk8"
-    substeps: int = 1
+    substeps: int | None = None
     energy_tol: float = 1e-10
     adaptive_tol: float = 1e-11
     targets: str = "analytic"
+    excitation: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.substeps is None:
+            self.substeps = self.build_system().ground_truth_substeps
         try:  # values from command lines and YAML may arrive as strings
             self.num_trajectories, self.seed, self.substeps = int(self.num_trajectories), int(self.seed), int(self.substeps)
             self.duration, self.dt = float(self.duration), float(self.dt)
@@ -54,6 +60,7 @@ class DatasetSpec:
         except (TypeError, ValueError) as err:
             raise InputError(f"dataset spec: {err}") from None
         self.scene_config = dict(self.scene_config or {})
+        self.excitation = dict(self.excitation or {})
         self.validate()
 
     @property
@@ -89,6 +96,14 @@ class DatasetSpec:
 
         if self.integrator not in METHODS:
             raise InputError(f"unknown integrator '{self.integrator}'; known: {', '.join(METHODS)}")
+        self.input_signal()  # a malformed excitation, or one for a scene without inputs, raises InputError
+
+    def input_signal(self) -> dict:
+        """The excitation of the inputs (the scene's default when the spec names none), validated."""
+        from ..excitation import validate
+
+        system = self.build_system()
+        return validate(self.excitation or system.default_excitation(), system.num_inputs)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)

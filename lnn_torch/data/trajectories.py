@@ -17,6 +17,8 @@ class Trajectories:
         dt: sampling interval, s.
         qdd: ``(B, T, dof)`` accelerations (targets), or None where none are known.
         index: ``(B,)`` trajectory indices in their file, or None.
+        tau: ``(B, T, n_u)`` inputs (N m), sample ``k`` held over ``[t_k, t_{k+1})``; None for an
+            unactuated system.
     """
 
     q: torch.Tensor
@@ -25,6 +27,7 @@ class Trajectories:
     dt: float
     qdd: torch.Tensor | None = None
     index: torch.Tensor | None = None
+    tau: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         B, T, dof = self.q.shape
@@ -35,6 +38,8 @@ class Trajectories:
             raise ValueError(f"trajectories: params must be ({B}, P), got {tuple(self.params.shape)}")
         if not self.dt > 0:
             raise ValueError(f"trajectories: dt must be positive, got {self.dt}")
+        if self.tau is not None and (self.tau.ndim != 3 or self.tau.shape[:2] != (B, T)):
+            raise ValueError(f"trajectories: tau must be ({B}, {T}, n_u), got {tuple(self.tau.shape)}")
 
     def __len__(self) -> int:
         return self.q.shape[0]

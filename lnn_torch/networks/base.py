@@ -31,23 +31,44 @@ def wrap_angle(q: torch.Tensor) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class SceneInfo:
-    """What a model needs to know about a scene."""
+    """What a model needs to know about a scene: its coordinates, parameters and generalised forces
+    (``input_matrix`` (dof, n_u) of the inputs; joint ``friction`` on the rates ``joint_map @ qd``,
+    ``lnn_torch.forces``). A conservative scene has neither, and a model of it builds none."""
 
     name: str
     dof: int
     angle_mask: tuple[bool, ...]
     num_params: int
     quadratic_kinetic: bool = True
+    param_kinds: tuple[str, ...] = ()  # "positive" / "nonnegative" per parameter; empty: all positive
+    input_matrix: tuple[tuple[float, ...], ...] | None = None
+    friction: bool = False
+    joint_map: tuple[tuple[float, ...], ...] | None = None
+    coulomb_velocity: float = 0.05
+
+    @property
+    def num_inputs(self) -> int:
+        return 0 if self.input_matrix is None else len(self.input_matrix[0])
+
+    @property
+    def has_forces(self) -> bool:
+        return self.num_inputs > 0 or self.friction
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return self.param_kinds or ("positive",) * self.num_params
 
     @classmethod
     def of(cls, scene) -> "SceneInfo":
         """From a ``System``, a ``System.describe()`` dict or a ``SceneInfo``."""
         if isinstance(scene, SceneInfo):
             return scene
-        if isinstance(scene, dict):
-            return cls(scene["name"], int(scene["dof"]), tuple(bool(a) for a in scene["angle_mask"]),
-                       len(scene["param_names"]), bool(scene.get("quadratic_kinetic", True)))
-        return cls(scene.name, scene.dof, tuple(scene.angle_mask), scene.num_params, scene.quadratic_kinetic)
+        d = scene if isinstance(scene, dict) else scene.describe()
+        as_tuple = lambda m: None if m is None else tuple(tuple(float(x) for x in row) for row in m)  # noqa: E731
+        return cls(d["name"], int(d["dof"]), tuple(bool(a) for a in d["angle_mask"]), len(d["param_names"]),
+                   bool(d.get("quadratic_kinetic", True)), tuple(d.get("param_kinds", ())),
+                   as_tuple(d.get("input_matrix")), d.get("friction") is not None,
+                   as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)))
 
 
 class DynamicsModel(nn.Module):
@@ -58,11 +79,16 @@ class DynamicsModel(nn.Module):
     # the model computes its parameter conditioning once per chunk when given ``chunks``
     chunk_conditioning = False
 
-    def __init__(self, scene) -> None:
+    # the model represents the scene's generalised forces with ``LearnedForces`` (the direct MLP
+    # reads the inputs as features instead)
+    uses_forces = True
+
+    def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__()
         self.scene = SceneInfo.of(scene)
         dof = self.scene.dof
-        self.normalizer = Normalizer(dof, self.scene.num_params, self.scene.angle_mask)
+        self.normalizer = Normalizer(dof, self.scene.num_params, self.scene.angle_mask, self.scene.kinds,
+                                     self.scene.num_inputs, self.scene.has_forces)
         angles = [i for i, a in enumerate(self.scene.angle_mask) if a]
         linear = [i for i, a in enumerate(self.scene.angle_mask) if not a]
         self.register_buffer("angle_idx", torch.tensor(angles, dtype=torch.long), persistent=False)
@@ -72,6 +98,11 @@ class DynamicsModel(nn.Module):
         self.register_buffer("sel_linear", torch.eye(dof)[:, linear], persistent=False)
         self.num_features = 2 * len(angles) + len(linear)
         self.all_angles = not linear
+        self.forces = None
+        if self.scene.has_forces and self.uses_forces:
+            from .forces import LearnedForces
+
+            self.forces = LearnedForces(self.scene, self.num_features, learn_input_matrix, dissipation)
 
     # ------------------------------------------------------------------ features
     def features(self, q_norm: torch.Tensor, tangents: bool = False):
@@ -113,23 +144,51 @@ class DynamicsModel(nn.Module):
         g_lin = g_phi[..., 2 * na :]
         return g_angle @ self.sel_angle.to(g_phi.dtype).T + g_lin @ self.sel_linear.to(g_phi.dtype).T
 
+    # ------------------------------------------------------------------ generalised forces
+    def force_norm(self, q_norm, qd_norm, params_norm, tau_norm=None):
+        """The model's generalised force ``Q`` in normalised units ``(B, dof)`` (inputs and learned
+        dissipation, ``LearnedForces``), or None for a model without forces. ``tau_norm``: the
+        inputs divided by ``normalizer.input_rms``."""
+        if self.forces is None:
+            return None
+        norm = self.normalizer
+        scale, tau_t = norm.coord_scale.to(qd_norm.dtype), norm.time_scale.to(qd_norm.dtype)
+        qd = qd_norm * (scale / tau_t)
+        tau = None if tau_norm is None else tau_norm * norm.input_rms.to(tau_norm.dtype)
+        phi = self.features(q_norm)[0] if self.forces.rayleigh is not None else None
+        return norm.force_to_norm(self.forces.force(qd, params_norm, tau, phi, qd_norm))
+
+    def tau_norm(self, tau):
+        """Inputs in SI ``(B, n_u)`` -> normalised (None stays None)."""
+        return None if tau is None else tau.to(self.dtype) / self.normalizer.input_rms.to(self.dtype)
+
     # ------------------------------------------------------------------ interface
-    def acceleration_norm(self, q_norm, qd_norm, params_norm) -> torch.Tensor:
+    def acceleration_norm(self, q_norm, qd_norm, params_norm, tau_norm=None) -> torch.Tensor:
+        """Normalised accelerations under the inputs ``tau_norm`` (None for an unactuated scene)."""
+        return self.solve_norm(q_norm, qd_norm, params_norm, self.force_norm(q_norm, qd_norm, params_norm, tau_norm))
+
+    def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None) -> torch.Tensor:
+        """The model's accelerations under a normalised generalised force (None: none)."""
         raise NotImplementedError
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         """The model's own Hamiltonian ``H``, kinetic-like ``T`` and potential-like ``V`` (normalised)."""
         raise NotImplementedError(f"variant '{self.variant}' has no energy")
 
-    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None):
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None, force_norm=None):
         """``(qdd, H, T, V)`` in normalised units; subclasses share work between the two.
 
         ``chunks``: the batch is ``chunks`` runs of consecutive rows, each with ONE parameter vector
         (training chunks of one trajectory each); a model may compute its parameter conditioning
         once per run. The parameters must then be constant within each run (not checked here)."""
-        return (self.acceleration_norm(q_norm, qd_norm, params_norm), *self.energy_norm(q_norm, qd_norm, params_norm))
+        return (self.solve_norm(q_norm, qd_norm, params_norm, force_norm), *self.energy_norm(q_norm, qd_norm, params_norm))
 
-    def check_inputs(self, q, qd, params) -> None:
+    def check_inputs(self, q, qd, params, tau=None, inputs: bool = True) -> None:
+        """Raise ``InputError`` naming what is wrong with shapes, NaN, parameter signs and (unless
+        ``inputs`` is False) the inputs ``tau`` (given iff the scene is actuated)."""
+        from ..forces import check_inputs
+        from ..systems.base import check_param_signs
+
         dof, P = self.scene.dof, self.scene.num_params
         if q.ndim != 2 or q.shape[-1] != dof:
             raise InputError(f"q must have shape (batch, {dof}), got {tuple(q.shape)}")
@@ -138,11 +197,12 @@ class DynamicsModel(nn.Module):
         if params.ndim != 2 or params.shape != (q.shape[0], P):
             raise InputError(f"params must have shape ({q.shape[0]}, {P}) for scene '{self.scene.name}', "
                              f"got {tuple(params.shape)}")
-        for name, x in (("q", q), ("qd", qd), ("params", params)):
-            if not torch.isfinite(x).all():
+        if inputs:
+            check_inputs(tau, self.scene.num_inputs, q.shape[:1])
+        for name, x in (("q", q), ("qd", qd), ("params", params), ("tau", tau)):
+            if x is not None and not torch.isfinite(x).all():
                 raise InputError(f"{name} contains NaN or Inf")
-        if (params <= 0).any():
-            raise InputError("params must be positive (masses, lengths, stiffnesses)")
+        check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params")
 
     def normalize(self, q, qd, params):
         q_norm, qd_norm = self.normalizer.state(q, qd)
@@ -150,53 +210,83 @@ class DynamicsModel(nn.Module):
 
     def fit_normalizer(self, stats: dict) -> None:
         """Set the normalisation from training data (SI): ``q, qd, qdd (n, dof)``, ``params (m, P)``
-        per trajectory and ``params_points (n, P)`` aligned with the points."""
-        self.normalizer.fit(stats["q"], stats["qd"], stats["qdd"], stats["params"])
+        per trajectory, ``params_points (n, P)`` aligned with the points and, for an actuated scene,
+        the inputs ``tau (n, n_u)``."""
+        tau = stats.get("tau")
+        B = None if self.scene.input_matrix is None else torch.tensor(self.scene.input_matrix, dtype=torch.float64)
+        input_force = None if tau is None or B is None else tau.double() @ B.T
+        self.normalizer.fit(stats["q"], stats["qd"], stats["qdd"], stats["params"], input_force, tau)
+        if self.forces is not None and self.forces.friction:
+            D = self.forces.joint_map.double()
+            rates = stats["qd"].double().reshape(-1, self.scene.dof) @ D.T
+            torque = float(1 / self.normalizer.force_scale) if input_force is not None else 1.0
+            self.forces.fit_units(torque, float(rates.pow(2).mean().sqrt()))
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
-        """What the training loss compares, from a batch in SI units (``(B, dof)``, ``(B, P)``).
+    def training_terms(self, q, qd, qdd, params, tau=None, energy: bool = False, chunks: int | None = None,
+                       torque: bool = False) -> dict:
+        """What the training loss compares, from a batch in SI units (``(B, dof)``, ``(B, P)``,
+        inputs ``tau (B, n_u)``).
 
-        Returns ``(pred, target, rms)`` in normalised units (``rms`` weights each component), plus
-        the model's own ``(H, T, V)`` when ``energy``. Lagrangian models and the direct MLP predict
-        accelerations. ``chunks``: see ``acceleration_and_energy_norm``.
+        Returns a dict in normalised units: ``pred``, ``target``, ``rms`` (weights each component);
+        with ``energy``, the model's own ``H``, ``T``, ``V`` and, for a model with forces, the
+        ``power`` of its generalised force (``qd . Q``, for the power-balance term); with ``torque``
+        (structured models of actuated scenes), the inputs of its inverse dynamics ``tau_pred`` and
+        the data's ``tau_target``, both divided by their rms. Lagrangian models and the direct MLP
+        predict accelerations. ``chunks``: see ``acceleration_and_energy_norm``.
         """
         q_n, qd_n, p_n = self.normalize(q, qd, params)
-        target = self.normalizer.accel_to_norm(qdd)
-        rms = self.normalizer.accel_rms.to(q.dtype)
+        out = {"target": self.normalizer.accel_to_norm(qdd), "rms": self.normalizer.accel_rms.to(q.dtype)}
+        tau_n = None if tau is None else tau / self.normalizer.input_rms.to(tau.dtype)
+        if torque:
+            if not hasattr(self, "inverse_dynamics_norm") or tau is None:
+                raise InputError(f"a torque loss needs a structured model of an actuated scene with inputs in the "
+                                 f"data (variant '{self.variant}', {self.scene.num_inputs} inputs)")
+            Btau = self.inverse_dynamics_norm(q_n, qd_n, out["target"], p_n, chunks)
+            out["tau_pred"], out["tau_target"] = self.forces.solve_inputs(Btau) / self.normalizer.input_rms, tau_n
         if energy or (chunks is not None and self.chunk_conditioning):
-            pred, H, T, V = self.acceleration_and_energy_norm(q_n, qd_n, p_n, chunks)
-            return (pred, target, rms, H, T, V) if energy else (pred, target, rms)
-        return self.acceleration_norm(q_n, qd_n, p_n), target, rms
+            force = self.force_norm(q_n, qd_n, p_n, tau_n)
+            out["pred"], H, T, V = self.acceleration_and_energy_norm(q_n, qd_n, p_n, chunks, force)
+            if energy:
+                out.update(H=H, T=T, V=V)
+                if force is not None:
+                    out["power"] = (qd_n * force).sum(-1)
+            return out
+        out["pred"] = self.acceleration_norm(q_n, qd_n, p_n, tau_n)
+        return out
 
-    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
-        """Integrate the learned dynamics from ``(q0, qd0)`` (SI units, ``(B, dof)``, params ``(B, P)``).
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
+        """Integrate the learned dynamics from ``(q0, qd0)`` (SI units, ``(B, dof)``, params ``(B, P)``;
+        inputs ``tau (B, num_steps, n_u)`` held over each step for an actuated scene).
 
         Returns ``(q, qd)``, each ``(B, num_steps + 1, dof)``. Second-order models integrate their
         accelerations with ``lnn_torch.integrators.rollout``; Hamiltonian models their own flow.
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
-        self.check_inputs(q0, qd0, params)
-        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method)
+        self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
+        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
 
     def acceleration_fn(self, params: torch.Tensor):
-        """``(q, qd, params) -> qdd`` (SI, unchecked) for states of systems with these ``params``
+        """``(q, qd, params[, tau]) -> qdd`` (SI, unchecked) for states of systems with these ``params``
         ``(B, P)``: the model's parameter conditioning is computed once, here, and reused by every
         call, which must pass these same ``params``. Integrators call it at every stage."""
 
-        def accel(q, qd, params):
-            return self.acceleration(q, qd, params, check=False)
+        def accel(q, qd, params, tau=None):
+            return self.acceleration(q, qd, params, tau, check=False)
 
         return accel
 
-    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, check: bool = True) -> torch.Tensor:
-        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P) -> (B, dof)``.
+    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, tau: torch.Tensor | None = None,
+                     check: bool = True) -> torch.Tensor:
+        """Accelerations in SI units: ``(B, dof), (B, dof), (B, P)[, tau (B, n_u)] -> (B, dof)``.
 
-        The networks run in their own dtype; the result has the dtype and device of ``q``.
-        Compiled after ``compile_dynamics()``.
+        ``tau``: the inputs of an actuated scene (required there, refused otherwise). The networks
+        run in their own dtype; the result has the dtype and device of ``q``. Compiled after
+        ``compile_dynamics()``.
         """
         if check:
-            self.check_inputs(q, qd, params)
-        return self._acceleration_si(self.acceleration_norm, q, qd, self.normalizer.params(params.to(self.dtype)))
+            self.check_inputs(q, qd, params, tau)
+        extra = () if tau is None else (self.tau_norm(tau),)
+        return self._acceleration_si(self.acceleration_norm, q, qd, self.normalizer.params(params.to(self.dtype)), *extra)
 
     def _acceleration_si(self, fn, q, qd, params_norm, *extra):
         """SI accelerations from ``fn(q_norm, qd_norm, params_norm, *extra)`` (normalised units), run

@@ -21,8 +21,8 @@ class BlackBoxLagrangian(DynamicsModel):
     variant = "lnn"
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
-                 hessian_reg: float = 0.0) -> None:
-        super().__init__(scene)
+                 hessian_reg: float = 0.0, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+        super().__init__(scene, learn_input_matrix, dissipation)
         self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims), 1,
                               activation, out_bias=False)
         if lnn_init:
@@ -34,8 +34,8 @@ class BlackBoxLagrangian(DynamicsModel):
         phi, _ = self.features(q_norm[None])
         return self.net(torch.cat([phi[0], qd_norm, params_norm], -1)[None])[0][0, 0]
 
-    def acceleration_norm(self, q_norm, qd_norm, params_norm, check_singular: bool | None = None):
-        """The generic solve.
+    def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None):
+        """The generic solve (with the generalised force ``force_norm`` on the right-hand side).
 
         Singular-Hessian policy: the velocity Hessian of an arbitrary network can be indefinite, and
         singular somewhere (an untrained one always is, somewhere along a rollout). With
@@ -44,15 +44,16 @@ class BlackBoxLagrangian(DynamicsModel):
         skips those steps; evaluations count those trajectories as non-finite). ``hessian_reg > 0``
         solves the Levenberg-regularised system ``H + hessian_reg (mean|diag H| + 1) I`` instead.
         """
-        check = self.raise_on_singular if check_singular is None else check_singular
         return generic_acceleration(self.lagrangian_norm, q_norm, qd_norm, params_norm, hessian_reg=self.hessian_reg,
-                                    check=check)
+                                    check=self.raise_on_singular, force=force_norm)
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
-        q_n, qd_n, p_n = self.normalize(q, qd, params)
-        pred = self.acceleration_norm(q_n, qd_n, p_n, check_singular=False)
-        out = (pred, self.normalizer.accel_to_norm(qdd), self.normalizer.accel_rms.to(q.dtype))
-        return (*out, *self.energy_norm(q_n, qd_n, p_n)) if energy else out
+    def training_terms(self, *args, **kwargs) -> dict:
+        """As ``DynamicsModel.training_terms``; singular Hessians give NaN there (the step is skipped)."""
+        previous, self.raise_on_singular = self.raise_on_singular, False
+        try:
+            return super().training_terms(*args, **kwargs)
+        finally:
+            self.raise_on_singular = previous
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         L_fn = torch.func.vmap(self.lagrangian_norm)

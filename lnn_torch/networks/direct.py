@@ -1,5 +1,6 @@
-"""Baseline: an MLP that predicts accelerations directly from ``(q, qd, theta)`` (a second-order
-neural ODE; no Lagrangian structure, no energy)."""
+"""Baseline: an MLP that predicts accelerations directly from ``(q, qd, theta)`` and, for an actuated
+scene, the inputs ``tau`` (a second-order neural ODE; no Lagrangian structure, no energy; it learns
+friction and input effects as part of its map)."""
 
 from __future__ import annotations
 
@@ -14,12 +15,14 @@ class DirectMLP(DynamicsModel):
 
     variant = "mlp"
     has_energy = False
+    uses_forces = False  # the inputs are features of the network
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh") -> None:
         super().__init__(scene)
-        self.net = TangentMLP(self.num_features + self.scene.dof + self.scene.num_params, list(hidden_dims),
-                              self.scene.dof, activation)
+        n_in = self.num_features + self.scene.dof + self.scene.num_params + self.scene.num_inputs
+        self.net = TangentMLP(n_in, list(hidden_dims), self.scene.dof, activation)
 
-    def acceleration_norm(self, q_norm, qd_norm, params_norm):
+    def acceleration_norm(self, q_norm, qd_norm, params_norm, tau_norm=None):
         phi, _ = self.features(q_norm)
-        return self.net(torch.cat([phi, qd_norm, params_norm], -1))[0]
+        x = [phi, qd_norm, params_norm] + ([] if tau_norm is None else [tau_norm])
+        return self.net(torch.cat(x, -1))[0]

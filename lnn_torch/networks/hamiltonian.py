@@ -22,16 +22,24 @@ class HamiltonianNN(DynamicsModel):
 
     Normalisation keeps ``(q_norm, m_norm)`` canonical: ``m_norm = p * coord_scale / c`` with one
     momentum scale ``c`` and one time scale, so ``H_norm = (tau / c) H``.
+
+    With generalised forces (inputs, friction) it is a port-Hamiltonian model: ``pdot = -dH/dq + Q``
+    with ``Q = B tau + Q_diss(qdot)`` from ``LearnedForces`` at the model's velocity ``qdot = dH/dp``
+    (``m_dot_norm = (tau c^-1 coord_scale) Q`` in its units); canonical coordinates only.
     """
 
     variant = "hnn"
     has_energy = False  # its Hamiltonian is conserved by construction; no T/V split
 
-    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", hnn_coordinates: str = "canonical") -> None:
-        super().__init__(scene)
+    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", hnn_coordinates: str = "canonical",
+                 learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+        super().__init__(scene, learn_input_matrix, dissipation)
         coordinates = hnn_coordinates
         if coordinates not in ("canonical", "velocity"):
             raise ValueError(f"hnn coordinates must be 'canonical' or 'velocity', got '{coordinates}'")
+        if coordinates == "velocity" and self.scene.has_forces:
+            raise InputError("an HNN in (q, qd) coordinates has no port for generalised forces (inputs, friction): "
+                             "use hnn_coordinates='canonical'")
         self.coordinates = coordinates
         self._momentum_fn = None
         if coordinates == "canonical":
@@ -83,22 +91,35 @@ class HamiltonianNN(DynamicsModel):
         H, g = self.net.value_and_input_grad(x, None, num_grad_inputs=F + self.scene.dof)
         return H, self.features_vjp(q_n, g[:, :F], sin_cos), g[:, F:]
 
-    def vector_field_norm(self, q_n, m_n, params_n):
-        """``(dq_norm/dt_norm, dm_norm/dt_norm) = (dH/dm, -dH/dq)``."""
+    def vector_field_norm(self, q_n, m_n, params_n, tau_norm=None):
+        """``(dq_norm/dt_norm, dm_norm/dt_norm) = (dH/dm, -dH/dq + Q_m)`` with ``Q_m`` the generalised
+        force in the model's momentum units (models with forces)."""
         _, dH_dq, dH_dm = self.hamiltonian_and_grads(q_n, m_n, params_n)
-        return dH_dm, -dH_dq
+        dm = -dH_dq
+        if self.forces is not None:
+            norm = self.normalizer
+            scale, t_scale = norm.coord_scale.to(q_n.dtype), norm.time_scale.to(q_n.dtype)
+            tau = None if tau_norm is None else tau_norm * norm.input_rms.to(q_n.dtype)
+            Q = self.forces.force(dH_dm * (scale / t_scale), params_n, tau)
+            dm = dm + Q * (t_scale * scale / norm.momentum_scale.to(q_n.dtype))
+        return dH_dm, dm
 
     def energy_norm(self, q_n, qd_n, params_n):
         raise NotImplementedError("the HNN's Hamiltonian is a function of (q, m): use hamiltonian_and_grads")
 
-    def training_terms(self, q, qd, qdd, params, energy: bool = False, chunks: int | None = None):
+    def training_terms(self, q, qd, qdd, params, tau=None, energy: bool = False, chunks: int | None = None,
+                       torque: bool = False) -> dict:
+        """The flow ``(dq, dm)`` against the data's ``(qd, d m / dt)`` (normalised)."""
+        if torque:
+            raise InputError("the HNN has no inverse-dynamics (torque) loss")
         q_n, qd_n, p_n = self.normalize(q, qd, params)
         m_n, mdot_n = self._momentum_and_rate_norm(q, qd, qdd, params)
-        dq, dm = self.vector_field_norm(q_n, m_n, p_n)
-        return (torch.cat([dq, dm], -1), torch.cat([qd_n, mdot_n], -1),
-                self.normalizer.vector_field_rms.to(q.dtype))
+        tau_n = None if tau is None else tau / self.normalizer.input_rms.to(tau.dtype)
+        dq, dm = self.vector_field_norm(q_n, m_n, p_n, tau_n)
+        return {"pred": torch.cat([dq, dm], -1), "target": torch.cat([qd_n, mdot_n], -1),
+                "rms": self.normalizer.vector_field_rms.to(q.dtype)}
 
-    def acceleration_norm(self, q_n, qd_n, params_n):
+    def acceleration_norm(self, q_n, qd_n, params_n, tau_norm=None):
         """Accelerations of the model's flow at ``(q, qd)``.
 
         ``velocity``: ``qdd = -dH/dq`` at ``m = qd``. ``canonical``: ``m`` from the momentum map,
@@ -109,26 +130,29 @@ class HamiltonianNN(DynamicsModel):
         q, qd = self.normalizer.state_to_phys(q_n, qd_n)
         params = self.normalizer.params_to_phys(params_n)
         m_n = self.normalizer.momentum_to_norm(self._momentum_fn(q, qd, params))
-        flow = self.vector_field_norm(q_n, m_n, params_n)
+        flow = self.vector_field_norm(q_n, m_n, params_n, tau_norm)
         _, qdd_n = torch.func.jvp(lambda a, b: self.hamiltonian_and_grads(a, b, params_n)[2], (q_n, m_n), flow)
         return qdd_n
 
-    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4"):
-        """Integrate the model's own flow in ``(q, m)`` (RK methods); ``qd`` of the result is the
-        model's velocity ``dH/dp`` (canonical) or the state ``m = qd`` (velocity coordinates)."""
-        self.check_inputs(q0, qd0, params)
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
+        """Integrate the model's own flow in ``(q, m)`` (RK methods; inputs ``tau (B, num_steps, n_u)``
+        held over each step); ``qd`` of the result is the model's velocity ``dH/dp`` (canonical) or
+        the state ``m = qd`` (velocity coordinates)."""
+        self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
         dof = self.scene.dof
         q_n, _, p_n = self.normalize(q0, qd0, params)
         m_n = self.momentum_norm(q0, qd0, params)
 
         dtype = self.dtype
 
-        def field(y, pn):  # the state keeps the input dtype; the network runs in its own
+        def field(y, pn, tau_k=None):  # the state keeps the input dtype; the network runs in its own
             y, pn = y.to(dtype), pn.to(dtype)
-            return torch.cat(self.vector_field_norm(y[:, :dof], y[:, dof:], pn), -1).to(q0.dtype)
+            tau_n = None if tau_k is None else self.tau_norm(tau_k)
+            return torch.cat(self.vector_field_norm(y[:, :dof], y[:, dof:], pn, tau_n), -1).to(q0.dtype)
 
-        tau = float(self.normalizer.time_scale)
-        y = integrators.rollout_first_order(field, torch.cat([q_n, m_n], -1), p_n, dt / tau, num_steps, method)
+        t_scale = float(self.normalizer.time_scale)
+        y = integrators.rollout_first_order(field, torch.cat([q_n, m_n], -1), p_n, dt / t_scale, num_steps, method,
+                                            tau=tau)
         qs_n, ms_n = y[..., :dof], y[..., dof:]  # (B, T, dof)
         if self.coordinates == "canonical":
             B, T = qs_n.shape[:2]

@@ -7,8 +7,17 @@ Coordinates: angles stay raw (they enter networks as sin/cos); a linear coordina
 
 This is a point transformation plus a time rescaling, so a Lagrangian in normalised variables is an
 exact Lagrangian of the physical dynamics (z-scoring each velocity and acceleration separately, as
-the reference design does, is not). Parameters enter as z-scored logarithms (they are positive and
-span ratios). ``accel_rms`` (per coordinate, normalised units) only weights the loss.
+the reference design does, is not). Positive parameters enter as z-scored logarithms (they span
+ratios); parameters that may be zero (friction coefficients) are z-scored as they are.
+``accel_rms`` (per coordinate, normalised units) only weights the loss.
+
+Generalised forces (scenes with inputs or friction): a force ``Q`` (N m per coordinate) enters the
+normalised Euler-Lagrange equations as ``Q_norm = force_scale * coord_scale * Q``: a point
+transformation scales a force by the coordinate scale, and ``force_scale`` fixes the otherwise free
+scale of the learned Lagrangian (``L -> cL`` leaves accelerations unchanged without forces; with
+inputs it must match the torques). ``force_scale = 1 / rms(coord_scale * B tau)`` over the training
+data (1 without inputs), so normalised input forces are O(1); ``input_rms`` normalises the inputs
+where a network reads them directly (the direct MLP).
 """
 
 from __future__ import annotations
@@ -18,9 +27,14 @@ from torch import nn
 
 
 class Normalizer(nn.Module):
-    def __init__(self, dof: int, num_params: int, angle_mask) -> None:
+    def __init__(self, dof: int, num_params: int, angle_mask, param_kinds=None, num_inputs: int = 0,
+                 forces: bool = False) -> None:
         super().__init__()
-        self.dof, self.num_params = dof, num_params
+        self.dof, self.num_params, self.num_inputs = dof, num_params, num_inputs
+        kinds = list(param_kinds or ["positive"] * num_params)
+        self.all_log = all(k == "positive" for k in kinds)
+        self.register_buffer("param_log", torch.tensor([k == "positive" for k in kinds], dtype=torch.bool),
+                             persistent=False)
         self.register_buffer("angle_mask", torch.tensor(list(angle_mask), dtype=torch.bool))
         self.register_buffer("coord_shift", torch.zeros(dof))
         self.register_buffer("coord_scale", torch.ones(dof))
@@ -31,24 +45,42 @@ class Normalizer(nn.Module):
         # Hamiltonian models: one momentum scale, and the rms of each vector-field component
         self.register_buffer("momentum_scale", torch.ones(()))
         self.register_buffer("vector_field_rms", torch.ones(2 * dof))
+        if forces:  # only scenes with forces have these (conservative checkpoints stay as they were)
+            self.register_buffer("force_scale", torch.ones(()))
+        if num_inputs:
+            self.register_buffer("input_rms", torch.ones(num_inputs))
+
+    def _transform(self, params):
+        """``log`` of the positive parameters, the others as they are."""
+        if self.all_log:
+            return params.log()
+        mask = self.param_log.to(params.device)
+        return torch.where(mask, torch.where(mask, params, torch.ones_like(params)).log(), params)
 
     @torch.no_grad()
-    def fit(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor) -> "Normalizer":
-        """Set the statistics from training data: q, qd, qdd ``(n, dof)``; params ``(m, P)``."""
+    def fit(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor,
+            input_force: torch.Tensor | None = None, tau: torch.Tensor | None = None) -> "Normalizer":
+        """Set the statistics from training data: q, qd, qdd ``(n, dof)``; params ``(m, P)``; the
+        input forces ``B tau (n, dof)`` and the inputs ``tau (n, n_u)`` where the scene has inputs."""
         q, qd, qdd, params = (x.double().reshape(-1, x.shape[-1]) for x in (q, qd, qdd, params))
         lin = ~self.angle_mask.cpu()
         shift = torch.where(lin, q.mean(0), torch.zeros(self.dof, dtype=torch.float64))
         scale = torch.where(lin, q.std(0).clamp_min(1e-8), torch.ones(self.dof, dtype=torch.float64))
         acc = qdd / scale
         # one time scale: tau = 1/sqrt(rms |qdd / scale|), so normalised accelerations are O(1)
-        tau = acc.pow(2).mean().sqrt().clamp_min(1e-12).rsqrt()
-        logp = params.log()
+        t_scale = acc.pow(2).mean().sqrt().clamp_min(1e-12).rsqrt()
+        logp = self._transform(params)
         self.coord_shift.copy_(shift)
         self.coord_scale.copy_(scale)
-        self.time_scale.copy_(tau)
+        self.time_scale.copy_(t_scale)
         self.param_log_mean.copy_(logp.mean(0))
         self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if len(logp) > 1 else torch.ones(self.num_params))
-        self.accel_rms.copy_((acc * tau**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
+        self.accel_rms.copy_((acc * t_scale**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
+        if hasattr(self, "force_scale") and input_force is not None:
+            rms = (input_force.double().reshape(-1, self.dof) * scale).pow(2).mean().sqrt()
+            self.force_scale.fill_(float(1 / rms) if rms > 0 else 1.0)
+        if hasattr(self, "input_rms") and tau is not None:
+            self.input_rms.copy_(tau.double().reshape(-1, self.num_inputs).pow(2).mean(0).sqrt().clamp_min(1e-6))
         return self
 
     def state(self, q, qd):
@@ -57,7 +89,7 @@ class Normalizer(nn.Module):
         return q_norm, qd_norm
 
     def params(self, params):
-        return (params.log() - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
+        return (self._transform(params) - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
 
     def accel_to_norm(self, qdd):
         return qdd * (self.time_scale.to(qdd.dtype) ** 2 / self.coord_scale.to(qdd.dtype))
@@ -70,7 +102,15 @@ class Normalizer(nn.Module):
         return q_norm * scale + self.coord_shift.to(q_norm.dtype), qd_norm * (scale / self.time_scale.to(q_norm.dtype))
 
     def params_to_phys(self, params_norm):
-        return (params_norm * self.param_log_std.to(params_norm.dtype) + self.param_log_mean.to(params_norm.dtype)).exp()
+        x = params_norm * self.param_log_std.to(params_norm.dtype) + self.param_log_mean.to(params_norm.dtype)
+        return x.exp() if self.all_log else torch.where(self.param_log.to(x.device), x.exp(), x)
+
+    def force_to_norm(self, force):
+        """A generalised force in SI ``(B, dof)`` -> normalised Euler-Lagrange units."""
+        return force * (self.force_scale.to(force.dtype) * self.coord_scale.to(force.dtype))
+
+    def force_to_phys(self, force_norm):
+        return force_norm / (self.force_scale.to(force_norm.dtype) * self.coord_scale.to(force_norm.dtype))
 
     def momentum_to_norm(self, p):
         """Canonical momenta: ``p_norm = p * coord_scale / momentum_scale`` (keeps (q_norm, p_norm) canonical)."""

@@ -88,9 +88,10 @@ def lagrangian(model, q_norm, qd_norm, params_norm) -> torch.Tensor:
     return 0.5 * qd_norm @ M @ qd_norm - potential(model, q_norm[None], params_norm[None])[0]
 
 
-def structured_model_acceleration(model, q_norm, qd_norm, params_norm) -> torch.Tensor:
+def structured_model_acceleration(model, q_norm, qd_norm, params_norm, force_norm=None) -> torch.Tensor:
     """A structured model's normalised accelerations by torch.func (jvp of M, grads of T and V) and a
-    LAPACK Cholesky solve: ``lnn_torch.dynamics.structured_acceleration`` on the plain networks."""
+    LAPACK Cholesky solve: ``lnn_torch.dynamics.structured_acceleration`` on the plain networks,
+    under the normalised generalised force ``force_norm`` (None: none)."""
     return structured_acceleration(lambda q1, p1: cholesky(model, q1[None], p1[None])[0],
                                    lambda q1, p1: potential(model, q1[None], p1[None])[0],
-                                   q_norm, qd_norm, params_norm, eps=model.eps)
+                                   q_norm, qd_norm, params_norm, eps=model.eps, force=force_norm)

@@ -36,14 +36,17 @@ class StructuredLagrangian(DynamicsModel):
         film_hidden: hidden width of each FiLM network.
         eps: ``M = chol chol^T + eps I``.
         diag_shift: added to the softplus of the Cholesky diagonal.
+        learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
+            (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
     """
 
     variant = "film_lnn"
     conditioning = "film"
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", film_mode: str = "neuron",
-                 potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3) -> None:
-        super().__init__(scene)
+                 potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
+                 learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+        super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
                 f"scene '{self.scene.name}' has a kinetic energy that is not quadratic in the velocities; "
@@ -130,30 +133,33 @@ class StructuredLagrangian(DynamicsModel):
         return V, self.features_vjp(q_norm, dV_dphi, sin_cos)
 
     # ------------------------------------------------------------------ the solve
-    def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool):
-        """Accelerations (and, with ``energy``, ``H, T, V``) from ONE pass of each network."""
+    def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool, force=None):
+        """Accelerations (and, with ``energy``, ``H, T, V``) from ONE pass of each network, under
+        the normalised generalised force ``force`` (None: none)."""
         kinetic_film, potential_film = films
         phi, dphi, sin_cos = self._features(q_norm, True)
         chol, dchol = self._cholesky(phi, dphi, params_norm, kinetic_film)
         V, dV = self._potential(q_norm, phi, sin_cos, params_norm, potential_film, grad=True)
         if not energy:
-            return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)
-        qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True)
+            return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, force=force)
+        qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True,
+                                                     force=force)
         return qdd, T + V, T, V
 
-    def acceleration_norm(self, q_norm, qd_norm, params_norm):
-        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False)
+    def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None):
+        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False, force=force_norm)
 
-    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None):
+    def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None, force_norm=None):
         """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network
         (``chunks``: FiLM once per chunk, see ``DynamicsModel.acceleration_and_energy_norm``)."""
         B = q_norm.shape[0]
         if chunks is not None and (chunks < 1 or B % chunks):
             raise InputError(f"a batch of {B} rows cannot be split into {chunks} chunks of equal length")
-        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm, chunks), energy=True)
+        return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm, chunks), energy=True, force=force_norm)
 
-    def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films):
-        return self._solve(q_norm, qd_norm, params_norm, films, energy=False)
+    def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films, tau_norm=None):
+        force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
+        return self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
 
     def acceleration_fn(self, params: torch.Tensor):
         """As ``DynamicsModel.acceleration_fn``, with both networks' FiLM computed once, not at
@@ -163,12 +169,40 @@ class StructuredLagrangian(DynamicsModel):
         params_norm = self.normalizer.params(params.to(self.dtype))
         films = self.films(params_norm)
 
-        def accel(q, qd, p):
-            if p is not params:
+        def accel(q, qd, params_, tau=None):
+            if params_ is not params:
                 raise InputError("acceleration_fn(params) was called with other parameters than its own")
-            return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films)
+            extra = () if tau is None else (self.tau_norm(tau),)
+            return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films, *extra)
 
         return accel
+
+    # ------------------------------------------------------------------ inverse dynamics
+    def inverse_dynamics_norm(self, q_norm, qd_norm, qdd_norm, params_norm, chunks: int | None = None):
+        """The input force ``B tau`` in SI ``(B, dof)`` that makes the model accelerate by ``qdd_norm``:
+        ``M qdd - (dT/dq - dV/dq - Mdot qd) - Q_diss`` (Deep Lagrangian Networks' inverse model)."""
+        if self.forces is None or not self.forces.num_inputs:
+            raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
+        kinetic_film, potential_film = self.films(params_norm, chunks)
+        phi, dphi, sin_cos = self._features(q_norm, True)
+        chol, dchol = self._cholesky(phi, dphi, params_norm, kinetic_film)
+        _, dV = self._potential(q_norm, phi, sin_cos, params_norm, potential_film, grad=True)
+        M = torch.baddbmm(torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device) * self.eps, chol, chol.mT)
+        free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
+        norm = self.normalizer
+        qd = qd_norm * (norm.coord_scale.to(qd_norm.dtype) / norm.time_scale.to(qd_norm.dtype))
+        phi_f = phi if self.forces.rayleigh is not None else None
+        q_diss = self.forces.dissipative_force(qd, params_norm, phi_f, qd_norm)
+        return norm.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_diss
+
+    def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
+        """The inputs ``tau (B, n_u)`` in N m that make the model accelerate by ``qdd`` (SI): the input
+        force solved through the input matrix (least squares where fewer inputs than coordinates)."""
+        self.check_inputs(q, qd, params, inputs=False)
+        dtype = self.dtype
+        q_n, qd_n, p_n = self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype))
+        Btau = self.inverse_dynamics_norm(q_n, qd_n, self.normalizer.accel_to_norm(qdd.to(dtype)), p_n)
+        return self.forces.solve_inputs(Btau).to(q.dtype)
 
     # ------------------------------------------------------------------ energies
     def energy_norm(self, q_norm, qd_norm, params_norm):
@@ -192,5 +226,6 @@ class DeLaN(StructuredLagrangian):
     conditioning = "concat"
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
-                 diag_shift: float = 1e-3) -> None:
-        super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift)
+                 diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+        super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift,
+                         learn_input_matrix=learn_input_matrix, dissipation=dissipation)

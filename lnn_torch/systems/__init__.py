@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .actuated_double_pendulum import ActuatedDoublePendulum
 from .base import GRAVITY, InputError, Range, System
 from .chain_pendulum import ChainPendulum
 from .double_pendulum import DoublePendulum
@@ -10,7 +11,8 @@ from .pendulum import Pendulum
 from .relativistic_particle import RelativisticParticle
 
 SYSTEMS: dict[str, type[System]] = {
-    cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring, ChainPendulum, RelativisticParticle)
+    cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring, ChainPendulum, RelativisticParticle,
+                              ActuatedDoublePendulum)
 }
 
 
@@ -27,4 +29,4 @@ def get_system(name: str, **config) -> System:
 
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
-           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle"]
+           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle", "ActuatedDoublePendulum"]

@@ -2,7 +2,10 @@
 
 A scene (system) states its degrees of freedom, which coordinates are angles, its physical
 parameters with units, whether its kinetic energy is quadratic in the velocities, seeded samplers
-for parameters and initial states, and closed-form batched physics in SI units.
+for parameters and initial states, and closed-form batched physics in SI units. A scene may declare
+generalised forces (``lnn_torch.forces``): inputs (``input_matrix``: motor torques at actuated
+joints) and joint friction (``friction_torque`` with the ``joint_map``); a conservative scene
+declares neither and its accelerations take no ``tau``.
 
 Shapes: ``q``, ``qd`` are ``(*batch, dof)``; ``params`` is ``(*batch, num_params)``. Every
 function keeps the input dtype and device and also works on a single unbatched sample, so that it
@@ -60,6 +63,21 @@ def as_range(value, name: str) -> Range:
         raise InputError(f"{name}: expected a pair (low, high), got {value!r}") from None
 
 
+def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
+    """Raise ``InputError`` naming the parameters that are not positive (kind ``positive``) or are
+    negative (kind ``nonnegative``, e.g. friction coefficients)."""
+    kinds = list(kinds)
+    positive = torch.tensor([k == "positive" for k in kinds], dtype=torch.bool, device=params.device)
+    bad_pos = ((params <= 0) & positive).reshape(-1, len(kinds)).any(0)
+    bad_neg = ((params < 0) & ~positive).reshape(-1, len(kinds)).any(0)
+    if bad_pos.any():
+        raise InputError(f"{where}: parameters must be positive; non-positive values in "
+                         f"{[n for n, b in zip(names, bad_pos.tolist()) if b]}")
+    if bad_neg.any():
+        raise InputError(f"{where}: friction coefficients must be >= 0; negative values in "
+                         f"{[n for n, b in zip(names, bad_neg.tolist()) if b]}")
+
+
 class System(abc.ABC):
     """Base class of the ground-truth scenes.
 
@@ -78,10 +96,78 @@ class System(abc.ABC):
     conventions: str = ""
     gravity: float = GRAVITY
     speed_limit: float | None = None  # |qd| must stay below this (the relativistic particle's c = 1)
+    # per parameter: "positive" (masses, lengths; normalised as logarithms) or "nonnegative"
+    # (friction coefficients, which may be zero); empty means all positive
+    param_kinds: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()  # one per input (motor torques), in N m
+    coulomb_velocity: float = 0.05  # rad/s: the smoothing of Coulomb friction, tanh(rate / v)
+    # fixed integrator steps per sample interval of the ground truth (stiff friction needs more)
+    ground_truth_substeps: int = 1
 
     @property
     def num_params(self) -> int:
         return len(self.param_names)
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return self.param_kinds or ("positive",) * self.num_params
+
+    # ------------------------------------------------------------------ generalised forces (optional)
+    def input_matrix(self) -> torch.Tensor | None:
+        """``B (dof, num_inputs)``, float64: how the inputs enter the coordinates; None (default): no inputs."""
+        return None
+
+    @property
+    def num_inputs(self) -> int:
+        B = self.input_matrix()
+        return 0 if B is None else int(B.shape[1])
+
+    def joint_map(self) -> torch.Tensor:
+        """``D (num_joints, dof)``, float64: the joint rates ``D qd`` that friction acts on (default identity)."""
+        return torch.eye(self.dof, dtype=torch.float64)
+
+    def friction_torque(self, rates: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
+        """Friction torque per joint at joint rates ``(*batch, num_joints)``, N m (``lnn_torch.forces``);
+        None (default): no friction."""
+        return None
+
+    @property
+    def has_friction(self) -> bool:
+        return False
+
+    @property
+    def has_forces(self) -> bool:
+        return self.num_inputs > 0 or self.has_friction
+
+    def dissipative_force(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """``Q_diss = -D^T f(D qd)``, ``(*batch, dof)`` (zeros without friction)."""
+        from ..forces import dissipative_force
+
+        if not self.has_friction:
+            return torch.zeros_like(qd)
+        return dissipative_force(qd, self._force_maps()[1], lambda r: self.friction_torque(r, params))
+
+    def _force_maps(self):
+        """``(B, D)`` with None for identities, computed once (``lnn_torch.forces``)."""
+        if getattr(self, "_maps", None) is None:
+            from ..forces import identity_or_none
+
+            B = self.input_matrix()
+            self._maps = (None if B is None else identity_or_none(B), identity_or_none(self.joint_map()))
+        return self._maps
+
+    def generalized_force(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+                          tau: torch.Tensor | None = None) -> torch.Tensor:
+        """``Q = B tau + Q_diss``, ``(*batch, dof)`` in N m (or N)."""
+        from ..forces import check_inputs, input_force
+
+        check_inputs(tau, self.num_inputs, q.shape[:-1])
+        Q = self.dissipative_force(q, qd, params)
+        return Q if tau is None else Q + input_force(tau, self._force_maps()[0])
+
+    def default_excitation(self) -> dict:
+        """The input signal a generated dataset uses when its spec names none (``lnn_torch.excitation``)."""
+        return {}
 
     @property
     def coord_units(self) -> tuple[str, ...]:
@@ -103,10 +189,22 @@ class System(abc.ABC):
             "param_names": list(self.param_names),
             "param_units": list(self.param_units),
             "quadratic_kinetic": self.quadratic_kinetic,
+            "param_kinds": list(self.kinds),
             "gravity": self.gravity,
             "conventions": self.conventions,
             "config": self.config(),
+            **self.describe_forces(),
         }
+
+    def describe_forces(self) -> dict:
+        """The generalised forces a model of this scene needs: inputs and their matrix, friction and
+        its joint map (empty for a conservative scene)."""
+        out = {}
+        if self.num_inputs:
+            out.update(input_names=list(self.input_names), input_matrix=self.input_matrix().tolist())
+        if self.has_friction:
+            out.update(friction="joint", joint_map=self.joint_map().tolist(), coulomb_velocity=self.coulomb_velocity)
+        return out
 
     # ------------------------------------------------------------------ samplers
     @abc.abstractmethod
@@ -144,8 +242,27 @@ class System(abc.ABC):
         return self.kinetic(q, qd, params) + self.potential(q, params)
 
     @abc.abstractmethod
-    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-        """Closed-form accelerations qdd, shape ``(*batch, dof)``, in rad/s^2 or m/s^2."""
+    def free_acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """Closed-form accelerations without generalised forces, shape ``(*batch, dof)``."""
+
+    def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+                     tau: torch.Tensor | None = None) -> torch.Tensor:
+        """Accelerations qdd in rad/s^2 or m/s^2, shape ``(*batch, dof)``: ``M qdd = ... + B tau + Q_diss``.
+
+        ``tau (*batch, num_inputs)``: the inputs of an actuated scene (required there; refused by an
+        unactuated one).
+        """
+        if not self.has_forces:
+            if tau is not None:
+                raise InputError(f"{self.name}: tau given, but the scene has no inputs (it is not actuated)")
+            return self.free_acceleration(q, qd, params)
+        return self.forced_acceleration(q, qd, params, self.generalized_force(q, qd, params, tau))
+
+    def forced_acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+                            force: torch.Tensor) -> torch.Tensor:
+        """Accelerations under a given generalised force ``Q (*batch, dof)``: ``M qdd = ... + Q``."""
+        qdd = self.free_acceleration(q, qd, params)
+        return qdd + torch.linalg.solve(self.mass_matrix(q, params), force[..., None])[..., 0]
 
     def energy_scale(self, params: torch.Tensor) -> torch.Tensor:
         """The energy scale that drifts are divided by: V_max - V_min over q, shape ``(*batch,)``."""
@@ -169,7 +286,7 @@ class System(abc.ABC):
 
     # ------------------------------------------------------------------ checks
     def check_params(self, params: torch.Tensor) -> None:
-        """Raise ``InputError`` for non-finite or non-positive parameters."""
+        """Raise ``InputError`` for non-finite, non-positive (or, for friction, negative) parameters."""
         if params.shape[-1:] != (self.num_params,):
             raise InputError(
                 f"{self.name}: params must have shape (*batch, {self.num_params}) "
@@ -177,9 +294,7 @@ class System(abc.ABC):
             )
         if not torch.isfinite(params).all():
             raise InputError(f"{self.name}: params contain NaN or Inf")
-        if (params <= 0).any():
-            bad = [n for i, n in enumerate(self.param_names) if (params[..., i] <= 0).any()]
-            raise InputError(f"{self.name}: parameters must be positive; non-positive values in {bad}")
+        check_param_signs(params, self.kinds, self.param_names, self.name)
 
     def check_state(self, q: torch.Tensor, qd: torch.Tensor | None = None) -> None:
         """Raise ``InputError`` for wrong shapes or non-finite states."""
@@ -193,10 +308,19 @@ class System(abc.ABC):
         if qd is not None and q.shape != qd.shape:
             raise InputError(f"{self.name}: q and qd shapes differ: {tuple(q.shape)} vs {tuple(qd.shape)}")
 
-    def check_inputs(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> None:
+    def check_inputs(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+                     tau: torch.Tensor | None = None, inputs: str = "check") -> None:
+        """``inputs``: ``"check"`` the inputs ``tau`` against the scene (shape, given iff actuated),
+        or ``"skip"``."""
         self.check_state(q, qd)
         self.check_params(params)
         if params.shape[:-1] != q.shape[:-1]:
             raise InputError(
                 f"{self.name}: batch shapes differ: q {tuple(q.shape)} vs params {tuple(params.shape)}"
             )
+        if inputs == "check":
+            from ..forces import check_inputs
+
+            check_inputs(tau, self.num_inputs, q.shape[:-1])
+            if tau is not None and not torch.isfinite(tau).all():
+                raise InputError(f"{self.name}: tau contains NaN or Inf")

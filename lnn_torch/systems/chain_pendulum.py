@@ -101,7 +101,7 @@ class ChainPendulum(System):
         mu, l = self._split(params)
         return -GRAVITY * (mu * l * torch.cos(q)).sum(-1)
 
-    def acceleration(self, q, qd, params):
+    def free_acceleration(self, q, qd, params):
         diff = q[..., :, None] - q[..., None, :]
         K = self._coupling(params)
         M = K * torch.cos(diff)

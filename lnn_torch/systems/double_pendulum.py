@@ -15,6 +15,11 @@ Physics:
 Default sampler (the reference design): ``m1 = exp(0.3 N(0,1))``, ``m2 = m1 U(0.2, 1)``,
 ``l1 ~ U(0.9, 2)``, ``l2 = l1 U(0.9, 1.1)``, ``theta0 ~ U(-pi/2, pi/2)^2``,
 ``thetad0 ~ U(-pi/5, pi/5)^2``.
+
+Optional joint damping (``joint_damping = (b1, b2)`` in N m s/rad, off by default): viscous friction
+at the pivot (rate ``thetad1``) and at the elbow (rate ``thetad2 - thetad1``), ``Q = -D^T (b * D qd)``
+with ``D = [[1, 0], [-1, 1]]`` (``lnn_torch.forces``). The coefficients are part of the scene's
+configuration, not of ``params``.
 """
 
 from __future__ import annotations
@@ -50,6 +55,7 @@ class DoublePendulum(System):
         l2_ratio=(0.9, 1.1),
         theta_range=(-math.pi / 2, math.pi / 2),
         omega_range=(-math.pi / 5, math.pi / 5),
+        joint_damping=(0.0, 0.0),
     ) -> None:
         if not (math.isfinite(m1_log_std) and m1_log_std >= 0):
             raise InputError(f"double_pendulum: m1_log_std must be >= 0, got {m1_log_std}")
@@ -62,6 +68,12 @@ class DoublePendulum(System):
         for name in ("m2_ratio", "l1_range", "l2_ratio"):
             if getattr(self, name).low <= 0:
                 raise InputError(f"double_pendulum: {name} must be positive, got {getattr(self, name)}")
+        try:
+            self.joint_damping = tuple(float(b) for b in joint_damping)
+        except (TypeError, ValueError):
+            raise InputError(f"double_pendulum: joint_damping must be two numbers, got {joint_damping!r}") from None
+        if len(self.joint_damping) != 2 or not all(math.isfinite(b) and b >= 0 for b in self.joint_damping):
+            raise InputError(f"double_pendulum: joint_damping must be two coefficients >= 0, got {joint_damping!r}")
 
     def config(self) -> dict:
         pair = lambda r: [r.low, r.high]  # noqa: E731
@@ -72,6 +84,7 @@ class DoublePendulum(System):
             "l2_ratio": pair(self.l2_ratio),
             "theta_range": pair(self.theta_range),
             "omega_range": pair(self.omega_range),
+            **({"joint_damping": list(self.joint_damping)} if self.has_friction else {}),
         }
 
     def sample_params(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -83,6 +96,22 @@ class DoublePendulum(System):
 
     def sample_state(self, rng: np.random.Generator, n: int):
         return self.theta_range.sample(rng, (n, 2)), self.omega_range.sample(rng, (n, 2))
+
+    # ------------------------------------------------------------------ joint damping (optional)
+    @property
+    def has_friction(self) -> bool:
+        return any(b > 0 for b in self.joint_damping)
+
+    def joint_map(self):
+        return torch.tensor([[1.0, 0.0], [-1.0, 1.0]], dtype=torch.float64)  # pivot and elbow rates
+
+    def friction_coefficients(self, params):
+        """Viscous and Coulomb coefficients per joint, ``(*batch, 2)`` each (no Coulomb friction here)."""
+        b = torch.tensor(self.joint_damping, dtype=params.dtype, device=params.device).expand(*params.shape[:-1], 2)
+        return b, torch.zeros_like(b)
+
+    def friction_torque(self, rates, params):
+        return rates * torch.tensor(self.joint_damping, dtype=rates.dtype, device=rates.device)
 
     # ------------------------------------------------------------------ physics
     def mass_matrix(self, q, params):
@@ -102,7 +131,7 @@ class DoublePendulum(System):
         m1, m2, l1, l2 = params.unbind(-1)
         return -(m1 + m2) * GRAVITY * l1 * torch.cos(q[..., 0]) - m2 * GRAVITY * l2 * torch.cos(q[..., 1])
 
-    def acceleration(self, q, qd, params):
+    def free_acceleration(self, q, qd, params):
         m1, m2, l1, l2 = params.unbind(-1)
         w1, w2 = qd[..., 0], qd[..., 1]
         g = GRAVITY

@@ -53,7 +53,7 @@ class MassSpring(System):
         _, k = params.unbind(-1)
         return 0.5 * k * q[..., 0] ** 2
 
-    def acceleration(self, q, qd, params):
+    def free_acceleration(self, q, qd, params):
         m, k = params.unbind(-1)
         return -(k / m)[..., None] * q + 0.0 * qd
 

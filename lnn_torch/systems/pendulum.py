@@ -57,7 +57,7 @@ class Pendulum(System):
         m, l = params.unbind(-1)
         return -m * GRAVITY * l * torch.cos(q[..., 0])
 
-    def acceleration(self, q, qd, params):
+    def free_acceleration(self, q, qd, params):
         _, l = params.unbind(-1)
         return (-(GRAVITY / l) * torch.sin(q[..., 0]))[..., None] + 0.0 * qd
 

@@ -83,7 +83,7 @@ class RelativisticParticle(System):
         w = 1 - v * v
         return v * v * w**-1.5 - torch.rsqrt(w) + 1 - params[..., 0] * q[..., 0]
 
-    def acceleration(self, q, qd, params):
+    def free_acceleration(self, q, qd, params):
         v = qd[..., 0]
         w = 1 - v * v
         return (params[..., 0] * w**2.5 / (1 + 2 * v * v))[..., None]

@@ -1,0 +1,122 @@
+"""Learned generalised forces of a model: inputs through the input matrix, and dissipation that can
+never inject energy (``lnn_torch.forces`` has the physics).
+
+Built only for scenes that declare inputs or friction (``SceneInfo.has_forces``): a model of a
+conservative scene has no such module and no extra parameter.
+
+* Inputs: ``B tau`` with ``B`` the scene's input matrix (a buffer), or a learned matrix initialised
+  at it (``learn_input_matrix``: motor gains or calibration errors).
+* Joint friction (``dissipation="joint"``, the default): per joint, viscous ``b >= 0`` and smooth
+  Coulomb ``c >= 0`` friction on the joint rates ``r = D qd``, ``Q = -D^T (b r + c tanh(r / v))``,
+  with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
+  the rest of the model), or free coefficients where the scene has no parameters. ``v`` is the
+  scene's Coulomb smoothing velocity.
+* ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
+  semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
+
+Every term has ``qd . Q_diss <= 0`` by construction. Coefficients are in SI units (``unit``
+buffers, set from the training data, scale the network outputs).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..forces import dissipative_force, identity_or_none, input_force, joint_friction
+
+DISSIPATION = ("joint", "joint+rayleigh")
+_INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1 of their unit
+
+
+class LearnedForces(nn.Module):
+    def __init__(self, scene, num_features: int, learn_input_matrix: bool = False, dissipation: str = "joint",
+                 hidden: int = 16) -> None:
+        super().__init__()
+        if dissipation not in DISSIPATION:
+            raise ValueError(f"dissipation must be one of {', '.join(DISSIPATION)}, got '{dissipation}'")
+        self.dof, P = scene.dof, scene.num_params
+        self.num_inputs = scene.num_inputs
+        if scene.num_inputs:
+            B = torch.tensor(scene.input_matrix, dtype=torch.float32)
+            if learn_input_matrix:
+                self.input_matrix = nn.Parameter(B)
+            else:
+                self.register_buffer("input_matrix", B, persistent=False)
+            self.identity_inputs = not learn_input_matrix and identity_or_none(B.double()) is None
+        self.friction = scene.friction
+        if scene.friction:
+            D = torch.tensor(scene.joint_map, dtype=torch.float32) if scene.joint_map else torch.eye(self.dof)
+            self.num_joints = D.shape[0]
+            self.identity_joints = identity_or_none(D.double()) is None
+            self.register_buffer("joint_map", D, persistent=False)
+            self.coulomb_velocity = float(scene.coulomb_velocity)
+            if P:
+                self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(), nn.Linear(hidden, 2 * self.num_joints))
+                nn.init.zeros_(self.coefficient_net[-1].weight)
+                nn.init.constant_(self.coefficient_net[-1].bias, _INIT)
+            else:
+                self.coefficients_raw = nn.Parameter(torch.full((2 * self.num_joints,), _INIT))
+            # SI units of (b, c): torque / rate and torque, set from the data (fit)
+            self.register_buffer("units", torch.ones(2))
+        self.rayleigh = None
+        if dissipation == "joint+rayleigh":
+            n = self.dof * (self.dof + 1) // 2
+            self.rayleigh = nn.Sequential(nn.Linear(num_features + self.dof + P, hidden), nn.Tanh(), nn.Linear(hidden, n))
+            nn.init.zeros_(self.rayleigh[-1].weight)
+            nn.init.constant_(self.rayleigh[-1].bias, -3.0)
+            rows, cols = torch.tril_indices(self.dof, self.dof)
+            self.register_buffer("tril_index", rows * self.dof + cols, persistent=False)
+
+    # ------------------------------------------------------------------ set-up
+    @torch.no_grad()
+    def fit_units(self, torque_scale: float, rate_rms: float) -> None:
+        """Coefficient units from the data: ``(torque_scale / rate_rms, torque_scale)`` in SI."""
+        if self.friction:
+            self.units.copy_(torch.tensor([torque_scale / max(rate_rms, 1e-6), torque_scale]))
+
+    # ------------------------------------------------------------------ the forces (SI)
+    def coefficients(self, params_norm: torch.Tensor):
+        """Friction coefficients ``(b, c)``, each ``(B, num_joints)`` (or ``(num_joints,)`` without
+        parameters) in N m s/rad and N m."""
+        raw = self.coefficient_net(params_norm) if hasattr(self, "coefficient_net") else self.coefficients_raw
+        b, c = F.softplus(raw).split(self.num_joints, -1)
+        units = self.units.to(raw.dtype)
+        return b * units[0], c * units[1]
+
+    def friction_torque(self, rates: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
+        """Per-joint friction torque at joint rates ``(B, num_joints)``, N m."""
+        b, c = self.coefficients(params_norm)
+        return joint_friction(rates, b, c, self.coulomb_velocity)
+
+    def dissipative_force(self, qd: torch.Tensor, params_norm: torch.Tensor, features=None, qd_norm=None):
+        """``Q_diss (B, dof)`` in SI at SI velocities ``qd``; ``features``/``qd_norm`` feed the Rayleigh term."""
+        Q = torch.zeros_like(qd)
+        if self.friction:
+            D = None if self.identity_joints else self.joint_map
+            Q = dissipative_force(qd, D, lambda r: self.friction_torque(r, params_norm))
+        if self.rayleigh is not None:
+            entries = self.rayleigh(torch.cat([features, qd_norm, params_norm.expand(qd.shape[0], -1)], -1))
+            chol = entries.new_zeros(qd.shape[0], self.dof * self.dof).index_copy(-1, self.tril_index, entries)
+            chol = chol.view(-1, self.dof, self.dof)
+            Q = Q - (chol @ (chol.mT @ qd[..., None]))[..., 0] * self.units[0].to(qd.dtype)
+        return Q
+
+    def input_force(self, tau: torch.Tensor) -> torch.Tensor:
+        """``B tau (B, dof)`` for inputs ``tau (B, n_u)`` in N m."""
+        return input_force(tau, None if self.identity_inputs else self.input_matrix)
+
+    def solve_inputs(self, input_force: torch.Tensor) -> torch.Tensor:
+        """The inputs ``tau (B, n_u)`` whose force ``B tau`` is closest to ``input_force (B, dof)``
+        (exact for a full-rank square ``B``; least squares for an underactuated system)."""
+        if self.identity_inputs:
+            return input_force
+        return input_force @ torch.linalg.pinv(self.input_matrix.to(input_force.dtype)).mT
+
+    def force(self, qd, params_norm, tau=None, features=None, qd_norm=None) -> torch.Tensor:
+        """``Q = B tau + Q_diss`` in SI, ``(B, dof)``."""
+        Q = self.dissipative_force(qd, params_norm, features, qd_norm)
+        return Q if tau is None else Q + self.input_force(tau)
