@@ -10,6 +10,7 @@ LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 # command -> (module of lnn_torch.commands, one-line help)
 COMMANDS = {
     "generate": ("generate", "write a ground-truth trajectory dataset (HDF5)"),
+    "import": ("import_recordings", "CSV recordings of a real system -> an HDF5 dataset"),
     "fit": (None, "train a model (LightningCLI; -c configs/quickstart.yaml)"),
     "validate": (None, "validation metrics of a checkpoint (--ckpt_path)"),
     "test": (None, "test-split metrics of a checkpoint (--ckpt_path)"),

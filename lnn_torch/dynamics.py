@@ -35,7 +35,8 @@ def _flatten(q, qd, params):
     if params.shape[:-1] != q.shape[:-1]:
         raise ValueError(f"params batch shape {tuple(params.shape[:-1])} differs from q's {tuple(q.shape[:-1])}")
     batch = q.shape[:-1]
-    return batch, q.reshape(-1, q.shape[-1]), qd.reshape(-1, q.shape[-1]), params.reshape(-1, params.shape[-1])
+    n = q.reshape(-1, q.shape[-1]).shape[0]
+    return batch, q.reshape(n, q.shape[-1]), qd.reshape(n, q.shape[-1]), params.reshape(n, params.shape[-1])
 
 
 def euler_lagrange_terms(lagrangian_fn: LagrangianFn, q, qd, params):

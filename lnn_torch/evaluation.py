@@ -20,7 +20,12 @@ call it. A report is made of *sections*, each one function of an ``EvalContext``
   (the limit any model can reach on chaotic trajectories);
 * ``mass_matrix``: the learned mass matrix against the scene's (structured models);
 * ``ood``: the scene's own out-of-distribution cases (``System.ood_cases``);
-* ``stability``: the scene's hard cases (``lnn_torch.stability``) and a long horizon.
+* ``stability``: the scene's hard cases (``lnn_torch.stability``) and a long horizon;
+* ``horizons``: open-loop rollouts started at many points of every trajectory (every
+  ``start_every`` s), driven by the recorded inputs: the coordinate error after fixed horizons
+  (``horizons``, s) and the time until it first exceeds each threshold, censored at the longest
+  horizon. The sections that need a closed form (energy, predictability, mass matrix, friction, free
+  decay, stability) are skipped for a measured system, whose recordings are the reference.
 
 Models are anything with ``acceleration(q, qd, params, tau=None, check=False)`` and ``rollout(q0,
 qd0, params, dt, num_steps, method, tau=None)`` in SI units (every ``DynamicsModel``;
@@ -48,7 +53,7 @@ from .metrics import (acceleration_errors, condition_numbers, divergence_time, e
 SECTIONS: dict[str, Callable[["EvalContext"], dict]] = {}
 DEFAULT_SECTIONS = ("accelerations", "rollouts", "energy")
 REPORT_SECTIONS = ("accelerations", "rollouts", "energy", "predictability", "mass_matrix", "torques", "friction",
-                   "free_decay", "ood", "stability")
+                   "free_decay", "horizons", "ood", "stability")
 
 
 def section(name: str):
@@ -96,7 +101,7 @@ def model_accelerations(model, q, qd, params, tau=None, max_batch: int = 16384) 
     autograd graph."""
     B, T, dof = q.shape
     flat_q, flat_qd = q.reshape(-1, dof), qd.reshape(-1, dof)
-    flat_p = params[:, None, :].expand(-1, T, -1).reshape(-1, params.shape[-1])
+    flat_p = params[:, None, :].expand(-1, T, -1).flatten(0, 1)
     flat_tau = None if tau is None else tau.reshape(B * T, -1)
     out = []
     with torch.no_grad(), counting_failures(model):
@@ -141,7 +146,8 @@ class EvalContext:
         stride, sub = max(1, int(round(dt / data_dt))), max(1, int(round(data_dt / dt)))
         if abs(stride * data_dt / sub - dt) > 1e-9 * data_dt:
             raise ValueError(f"dt = {dt} and the data's sampling interval {data_dt} are not multiples of each other")
-        available = (self.data.num_points - 1) // stride
+        length = self.data.num_points if self.data.lengths is None else int(self.data.lengths.min())
+        available = (length - 1) // stride
         steps = available if self.horizon is None else min(int(round(self.horizon / (stride * data_dt))), available)
         return dt, stride, sub, steps
 
@@ -233,6 +239,8 @@ def _rollouts(ctx: EvalContext) -> dict:
 @section("energy")
 def _energy(ctx: EvalContext) -> dict:
     """The true-energy drift of the rollouts; with forces, their power-balance error."""
+    if not ctx.system.closed_form:
+        return {}
     r = ctx.rollouts()
     if ctx.system.has_forces:
         drift = power_balance_error(ctx.system, r["q"], r["qd"], r["params"], r["tau"], r["grid_dt"])
@@ -257,7 +265,7 @@ def _torques(ctx: EvalContext) -> dict:
     sub = slice(0, None, ctx.accel_stride)
     B, T, dof = data.q[:, sub].shape
     flat = lambda x: x[:, sub].reshape(B * T, -1)  # noqa: E731
-    params = data.params[:, None].expand(-1, T, -1).reshape(B * T, -1)
+    params = data.params[:, None].expand(-1, T, -1).flatten(0, 1)
     with torch.no_grad():
         pred = model.inverse_dynamics(flat(data.q), flat(data.qd), flat(data.qdd), params)
     err = normalized_rmse(pred, flat(data.tau))
@@ -272,7 +280,7 @@ def _friction(ctx: EvalContext) -> dict:
     not negligible) and the coefficients. Needs a model with ``forces`` and a scene with friction."""
     system, model, data = ctx.system, ctx.model, ctx.data
     forces = getattr(model, "forces", None)
-    if not system.has_friction or forces is None or not forces.friction:
+    if not system.has_friction or forces is None or not forces.friction or not system.closed_form:
         return {}
     D = system.joint_map()
     rates = data.qd.reshape(-1, system.dof) @ D.T
@@ -305,7 +313,8 @@ def _free_decay(ctx: EvalContext) -> dict:
     dissipation is right loses the same energy: reports the relative error of the energy lost
     and the divergence time (structured models of scenes with friction)."""
     system, model, data = ctx.system, ctx.model, ctx.data
-    if not system.has_friction or not hasattr(model, "energy_norm") or getattr(model, "forces", None) is None:
+    if (not system.has_friction or not system.closed_form or not hasattr(model, "energy_norm")
+            or getattr(model, "forces", None) is None):
         return {}
     rollouts = ctx.rollouts()
     n = rollouts["q_true"].shape[1] - 1
@@ -334,6 +343,8 @@ def _free_decay(ctx: EvalContext) -> dict:
 
 @section("predictability")
 def _predictability(ctx: EvalContext) -> dict:
+    if not ctx.system.closed_form:
+        return {}
     r = ctx.rollouts()
     perturbation = ctx.options.get("perturbation", 1e-6)
     steps = r["q_true"].shape[1] - 1
@@ -353,12 +364,12 @@ def _mass_matrix(ctx: EvalContext) -> dict:
     The learned M lives in normalised velocities ``qd_n = qd * tau / scale``: it equals
     ``D M_n D`` (``D = diag(tau / scale)``) in SI units."""
     model, system, data = ctx.model, ctx.system, ctx.data
-    if not hasattr(model, "mass_matrix_norm") or not system.quadratic_kinetic:
+    if not hasattr(model, "mass_matrix_norm") or not system.quadratic_kinetic or not system.closed_form:
         return {}
     q = data.q[:, :: ctx.accel_stride]
     B, T, dof = q.shape
     qf = q.reshape(-1, dof)
-    params = data.params[:, None, :].expand(-1, T, -1).reshape(-1, data.params.shape[-1])
+    params = data.params[:, None, :].expand(-1, T, -1).flatten(0, 1)
     with torch.no_grad():
         M_n = model.mass_matrix(qf.to(model.dtype), params.to(model.dtype)).double()
     norm = model.normalizer
@@ -402,7 +413,7 @@ def _stability(ctx: EvalContext) -> dict:
 
     seconds = ctx.options.get("stability_seconds", 5.0)
     long_steps = ctx.options.get("long_horizon_steps", 100_000)
-    if seconds <= 0:
+    if seconds <= 0 or not ctx.system.closed_form:
         return {}
     dt = ctx.grid()[0]
     cases = hard_cases(ctx.system, num=8, dt=dt, num_steps=int(round(seconds / dt)))
@@ -413,3 +424,40 @@ def _stability(ctx: EvalContext) -> dict:
     rows = run_hard_cases(functools.partial(model_rollout, ctx.model), ctx.system, cases,
                           model=ctx.model if hasattr(ctx.model, "mass_matrix_norm") else None, method=ctx.integrator)
     return {"stability": rows}
+
+
+@section("horizons")
+def _horizons(ctx: EvalContext) -> dict:
+    """Open-loop rollouts from many start points (every ``start_every`` s of each trajectory, with the
+    data's velocity there), driven by the recorded inputs, over the longest of ``horizons`` (s): the
+    coordinate error after each horizon (median and 90th percentile over start points) and the time
+    until it first exceeds each threshold (quartiles; censored at the longest horizon)."""
+    from .metrics import coordinate_error
+
+    data, model = ctx.data, ctx.model
+    horizons = tuple(ctx.options.get("horizons", (0.1, 0.25, 0.5, 1.0)))
+    every = float(ctx.options.get("start_every", 0.5))
+    dt = data.dt
+    n = int(round(max(horizons) / dt))
+    step = max(1, int(round(every / dt)))
+    lengths = [data.num_points] * len(data) if data.lengths is None else [int(x) for x in data.lengths]
+    starts = [(j, s) for j, length in enumerate(lengths) for s in range(0, length - n, step)]
+    if not starts:
+        return {}
+    js = torch.tensor([j for j, _ in starts])
+    ss = torch.tensor([s for _, s in starts])
+    window = ss[:, None] + torch.arange(n + 1)  # (S, n + 1)
+    q_true = data.q[js[:, None], window]
+    tau = None if data.tau is None else data.tau[js[:, None], window[:, :-1]]
+    start = time.perf_counter()
+    q, _ = model_rollout(model, q_true[:, 0], data.qd[js, ss], data.params[js], dt, n, ctx.integrator, tau)
+    seconds = time.perf_counter() - start
+    err = coordinate_error(q, q_true, ctx.system.angle_mask)  # (S, n + 1)
+    out = {"num_starts": len(starts), "start_every_s": every, "horizon_s": n * dt, "rollout_seconds": seconds}
+    for h in horizons:
+        e = err[:, int(round(h / dt))]
+        e = torch.where(torch.isfinite(e), e, torch.full_like(e, float("inf")))
+        out[f"error@{h:g}s"] = {"median": float(e.median()), "p90": float(torch.quantile(e.double(), 0.9))}
+    for thr in ctx.thresholds:
+        out[f"time_to@{thr:g}"] = quartiles(divergence_time(q, q_true, dt, thr, ctx.system.angle_mask))
+    return {"horizons": out}

@@ -1,5 +1,6 @@
-"""LightningCLI wiring: the data's scene is linked to the model; inference mode is off (the
-Euler-Lagrange solves differentiate with respect to their inputs even in evaluation)."""
+"""LightningCLI wiring: the data's scene is linked to the model (from the dataset file when it exists,
+so that imported recordings declare their measured system; else from the data spec); inference mode
+is off (the Euler-Lagrange solves differentiate with respect to their inputs even in evaluation)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ from .module import LNNModule
 
 class LNNCLI(LightningCLI):
     def add_arguments_to_parser(self, parser) -> None:
-        parser.link_arguments("data.spec", "model.scene", compute_fn=lambda spec: (spec or {}).get("scene", "double_pendulum"))
-        parser.link_arguments("data.spec", "model.scene_config", compute_fn=lambda spec: (spec or {}).get("scene_config", {}))
+        parser.link_arguments("data", "model.scene", apply_on="instantiate", compute_fn=lambda dm: dm.model_scene()[0])
+        parser.link_arguments("data", "model.scene_config", apply_on="instantiate",
+                              compute_fn=lambda dm: dm.model_scene()[1])
         parser.set_defaults({"trainer.logger": LOGGER, "trainer.callbacks": CALLBACKS})
 
     def before_instantiate_classes(self) -> None:

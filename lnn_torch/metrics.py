@@ -22,7 +22,8 @@ def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None
     and 90th percentile over trajectories. Points with a non-finite prediction are left out of the
     errors and counted in ``non_finite_fraction``."""
     B, T, dof = pred.shape
-    finite = torch.isfinite(pred).all(-1)  # (B, T)
+    known = torch.isfinite(true).all(-1)  # (B, T): padding of shorter recordings is not a point
+    finite = torch.isfinite(pred).all(-1) & known
     names = list(coord_names or [f"q{i}" for i in range(dof)])
     pred_f, true_f = pred[finite], true[finite]  # (n, dof)
     out = {"total": float(relative_l2(pred_f, true_f))}
@@ -33,7 +34,7 @@ def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None
     if per_traj.numel():
         out["per_trajectory_median"] = float(per_traj.median())
         out["per_trajectory_p90"] = float(torch.quantile(per_traj.double(), 0.9))
-    out["non_finite_fraction"] = float(1 - finite.double().mean())
+    out["non_finite_fraction"] = float(1 - finite.double().sum() / known.double().sum().clamp_min(1))
     return out
 
 

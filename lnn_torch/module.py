@@ -4,7 +4,10 @@ Loss = Huber on normalised accelerations + ``energy_weight`` x the scale-invaria
 model's own Hamiltonian over each contiguous chunk (``lnn_torch.losses.energy_variance``; with
 generalised forces, of ``H - W`` with ``W`` the work of the model's own forces along the chunk: a
 power-balance residual) + ``torque_weight`` x Huber on the inputs the model's inverse dynamics
-predict (structured models of actuated scenes).
+predict (structured models of actuated scenes). With ``loss="trajectory"`` (trajectory matching, for
+data without accelerations) the acceleration term is replaced by short differentiable rollouts of
+each chunk from its first state, driven by its inputs, compared with its positions (multiple
+shooting: every chunk is one shooting window; none crosses a trajectory's end).
 A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
 Validation and test call ``lnn_torch.evaluation.evaluate_model`` (relative L2 acceleration error,
 rollouts of some trajectories with their true-energy drift and divergence time) and log its result.
@@ -57,6 +60,14 @@ class LNNModule(L.LightningModule):
         torque_weight: weight of the inverse-dynamics term: Huber on the inputs (motor torques) that
             the model's inverse dynamics give for the data's accelerations, normalised by their rms
             (structured models of actuated scenes; 0 disables it).
+        loss: ``acceleration`` (default: Huber on accelerations) or ``trajectory`` (trajectory
+            matching: each training chunk of ``L`` points is rolled out ``L - 1`` steps of the data's
+            step from its first state with ``trajectory_integrator``, and the position error at
+            every point, divided by ``(L - 1)^2 dt^2 / 2`` in normalised units, enters a Huber loss;
+            no acceleration target is used).
+        trajectory_integrator: the integrator of the training rollouts (``rk4``, ``leapfrog``, ...).
+        trajectory_velocity_weight: weight of the velocity error of the training rollouts (the data's
+            velocities: measured or estimated), divided by ``(L - 1) dt``.
         val_rollouts: validation trajectories rolled out each validation epoch.
         val_rollout_seconds: the horizon of validation and test rollouts (s).
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
@@ -77,7 +88,8 @@ class LNNModule(L.LightningModule):
                  hessian_reg: float | None = None, hnn_coordinates: str | None = None,
                  model_options: dict | None = None, lr: float = 3e-3,
                  lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
-                 torque_weight: float = 0.0,
+                 torque_weight: float = 0.0, loss: str = "acceleration", trajectory_integrator: str = "rk4",
+                 trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool = False) -> None:
         super().__init__()
@@ -90,6 +102,8 @@ class LNNModule(L.LightningModule):
         options = {k: v for k, v in options.items()
                    if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
         self.model = build_model(variant, self.system, **options)
+        if loss not in ("acceleration", "trajectory"):
+            raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
             raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
                              f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
@@ -198,8 +212,39 @@ class LNNModule(L.LightningModule):
             self._compiled = compile_fn(self._training_pass, self.device)
         return self._compiled
 
+    def _trajectory_loss(self, batch) -> tuple[torch.Tensor, dict]:
+        """Multiple shooting: each chunk rolled out from its first state, driven by its inputs,
+        against its positions (and velocities); errors in normalised units divided by the window's
+        ``(k dt)^2 / 2`` (positions) and ``k dt`` (velocities), ``k = L - 1`` steps."""
+        from .evaluation import counting_failures
+
+        q, qd = batch["q"], batch["qd"]
+        C, L, _ = q.shape
+        if L < 2:
+            raise ValueError("trajectory matching needs chunks of at least 2 points (data.chunk_len >= 2)")
+        tau = batch["tau"][:, :-1] if "tau" in batch else None
+        dt = self.data_dt or 1.0
+        with counting_failures(self.model):
+            qs, qds = self.model.rollout(q[:, 0], qd[:, 0], batch["params"][:, 0], dt, L - 1,
+                                         self.hparams.trajectory_integrator, tau=tau)
+        norm = self.model.normalizer
+        span = (L - 1) * dt / float(norm.time_scale)  # the window in normalised time
+        scale = norm.coord_scale.to(q.dtype)
+        err = (qs[:, 1:] - q[:, 1:]) / scale / (0.5 * span**2)
+        loss = torch.nn.functional.huber_loss(err, torch.zeros_like(err), delta=self.hparams.huber_delta)
+        parts = {"trajectory": loss}
+        if self.hparams.trajectory_velocity_weight > 0:
+            err_v = (qds[:, 1:] - qd[:, 1:]) * (float(norm.time_scale) / scale) / span
+            parts["trajectory_velocity"] = torch.nn.functional.huber_loss(err_v, torch.zeros_like(err_v),
+                                                                          delta=self.hparams.huber_delta)
+            loss = loss + self.hparams.trajectory_velocity_weight * parts["trajectory_velocity"]
+        return loss, parts
+
     def _training_loss(self, batch, pass_fn):
-        """``(loss, parts)``: the total loss and its logged parts (``huber``, ``energy_var``, ``torque``)."""
+        """``(loss, parts)``: the total loss and its logged parts (``huber``, ``energy_var``, ``torque``,
+        or ``trajectory`` for trajectory matching)."""
+        if self.hparams.get("loss", "acceleration") == "trajectory":
+            return self._trajectory_loss(batch)
         C, L, _ = batch["q"].shape  # (chunks, chunk length, dof)
         flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "qdd", "params")]
         tau = batch["tau"].reshape(C * L, -1) if "tau" in batch else None
@@ -285,18 +330,22 @@ class LNNModule(L.LightningModule):
         ``{prefix}/...``; every rank evaluates the same data (identical results)."""
         data = batch["trajectories"]
         n = self.hparams.val_rollouts if prefix == "val" else self.hparams.get("test_rollouts", -1)
-        sections = DEFAULT_SECTIONS if n != 0 else ("accelerations",)
         thr = self.hparams.val_threshold
+        log = lambda name, value, **kw: self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, **kw)  # noqa: E731
+        if not self.system.closed_form:  # measured recordings: open-loop horizons from many start points
+            result = evaluate_model(self.model, self.system, data, sections=("accelerations", "horizons"),
+                                    thresholds=(thr,), accel_stride=int(batch["accel_stride"]),
+                                    horizons=(0.1, 0.5, self.hparams.val_rollout_seconds))
+            self._log_accelerations(log, result["acc_rel_err"])
+            if "horizons" in result:
+                log("divergence_time", result["horizons"][f"time_to@{thr:g}"]["median"])
+                log("error_at_horizon", result["horizons"][f"error@{self.hparams.val_rollout_seconds:g}s"]["median"])
+            return
+        sections = DEFAULT_SECTIONS if n != 0 else ("accelerations",)
         result = evaluate_model(self.model, self.system, data, sections=sections, horizon=self.hparams.val_rollout_seconds,
                                 thresholds=(thr,), accel_stride=int(batch["accel_stride"]),
                                 num_rollouts=n if n > 0 else None)
-        log = lambda name, value, **kw: self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, **kw)  # noqa: E731
-        acc = result["acc_rel_err"]
-        log("acc_rel_err", acc["total"], prog_bar=True)
-        for name in self.system.coord_names:
-            log(f"acc_rel_err_{name}", acc[name])
-        log("acc_rel_err_traj_median", acc.get("per_trajectory_median", float("nan")))
-        log("acc_non_finite", acc["non_finite_fraction"])
+        self._log_accelerations(log, result["acc_rel_err"])
         if n == 0:
             return
         energy = "power_balance_error" if self.system.has_forces else "energy_drift"
@@ -307,6 +356,13 @@ class LNNModule(L.LightningModule):
         every = self.hparams.figure_every_n_epochs
         if prefix == "val" and every and self.current_epoch % every == 0 and self.trainer.is_global_zero:
             self._log_figures(result["_arrays"])
+
+    def _log_accelerations(self, log, acc: dict) -> None:
+        log("acc_rel_err", acc["total"], prog_bar=True)
+        for name in self.system.coord_names:
+            log(f"acc_rel_err_{name}", acc[name])
+        log("acc_rel_err_traj_median", acc.get("per_trajectory_median", float("nan")))
+        log("acc_non_finite", acc["non_finite_fraction"])
 
     def validation_step(self, batch, batch_idx):
         self._evaluate(batch, "val")

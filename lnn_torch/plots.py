@@ -91,10 +91,10 @@ def evaluation_plots(result: dict, output_dir, system) -> list:
         ax.plot(t, arr["drift"].amax(0), label="max")
         ax.set_yscale("log")
         ax.set_xlabel("t [s]")
-        ax.set_ylabel("|E(t)-E(0)| / (Vmax-Vmin)")
+        ax.set_ylabel("|E(t)-E(0)-W(t)| / (Vmax-Vmin)" if system.has_forces else "|E(t)-E(0)| / (Vmax-Vmin)")
         ax.legend()
         fig.tight_layout()
-        save(fig, "energy_drift.png")
+        save(fig, "power_balance.png" if system.has_forces else "energy_drift.png")
 
     def err(q):
         return coordinate_error(q, arr["q_true"], system.angle_mask).median(0).values.clamp_min(1e-16)
@@ -110,6 +110,33 @@ def evaluation_plots(result: dict, output_dir, system) -> list:
     ax.legend()
     fig.tight_layout()
     save(fig, "error_growth.png")
+
+    if "_friction_arrays" in result:
+        fa = result["_friction_arrays"]
+        n_j = fa["true"].shape[-1]
+        fig, axes = plt.subplots(1, n_j, figsize=(4.2 * n_j, 3.2), squeeze=False)
+        for j, ax in enumerate(axes[0]):
+            for b in range(min(6, fa["true"].shape[0])):
+                line = ax.plot(fa["rates"], fa["true"][b, :, j], "-", lw=1.4)[0]
+                ax.plot(fa["rates"], fa["learned"][b, :, j], "--", lw=1.2, color=line.get_color())
+            ax.set_xlabel(f"joint {j + 1} rate [rad/s]")
+            ax.set_ylabel("friction torque [N m]")
+            ax.set_title("true (solid) and learned (dashed)", fontsize=9)
+        fig.tight_layout()
+        save(fig, "friction.png")
+
+    if "_decay_arrays" in result:
+        da = result["_decay_arrays"]
+        t_d = torch.arange(da["E_true"].shape[1]) * da["dt"]
+        fig, ax = plt.subplots(figsize=(7, 2.8))
+        for b in range(min(6, da["E_true"].shape[0])):
+            line = ax.plot(t_d, da["E_true"][b], "-", lw=1.4)[0]
+            ax.plot(t_d, da["E_model"][b], "--", lw=1.2, color=line.get_color())
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("E(t) - E(0) [J]")
+        ax.set_title("free decay, inputs off: true energy (solid), the model's own (dashed)", fontsize=9)
+        fig.tight_layout()
+        save(fig, "free_decay.png")
 
     if "_ood_arrays" in result:
         ood = result["_ood_arrays"]

@@ -84,7 +84,7 @@ def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
     qf = q[finite][:, :: max(1, T // 200)]  # at most ~200 states per trajectory
     params = params[finite][:, None].expand(-1, qf.shape[1], -1)
     with torch.no_grad():
-        M = model.mass_matrix(qf.reshape(-1, dof).to(model.dtype), params.reshape(-1, params.shape[-1]).to(model.dtype))
+        M = model.mass_matrix(qf.reshape(-1, dof).to(model.dtype), params.flatten(0, -2).to(model.dtype))
     return float(condition_numbers(M.double()).max())
 
 

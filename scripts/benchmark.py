@@ -5,7 +5,9 @@ wall-clock budget (the cosine schedule ends with the budget); the validation err
 against training time (time-to-accuracy curves). Then, on the test split, for every integrator and
 step size: acceleration throughput (states/s), rollout cost (s per 1000 steps for a batch of 64),
 held-out relative L2 acceleration error, median time until the angle error first exceeds 0.1, and
-the mean true-energy drift |E(t) - E(0)| / (V_max - V_min). The scene's closed form is the ceiling
+the mean true-energy drift |E(t) - E(0)| / (V_max - V_min) (for a scene with inputs and friction:
+the power-balance error |E(t) - E(0) - W(t)|, rollouts driven by the recorded inputs, and the
+inverse-dynamics torque error of the structured models). The scene's closed form is the ceiling
 row of both speed and accuracy. Timings run on one thread after warm-up (medians); training on
 ``--threads``.
 
@@ -47,6 +49,9 @@ SCENES = {
     "relativistic_particle": dict(path="data/bench_relativistic_particle.h5",
                                   spec=dict(num_trajectories=200, duration=10.0, seed=0),
                                   minutes=2.0, horizon=10.0, threshold=0.1),
+    "actuated_double_pendulum": dict(path="data/actuated_double_pendulum.h5",
+                                     spec=dict(num_trajectories=200, duration=10.0, seed=0),
+                                     minutes=5.0, horizon=10.0, threshold=0.1),
 }
 INTEGRATORS = [("rk4", 0.005), ("rk4", 0.01), ("leapfrog", 0.005), ("leapfrog", 0.01),
                ("semi_implicit_euler", 0.005), ("semi_implicit_euler", 0.001)]
@@ -131,7 +136,9 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     from lnn_torch.evaluation import evaluate_model, model_rollout
 
     torch.set_num_threads(1)
-    acc = evaluate_model(model, system, test, sections=("accelerations",), accel_stride=10)["acc_rel_err"]
+    base = evaluate_model(model, system, test, sections=("accelerations", "torques"), accel_stride=10)
+    acc = base["acc_rel_err"]
+    torque = base.get("torque_nrmse", {}).get("mean")
     # throughput: float32 batches of 8192 states (the model's own dtype), one thread
     n = 8192
     states = [x[:, ::10].reshape(-1, x.shape[-1]) for x in (test.q, test.qd)]
@@ -148,20 +155,22 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     B = len(test)
     for method, dt in INTEGRATORS:
         row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc["total"],
-               "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput}
+               "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput, "torque_nrmse": torque}
         if first_order and method not in ("rk4", "rk8"):
             row["note"] = "n/a: a Hamiltonian network integrates its own first-order flow (RK methods only)"
             rows.append(row)
             continue
         # rollout cost: batch 64 (test states repeated), 200 steps, scaled to 1000 steps
         idx = torch.arange(64) % B
+        held = None if test.tau is None else test.tau[idx, :1].expand(-1, 200, -1)
         cost = median_seconds(lambda: model_rollout(model, test.q[idx, 0], test.qd[idx, 0], test.params[idx], dt, 200,
-                                                    method), repeats=3, warmup=1) * 5
+                                                    method, held), repeats=3, warmup=1) * 5
         r = evaluate_model(model, system, test, sections=("rollouts", "energy"), integrator=method, dt=dt,
                            horizon=cfg["horizon"], thresholds=(cfg["threshold"],))
         div = r[f"divergence_time@{cfg['threshold']:g}"]["model"]
+        drift = r["power_balance_error" if system.has_forces else "energy_drift"]
         row.update({"rollout_s_per_1000_steps_b64": cost, "non_finite_fraction": r["rollout_non_finite_fraction"],
-                    "energy_drift_mean": r["energy_drift"]["mean"], "energy_drift_max": r["energy_drift"]["max"],
+                    "energy_drift_mean": drift["mean"], "energy_drift_max": drift["max"],
                     "divergence_time_median": div["median"], "divergence_time_q25": div["q25"]})
         rows.append(row)
     torch.set_num_threads(THREADS)
@@ -186,6 +195,12 @@ def acc_cell(r: dict) -> str:
     return cell
 
 
+def energy_label(result: dict) -> str:
+    from lnn_torch.systems import get_system
+
+    return "power-balance error" if get_system(result["scene"]).has_forces else "true-energy drift"
+
+
 def drift_cell(r: dict) -> str:
     cell = fmt(r["energy_drift_mean"], ".2e")
     if r.get("non_finite_fraction"):
@@ -200,7 +215,7 @@ def markdown(result: dict) -> str:
              f"(same data, seed, budget); speed on 1 thread; {result['num_test']} test trajectories, rollouts over "
              f"{result['horizon']:g} s. Command: `{result['command']}`", "",
              "| model | integrator | dt (s) | accel. throughput (states/s) | rollout cost (s / 1000 steps, batch 64) | "
-             "x closed form | test acc. rel. L2 | time to 0.1 error, median (s) | true-energy drift, mean |",
+             f"x closed form | test acc. rel. L2 | time to 0.1 error, median (s) | {energy_label(result)}, mean |",
              "|---|---|---|---|---|---|---|---|---|"]
     ceiling = {(r["integrator"], r["dt"]): r for r in result["rows"] if r["model"] == "closed form"}
     for r in result["rows"]:
@@ -267,15 +282,18 @@ def summary(result: dict, integrator: str = "rk4", dt: float = 0.005) -> str:
     """One row per model: its row at ``integrator``/``dt``, with both costs relative to the closed form."""
     rows = [r for r in result["rows"] if r["integrator"] == integrator and r["dt"] == dt]
     ceiling = next(r for r in rows if r["model"] == "closed form")
+    torques = any(r.get("torque_nrmse") is not None for r in rows)
     lines = [f"**{result['scene']}** ({result['minutes']:g} min of training per model on {result['train_threads']} "
              f"thread(s); {result['num_test']} test trajectories; {integrator}, dt = {dt:g} s, {result['horizon']:g} s "
              f"rollouts; `{result['command']}`)", "",
-             "| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | true-energy drift, mean | "
-             "accel. cost x closed form | rollout cost x closed form |", "|---|---|---|---|---|---|---|"]
+             f"| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | {energy_label(result)}, mean | "
+             + ("torque nRMSE | " if torques else "") + "accel. cost x closed form | rollout cost x closed form |",
+             "|---" * (7 + torques) + "|"]
     for r in rows:
         steps = result["training"].get(r["model"], {}).get("steps")
         lines.append(f"| {r['model']} | {fmt(steps, ',')} | {acc_cell(r)} | {fmt(r.get('divergence_time_median'), '.2f')} | "
-                     f"{drift_cell(r)} | {ceiling['states_per_s'] / r['states_per_s']:.0f} | "
+                     f"{drift_cell(r)} | " + (f"{fmt(r.get('torque_nrmse'), '.4f')} | " if torques else "")
+                     + f"{ceiling['states_per_s'] / r['states_per_s']:.0f} | "
                      f"{r['rollout_s_per_1000_steps_b64'] / ceiling['rollout_s_per_1000_steps_b64']:.1f} |")
     return "\n".join(lines) + "\n"
 

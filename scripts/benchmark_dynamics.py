@@ -115,6 +115,39 @@ def matmul_floor(model, batch: int, dtype):
     return products
 
 
+def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conservative) -> None:
+    """The same structured solve on the actuated scene (inputs at both joints, joint friction): the
+    cost of the generalised forces (``lnn_torch.networks.forces``), same network sizes. Timed in
+    turn with the conservative model's solve (``conservative(b)``) over 5 rounds; the last column is
+    the median per-round ratio forced / conservative."""
+    import statistics
+
+    scene = get_system("actuated_double_pendulum")
+    rng = np.random.default_rng(1)
+    n = max(batches)
+    params = torch.tensor(scene.sample_params(rng, n)).to(dtype)
+    q, qd = (torch.tensor(x).to(dtype) for x in scene.sample_state(rng, n))
+    tau = torch.tensor(rng.uniform(-1, 1, (n, 2))).to(dtype)
+    torch.manual_seed(0)
+    model = build_model(variant, scene).to(dtype)
+    model.fit_normalizer({"q": q, "qd": qd, "qdd": scene.acceleration(q, qd, params, tau), "params": params,
+                          "params_points": params, "tau": tau})
+    qn, qdn, pn = model.normalize(q, qd, params)
+    tau_n = model.tau_norm(tau)
+    cells, ratios = [], []
+    for b in batches:
+        def forced(b=b):
+            with torch.no_grad():
+                model.acceleration_norm(qn[:b], qdn[:b], pn[:b], tau_n[:b])
+
+        rounds = [(median_ms(forced, repeats), median_ms(conservative(b), repeats)) for _ in range(5)]
+        cells.append(statistics.median(f for f, _ in rounds))
+        ratios.append(statistics.median(f / c for f, c in rounds))
+    print(f"| {variant} | structured, actuated scene (inputs + joint friction) | {str(dtype)[6:]} | "
+          + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} (x"
+          + ", x".join(f"{r:.2f}" for r in ratios) + " the conservative solve, in turn) |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--threads", type=int, default=1)
@@ -187,6 +220,13 @@ def main() -> None:
                     cells = [median_ms(matmul_floor(model, b, dtype), repeats) for b in batches]
                 print(f"| {variant} | its matrix products alone | {str(dtype)[6:]} | "
                       + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} |", flush=True)
+                def conservative(b, model=model):
+                    def call():
+                        with torch.no_grad():
+                            model.acceleration_norm(qn[:b], qdn[:b], pn[:b])
+                    return call
+
+                forced_row(variant, dtype, batches, repeats, closed, conservative)
 
 
 if __name__ == "__main__":

@@ -313,3 +313,99 @@ def test_power_balance_error_of_the_exact_rollout_is_small_and_of_a_wrong_model_
     with pytest.raises(ValueError, match="tau"):
         integrate_ground_truth(ADP, q[:, 0], qd[:, 0], params, 0.005, 10, tau=tau[:, :5])
     assert math.isfinite(float(err.mean()))
+
+
+# ---------------------------------------------------------------------------- use: train, evaluate, simulate
+@pytest.fixture(scope="module")
+def actuated_checkpoint(tmp_path_factory):
+    """A small film_lnn trained a few steps on a small actuated dataset (torque loss on), saved."""
+    import lightning as L
+
+    from lnn_torch import LNNModule, TrajectoryDataModule
+
+    root = tmp_path_factory.mktemp("adp")
+    spec = dict(scene="actuated_double_pendulum", num_trajectories=12, duration=1.0, seed=3)
+    dm = TrajectoryDataModule(path=str(root / "d.h5"), spec=spec, chunk_len=8, chunks_per_batch=8, steps_per_epoch=20,
+                              eval_stride=5)
+    model = LNNModule(scene="actuated_double_pendulum", hidden_dims=[16, 16], val_rollouts=2, val_rollout_seconds=0.5,
+                      torque_weight=0.1, energy_weight=0.01)
+    trainer = L.Trainer(max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, inference_mode=False, num_sanity_val_steps=0)
+    trainer.fit(model, dm)
+    metrics = trainer.validate(model, dm, verbose=False)[0]
+    path = root / "model.ckpt"
+    trainer.save_checkpoint(path)
+    return path, root / "d.h5", metrics, model
+
+
+def test_training_with_inputs_logs_power_balance_and_the_torque_term(actuated_checkpoint):
+    _, _, metrics, model = actuated_checkpoint
+    assert {"val/acc_rel_err", "val/power_balance", "val/divergence_time"} <= set(metrics)
+    assert "val/energy_drift" not in metrics
+    assert all(math.isfinite(v) for v in metrics.values())
+    assert model.model.forces is not None and model.data_dt == pytest.approx(0.005)
+    with pytest.raises(ValueError, match="torque_weight > 0 needs a structured model"):
+        type(model)(scene="actuated_double_pendulum", variant="mlp", torque_weight=0.1, hidden_dims=[8])
+
+
+def test_evaluate_reports_the_forced_sections(actuated_checkpoint, tmp_path):
+    import json
+
+    from lnn_torch.cli import main
+
+    ckpt, data, _, _ = actuated_checkpoint
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(ckpt), "--data", str(data), "--split", "train", "--horizon", "0.5",
+                 "--stability-seconds", "0.2", "--long-horizon-steps", "0", "-o", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("acc_rel_err", "power_balance_error", "torque_nrmse", "friction", "free_decay", "ood", "stability"):
+        assert key in metrics, key
+    assert "energy_drift" not in metrics and set(metrics["torque_nrmse"]) == {"mean", "tau1", "tau2"}
+    report = (out / "report.md").read_text()
+    assert "power-balance error" in report and "inverse-dynamics torque error" in report
+    for png in ("friction.png", "free_decay.png", "power_balance.png"):
+        assert (out / png).stat().st_size > 1000, png
+
+
+def test_simulate_with_inputs_from_a_file_or_an_excitation(actuated_checkpoint, tmp_path, capsys):
+    from lnn_torch.cli import main
+
+    ckpt = actuated_checkpoint[0]
+    params = [str(x) for x in ADP.sample_params(np.random.default_rng(0), 1)[0]]
+    base = ["simulate", "--checkpoint", str(ckpt), "--params", *params, "--q0", "0.3", "-0.2", "--duration", "0.5",
+            "--dt", "0.01"]
+    assert main(base + ["--excitation", '{"kind": "multisine", "amplitude": [0.5, 0.2]}', "-o",
+                        str(tmp_path / "a.csv")]) == 0
+    assert "power-balance error" in capsys.readouterr().out
+    header = [line for line in (tmp_path / "a.csv").read_text().splitlines() if line.startswith("#")][-1]
+    assert "tau1" in header and "tau2" in header
+    inputs = tmp_path / "u.csv"
+    inputs.write_text("t,tau1,tau2\n0.0,0.1,0.0\n0.25,-0.1,0.05\n0.5,0.0,0.0\n")
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "b.csv")]) == 0
+    data = np.loadtxt(tmp_path / "b.csv", delimiter=",")
+    cols = header.lstrip("# ").split(",")
+    tau1 = data[:, cols.index("tau1")]
+    assert tau1[0] == pytest.approx(0.1) and tau1[30] == pytest.approx(-0.1)  # held from each row's time
+    assert main(base + ["-o", str(tmp_path / "c.csv")]) == 2
+    assert "is actuated (tau1, tau2): pass --inputs CSV or --excitation JSON" in capsys.readouterr().err
+    inputs.write_text("t,tau1\n0.0,0.1\n")
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "d.csv")]) == 2
+    assert "missing input column(s) tau2" in capsys.readouterr().err
+    inputs.write_text("t,tau1,tau2\n0.0,0.1,0.0\n0.3,oops,0\n0.6,0,0\n")
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "e.csv")]) == 2
+    assert "row 3 is malformed" in capsys.readouterr().err
+
+
+def test_combined_angle_features_tangents_and_pullback_match_autograd(rng):
+    """The actuated scene's models also read sin/cos of q1 + q2 (the scene's angle combination): the
+    hand-carried feature tangents and the reverse pass equal autograd's (float64)."""
+    model = build_model("film_lnn", ADP, hidden_dims=(8, 8)).double()
+    assert model.num_features == 6
+    q = torch.tensor(rng.uniform(-3, 3, (5, 2)), requires_grad=True)
+    phi, dphi = model.features(q, tangents=True)
+    torch.testing.assert_close(phi[:, [2, 5]], torch.stack([torch.sin(q[:, 0] + q[:, 1]), torch.cos(q[:, 0] + q[:, 1])], -1))
+    jac = torch.func.vmap(torch.func.jacrev(lambda x: model.features(x[None])[0][0]))(q.detach())  # (B, F, dof)
+    torch.testing.assert_close(dphi.permute(1, 2, 0), jac, rtol=1e-12, atol=1e-12)
+    g = torch.randn(5, 6, dtype=torch.float64)
+    (auto,) = torch.autograd.grad((phi * g).sum(), q)
+    torch.testing.assert_close(model.features_vjp(q.detach(), g), auto, rtol=1e-12, atol=1e-12)

@@ -281,7 +281,9 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
     extra = {"hessian_reg": 1e-3} if variant == "lnn" and system.has_forces else {}
     model = perturbed(build_model(variant, system, hidden_dims=(16, 16), **extra).double())
     n_angles = sum(system.angle_mask)
-    assert model.num_features == 2 * n_angles + (system.dof - n_angles)
+    combos = system.angle_combinations()
+    n_combos = 0 if combos is None else combos.shape[0]  # e.g. a joint-angle chain's absolute link angles
+    assert model.num_features == 2 * (n_angles + n_combos) + (system.dof - n_angles)
     if variant == "film_lnn":
         assert model.kinetic_film.net[0].in_features == system.num_params
         assert model.num_chol == system.dof * (system.dof + 1) // 2

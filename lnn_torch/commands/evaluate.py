@@ -8,6 +8,10 @@ Reports (JSON, Markdown and PNG plots in ``--output-dir``) every section of
   first exceeds 0.1 and 0.5 (median and quartiles), beside the same figure for the exact system
   started 1e-6 off (the predictability limit);
 * true-energy drift |E(t) - E(0)| / (V_max - V_min) of the model's rollouts (closed-form energy);
+  for a scene with inputs or friction the power-balance error |E(t) - E(0) - W(t)| instead, the
+  rollouts driven by the recorded inputs;
+* inverse dynamics: the normalised RMSE of the torques the model needs for the data's accelerations;
+* learned against true friction curves, and a free decay from rest with the inputs off;
 * mass-matrix error against the scene's M (relative Frobenius after the best scale per system) and
   the condition number of the learned M (structured variants);
 * the scene's out-of-distribution cases;
@@ -52,6 +56,22 @@ def write_report(result: dict, output_dir: Path, system) -> list[Path]:
     if "energy_drift" in clean:
         e = clean["energy_drift"]
         lines.append(f"| true-energy drift / (V_max - V_min): mean, max | {e['mean']:.2e}, {e['max']:.2e} |")
+    if "power_balance_error" in clean:
+        e = clean["power_balance_error"]
+        lines.append(f"| power-balance error \\|E(t) - E(0) - W(t)\\| / (V_max - V_min): mean, max | "
+                     f"{e['mean']:.2e}, {e['max']:.2e} |")
+    if "torque_nrmse" in clean:
+        t = clean["torque_nrmse"]
+        lines.append("| inverse-dynamics torque error, normalised RMSE: mean (" + ", ".join(k for k in t if k != "mean")
+                     + f") | {t['mean']:.4f} (" + ", ".join(f"{v:.4f}" for k, v in t.items() if k != "mean") + ") |")
+    if "friction" in clean:
+        f = clean["friction"]
+        lines.append(f"| friction-torque curve rel. L2 error, median [p90] over trajectories and joints | "
+                     f"{f['curve_rel_err_median']:.4f} [{f['curve_rel_err_p90']:.4f}] |")
+    if "free_decay" in clean:
+        d = clean["free_decay"]
+        lines.append(f"| free decay over {d['seconds']:g} s, inputs off: energy lost, rel. error (median) | "
+                     f"{d['energy_lost_rel_err_median']:.4f} |")
     if "rollout_non_finite_fraction" in clean:
         lines.append(f"| non-finite rollouts | {clean['rollout_non_finite_fraction']:.3f} |")
     if "mass_matrix" in clean:
@@ -59,6 +79,18 @@ def write_report(result: dict, output_dir: Path, system) -> list[Path]:
         lines.append(f"| mass-matrix rel. Frobenius error (best scale per system): median, max | "
                      f"{m['rel_frobenius_median']:.4f}, {m['rel_frobenius_max']:.4f} |")
         lines.append(f"| cond(M) of the learned mass matrix: median, max | {m['cond_median']:.1f}, {m['cond_max']:.1f} |")
+    if "horizons" in clean:
+        h = clean["horizons"]
+        hs = sorted(k for k in h if k.startswith("error@"))
+        lines += ["", f"Open-loop from {h['num_starts']} start points (every {h['start_every_s']:g} s of each "
+                      f"trajectory), driven by the recorded inputs:", "",
+                  "| | " + " | ".join(k.replace("error@", "after ") for k in hs) + " |", "|---" * (len(hs) + 1) + "|",
+                  "| coordinate error, median | " + " | ".join(f"{h[k]['median']:.4f}" for k in hs) + " |",
+                  "| coordinate error, 90th percentile | " + " | ".join(f"{h[k]['p90']:.4f}" for k in hs) + " |"]
+        for k in sorted(k for k in h if k.startswith("time_to@")):
+            d = h[k]
+            lines.append(f"\nTime until the error exceeds {k.split('@')[1]}: median {d['median']:.3f} s "
+                         f"[{d['q25']:.3f}, {d['q75']:.3f}] (censored at {h['horizon_s']:g} s).")
     if "ood" in clean:
         names = ", ".join(system.param_names)
         lines += ["", "Out-of-distribution cases (the scene's own):", "",
@@ -98,7 +130,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     from ..checkpoints import PRETRAINED, data_hparams, load_model
-    from ..data import DatasetSpec, generate_dataset, read_dataset
+    from ..data import DatasetSpec, TrajectoryDataModule, generate_dataset, read_dataset
     from ..evaluation import REPORT_SECTIONS, evaluate_model
     from ..perf import configure_cpu
 
@@ -119,7 +151,9 @@ def main(argv: list[str]) -> int:
     f = read_dataset(data)
     if f.attrs["scene"] != module.system.name:
         raise ValueError(f"{data} holds scene '{f.attrs['scene']}' but the checkpoint models '{module.system.name}'")
-    result = evaluate_model(module.model, module.system, f.trajectories(args.split, args.max_trajectories),
+    # the reference as in training: the file's accelerations, or the checkpoint's derivative estimates
+    dm = TrajectoryDataModule(path=str(data), targets=saved.get("targets", "file"))
+    result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
                             sections=REPORT_SECTIONS, integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}

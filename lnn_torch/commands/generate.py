@@ -20,7 +20,8 @@ def _generate_parser() -> argparse.ArgumentParser:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--scene", default="double_pendulum", help=f"scene: one of {', '.join(sorted(SYSTEMS))}")
+    p.add_argument("--scene", default="double_pendulum",
+                   help=f"scene: one of {', '.join(sorted(n for n, c in SYSTEMS.items() if c.closed_form))}")
     p.add_argument("--scene-config", default="{}", metavar="JSON",
                    help='sampler ranges of the scene as JSON, e.g. \'{"l1_range": [1.0, 1.5]}\'')
     p.add_argument("--num-trajectories", "-n", type=int, default=2000)

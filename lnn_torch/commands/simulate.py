@@ -7,6 +7,12 @@ model can be trusted.
 
     lnn-torch simulate --params 1.0 0.6 1.2 1.1 --q0 1.0 -0.5 --qd0 0 0 --duration 10 -o sim.csv
     lnn-torch simulate --checkpoint lightning_logs/version_0/checkpoints/last.ckpt --params ... --q0 ...
+
+An actuated scene's model is driven by inputs: ``--inputs FILE.csv`` (a column per input, named as
+the scene's inputs, e.g. ``tau1,tau2``, and optionally ``t``: the inputs are held from each row's
+time to the next, zero-order) or a named excitation ``--excitation JSON`` (``lnn_torch.excitation``,
+e.g. ``'{"kind": "multisine", "amplitude": [1.0, 0.5]}'``; ``'{"kind": "none"}'`` for free motion).
+The true-energy drift is then the power-balance error |E(t) - E(0) - W(t)|.
 """
 
 from __future__ import annotations
@@ -42,15 +48,62 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
     ap.add_argument("--compile", action="store_true",
                     help="accelerations through torch.compile (pays off for long rollouts; falls back to eager)")
+    inputs = ap.add_mutually_exclusive_group()
+    inputs.add_argument("--inputs", default=None, metavar="CSV",
+                        help="inputs of an actuated scene: a column per input (and optionally t), held zero-order")
+    inputs.add_argument("--excitation", default=None, metavar="JSON",
+                        help="inputs of an actuated scene from a named excitation (lnn_torch.excitation)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of --excitation")
     return ap
 
 
-def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: str = "rk4", exact: bool = True) -> dict:
-    """Roll ``model`` (an ``LNNModule``) out from one state (float64). Returns numpy arrays: ``t``,
-    ``q``, ``qd`` ``(T, dof)``, the true energy and its drift along the model's trajectory, and
-    (``exact``) the exact trajectory ``q_exact`` (``lnn_torch.ground_truth.reference_rollout``)."""
+def read_inputs(path: str | Path, names, t: np.ndarray) -> np.ndarray:
+    """Inputs ``(len(t), n_u)`` from a CSV with a column per input name and optionally ``t`` (s): the
+    value of the last row at or before each time (zero-order hold; without ``t`` the rows are taken
+    at the simulation's steps). One clear error naming the file and the column or row."""
+    import csv
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"inputs file {path} does not exist")
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(line for line in fh if line.strip() and not line.startswith("#")))
+    if len(rows) < 2:
+        raise ValueError(f"{path}: no input rows (a header and one row per step or time)")
+    header = [h.strip() for h in rows[0]]
+    missing = [n for n in names if n not in header]
+    if missing:
+        raise ValueError(f"{path}: missing input column(s) {', '.join(missing)} (columns: {', '.join(header)})")
+    cols = [header.index(n) for n in (["t"] if "t" in header else []) + list(names)]
+    values = np.empty((len(rows) - 1, len(cols)))
+    for i, row in enumerate(rows[1:]):
+        try:
+            values[i] = [float(row[c]) for c in cols]
+        except (ValueError, IndexError):
+            raise ValueError(f"{path}: row {i + 2} is malformed: {','.join(row)!r}") from None
+        if not np.isfinite(values[i]).all():
+            raise ValueError(f"{path}: row {i + 2} has a NaN or Inf")
+    if "t" not in header:
+        if len(values) < len(t):
+            raise ValueError(f"{path}: {len(values)} rows of inputs, but the simulation needs {len(t)} (one per step)")
+        return values[: len(t)]
+    times, u = values[:, 0], values[:, 1:]
+    if (np.diff(times) <= 0).any():
+        raise ValueError(f"{path}: column t does not increase at row {int(np.nonzero(np.diff(times) <= 0)[0][0]) + 3}")
+    if times[0] > t[0] + 1e-12 or times[-1] < t[-1] - 1e-12:
+        raise ValueError(f"{path}: t covers [{times[0]:g}, {times[-1]:g}] s, the simulation [{t[0]:g}, {t[-1]:g}] s")
+    return u[np.searchsorted(times, t + 1e-12, side="right") - 1]
+
+
+def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: str = "rk4", exact: bool = True,
+                   tau=None) -> dict:
+    """Roll ``model`` (an ``LNNModule``) out from one state (float64), driven by the inputs ``tau
+    (steps, n_u)`` of an actuated scene (held over each step). Returns numpy arrays: ``t``, ``q``,
+    ``qd`` ``(T, dof)``, the true energy and its drift (power-balance error, with forces) along the
+    model's trajectory, and (``exact``) the exact trajectory ``q_exact``
+    (``lnn_torch.ground_truth.reference_rollout``)."""
     from ..ground_truth import reference_rollout
-    from ..metrics import energy_drift
+    from ..metrics import power_balance_error
 
     system = model.system
     params = torch.tensor([params], dtype=torch.float64)
@@ -63,13 +116,19 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
     if not (dt > 0 and duration >= dt):
         raise ValueError(f"need dt > 0 and duration >= dt, got dt={dt}, duration={duration}")
     steps = int(round(duration / dt))
+    if tau is not None:
+        tau = torch.as_tensor(np.asarray(tau)[:steps], dtype=torch.float64)[None]
+        if tau.shape[1:] != (steps, system.num_inputs):
+            raise ValueError(f"inputs must be ({steps}, {system.num_inputs}) for {steps} steps, got {tuple(tau.shape[1:])}")
     with torch.no_grad():
-        q, qd = model.rollout(q0, qd0, params, dt, steps, method)
+        q, qd = model.rollout(q0, qd0, params, dt, steps, method, tau=tau)
         out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy(),
                "energy": system.energy(q, qd, params[:, None].expand(-1, steps + 1, -1))[0].numpy(),
-               "energy_drift": energy_drift(system, q, qd, params)[0].numpy()}
+               "energy_drift": power_balance_error(system, q, qd, params, tau, dt)[0].numpy()}
+    if tau is not None:
+        out["tau"] = np.concatenate([tau[0].numpy(), tau[0, -1:].numpy()])  # the last row repeats (held)
     if exact:
-        out["q_exact"] = reference_rollout(system, q0, qd0, params, dt, steps)[0][0].numpy()
+        out["q_exact"] = reference_rollout(system, q0, qd0, params, dt, steps, tau=tau)[0][0].numpy()
     return out
 
 
@@ -87,12 +146,16 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
     if "q_exact" in result:
         cols += [f"{n}_exact" for n in names]
         data.append(result["q_exact"])
+    if "tau" in result:
+        cols += list(system.input_names)
+        data.append(result["tau"])
     cols += ["energy", "energy_drift"]
     data += [result["energy"][:, None], result["energy_drift"][:, None]]
     units = ", ".join(f"{n} [{u}]" for n, u in zip(names, system.coord_units))
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
               f"columns: t [s], {units}, their time derivatives; *_exact: the closed-form trajectory; energy: the "
-              "scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0)| / (V_max - V_min)\n"
+              "scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0) - W(t)| / (V_max - V_min) "
+              "(W the true work of inputs and friction; 0 for a conservative scene)\n"
               + ",".join(cols))
     np.savetxt(path, np.concatenate(data, axis=1), delimiter=",", header=header, fmt="%.10g")
     return path
@@ -131,15 +194,32 @@ def main(argv: list[str]) -> int:
     if args.compile:
         model.model.compile_dynamics()
     qd0 = args.qd0 if args.qd0 is not None else [0.0] * model.system.dof
+    system = model.system
+    steps = int(round(args.duration / args.dt))
+    t = np.arange(steps) * args.dt
+    tau = None
+    if system.num_inputs:
+        if args.inputs:
+            tau = read_inputs(args.inputs, system.input_names, t)
+        elif args.excitation:
+            from ..excitation import sample
+
+            tau = sample(json.loads(args.excitation), np.random.default_rng(args.seed), t, system.num_inputs)
+        else:
+            raise ValueError(f"scene '{system.name}' is actuated ({', '.join(system.input_names)}): pass --inputs CSV "
+                             "or --excitation JSON (e.g. '{\"kind\": \"none\"}' for free motion)")
+    elif args.inputs or args.excitation:
+        raise ValueError(f"scene '{system.name}' has no inputs: --inputs/--excitation do not apply")
     result = simulate_model(model, args.params, args.q0, qd0, args.duration, args.dt, args.method,
-                            exact=not args.no_exact)
+                            exact=not args.no_exact, tau=tau)
     meta = {"model": args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}",
             "variant": model.hparams.variant, "params": args.params, "q0": args.q0, "qd0": qd0,
             "dt": args.dt, "method": args.method}
     write_trajectory(output, result, model.system, meta, args.overwrite)
     plot_trajectory(plot, result, model.system)
     drift = result["energy_drift"]
-    line = f"wrote {output} ({len(result['t'])} points) and {plot}; true-energy drift max {drift.max():.2e}"
+    what = "power-balance error" if system.has_forces else "true-energy drift"
+    line = f"wrote {output} ({len(result['t'])} points) and {plot}; {what} max {drift.max():.2e}"
     if "q_exact" in result:
         err = np.abs(result["q"] - result["q_exact"]).max(-1)
         over = np.nonzero(err > 0.1)[0]

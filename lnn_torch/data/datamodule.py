@@ -1,15 +1,18 @@
 """``TrajectoryDataModule``: contiguous trajectory chunks from an HDF5 dataset file.
 
 Training batches are ``chunks_per_batch`` contiguous chunks of ``chunk_len`` points, each from one
-training trajectory (the energy regulariser needs whole chunks of one trajectory). Chunk ``i`` of
-epoch ``e`` is drawn from the seed sequence ``(seed, e, i)``: reproducible, and under DDP the
-distributed sampler gives each rank distinct indices. Validation and test loaders yield ONE item:
-the whole split as ``Trajectories`` (with ``eval_stride``), which the LightningModule hands to
-``lnn_torch.evaluation.evaluate_model``; ``predict`` yields every ``eval_stride``-th point of each
-test trajectory, one trajectory per item.
+training trajectory (the energy regulariser and trajectory matching need whole chunks of one
+trajectory; a chunk never crosses a recording's end). Chunk ``i`` of epoch ``e`` is drawn from the
+seed sequence ``(seed, e, i)``: reproducible, and under DDP the distributed sampler gives each rank
+distinct indices. Validation and test loaders yield ONE item: the whole split as ``Trajectories``
+(with ``eval_stride``), which the LightningModule hands to ``lnn_torch.evaluation.evaluate_model``;
+``predict`` yields every ``eval_stride``-th point of each test trajectory, one trajectory per item.
 
-The file is generated from ``spec`` if it is missing. Normalisation statistics come from the
-training split only (``normalization_data``).
+Targets: the file's accelerations (generated data), or velocities and accelerations estimated from
+the positions (and measured velocities) by ``lnn_torch.data.derivatives`` (``targets``), for
+measured recordings, which have none; the model then also reads the estimated velocities. The file
+is generated from ``spec`` if it is missing (imported recordings cannot be). Normalisation
+statistics come from the training split only (``normalization_data``).
 """
 
 from __future__ import annotations
@@ -25,27 +28,52 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from . import derivatives
 from .generate import generate_dataset
 from .hdf5 import TrajectoryFile, read_dataset
 from .spec import DatasetSpec
+from .trajectories import Trajectories
 
 FIELDS = ("q", "qd", "qdd")
 
 
 class _Source:
-    """Arrays of a set of trajectories: in memory, or read lazily with one h5py handle per process."""
+    """Arrays of a set of trajectories: in memory, or read lazily with one h5py handle per process.
 
-    def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype) -> None:
-        self.file, self.indices, self.in_memory, self.dtype = file, np.asarray(indices), in_memory, dtype
+    ``targets``: derivative settings (``derivatives.settings``): velocities and accelerations are
+    then estimated from the recorded signals, in memory, over each trajectory's own length."""
+
+    def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype,
+                 targets: dict | None = None) -> None:
+        self.file, self.indices, self.dtype = file, np.asarray(indices), dtype
+        self.in_memory = in_memory or targets is not None or "qdd" not in self._names()
         self.fields = FIELDS + (("tau",) if file.num_inputs else ())
         self.params = torch.as_tensor(file.read("params")[self.indices], dtype=dtype)
+        self.lengths = (np.asarray(file.read("lengths"))[self.indices] if "lengths" in self._names()
+                        else np.full(len(self.indices), file.num_points))
         self._arrays = None
         self._handle, self._pid = None, None
-        if in_memory:
-            with file.open() as f:
-                self._arrays = {k: torch.as_tensor(f[k][np.sort(self.indices)], dtype=dtype) for k in self.fields}
+        if self.in_memory:
             order = np.argsort(np.argsort(self.indices))
-            self._arrays = {k: v[order] for k, v in self._arrays.items()}
+            with file.open() as f:
+                arrays = {k: f[k][np.sort(self.indices)][order] for k in self.fields if k in f}
+            if targets is not None or "qdd" not in arrays:
+                if targets is None:
+                    raise ValueError(f"{file.path} has no accelerations (measured recordings): set data.targets to a "
+                                     f"derivative method ({', '.join(derivatives.METHODS)}) or train by trajectory "
+                                     "matching")
+                arrays["qd"], arrays["qdd"] = self._estimate(arrays["q"], arrays["qd"], file.dt, targets)
+            self._arrays = {k: torch.as_tensor(v, dtype=dtype) for k, v in arrays.items()}
+
+    def _names(self) -> set:
+        with self.file.open() as f:
+            return set(f.keys())
+
+    def _estimate(self, q: np.ndarray, qd: np.ndarray, dt: float, targets: dict):
+        qd_est, qdd_est = np.full_like(q, np.nan), np.full_like(q, np.nan)
+        for j, n in enumerate(self.lengths):
+            qd_est[j, :n], qdd_est[j, :n] = derivatives.estimate(q[j, :n], dt, targets, qd[j, :n])
+        return qd_est, qdd_est
 
     def __getstate__(self):
         state = self.__dict__.copy()
@@ -79,21 +107,32 @@ class _Source:
         out["params"] = self.params[rows[:, 0]][:, None, :].expand(-1, length, -1)
         return out
 
+    def trajectories(self, dt: float, num: int | None = None) -> Trajectories:
+        """The first ``num`` trajectories (all for None) as ``Trajectories`` (this source's dtype)."""
+        n = len(self.indices) if num is None else min(num, len(self.indices))
+        T = int(self.lengths[:n].max())
+        parts = [self.chunk(j, 0, T) for j in range(n)]
+        stack = lambda k: torch.stack([p[k] for p in parts]) if k in parts[0] else None  # noqa: E731
+        return Trajectories(stack("q"), stack("qd"), self.params[:n], dt, stack("qdd"),
+                            torch.as_tensor(self.indices[:n]), stack("tau"), torch.as_tensor(self.lengths[:n]))
+
 
 class ChunkDataset(Dataset):
     """Training batches of random contiguous chunks: item ``i`` of epoch ``e`` is a whole batch of
     ``chunks_per_batch`` chunks drawn from the seed sequence ``(seed, e, i)`` (reproducible; under
-    DDP the distributed sampler gives each rank distinct items, hence distinct chunks)."""
+    DDP the distributed sampler gives each rank distinct items, hence distinct chunks). A chunk lies
+    within its trajectory's own length (recordings differ in length)."""
 
     def __init__(self, source: _Source, num_points: int, chunk_len: int, chunks_per_batch: int, num_batches: int,
                  seed: int) -> None:
-        if chunk_len > num_points:
-            raise ValueError(f"chunk_len {chunk_len} exceeds the trajectory length {num_points}")
         if chunk_len < 1 or chunks_per_batch < 1 or num_batches < 1:
             raise ValueError("chunk_len, chunks_per_batch and steps_per_epoch must be >= 1, got "
                              f"{chunk_len}, {chunks_per_batch}, {num_batches}")
+        if chunk_len > int(source.lengths.max()):
+            raise ValueError(f"chunk_len {chunk_len} exceeds the trajectory length {int(source.lengths.max())}")
         self.source, self.num_points, self.chunk_len = source, num_points, chunk_len
         self.chunks_per_batch, self.num_batches, self.seed = chunks_per_batch, num_batches, seed
+        self.usable = np.nonzero(source.lengths >= chunk_len)[0]  # trajectories long enough for a chunk
         self.epoch = 0
 
     def __len__(self) -> int:
@@ -101,8 +140,11 @@ class ChunkDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.epoch, int(i))))
-        js = rng.integers(len(self.source.indices), size=self.chunks_per_batch)
-        starts = rng.integers(self.num_points - self.chunk_len + 1, size=self.chunks_per_batch)
+        js = self.usable[rng.integers(len(self.usable), size=self.chunks_per_batch)]
+        if (self.source.lengths == self.num_points).all():  # trajectories of one length (generated data)
+            starts = rng.integers(self.num_points - self.chunk_len + 1, size=self.chunks_per_batch)
+        else:
+            starts = rng.integers(self.source.lengths[js] - self.chunk_len + 1)
         return self.source.chunks(js, starts, self.chunk_len)
 
 
@@ -126,8 +168,8 @@ class SplitDataset(Dataset):
     """One item: the whole split ``{"trajectories": Trajectories, "accel_stride": int}`` (under DDP
     the distributed sampler pads it to one item per rank)."""
 
-    def __init__(self, file: TrajectoryFile, split: str, stride: int) -> None:
-        self.file, self.split, self.stride = file, split, stride
+    def __init__(self, datamodule: "TrajectoryDataModule", split: str, stride: int) -> None:
+        self.datamodule, self.split, self.stride = datamodule, split, stride
         self._data = None
 
     def __len__(self) -> int:
@@ -135,7 +177,7 @@ class SplitDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         if self._data is None:
-            self._data = self.file.trajectories(self.split)
+            self._data = self.datamodule.trajectories(self.split)
         return {"trajectories": self._data, "accel_stride": self.stride}
 
 
@@ -143,63 +185,87 @@ class TrajectoryDataModule(L.LightningDataModule):
     """Serves an lnn_torch HDF5 dataset (generated from ``spec`` when ``path`` is missing).
 
     Args:
-        path: the dataset file.
+        path: the dataset file (generated, or imported with ``lnn-torch import``).
         spec: ``DatasetSpec`` fields used to generate the file when it is missing (and to check the
-            scene); ``None`` means the defaults.
+            scene); ``None`` means the defaults. Not used for imported recordings.
         chunk_len: points per training chunk.
         chunks_per_batch: chunks per training batch.
         steps_per_epoch: training batches per epoch.
         eval_stride: stride of the fixed validation/test points.
-        eval_trajectories_per_batch: trajectories per validation/test batch.
+        eval_trajectories_per_batch: trajectories per predict batch.
         num_workers: DataLoader workers (each opens its own h5py handle when not in memory).
-        in_memory: load the needed splits into memory (fast; default).
+        in_memory: load the needed splits into memory (fast; default; always with ``targets``).
         seed: seed of the chunk sampling.
+        targets: ``"file"`` (the file's accelerations) or the estimate of velocities and
+            accelerations from the recorded signals: a method of ``lnn_torch.data.derivatives``
+            (``finite_difference``, ``butterworth``, ``savgol``, ``spline``) as a name or a dict with
+            its settings, e.g. ``{"method": "butterworth", "cutoff": 10}``.
     """
 
     def __init__(self, path: str = "data/double_pendulum.h5", spec: dict | None = None, chunk_len: int = 64,
                  chunks_per_batch: int = 8, steps_per_epoch: int = 250, eval_stride: int = 10,
                  eval_trajectories_per_batch: int = 16, num_workers: int = 0, in_memory: bool = True,
-                 seed: int = 0) -> None:
+                 seed: int = 0, targets: dict | str = "file") -> None:
         super().__init__()
         self.save_hyperparameters()
         self.path = Path(path)
-        self.spec = DatasetSpec(**(spec or {}))
+        self.spec_fields = dict(spec or {})
+        self.targets = derivatives.settings(targets)
         self.file: TrajectoryFile | None = None
         self._sources: dict = {}
         self.train_set: ChunkDataset | None = None
 
     # ------------------------------------------------------------------ preparation
+    @property
+    def spec(self) -> DatasetSpec:
+        """The dataset specification (that generates the file when it is missing)."""
+        return DatasetSpec(**self.spec_fields)
+
     def prepare_data(self) -> None:
         if not self.path.exists():
-            print(f"dataset {self.path} not found: generating it ({self.spec.num_trajectories} trajectories)")
-            generate_dataset(self.spec, self.path, progress=True)
+            spec = self.spec
+            print(f"dataset {self.path} not found: generating it ({spec.num_trajectories} trajectories)")
+            generate_dataset(spec, self.path, progress=True)
 
     def _open(self) -> TrajectoryFile:
         if self.file is None:
             self.prepare_data()
             self.file = read_dataset(self.path)
-            if self.file.attrs["scene"] != self.spec.scene:
-                raise ValueError(f"{self.path} holds scene '{self.file.attrs['scene']}', but the data spec "
-                                 f"says '{self.spec.scene}'")
-            recorded, configured = self.file.spec, asdict(self.spec)
-            differ = sorted(k for k in configured if k in recorded and json.dumps(recorded[k], sort_keys=True)
-                            != json.dumps(configured[k], sort_keys=True))
-            if differ:
-                warnings.warn(f"{self.path} was generated with a different specification than configured "
-                              f"({', '.join(f'{k}: file {recorded[k]!r} vs config {configured[k]!r}' for k in differ)}); "
-                              "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning)
+            if not self.file.measured:
+                self._check_spec()
         return self.file
+
+    def _check_spec(self) -> None:
+        spec = self.spec
+        if self.file.attrs["scene"] != spec.scene:
+            raise ValueError(f"{self.path} holds scene '{self.file.attrs['scene']}', but the data spec "
+                             f"says '{spec.scene}'")
+        recorded, configured = self.file.spec, asdict(spec)
+        differ = sorted(k for k in configured if k in recorded and json.dumps(recorded[k], sort_keys=True)
+                        != json.dumps(configured[k], sort_keys=True))
+        if differ:
+            warnings.warn(f"{self.path} was generated with a different specification than configured "
+                          f"({', '.join(f'{k}: file {recorded[k]!r} vs config {configured[k]!r}' for k in differ)}); "
+                          "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning)
 
     def source(self, split: str, dtype=torch.float32) -> _Source:
         key = (split, dtype)
         if key not in self._sources:
             f = self._open()
-            self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype)
+            self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets)
         return self._sources[key]
 
     @property
     def scene(self) -> dict:
         return self._open().scene
+
+    def model_scene(self) -> tuple[str, dict]:
+        """``(scene name, scene configuration)`` for the model: the file's when it exists (imported
+        recordings declare a measured system there), else the spec's."""
+        if self.path.exists():
+            scene = read_dataset(self.path).scene
+            return scene["name"], scene.get("config", {})
+        return self.spec_fields.get("scene", "double_pendulum"), dict(self.spec_fields.get("scene_config", {}))
 
     @property
     def dt(self) -> float:
@@ -212,7 +278,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
                                           self.hparams.chunks_per_batch, self.hparams.steps_per_epoch, self.hparams.seed)
         for split in ("val", "test"):
-            if len(f.splits[split]) == 0 and stage in (split if split == "test" else "validate", "fit"):
+            if len(f.splits[split]) == 0 and stage in (("test",) if split == "test" else ("validate", "fit")):
                 raise ValueError(f"{self.path} has an empty '{split}' split")
 
     def set_epoch(self, epoch: int) -> None:
@@ -232,7 +298,7 @@ class TrajectoryDataModule(L.LightningDataModule):
                           num_workers=self.hparams.num_workers)
 
     def _split(self, split: str) -> DataLoader:
-        return DataLoader(SplitDataset(self._open(), split, self.hparams.eval_stride), batch_size=None)
+        return DataLoader(SplitDataset(self, split, self.hparams.eval_stride), batch_size=None)
 
     def val_dataloader(self) -> DataLoader:
         return self._split("val")
@@ -246,21 +312,23 @@ class TrajectoryDataModule(L.LightningDataModule):
     # ------------------------------------------------------------------ for the model
     def normalization_data(self, max_points: int = 200_000) -> dict:
         """Training-split samples (float64) for the normaliser: q, qd, qdd ``(n, dof)``, params ``(m, P)``
-        per trajectory and ``params_points (n, P)`` aligned with the points."""
-        f = self._open()
+        per trajectory, ``params_points (n, P)`` aligned with the points and the inputs ``tau``
+        where recorded (the valid points of every trajectory, subsampled to at most ``max_points``)."""
         src = self.source("train", torch.float64)
-        n_traj = len(src.indices)
-        stride = max(1, (n_traj * f.num_points) // max_points)
-        parts = [src.chunk(j, 0, (f.num_points + stride - 1) // stride, stride) for j in range(n_traj)]
+        total = int(src.lengths.sum())
+        stride = max(1, total // max_points)
+        parts = [src.chunk(j, 0, (int(n) + stride - 1) // stride, stride) for j, n in enumerate(src.lengths)]
         out = {k: torch.cat([p[k] for p in parts]) for k in src.fields}
         out["params"] = src.params
         out["params_points"] = torch.cat([p["params"] for p in parts])
         return out
 
-    def trajectories(self, split: str = "val", num_trajectories: int | None = None):
-        """Whole trajectories of a split (float64 ``Trajectories``): the first ``num_trajectories``
-        (None: all)."""
-        return self._open().trajectories(split, num_trajectories)
+    def trajectories(self, split: str = "val", num_trajectories: int | None = None) -> Trajectories:
+        """Whole trajectories of a split (float64 ``Trajectories``, with the estimated velocities
+        and accelerations where ``targets`` asks for them): the first ``num_trajectories`` (None: all)."""
+        if self.targets is None and not self._open().measured:
+            return self._open().trajectories(split, num_trajectories)
+        return self.source(split, torch.float64).trajectories(self.dt, num_trajectories)
 
     def spec_dict(self) -> dict:
         return asdict(self.spec)

@@ -14,6 +14,7 @@ name               shape            meaning
 ``integrator_steps`` ``(N,)``       integrator steps each trajectory took (more where refined)
 ``tau``            ``(N, T, n_u)``  inputs of an actuated scene (N m), held over each interval (optional)
 ``work``           ``(N, T, 2)``    work of the inputs and of dissipation since t = 0, J (scenes with forces)
+``lengths``        ``(N,)``         points of each trajectory; the rest is NaN padding (imported recordings)
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
 =================  ===============  =====================================================
 
@@ -23,7 +24,9 @@ description: dof, angle mask, names, units, sampler configuration), ``convention
 ``integrator``, ``substeps``, ``tolerances`` (JSON: the accuracy check, energy drift or power
 balance, and its measured maximum), ``targets``, ``inputs`` (JSON, actuated scenes: names, units,
 input matrix, excitation, hold), ``package_version``, ``created``, ``complete``. Files written before
-``tau`` existed read as unactuated.
+``tau`` existed read as unactuated. Imported recordings (``lnn-torch import``; attribute
+``measured``) have no ``qdd`` and no ``energy`` (nothing is known but the measurements), a scene
+``measured`` without parameters, ``lengths``, ``recordings`` and ``provenance``.
 """
 
 from __future__ import annotations
@@ -37,8 +40,9 @@ import numpy as np
 
 FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
-ARRAYS = ("t", "q", "qd", "qdd", "params", "energy")
-OPTIONAL_ARRAYS = ("integrator_steps", "tau", "work")
+ARRAYS = ("t", "q", "qd", "params")  # every file
+SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
+OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths")
 SPLITS = ("train", "val", "test")
 
 
@@ -65,6 +69,8 @@ def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, ove
     try:
         with h5py.File(tmp, "w") as f:
             for name in ARRAYS + tuple(n for n in OPTIONAL_ARRAYS if n in arrays):
+                if name not in arrays:
+                    continue
                 data = np.asarray(arrays[name])
                 chunks = (1,) + data.shape[1:] if data.ndim == 3 else None
                 f.create_dataset(name, data=data, chunks=chunks)
@@ -148,9 +154,14 @@ class TrajectoryFile:
             raise DatasetFileError(f"{self.path} has an empty '{split}' split")
         idx = idx[:max_trajectories] if max_trajectories else idx
         with self.open() as f:
-            arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params", "tau") if k in f}
-        return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays["qdd"], torch.from_numpy(idx),
-                            arrays.get("tau"))
+            arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params", "tau", "lengths") if k in f}
+        return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays.get("qdd"),
+                            torch.from_numpy(idx), arrays.get("tau"), arrays.get("lengths"))
+
+    @property
+    def measured(self) -> bool:
+        """Imported recordings (no closed form, no true accelerations)."""
+        return bool(self.attrs.get("measured", False))
 
 
 def read_dataset(path: str | Path) -> TrajectoryFile:
@@ -168,15 +179,18 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
                 raise DatasetFileError(f"{path} is not an lnn_torch dataset (attribute 'format' is {attrs.get('format')!r})")
             if not attrs.get("complete", False):
                 raise DatasetFileError(f"{path} is incomplete (its writer did not finish)")
-            missing = [n for n in ARRAYS if n not in f] + [f"splits/{n}" for n in SPLITS if f"splits/{n}" not in f]
+            required = ARRAYS + (() if attrs.get("measured", False) else SIMULATED_ARRAYS)
+            missing = [n for n in required if n not in f] + [f"splits/{n}" for n in SPLITS if f"splits/{n}" not in f]
             if missing:
                 raise DatasetFileError(f"{path} is malformed: missing {', '.join(missing)}")
             n, t, dof = f["q"].shape
             for name in ("qd", "qdd"):
-                if f[name].shape != (n, t, dof):
+                if name in f and f[name].shape != (n, t, dof):
                     raise DatasetFileError(f"{path} is malformed: '{name}' has shape {f[name].shape}, expected {(n, t, dof)}")
-            if f["t"].shape != (t,) or f["params"].shape[0] != n or f["energy"].shape != (n, t):
+            if f["t"].shape != (t,) or f["params"].shape[0] != n or ("energy" in f and f["energy"].shape != (n, t)):
                 raise DatasetFileError(f"{path} is malformed: 't', 'params' or 'energy' shapes do not match 'q' {(n, t, dof)}")
+            if "lengths" in f and (f["lengths"].shape != (n,) or f["lengths"][()].min() < 2 or f["lengths"][()].max() > t):
+                raise DatasetFileError(f"{path} is malformed: 'lengths' must be ({n},) values in [2, {t}]")
             splits = {name: f[f"splits/{name}"][()] for name in SPLITS}
             all_idx = np.concatenate(list(splits.values()))
             if len(all_idx) and (all_idx.min() < 0 or all_idx.max() >= n):

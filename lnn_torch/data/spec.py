@@ -51,7 +51,7 @@ class DatasetSpec:
 
     def __post_init__(self) -> None:
         if self.substeps is None:
-            self.substeps = self.build_system().ground_truth_substeps
+            self.substeps = getattr(self.build_system(), "ground_truth_substeps", 1)
         try:  # values from command lines and YAML may arrive as strings
             self.num_trajectories, self.seed, self.substeps = int(self.num_trajectories), int(self.seed), int(self.substeps)
             self.duration, self.dt = float(self.duration), float(self.dt)
@@ -71,7 +71,10 @@ class DatasetSpec:
         return get_system(self.scene, **self.scene_config)
 
     def validate(self) -> None:
-        self.build_system()  # unknown scene / bad ranges raise InputError
+        system = self.build_system()  # unknown scene / bad ranges raise InputError
+        if not system.closed_form:
+            raise InputError(f"scene '{self.scene}' has no closed form and cannot be generated: import its recordings "
+                             "(lnn-torch import) and point data.path at the file")
         if int(self.num_trajectories) < 1:
             raise InputError(f"num_trajectories must be >= 1, got {self.num_trajectories}")
         if not (math.isfinite(self.dt) and self.dt > 0):

@@ -19,6 +19,8 @@ class Trajectories:
         index: ``(B,)`` trajectory indices in their file, or None.
         tau: ``(B, T, n_u)`` inputs (N m), sample ``k`` held over ``[t_k, t_{k+1})``; None for an
             unactuated system.
+        lengths: ``(B,)`` points of each trajectory, the rest NaN padding (recordings of different
+            lengths); None: all ``T``.
     """
 
     q: torch.Tensor
@@ -28,6 +30,7 @@ class Trajectories:
     qdd: torch.Tensor | None = None
     index: torch.Tensor | None = None
     tau: torch.Tensor | None = None
+    lengths: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         B, T, dof = self.q.shape

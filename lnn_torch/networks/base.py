@@ -45,6 +45,9 @@ class SceneInfo:
     friction: bool = False
     joint_map: tuple[tuple[float, ...], ...] | None = None
     coulomb_velocity: float = 0.05
+    # further angles (rows: coefficients over the coordinates) whose sin/cos are features, e.g. the
+    # absolute angle q1 + q2 of a link in a chain measured in joint angles
+    angle_combinations: tuple[tuple[float, ...], ...] | None = None
 
     @property
     def num_inputs(self) -> int:
@@ -68,7 +71,8 @@ class SceneInfo:
         return cls(d["name"], int(d["dof"]), tuple(bool(a) for a in d["angle_mask"]), len(d["param_names"]),
                    bool(d.get("quadratic_kinetic", True)), tuple(d.get("param_kinds", ())),
                    as_tuple(d.get("input_matrix")), d.get("friction") is not None,
-                   as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)))
+                   as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)),
+                   as_tuple(d.get("angle_combinations")))
 
 
 class DynamicsModel(nn.Module):
@@ -93,11 +97,21 @@ class DynamicsModel(nn.Module):
         linear = [i for i, a in enumerate(self.scene.angle_mask) if not a]
         self.register_buffer("angle_idx", torch.tensor(angles, dtype=torch.long), persistent=False)
         self.register_buffer("linear_idx", torch.tensor(linear, dtype=torch.long), persistent=False)
-        # d(feature)/dq_k selectors: (dof, n_angles) and (dof, n_linear)
-        self.register_buffer("sel_angle", torch.eye(dof)[:, angles], persistent=False)
+        # the feature angles G q (rows: each angle coordinate, then the scene's angle combinations) and
+        # d(feature)/dq_k selectors: sel_angle = G^T (dof, n_feature_angles), sel_linear (dof, n_linear)
+        G = torch.eye(dof)[angles]
+        combos = self.scene.angle_combinations
+        if combos:
+            C = torch.tensor(combos, dtype=torch.float32)
+            if C.shape[1] != dof or (C[:, linear] != 0).any():
+                raise InputError(f"angle_combinations must be rows of {dof} coefficients over angle coordinates only")
+            G = torch.cat([G, C])
+        self.register_buffer("sel_angle", G.T.contiguous(), persistent=False)
         self.register_buffer("sel_linear", torch.eye(dof)[:, linear], persistent=False)
-        self.num_features = 2 * len(angles) + len(linear)
+        self.num_features = 2 * G.shape[0] + len(linear)
         self.all_angles = not linear
+        self.combined_angles = bool(combos)
+        self.plain_angles = self.all_angles and not combos  # the features read q itself
         self.forces = None
         if self.scene.has_forces and self.uses_forces:
             from .forces import LearnedForces
@@ -106,7 +120,8 @@ class DynamicsModel(nn.Module):
 
     # ------------------------------------------------------------------ features
     def features(self, q_norm: torch.Tensor, tangents: bool = False):
-        """Features ``[sin q_a, cos q_a, q_lin]`` ``(B, F)`` and, if asked, ``d phi / d q_k`` ``(dof, B, F)``.
+        """Features ``[sin q_a, cos q_a, q_lin]`` ``(B, F)`` and, if asked, ``d phi / d q_k`` ``(dof, B, F)``;
+        ``q_a`` are the angle coordinates and the scene's angle combinations (``G q``).
 
         On the CPU, sin/cos read the raw angles: torch's CPU kernels reduce large arguments exactly
         (``tests/test_stability.py::test_angle_features_are_exact_at_1e4_rad``). On other devices the angles are first wrapped to [-pi, pi) in float64
@@ -116,9 +131,16 @@ class DynamicsModel(nn.Module):
         phi, dphi, _ = self._features(q_norm, tangents)
         return phi, dphi
 
+    def _feature_angles(self, q_norm: torch.Tensor) -> torch.Tensor:
+        if self.plain_angles:
+            return q_norm
+        if self.combined_angles:
+            return q_norm @ self.sel_angle.to(q_norm.dtype)
+        return q_norm[..., self.angle_idx]
+
     def _features(self, q_norm: torch.Tensor, tangents: bool):
         """``features`` plus ``(sin, cos)`` of the angles (reused by ``features_vjp``)."""
-        qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+        qa = self._feature_angles(q_norm)
         if qa.device.type != "cpu":
             qa = wrap_angle(qa)
         s, c = torch.sin(qa), torch.cos(qa)
@@ -133,16 +155,18 @@ class DynamicsModel(nn.Module):
 
     def features_vjp(self, q_norm: torch.Tensor, g_phi: torch.Tensor, sin_cos=None) -> torch.Tensor:
         """Pull a feature gradient ``(B, F)`` back to ``(B, dof)`` through ``features``."""
-        na = int(self.angle_idx.numel())
+        na = self.sel_angle.shape[1]
         if sin_cos is None:
-            qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+            qa = self._feature_angles(q_norm)
             sin_cos = torch.sin(qa), torch.cos(qa)
         s, c = sin_cos
         g_angle = g_phi[..., :na] * c - g_phi[..., na : 2 * na] * s
-        if self.all_angles:
+        if self.plain_angles:
             return g_angle
-        g_lin = g_phi[..., 2 * na :]
-        return g_angle @ self.sel_angle.to(g_phi.dtype).T + g_lin @ self.sel_linear.to(g_phi.dtype).T
+        out = g_angle @ self.sel_angle.to(g_phi.dtype).T
+        if not self.all_angles:
+            out = out + g_phi[..., 2 * na :] @ self.sel_linear.to(g_phi.dtype).T
+        return out
 
     # ------------------------------------------------------------------ generalised forces
     def force_norm(self, q_norm, qd_norm, params_norm, tau_norm=None):

@@ -156,7 +156,7 @@ class HamiltonianNN(DynamicsModel):
         qs_n, ms_n = y[..., :dof], y[..., dof:]  # (B, T, dof)
         if self.coordinates == "canonical":
             B, T = qs_n.shape[:2]
-            flat = lambda x: x.reshape(B * T, -1)  # noqa: E731
+            flat = lambda x: x.flatten(0, 1)  # noqa: E731
             qds_n = self.vector_field_norm(flat(qs_n).to(dtype), flat(ms_n).to(dtype),
                                            flat(p_n[:, None].expand(-1, T, -1)).to(dtype))[0]
             qds_n = qds_n.reshape(B, T, dof).to(q0.dtype)

@@ -62,7 +62,7 @@ class Normalizer(nn.Module):
             input_force: torch.Tensor | None = None, tau: torch.Tensor | None = None) -> "Normalizer":
         """Set the statistics from training data: q, qd, qdd ``(n, dof)``; params ``(m, P)``; the
         input forces ``B tau (n, dof)`` and the inputs ``tau (n, n_u)`` where the scene has inputs."""
-        q, qd, qdd, params = (x.double().reshape(-1, x.shape[-1]) for x in (q, qd, qdd, params))
+        q, qd, qdd, params = (x.double().flatten(0, -2) for x in (q, qd, qdd, params))
         lin = ~self.angle_mask.cpu()
         shift = torch.where(lin, q.mean(0), torch.zeros(self.dof, dtype=torch.float64))
         scale = torch.where(lin, q.std(0).clamp_min(1e-8), torch.ones(self.dof, dtype=torch.float64))

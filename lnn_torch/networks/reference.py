@@ -46,10 +46,14 @@ def mlp(net, x: torch.Tensor, film=None) -> torch.Tensor:
 
 
 def features(model, q_norm: torch.Tensor) -> torch.Tensor:
-    """``[sin q_a, cos q_a, q_lin]`` of normalised coordinates ``(B, dof)`` -> ``(B, F)``."""
+    """``[sin q_a, cos q_a, q_lin]`` of normalised coordinates ``(B, dof)`` -> ``(B, F)``; ``q_a``: the
+    angle coordinates, then the scene's angle combinations (e.g. ``q1 + q2``)."""
     angles = [i for i, a in enumerate(model.scene.angle_mask) if a]
     linear = [i for i, a in enumerate(model.scene.angle_mask) if not a]
     qa = q_norm[..., angles]
+    if model.scene.angle_combinations:
+        combos = torch.tensor(model.scene.angle_combinations, dtype=q_norm.dtype)
+        qa = torch.cat([qa, (combos * q_norm[..., None, :]).sum(-1)], -1)
     return torch.cat([torch.sin(qa), torch.cos(qa), q_norm[..., linear]], -1)
 
 

@@ -7,12 +7,13 @@ from .base import GRAVITY, InputError, Range, System
 from .chain_pendulum import ChainPendulum
 from .double_pendulum import DoublePendulum
 from .mass_spring import MassSpring
+from .measured import MeasuredSystem
 from .pendulum import Pendulum
 from .relativistic_particle import RelativisticParticle
 
 SYSTEMS: dict[str, type[System]] = {
     cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring, ChainPendulum, RelativisticParticle,
-                              ActuatedDoublePendulum)
+                              ActuatedDoublePendulum, MeasuredSystem)
 }
 
 
@@ -29,4 +30,5 @@ def get_system(name: str, **config) -> System:
 
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
-           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle", "ActuatedDoublePendulum"]
+           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle", "ActuatedDoublePendulum",
+           "MeasuredSystem"]

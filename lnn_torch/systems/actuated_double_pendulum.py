@@ -117,6 +117,10 @@ class ActuatedDoublePendulum(System):
         amplitude = [a for a, on in zip((1.0, 0.5), self.actuated) if on]
         return {"kind": "multisine", "amplitude": amplitude, "band": [0.1, 2.0], "num_sines": 6}
 
+    def angle_combinations(self):
+        """Link 2's absolute angle ``q1 + q2`` (the potential and the drawing depend on it)."""
+        return torch.tensor([[1.0, 1.0]], dtype=torch.float64)
+
     # ------------------------------------------------------------------ generalised forces
     def input_matrix(self):
         if not any(self.actuated):

@@ -67,6 +67,8 @@ def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
     """Raise ``InputError`` naming the parameters that are not positive (kind ``positive``) or are
     negative (kind ``nonnegative``, e.g. friction coefficients)."""
     kinds = list(kinds)
+    if not kinds:  # a system without parameters (a measured one)
+        return
     positive = torch.tensor([k == "positive" for k in kinds], dtype=torch.bool, device=params.device)
     bad_pos = ((params <= 0) & positive).reshape(-1, len(kinds)).any(0)
     bad_neg = ((params < 0) & ~positive).reshape(-1, len(kinds)).any(0)
@@ -103,6 +105,7 @@ class System(abc.ABC):
     coulomb_velocity: float = 0.05  # rad/s: the smoothing of Coulomb friction, tanh(rate / v)
     # fixed integrator steps per sample interval of the ground truth (stiff friction needs more)
     ground_truth_substeps: int = 1
+    closed_form = True  # False for a measured system: no closed-form dynamics, energy or sampler
 
     @property
     def num_params(self) -> int:
@@ -113,6 +116,12 @@ class System(abc.ABC):
         return self.param_kinds or ("positive",) * self.num_params
 
     # ------------------------------------------------------------------ generalised forces (optional)
+    def angle_combinations(self) -> torch.Tensor | None:
+        """Rows of coefficients over the coordinates: further angles whose sin/cos models read as
+        features (e.g. a link's absolute angle ``q1 + q2`` in a chain measured in joint angles);
+        None (default): the angle coordinates only."""
+        return None
+
     def input_matrix(self) -> torch.Tensor | None:
         """``B (dof, num_inputs)``, float64: how the inputs enter the coordinates; None (default): no inputs."""
         return None
@@ -200,6 +209,8 @@ class System(abc.ABC):
         """The generalised forces a model of this scene needs: inputs and their matrix, friction and
         its joint map (empty for a conservative scene)."""
         out = {}
+        if self.angle_combinations() is not None:
+            out["angle_combinations"] = self.angle_combinations().tolist()
         if self.num_inputs:
             out.update(input_names=list(self.input_names), input_matrix=self.input_matrix().tolist())
         if self.has_friction:

@@ -1,0 +1,91 @@
+"""Velocities and accelerations from measured positions (and velocities), for training without true
+accelerations. Zero-phase methods only (no lag):
+
+* ``finite_difference``: second-order central differences (``np.gradient``), of the positions (twice),
+  or of the measured velocities once: what the reference design does; noise is amplified by 1/dt^2;
+* ``butterworth``: a zero-phase low-pass (``scipy.signal.butter`` + ``filtfilt``, ``order``,
+  ``cutoff`` in Hz) of the positions (or of the measured velocities), then central differences;
+* ``savgol``: Savitzky-Golay fits (``window`` in samples, ``polyorder``) giving the smoothed signal and
+  its derivatives directly;
+* ``spline``: a smoothing spline per coordinate (``scipy.interpolate.make_smoothing_spline``,
+  ``lam``; default: generalised cross-validation) and its derivatives.
+
+``use_measured_velocity``: where velocities were measured, take them (smoothed the same way) as the
+velocity and differentiate them once for the acceleration, instead of differentiating positions
+twice. Every setting is recorded (``describe``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+METHODS = ("finite_difference", "butterworth", "savgol", "spline")
+DEFAULTS = {"finite_difference": {}, "butterworth": {"cutoff": 10.0, "order": 4},
+            "savgol": {"window": 31, "polyorder": 3}, "spline": {"lam": None}}
+
+
+def settings(targets: dict | str | None) -> dict | None:
+    """The derivative settings with defaults filled in (None: use the file's accelerations)."""
+    from ..systems.base import InputError
+
+    if targets in (None, "file", {}):
+        return None
+    if isinstance(targets, str):
+        targets = {"method": targets}
+    method = targets.get("method")
+    if method not in METHODS:
+        raise InputError(f"targets method must be one of file, {', '.join(METHODS)}; got {method!r}")
+    out = {"method": method, "use_measured_velocity": bool(targets.get("use_measured_velocity", True)),
+           **DEFAULTS[method], **{k: v for k, v in targets.items() if k not in ("method", "use_measured_velocity")}}
+    unknown = set(out) - {"method", "use_measured_velocity", *DEFAULTS[method]}
+    if unknown:
+        raise InputError(f"targets method '{method}' takes no setting {', '.join(sorted(unknown))}")
+    if method == "savgol" and (int(out["window"]) % 2 == 0 or int(out["window"]) <= int(out["polyorder"])):
+        raise InputError(f"savgol window must be odd and larger than polyorder, got {out['window']}, {out['polyorder']}")
+    return out
+
+
+def _smooth(x: np.ndarray, dt: float, s: dict, deriv: int) -> np.ndarray:
+    """The smoothed signal (``deriv`` 0) or its first or second derivative along axis 0 of ``x (T, n)``."""
+    method = s["method"]
+    if method == "savgol":
+        from scipy.signal import savgol_filter
+
+        window = min(int(s["window"]), len(x) - (1 - len(x) % 2))
+        return savgol_filter(x, window, int(s["polyorder"]), deriv=deriv, delta=dt, axis=0)
+    if method == "spline":
+        from scipy.interpolate import make_smoothing_spline
+
+        t = dt * np.arange(len(x))
+        return np.stack([make_smoothing_spline(t, x[:, j], lam=s["lam"]).derivative(deriv)(t) if deriv
+                         else make_smoothing_spline(t, x[:, j], lam=s["lam"])(t) for j in range(x.shape[1])], -1)
+    y = x
+    if method == "butterworth":
+        from scipy.signal import butter, filtfilt
+
+        nyquist = 0.5 / dt
+        if not 0 < s["cutoff"] < nyquist:
+            from ..systems.base import InputError
+
+            raise InputError(f"butterworth cutoff must lie in (0, {nyquist:g}) Hz (the Nyquist frequency), got {s['cutoff']}")
+        b, a = butter(int(s["order"]), s["cutoff"] / nyquist)
+        y = filtfilt(b, a, x, axis=0, padlen=min(3 * max(len(a), len(b)), len(x) - 1))
+    for _ in range(deriv):
+        y = np.gradient(y, dt, axis=0, edge_order=2)
+    return y
+
+
+def estimate(q: np.ndarray, dt: float, s: dict, qd: np.ndarray | None = None):
+    """``(qd, qdd)`` estimates ``(T, dof)`` from positions ``q (T, dof)`` (and measured ``qd``) of ONE
+    recording sampled every ``dt`` s, with the settings ``s`` (``settings``)."""
+    if s["use_measured_velocity"] and qd is not None and np.isfinite(qd).all():
+        return _smooth(qd, dt, s, 0), _smooth(qd, dt, s, 1)
+    return _smooth(q, dt, s, 1), _smooth(q, dt, s, 2)
+
+
+def describe(s: dict | None) -> str:
+    if s is None:
+        return "the file's accelerations"
+    rest = ", ".join(f"{k} = {v}" for k, v in s.items() if k not in ("method", "use_measured_velocity"))
+    source = "measured velocities (differentiated once)" if s["use_measured_velocity"] else "positions"
+    return f"{s['method']} of the {source}" + (f" ({rest})" if rest else "")

@@ -1,0 +1,262 @@
+"""Measured recordings: import, a system without parameters or closed form, derivative estimates,
+trajectory matching, and the command line from CSV files to an evaluated checkpoint."""
+
+import gzip
+import hashlib
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch.cli import main
+from lnn_torch.data import DatasetSpec, generate_arrays, read_dataset
+from lnn_torch.data import derivatives
+from lnn_torch.data.importer import ImportSpec, import_recordings
+from lnn_torch.systems import InputError, get_system
+
+ADP = get_system("actuated_double_pendulum")
+
+
+def write_csv(path, columns: dict, header_order=None, gz=False):
+    names = header_order or list(columns)
+    rows = np.stack([np.asarray(columns[n], dtype=np.float64) for n in names], -1)
+    text = ",".join(names) + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows) + "\n"
+    if gz:
+        with gzip.open(path, "wt") as fh:
+            fh.write(text)
+    else:
+        path.write_text(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """Three synthetic recordings of the actuated arm (exact signals), written as CSVs with irregular
+    time stamps (2 ms +- 0.5 ms jitter), angles in degrees, the columns in another order, one gzipped."""
+    root = tmp_path_factory.mktemp("rec")
+    arrays = generate_arrays(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=3, duration=2.0, dt=0.001,
+                                         seed=8))
+    rng = np.random.default_rng(0)
+    files, truth = [], []
+    for i in range(3):
+        t_fine = arrays["t"]
+        n = 1700 - 200 * i  # different lengths
+        t = np.cumsum(np.r_[0, 0.002 + rng.uniform(-0.0005, 0.0005, n - 1)])
+        t = t[t <= t_fine[-1]]
+        cols = {"stamp": t}
+        for j in range(2):
+            cols[f"angle{j}"] = np.degrees(np.interp(t, t_fine, arrays["q"][i, :, j]))
+            cols[f"rate{j}"] = np.degrees(np.interp(t, t_fine, arrays["qd"][i, :, j]))
+            cols[f"motor{j}"] = np.interp(t, t_fine, arrays["tau"][i, :, j])
+        order = ["motor1", "stamp", "angle0", "rate0", "angle1", "rate1", "motor0"]
+        files.append(write_csv(root / (f"run{i}.csv" + (".gz" if i == 2 else "")), cols, order, gz=i == 2))
+        truth.append({k: arrays[k][i] for k in ("q", "qd", "tau")} | {"t": t_fine})
+    spec = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], velocities=["rate0", "rate1"],
+                      inputs=["motor0", "motor1"], angle_units="deg", coord_names=["q1", "q2"],
+                      conventions="q1 from the downward vertical, q2 relative to link 1", angle_combinations=[[1, 1]],
+                      dt=0.002, split={"train": ["run0", "run2"], "val": ["run1"], "test": []}, label="synthetic_arm")
+    return root, files, truth, spec
+
+
+def test_import_round_trip_resamples_converts_and_records_provenance(recordings):
+    root, files, truth, spec = recordings
+    path = import_recordings(files, root / "arm.h5", spec)
+    f = read_dataset(path)
+    assert f.measured and f.num_trajectories == 3 and f.dt == pytest.approx(0.002) and f.num_inputs == 2
+    assert f.splits["train"].tolist() == [0, 2] and f.splits["val"].tolist() == [1] and len(f.splits["test"]) == 0
+    data = f.trajectories(None)
+    assert data.qdd is None and data.params.shape == (3, 0)
+    for i in range(3):
+        n = int(data.lengths[i])
+        assert torch.isnan(data.q[i, n:]).all() and torch.isfinite(data.q[i, :n]).all()
+        t = 0.002 * np.arange(n)
+        for key, got in (("q", data.q), ("qd", data.qd), ("tau", data.tau)):
+            exact = np.stack([np.interp(t, truth[i]["t"], truth[i][key][:, j]) for j in range(2)], -1)
+            # two linear interpolations of a smooth signal sampled every 2 ms (measured ~1e-4 of the range)
+            assert np.abs(got[i, :n].numpy() - exact).max() < 5e-3 * np.abs(exact).max(), key
+    scene = f.scene
+    assert scene["name"] == "measured" and scene["config"]["label"] == "synthetic_arm"
+    assert scene["angle_combinations"] == [[1.0, 1.0]] and scene["input_names"] == ["tau1", "tau2"]
+    assert "relative to link 1" in f.attrs["conventions"]
+    provenance = json.loads(f.attrs["provenance"])
+    assert [s["file"] for s in provenance["sources"]] == [p.name for p in files]
+    assert provenance["sources"][0]["sha256"] == hashlib.sha256(files[0].read_bytes()).hexdigest()
+    assert provenance["settings"]["angle_units"] == "deg" and "linearly interpolated" in provenance["resampling"]
+    # without velocity columns the file has none (NaN), and fractions split by recording, seeded
+    spec2 = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], angle_units="deg", split=[0.34, 0.33, 0.33], seed=1)
+    f2 = read_dataset(import_recordings(files, root / "noqd.h5", spec2))
+    assert torch.isnan(f2.trajectories(None).qd).all() and f2.num_inputs == 0
+    assert sorted(np.concatenate(list(f2.splits.values())).tolist()) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("problem, message", [
+    ("missing", r"run\.csv: no column 'angle1'"),
+    ("decreasing", r"run\.csv: line 5: time decreases"),
+    ("duplicate", r"run\.csv: line 5: time repeats"),
+    ("nan", r"run\.csv: line 4: NaN or Inf in column 'angle0'"),
+    ("text", r"run\.csv: line 4: a value of .* is missing or not a number"),
+    ("gap", r"run\.csv: line 6: a gap of 0\.05 s after t = 0\.006 s exceeds max_gap 0\.01 s"),
+])
+def test_import_refusals_name_the_file_and_line_and_write_nothing(problem, message, tmp_path):
+    t = np.arange(20) * 0.002
+    cols = {"time": t.copy(), "angle0": np.sin(t), "angle1": np.cos(t)}
+    if problem == "missing":
+        cols.pop("angle1")
+    elif problem == "decreasing":
+        cols["time"][3] = cols["time"][2] - 0.001
+    elif problem == "duplicate":
+        cols["time"][3] = cols["time"][2]
+    elif problem == "nan":
+        cols["angle0"][2] = np.nan
+    elif problem == "gap":
+        cols["time"][4:] += 0.048
+    path = write_csv(tmp_path / "run.csv", cols)
+    if problem == "text":
+        lines = path.read_text().splitlines()
+        lines[3] = lines[3].replace(lines[3].split(",")[1], "abc", 1)
+        path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.h5"
+    with pytest.raises(InputError, match=message):
+        import_recordings([path], out, ImportSpec(coordinates=["angle0", "angle1"], max_gap=0.01))
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["run.csv"]
+
+
+def test_import_command_refuses_an_existing_output_and_reports_one_line(recordings, tmp_path, capsys):
+    root, files, _, _ = recordings
+    out = tmp_path / "a.h5"
+    argv = ["import", *map(str, files), "-o", str(out), "--time", "stamp", "--coordinates", "angle0", "angle1",
+            "--inputs", "motor0", "motor1", "--angle-units", "deg", "--split-recordings", "train=run0,run1", "test=run2"]
+    assert main(argv) == 0
+    assert "3 recordings" in capsys.readouterr().out
+    before = out.read_bytes()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "refusing to overwrite" in err and len(err.splitlines()) == 1 and out.read_bytes() == before
+    argv[argv.index("-o") + 1] = str(tmp_path / "b.h5")
+    assert main(argv[:-2] + ["test=run9"]) == 2
+    assert "unknown recording(s) run9" in capsys.readouterr().err
+
+
+def test_a_measured_system_has_no_parameters_and_no_closed_form():
+    system = get_system("measured", dof=2, input_names=["tau1", "tau2"], angle_combinations=[[1, 1]])
+    assert system.num_params == 0 and system.num_inputs == 2 and system.has_forces and not system.closed_form
+    with pytest.raises(NotImplementedError, match="has no closed-form"):
+        system.acceleration(torch.zeros(1, 2), torch.zeros(1, 2), torch.zeros(1, 0), torch.zeros(1, 2))
+    with pytest.raises(InputError, match="cannot be generated"):
+        DatasetSpec(scene="measured", scene_config={"dof": 2})
+    from lnn_torch.networks import build_model
+
+    for variant in ("film_lnn", "delan", "lnn", "mlp", "hnn"):
+        kw = {"hnn_coordinates": "velocity"} if variant == "hnn" else {}
+        if variant == "hnn":  # no momentum map (no closed form), and (q, qd) coordinates have no force port
+            with pytest.raises(InputError):
+                build_model(variant, system, hidden_dims=(8,), **kw)
+            continue
+        model = build_model(variant, system, hidden_dims=(8,))
+        assert getattr(model, "kinetic_film", None) is None  # nothing to condition on
+        a = model.acceleration(torch.zeros(3, 2), torch.ones(3, 2), torch.zeros(3, 0), torch.zeros(3, 2))
+        assert a.shape == (3, 2) and torch.isfinite(a).all()
+
+
+# ---------------------------------------------------------------------------- derivative estimates
+@pytest.mark.parametrize("method, settings, tol_qd, tol_qdd", [  # bounds: 3x the measured worst case
+    ("finite_difference", {}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
+    ("butterworth", {"cutoff": 25.0}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
+    ("savgol", {"window": 21, "polyorder": 4}, 4e-5, 2e-4),  # measured 1.2e-5, 6.5e-5
+    ("spline", {}, 1e-3, 9e-3),  # measured 3.3e-4, 2.8e-3 (generalised cross-validation smooths a little)
+])
+def test_derivative_estimates_recover_exact_derivatives_of_clean_signals(method, settings, tol_qd, tol_qdd):
+    """Noise-free positions of the double pendulum at 500 Hz: every method recovers qd and qdd in the
+    interior (relative to their range)."""
+    arrays = generate_arrays(DatasetSpec(scene="double_pendulum", num_trajectories=2, duration=4.0, dt=0.002, seed=1))
+    s = derivatives.settings({"method": method, "use_measured_velocity": False, **settings})
+    for i in range(2):
+        qd, qdd = derivatives.estimate(arrays["q"][i], 0.002, s)
+        inner = slice(100, -100)
+        rel = lambda a, b: np.abs(a[inner] - b[inner]).max() / np.abs(b).max()  # noqa: E731
+        assert rel(qd, arrays["qd"][i]) < tol_qd, (method, rel(qd, arrays["qd"][i]))
+        assert rel(qdd, arrays["qdd"][i]) < tol_qdd, (method, rel(qdd, arrays["qdd"][i]))
+    with pytest.raises(InputError, match="targets method must be one of"):
+        derivatives.settings({"method": "kalman"})
+    with pytest.raises(InputError, match="cutoff"):
+        derivatives.estimate(arrays["q"][0], 0.002, derivatives.settings({"method": "butterworth", "cutoff": 400}))
+
+
+# ---------------------------------------------------------------------------- trajectory matching
+def test_trajectory_matching_gradient_equals_finite_differences(tmp_path):
+    """The multiple-shooting loss differentiates through the rollout: its gradient with respect to a
+    weight equals central finite differences (float64, tiny model)."""
+    from lnn_torch import LNNModule
+
+    model = LNNModule(scene="actuated_double_pendulum", hidden_dims=[4], loss="trajectory").double()
+    rng = np.random.default_rng(0)
+    q, qd = (torch.tensor(x) for x in ADP.sample_state(rng, 3))
+    params = torch.tensor(ADP.sample_params(rng, 3))
+    tau = torch.tensor(rng.uniform(-0.5, 0.5, (3, 2)))
+    qdd = ADP.acceleration(q, qd, params, tau)
+    model.model.fit_normalizer({"q": q, "qd": qd, "qdd": qdd, "params": params, "params_points": params, "tau": tau})
+    model.data_dt = 0.005
+    arrays = generate_arrays(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=2, duration=0.05, seed=3))
+    batch = {k: torch.from_numpy(arrays[k]) for k in ("q", "qd", "tau")}
+    batch["params"] = torch.from_numpy(arrays["params"])[:, None].expand(-1, batch["q"].shape[1], -1)
+    weight = model.model.kinetic_net.hidden[0].weight
+    loss, _ = model._training_loss(batch, None)
+    (grad,) = torch.autograd.grad(loss, weight)
+    h = 1e-6
+    for idx in [(0, 0), (1, 2), (3, 5)]:
+        with torch.no_grad():
+            weight[idx] += h
+            up = model._training_loss(batch, None)[0]
+            weight[idx] -= 2 * h
+            down = model._training_loss(batch, None)[0]
+            weight[idx] += h
+        assert abs(grad[idx] - (up - down) / (2 * h)) <= 1e-6 * max(1.0, abs(float(grad[idx]))), idx
+
+
+def test_shooting_windows_never_cross_a_recording_end(recordings):
+    from lnn_torch import TrajectoryDataModule
+
+    root, files, _, spec = recordings
+    path = import_recordings(files, root / "windows.h5", spec, overwrite=True)
+    dm = TrajectoryDataModule(path=str(path), chunk_len=200, chunks_per_batch=16, steps_per_epoch=20,
+                              targets={"method": "savgol", "window": 21, "polyorder": 3})
+    dm.setup("fit")
+    lengths = dm.source("train").lengths
+    assert sorted(lengths.tolist()) == sorted(int(x) for x in read_dataset(path).trajectories("train").lengths)
+    for batch in dm.train_dataloader():
+        assert torch.isfinite(batch["q"]).all() and torch.isfinite(batch["qd"]).all()
+        assert torch.isfinite(batch["qdd"]).all() and torch.isfinite(batch["tau"]).all()
+
+
+# ---------------------------------------------------------------------------- end to end from the CLI
+def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
+    """Import, fit (a parameter-free measured system, acceleration targets from Savitzky-Golay, and
+    trajectory matching), evaluate with horizons from many start points; all from the command line."""
+    import subprocess
+    import sys
+
+    root, files, _, _ = recordings
+    data = tmp_path / "arm.h5"
+    run = lambda *a: subprocess.run([sys.executable, "-m", "lnn_torch.cli", *a], cwd=tmp_path, capture_output=True,  # noqa: E731
+                                    text=True, timeout=600)
+    out = run("import", *map(str, files), "-o", str(data), "--time", "stamp", "--coordinates", "angle0", "angle1",
+              "--velocities", "rate0", "rate1", "--inputs", "motor0", "motor1", "--angle-units", "deg",
+              "--angle-combination", "1", "1", "--split-recordings", "train=run0", "val=run1", "test=run2")
+    assert out.returncode == 0, out.stderr[-2000:]
+    common = ["--data.path", str(data), "--data.chunk_len", "5", "--data.chunks_per_batch", "8",
+              "--data.steps_per_epoch", "3", "--model.hidden_dims", "[8,8]", "--model.val_rollout_seconds", "0.2",
+              "--trainer.max_epochs", "1", "--trainer.enable_progress_bar", "false", "--trainer.accelerator", "cpu"]
+    for extra in (["--data.targets", '{"method": "savgol", "window": 21, "polyorder": 3}'],
+                  ["--data.targets", "butterworth", "--model.loss", "trajectory"]):
+        out = run("fit", *common, *extra)
+        assert out.returncode == 0, out.stderr[-3000:]
+    ckpts = sorted(tmp_path.glob("lightning_logs/version_*/checkpoints/last.ckpt"))
+    assert len(ckpts) == 2
+    out = run("evaluate", str(ckpts[-1]), "--split", "test", "-o", str(tmp_path / "eval"))
+    assert out.returncode == 0, out.stderr[-3000:]
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert "horizons" in metrics and "acc_rel_err" in metrics and "energy_drift" not in metrics
+    h = metrics["horizons"]
+    assert h["num_starts"] >= 2 and math.isfinite(h["error@0.1s"]["median"])
