@@ -1,4 +1,5 @@
-"""The ``lnn-torch`` command: a dispatcher over ``generate``, ``evaluate``, ``simulate`` (modules of
+"""The ``lnn-torch`` command: a dispatcher over ``generate``, ``import``, ``evaluate``, ``simulate``,
+``identify`` (modules of
 ``lnn_torch.commands``) and Lightning's ``fit``/``validate``/``test``/``predict``."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ COMMANDS = {
     "predict": (None, "write test-split predictions to a file (--ckpt_path)"),
     "evaluate": ("evaluate", "report of a checkpoint: errors, rollouts, energy drift, stability, plots"),
     "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
+    "identify": ("identify", "the physical parameters of a recorded trajectory, through a trained model"),
 }
 
 

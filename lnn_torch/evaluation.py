@@ -429,16 +429,16 @@ def _stability(ctx: EvalContext) -> dict:
 @section("horizons")
 def _horizons(ctx: EvalContext) -> dict:
     """Open-loop rollouts from many start points (every ``start_every`` s of each trajectory, with the
-    data's velocity there), driven by the recorded inputs, over the longest of ``horizons`` (s): the
-    coordinate error after each horizon (median and 90th percentile over start points) and the time
-    until it first exceeds each threshold (quartiles; censored at the longest horizon)."""
+    data's velocity there), driven by the recorded inputs, over ``time_limit`` s (default: the longest
+    of ``horizons``): the coordinate error after each horizon (median and 90th percentile over start
+    points) and the time until it first exceeds each threshold (quartiles; censored at ``time_limit``)."""
     from .metrics import coordinate_error
 
     data, model = ctx.data, ctx.model
     horizons = tuple(ctx.options.get("horizons", (0.1, 0.25, 0.5, 1.0)))
     every = float(ctx.options.get("start_every", 0.5))
     dt = data.dt
-    n = int(round(max(horizons) / dt))
+    n = int(round(max(max(horizons), float(ctx.options.get("time_limit", 0))) / dt))
     step = max(1, int(round(every / dt)))
     lengths = [data.num_points] * len(data) if data.lengths is None else [int(x) for x in data.lengths]
     starts = [(j, s) for j, length in enumerate(lengths) for s in range(0, length - n, step)]

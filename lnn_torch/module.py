@@ -140,6 +140,14 @@ class LNNModule(L.LightningModule):
         self.system.check_inputs(q, qd, params, inputs="skip")
         return self.model.inverse_dynamics(q, qd, qdd, params)
 
+    def identify(self, t, q, qd=None, tau=None, qdd=None, **options):
+        """The physical parameters that make this model best explain ONE observed trajectory (SI:
+        ``t (T,)``, ``q (T, dof)``, optional ``qd``, ``tau``, ``qdd``), with uncertainties and the
+        directions the observation cannot determine: ``lnn_torch.identification.identify``."""
+        from .identification import identify
+
+        return identify(self.model, self.system, t, q, qd, tau, qdd, **options)
+
     # ------------------------------------------------------------------ set-up
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None

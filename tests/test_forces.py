@@ -377,13 +377,14 @@ def test_simulate_with_inputs_from_a_file_or_an_excitation(actuated_checkpoint, 
     assert main(base + ["--excitation", '{"kind": "multisine", "amplitude": [0.5, 0.2]}', "-o",
                         str(tmp_path / "a.csv")]) == 0
     assert "power-balance error" in capsys.readouterr().out
-    header = [line for line in (tmp_path / "a.csv").read_text().splitlines() if line.startswith("#")][-1]
+    header = [line for line in (tmp_path / "a.csv").read_text().splitlines() if not line.startswith("#")][0]
     assert "tau1" in header and "tau2" in header
     inputs = tmp_path / "u.csv"
     inputs.write_text("t,tau1,tau2\n0.0,0.1,0.0\n0.25,-0.1,0.05\n0.5,0.0,0.0\n")
     assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "b.csv")]) == 0
-    data = np.loadtxt(tmp_path / "b.csv", delimiter=",")
-    cols = header.lstrip("# ").split(",")
+    rows = [line for line in (tmp_path / "b.csv").read_text().splitlines() if not line.startswith("#")]
+    data = np.loadtxt(rows[1:], delimiter=",")  # after the header row
+    cols = header.split(",")
     tau1 = data[:, cols.index("tau1")]
     assert tau1[0] == pytest.approx(0.1) and tau1[30] == pytest.approx(-0.1)  # held from each row's time
     assert main(base + ["-o", str(tmp_path / "c.csv")]) == 2

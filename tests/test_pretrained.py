@@ -46,9 +46,10 @@ def test_simulate_writes_csv_and_plot_and_refuses_to_overwrite(tmp_path, capsys)
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "wrote" in text and "true-energy drift" in text
-    data = np.loadtxt(out, delimiter=",")
-    header = [line for line in out.read_text().splitlines() if line.startswith("#")][-1]
-    assert header.lstrip("# ").split(",")[:3] == ["t", "theta1", "theta2"]
+    lines = out.read_text().splitlines()
+    row = next(i for i, line in enumerate(lines) if not line.startswith("#"))  # comments, then a header row
+    data = np.loadtxt(lines[row + 1:], delimiter=",")
+    assert lines[row].split(",")[:3] == ["t", "theta1", "theta2"]
     assert data.shape == (201, 1 + 2 + 2 + 2 + 2)
     np.testing.assert_allclose(data[0, 1:3], [0.8, -0.4])
     assert np.abs(data[:, 1:3] - data[:, 5:7]).max() < 0.05  # model vs exact over 2 s

@@ -152,7 +152,8 @@ def main(argv: list[str]) -> int:
     if f.attrs["scene"] != module.system.name:
         raise ValueError(f"{data} holds scene '{f.attrs['scene']}' but the checkpoint models '{module.system.name}'")
     # the reference as in training: the file's accelerations, or the checkpoint's derivative estimates
-    dm = TrajectoryDataModule(path=str(data), targets=saved.get("targets", "file"))
+    dm = TrajectoryDataModule(path=str(data), spec=None if f.measured else dict(f.spec),
+                              targets=saved.get("targets", "file"))
     result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
                             sections=REPORT_SECTIONS, integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)

@@ -155,9 +155,10 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
               f"columns: t [s], {units}, their time derivatives; *_exact: the closed-form trajectory; energy: the "
               "scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0) - W(t)| / (V_max - V_min) "
-              "(W the true work of inputs and friction; 0 for a conservative scene)\n"
-              + ",".join(cols))
-    np.savetxt(path, np.concatenate(data, axis=1), delimiter=",", header=header, fmt="%.10g")
+              "(W the true work of inputs and friction; 0 for a conservative scene)")
+    with open(path, "w") as fh:  # comment lines ("# "), then a plain header row that CSV readers take
+        fh.write("".join(f"# {line}\n" for line in header.splitlines()) + ",".join(cols) + "\n")
+        np.savetxt(fh, np.concatenate(data, axis=1), delimiter=",", fmt="%.10g")
     return path
 
 

@@ -116,6 +116,8 @@ def _read_csv(path: Path, columns: list[str]) -> np.ndarray:
         reader = csv.reader(fh)
         try:
             header = [h.strip() for h in next(reader)]
+            while header and header[0].startswith("#"):  # comment lines before the header
+                header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise InputError(f"{path}: the file is empty") from None
         missing = [c for c in columns if c not in header]

@@ -290,6 +290,18 @@ class System(abc.ABC):
         addition to the generic ones every scene gets (parameters x10 and x0.1); default none."""
         return {}
 
+    def identifiable_quantities(self) -> dict:
+        """Named log-linear combinations of the parameters that identification reports beside each
+        parameter, ``{name: {param: coefficient}}`` (e.g. a mass ratio); default none."""
+        return {}
+
+    def linear_regressor(self, q, qd, qdd, tau=None):
+        """Classical identification: the equations of motion written as ``Y phi = b``, linear in a
+        vector ``phi`` of base parameters. Returns ``(Y (n, k), b (n,), quantities)`` with
+        ``quantities(phi) -> (len(identifiable_quantities()),)`` in their order, for ``(T, dof)``
+        inputs; None (default) where the scene offers none."""
+        return None
+
     def positions(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
         """Cartesian positions of the bodies for drawing, ``(*batch, num_bodies, 2)`` in m, linked as
         a chain from the origin (pendula); None (default) for scenes that are not drawn."""

@@ -150,6 +150,34 @@ class DoublePendulum(System):
         m1, m2, l1, l2 = params.unbind(-1)
         return 2 * GRAVITY * ((m1 + m2) * l1 + m2 * l2)
 
+    def identifiable_quantities(self):
+        """What free motion determines (``lnn_torch.identification``): a common scale of both masses
+        leaves the accelerations unchanged, so only the ratio m2/m1 and the lengths."""
+        return {"m2/m1": {"m1": -1.0, "m2": 1.0}, "l1": {"l1": 1.0}, "l2": {"l2": 1.0}}
+
+    def linear_regressor(self, q, qd, qdd, tau=None):
+        """The two equations of motion, each divided by its mass factor ((m1 + m2) and m2), are linear
+        in ``phi = (l1, l2, mu l2)`` with ``mu = m2 / (m1 + m2)``:
+
+            l1 th1'' + mu l2 (th2'' cos d + th2'^2 sin d) = -g sin th1
+            l1 (th1'' cos d - th1'^2 sin d) + l2 th2''    = -g sin th2,     d = th1 - th2,
+
+        so that m2/m1 = mu / (1 - mu). None with joint damping (not in these equations)."""
+        if self.has_friction:
+            return None
+        d = q[:, 0] - q[:, 1]
+        c, s = torch.cos(d), torch.sin(d)
+        zero = torch.zeros_like(d)
+        Y = torch.cat([torch.stack([qdd[:, 0], zero, qdd[:, 1] * c + qd[:, 1] ** 2 * s], -1),
+                       torch.stack([qdd[:, 0] * c - qd[:, 0] ** 2 * s, qdd[:, 1], zero], -1)])
+        b = torch.cat([-GRAVITY * torch.sin(q[:, 0]), -GRAVITY * torch.sin(q[:, 1])])
+
+        def quantities(phi):
+            mu = phi[2] / phi[1]
+            return torch.stack([mu / (1 - mu), phi[0], phi[1]])
+
+        return Y, b, quantities
+
     def ood_cases(self):
         """The reference design's four out-of-distribution cases (parameters outside the training box)."""
         cases = [((2.5, 1.5, 1.2, 1.3), (0.4, -0.4, 0.1, -0.1)), ((1.0, 0.8, 2.5, 2.3), (-0.8, 0.8, 0.3, -0.3)),

@@ -1,0 +1,251 @@
+"""``lnn-torch identify``: which member of the model's family produced this recording?
+
+Finds the physical parameters that make a trained (or shipped) parameter-conditioned model best
+explain one observed trajectory (``lnn_torch.identification``), reports what the observation can
+and cannot determine, and puts the classical least-squares estimate on the scene's true equations
+beside it where the scene has one.
+
+    lnn-torch identify pretrained:double_pendulum data/double_pendulum.h5 --trajectory 3 --duration 2
+    lnn-torch identify pretrained:double_pendulum observed.csv --coordinates theta1 theta2
+
+The recording is a trajectory of a dataset file (``--split``, ``--trajectory``; generated files know
+the true parameters, and the report gives the errors) or a CSV file (a time column and a column per
+coordinate, optionally velocities and inputs; lines starting with ``#`` are comments). Writes
+``identification.json``, ``report.md`` and ``fit.png`` (observed and re-simulated coordinates) to
+``--output-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Observation:
+    """One observed trajectory in SI units (``t (T,)``, ``q``/``qd``/``qdd (T, dof)``, ``tau (T, n_u)``)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None
+    tau: np.ndarray | None
+    qdd: np.ndarray | None
+    truth: dict | None  # the true parameters, where the file knows them
+    source: str
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="lnn-torch identify", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit, or pretrained:<name>")
+    ap.add_argument("recording", help="a dataset file (.h5) or a CSV recording (.csv, .csv.gz)")
+    rec = ap.add_argument_group("which part of the recording")
+    rec.add_argument("--split", default="test", help="dataset split (.h5; default test)")
+    rec.add_argument("--trajectory", type=int, default=0, help="trajectory index within the split (.h5)")
+    rec.add_argument("--start", type=float, default=0.0, help="first time used, s after the recording's start")
+    rec.add_argument("--duration", type=float, default=None, help="seconds used (default: all)")
+    rec.add_argument("--use", choices=("q", "q,qd", "q,qd,qdd"), default="q,qd",
+                     help="what is taken from the recording; the rest is estimated (default q,qd: positions and "
+                          "velocities, as encoders give; accelerations only where the file has true ones)")
+    csv = ap.add_argument_group("CSV columns")
+    csv.add_argument("--time", default="t", help="time column, s (default t)")
+    csv.add_argument("--coordinates", nargs="+", default=None, help="coordinate columns (default: the scene's names)")
+    csv.add_argument("--velocities", nargs="+", default=None, help="velocity columns (default: none)")
+    csv.add_argument("--inputs", nargs="+", default=None, help="input columns (default: the scene's input names)")
+    fit = ap.add_argument_group("the fit")
+    fit.add_argument("--method", choices=("acceleration", "trajectory", "both"), default="acceleration",
+                     help="acceleration fit (default; fast), trajectory matching, or both in turn")
+    fit.add_argument("--starts", type=int, default=4, help="random starts (default 4)")
+    fit.add_argument("--steps", type=int, default=150, help="Adam steps per stage (default 150)")
+    fit.add_argument("--window", type=float, default=0.2, help="multiple-shooting window, s (default 0.2)")
+    fit.add_argument("--noise", type=float, default=0.0,
+                     help="add Gaussian noise of this std to the observed positions (studies; default 0)")
+    fit.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--output-dir", "-o", default="identification", help="where the report goes")
+    ap.add_argument("--threads", type=int, default=2)
+    return ap
+
+
+def read_observation(path: str | Path, system, *, split: str = "test", trajectory: int = 0, start: float = 0.0,
+                     duration: float | None = None, use: str = "q,qd", time: str = "t", coordinates=None,
+                     velocities=None, inputs=None) -> Observation:
+    """One trajectory of a dataset file or a CSV recording, cut to ``[start, start + duration]``."""
+    from ..systems.base import InputError
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    name = path.name.lower()
+    if name.endswith((".h5", ".hdf5")):
+        from ..data import read_dataset
+
+        f = read_dataset(path)
+        if split not in f.splits:
+            raise InputError(f"{path}: no split '{split}' (splits: {', '.join(f.splits)})")
+        index = f.splits[split]
+        if not 0 <= trajectory < len(index):
+            raise InputError(f"{path}: split '{split}' has {len(index)} trajectories; --trajectory {trajectory} "
+                             "is out of range")
+        tr = f.trajectories(split)
+        j = trajectory
+        length = tr.q.shape[1] if tr.lengths is None else int(tr.lengths[j])
+        q, qd = tr.q[j, :length].double().numpy(), tr.qd[j, :length].double().numpy()
+        qdd = None if tr.qdd is None else tr.qdd[j, :length].double().numpy()
+        tau = None if tr.tau is None else tr.tau[j, :length].double().numpy()
+        t = np.arange(length) * tr.dt
+        truth = None
+        if f.attrs["scene"] == system.name and not f.measured and tr.params.shape[1] == system.num_params:
+            truth = {p: float(v) for p, v in zip(system.param_names, tr.params[j].double())}
+        source = f"{path} (split {split}, trajectory {trajectory}, file index {int(index[j])})"
+    elif name.endswith((".csv", ".csv.gz")):
+        from ..data.importer import _read_csv
+
+        coordinates = list(coordinates or system.coord_names)
+        if len(coordinates) != system.dof:
+            raise InputError(f"{path}: {len(coordinates)} coordinate column(s) given, but scene '{system.name}' "
+                             f"has {system.dof} coordinates ({', '.join(system.coord_names)})")
+        if system.num_inputs:
+            inputs = list(inputs or system.input_names)
+        cols = [time, *coordinates, *(velocities or []), *(inputs or [])]
+        data = _read_csv(path, cols)
+        t, q = data[:, 0], data[:, 1:1 + system.dof]
+        qd = data[:, 1 + system.dof:1 + 2 * system.dof] if velocities else None
+        tau = data[:, 1 + system.dof * (2 if velocities else 1):] if inputs else None
+        qdd, truth, source = None, None, str(path)
+        steps = np.diff(t)
+        if (steps <= 0).any() or np.abs(steps - steps.mean()).max() > 1e-6 * max(steps.mean(), 1e-12):
+            raise InputError(f"{path}: the time column '{time}' is not uniformly sampled (resample it, e.g. with "
+                             "lnn-torch import)")
+    else:
+        raise InputError(f"{path}: unknown recording type (use a dataset .h5 or a .csv / .csv.gz file)")
+    if q.shape[1] != system.dof:
+        raise InputError(f"{path}: the recording has {q.shape[1]} coordinate(s), but scene '{system.name}' has "
+                         f"{system.dof}")
+    t = t - t[0]
+    keep = (t >= start - 1e-9) & (t <= (np.inf if duration is None else start + duration) + 1e-9)
+    cut = lambda x: None if x is None else x[keep]  # noqa: E731
+    parts = set(use.split(","))
+    return Observation(t=t[keep] - t[keep][0] if keep.any() else t[keep], q=q[keep],
+                       qd=cut(qd) if "qd" in parts else None, tau=cut(tau),
+                       qdd=cut(qdd) if "qdd" in parts else None, truth=truth, source=source)
+
+
+def main(argv: list[str]) -> int:
+    from ..checkpoints import load_model
+    from ..identification import identify, least_squares_reference
+    from ..perf import configure_cpu
+
+    args = _parser().parse_args(argv)
+    configure_cpu(args.threads)
+    module = load_model(args.checkpoint)
+    system = module.system
+    obs = read_observation(args.recording, system, split=args.split, trajectory=args.trajectory, start=args.start,
+                           duration=args.duration, use=args.use, time=args.time, coordinates=args.coordinates,
+                           velocities=args.velocities, inputs=args.inputs)
+    q = obs.q
+    if args.noise > 0:
+        q = q + np.random.default_rng(args.seed).normal(0.0, args.noise, q.shape)
+    result = identify(module.model, system, obs.t, q, obs.qd, obs.tau, obs.qdd, method=args.method,
+                      starts=args.starts, steps=args.steps, window=args.window, seed=args.seed)
+    reference = least_squares_reference(system, obs.t, q, obs.qd, obs.tau, obs.qdd, window=args.window)
+    true_structure = None
+    if system.closed_form:  # the same fit on the scene's own equations: the ceiling
+        from ..evaluation import ClosedForm
+
+        exact = identify(ClosedForm(system), system, obs.t, q, obs.qd, obs.tau, obs.qdd, method=args.method,
+                         starts=args.starts, steps=args.steps, window=args.window, seed=args.seed)
+        true_structure = {k: {"value": v["value"], "rel_std": v.get("rel_std")} for k, v in exact.quantities.items()
+                          if v["identifiable"]}
+    report = {"checkpoint": args.checkpoint, "recording": obs.source, "scene": system.name,
+              "observation": {"seconds": float(obs.t[-1]), "points": len(obs.t), "dt": float(obs.t[1] - obs.t[0]),
+                              "used": args.use, "noise_added": args.noise},
+              **result.to_json(), "truth": obs.truth, "true_structure": true_structure, "least_squares": reference}
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "identification.json").write_text(json.dumps(report, indent=2) + "\n")
+    _plot(module, system, obs, q, result, out / "fit.png")
+    text = markdown(report, system)
+    (out / "report.md").write_text(text)
+    print(text)
+    print(f"wrote {out / 'identification.json'}, {out / 'report.md'}, {out / 'fit.png'}")
+    return 0
+
+
+def markdown(report: dict, system) -> str:
+    """The short report: estimates, uncertainties, the classical reference, residuals."""
+    truth, ls, exact = report["truth"], report["least_squares"] or {}, report["true_structure"] or {}
+    lines = [f"# Identification: {report['scene']}", "",
+             f"Recording: {report['recording']}; {report['observation']['seconds']:.3g} s "
+             f"({report['observation']['points']} points), used: {report['observation']['used']}"
+             + (f", position noise added: {report['observation']['noise_added']:g}" if report["observation"]["noise_added"]
+                else "") + ".",
+             f"Model: {report['checkpoint']}; method {report['method']}, {report['starts']} starts, "
+             f"{report['seconds']:.1f} s.", "",
+             "| quantity | estimate | ± 1 std | same fit, true equations | linear least squares, true equations |"
+             + (" truth | error |" if truth else ""),
+             "|---|---|---|---|---|" + ("---|---|" if truth else "")]
+    for name, qv in report["quantities"].items():
+        if not qv["identifiable"]:
+            est, std = "not identifiable", "–"
+        else:
+            est = f"{qv['value']:.5g}"
+            std = (f"{100 * qv['rel_std']:.2g} %" if "rel_std" in qv else f"{qv['std']:.2g}")
+        ref = f"{ls[name]['value']:.5g} ± {100 * ls[name]['rel_std']:.2g} %" if name in ls else "–"
+        same = f"{exact[name]['value']:.5g}" if name in exact else "–"
+        row = f"| {name} | {est} | {std} | {same} | {ref} |"
+        if truth:
+            c = qv["coefficients"]
+            true = float(np.exp(sum(v * np.log(truth[p]) for p, v in c.items()))) if "rel_std" in qv else \
+                sum(v * truth[p] for p, v in c.items())
+            err = f"{100 * (qv['value'] / true - 1):+.3g} %" if qv["identifiable"] and "rel_std" in qv else \
+                (f"{qv['value'] - true:+.3g}" if qv["identifiable"] else "–")
+            row += f" {true:.5g} | {err} |"
+        lines.append(row)
+    lines.append("")
+    for d in report["unidentifiable"]:
+        combo = " ".join(f"{v:+.2f} log {p}" for p, v in d["direction"].items())
+        lines.append(f"Not identifiable from this observation: the direction {combo} (its standard deviation "
+                     f"{d['std']:.3g} in log units would exceed the search box); the parameters moving along it "
+                     "get no number.")
+    if report["at_bound"]:
+        lines.append(f"On the edge of the search box (the model's training distribution): {', '.join(report['at_bound'])}; "
+                     "the truth may lie outside what the model was trained on.")
+    rms = ", ".join(f"{k} {v:.3g}" for k, v in report["residual_rms"].items())
+    lines += ["", f"Residual rms of the fit (normalised: accelerations / their rms, or position error / "
+                  f"(window² / 2) in acceleration units): {rms}.", ""]
+    return "\n".join(lines)
+
+
+def _plot(module, system, obs: Observation, q_used, result, path: Path) -> None:
+    """Observed coordinates and the model re-simulated (open loop, from the first observed state) with
+    the identified parameters."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..identification import _derivatives
+
+    dt = float(obs.t[1] - obs.t[0])
+    q = torch.as_tensor(q_used, dtype=torch.float64)
+    qd, _ = _derivatives(q[None], dt, None if obs.qd is None else torch.as_tensor(obs.qd)[None], None, None)
+    params = torch.tensor([list(result.params.values())], dtype=torch.float64)
+    tau = None if obs.tau is None else torch.as_tensor(obs.tau[None, :-1])
+    with torch.no_grad():
+        sim, _ = module.model.rollout(q[None, 0], qd[:, 0], params, dt, len(obs.t) - 1, "rk4", tau=tau)
+    fig, axes = plt.subplots(system.dof, 1, figsize=(8, 2.2 * system.dof), sharex=True, squeeze=False)
+    for i, ax in enumerate(axes[:, 0]):
+        ax.plot(obs.t, q_used[:, i], "k.", ms=2, label="observed")
+        ax.plot(obs.t, sim[0, :, i].numpy(), "C1", label="model, identified parameters")
+        ax.set_ylabel(f"{system.coord_names[i]} [{system.coord_units[i]}]")
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle("open-loop re-simulation from the first observed state", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,100 @@
+"""A model of the real double pendulum against the lab's identified physics model, on held-out recordings.
+
+Both are evaluated the same way (``lnn_torch.evaluation.evaluate_model``) on the test recordings of
+the imported dataset: the relative L2 acceleration error against the filtered reference (the
+checkpoint's derivative estimate of the recordings), and open-loop rollouts started every
+``--start-every`` s of each recording with the measured state there, driven by the recorded torques:
+the angle error after 0.1, 0.25, 0.5 and 1 s and the median time until it first exceeds 0.1 rad
+(censored at ``--time-limit`` s).
+
+    lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
+        --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
+    lnn-torch fit -c configs/real_double_pendulum.yaml
+    python scripts/real_pendulum.py lightning_logs/version_0/checkpoints/last.ckpt
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+PARAMS = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint")
+    ap.add_argument("--data", default=None, help="default: the checkpoint's data path")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--start-every", type=float, default=0.25)
+    ap.add_argument("--time-limit", type=float, default=4.0)
+    ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum"))
+    ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
+    args = ap.parse_args()
+    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.data import TrajectoryDataModule
+    from lnn_torch.evaluation import evaluate_model
+    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.perf import configure_cpu
+
+    configure_cpu(2)
+    module = load_model(args.checkpoint)
+    saved = data_hparams(args.checkpoint)
+    dm = TrajectoryDataModule(path=args.data or saved["path"], targets=saved.get("targets", "file"))
+    data = dm.trajectories(args.split)
+    names = json.loads(dm._open().attrs["recordings"])
+    held_out = [names[int(i)] for i in data.index]
+    lab = RigidArmModel.from_yaml(PARAMS)
+    horizons = (0.1, 0.25, 0.5, 1.0)
+    results = {}
+    for name, model in (("lab's identified model", lab), (f"{module.hparams.variant} (this checkpoint)", module.model)):
+        r = evaluate_model(model, module.system, data, sections=("accelerations", "horizons"), thresholds=(0.1,),
+                           accel_stride=1, horizons=horizons, start_every=args.start_every, time_limit=args.time_limit)
+        results[name] = {k: v for k, v in r.items() if not k.startswith("_")}
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"checkpoint": args.checkpoint, "held_out": held_out, "targets": saved.get("targets"),
+            "start_every_s": args.start_every, "time_limit_s": args.time_limit, "note": args.note}
+    (out / "metrics.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
+    lines = [f"Held-out recordings: {', '.join(held_out)}; reference accelerations: the checkpoint's estimate "
+             f"({saved.get('targets')}); open-loop rollouts (RK4 at the data's 2 ms step, the recorded torques held "
+             f"over each step) started every {args.start_every:g} s with the measured state. {args.note}", "",
+             "| model | acc. rel. L2 (q1, q2) | angle error after " + ", ".join(f"{h:g}" for h in horizons)
+             + " s: median [p90] (rad) | time to 0.1 rad: median [q25, q75] (s) |", "|---|---|---|---|"]
+    for name, r in results.items():
+        a, h = r["acc_rel_err"], r["horizons"]
+        errs = ", ".join(f"{h[f'error@{x:g}s']['median']:.3f} [{h[f'error@{x:g}s']['p90']:.3f}]" for x in horizons)
+        t = h["time_to@0.1"]
+        lines.append(f"| {name} | {100 * a['total']:.1f} % ({100 * a['q1']:.1f} %, {100 * a['q2']:.1f} %) | {errs} | "
+                     f"{t['median']:.2f} [{t['q25']:.2f}, {t['q75']:.2f}] (of {h['horizon_s']:g}) |")
+    table = "\n".join(lines) + "\n"
+    (out / "report.md").write_text(table)
+    print(table)
+    plot(results, horizons, out)
+
+
+def plot(results: dict, horizons, out: Path) -> None:
+    from lnn_torch.plots import plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    for name, r in results.items():
+        h = r["horizons"]
+        ax.plot(horizons, [h[f"error@{x:g}s"]["median"] for x in horizons], "o-", label=f"{name}, median")
+        ax.plot(horizons, [h[f"error@{x:g}s"]["p90"] for x in horizons], "o--", alpha=0.6, label=f"{name}, p90")
+    ax.axhline(0.1, color="k", lw=0.8, ls=":")
+    ax.set_xlabel("open-loop horizon (s)")
+    ax.set_ylabel("angle error (rad)")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "error_vs_horizon.png", dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(2)
+    main()
