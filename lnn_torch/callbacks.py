@@ -59,6 +59,24 @@ class TestMetricsWriter(L.Callback):
         print(f"test metrics written to {path}")
 
 
+class LastCheckpoint(L.Callback):
+    """Writes ``last.ckpt`` beside the monitored checkpoints at the end of every training epoch: the
+    final weights. (Lightning's ``save_last`` writes it only when the monitored metric improves, so
+    there it would be the best, not the last, checkpoint.)"""
+
+    def __init__(self, filename: str = "last.ckpt") -> None:
+        self.filename = filename
+        self.path: str | None = None
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
+        if trainer.sanity_checking or trainer.fast_dev_run:
+            return
+        directory = getattr(trainer.checkpoint_callback, "dirpath", None) or os.path.join(
+            trainer.log_dir or trainer.default_root_dir, "checkpoints")
+        self.path = os.path.join(directory, self.filename)
+        trainer.save_checkpoint(self.path)
+
+
 class FitSummary(L.Callback):
     """Prints, at the end of ``fit``, where the TensorBoard run and the checkpoints are and the last
     validation metrics, with the command that tests the last checkpoint."""
@@ -68,16 +86,20 @@ class FitSummary(L.Callback):
         if not trainer.is_global_zero:
             return
         m = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
-        ckpt = next((cb for cb in trainer.checkpoint_callbacks if getattr(cb, "last_model_path", "")), None)
+        last = next((cb.path for cb in trainer.callbacks if isinstance(cb, LastCheckpoint) and cb.path), None)
+        best = next((cb.best_model_path for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")),
+                    None)
         path = lambda p: os.path.normpath(p) if p else p  # noqa: E731
         lines = [f"lnn-torch fit: {trainer.global_step} steps; TensorBoard run: {path(log_dir)}"]
-        if ckpt is not None:
-            lines.append(f"  last checkpoint: {path(ckpt.last_model_path)}")
+        if last is not None:
+            lines.append(f"  last checkpoint: {path(last)}")
+        if best:
+            lines.append(f"  best validation checkpoint: {path(best)}")
         if "val/acc_rel_err" in m:
             lines.append(f"  validation: acc. rel. L2 error {100 * m['val/acc_rel_err']:.2f} % pooled, "
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
                          + (f"; median time within the threshold {m['val/divergence_time']:.1f} s"
                             if "val/divergence_time" in m else ""))
-        if ckpt is not None:
-            lines.append(f"  test it: lnn-torch test -c <this config> --ckpt_path {path(ckpt.last_model_path)}")
+        if last is not None:
+            lines.append(f"  test it: lnn-torch test -c <this config> --ckpt_path {path(last)}")
         print("\n".join(lines))

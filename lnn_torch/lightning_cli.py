@@ -39,8 +39,9 @@ LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
           "init_args": {"save_dir": ".", "name": "lightning_logs", "default_hp_metric": False}}
 CALLBACKS = [
     {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
-     "init_args": {"monitor": "val/acc_rel_err", "mode": "min", "save_last": True,
+     "init_args": {"monitor": "val/acc_rel_err", "mode": "min",
                    "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
+    {"class_path": "lnn_torch.callbacks.LastCheckpoint"},
     {"class_path": "lnn_torch.callbacks.PredictionWriter"},
     {"class_path": "lnn_torch.callbacks.TestMetricsWriter"},
     {"class_path": "lnn_torch.callbacks.FitSummary"},

@@ -145,7 +145,7 @@ def test_identify_command_on_a_dataset_trajectory_and_a_csv(tmp_path, capsys):
     generate_dataset(DatasetSpec(scene="double_pendulum", num_trajectories=10, duration=1.0, seed=5), data)
     out = tmp_path / "id"
     fast = ["--method", "acceleration", "--starts", "2", "--steps", "60"]
-    assert main(["identify", "pretrained:double_pendulum", str(data), "--trajectory", "0", "--use", "q,qd,qdd",
+    assert main(["identify", "pretrained:double_pendulum", str(data), "--trajectory", "0", "--use", "q+qd+qdd",
                  "-o", str(out), *fast]) == 0
     report = json.loads((out / "identification.json").read_text())
     assert set(report["truth"]) == {"m1", "m2", "l1", "l2"} and report["least_squares"] is not None

@@ -272,6 +272,9 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     ckpts = sorted(glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "*.ckpt")))
     assert ckpts
+    # last.ckpt holds the final weights (Lightning's save_last would follow only improvements)
+    last = torch.load(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt", weights_only=False)
+    assert last["global_step"] == 3
     # the end-of-fit summary: where the run and the checkpoint are, and the validation error
     assert "TensorBoard run: lightning_logs/version_0" in out.stdout and "last.ckpt" in out.stdout
     assert re.search(r"validation: acc\. rel\. L2 error [0-9.]+ % pooled, [0-9.]+ % per-trajectory median", out.stdout)
@@ -454,3 +457,19 @@ def test_lnn_learns_the_relativistic_particle_where_an_hnn_on_q_qd_fails(tmp_pat
     # measured (medians of 8, 1200 steps each): lnn 0.029, hnn canonical 0.012, hnn velocity 0.162
     assert errors["lnn"] < 0.06 and errors["hnn canonical"] < 0.06, errors
     assert errors["hnn velocity"] > 3 * max(errors["lnn"], errors["hnn canonical"]), errors
+
+
+def test_last_checkpoint_holds_the_final_weights_when_validation_stops_improving(dataset, tmp_path):
+    """Lightning's save_last writes last.ckpt only when the monitored metric improves; the project's
+    LastCheckpoint writes it at every epoch's end. Monitored here: a metric that never improves."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    from lnn_torch.callbacks import LastCheckpoint
+
+    model = LNNModule(hidden_dims=[8, 8], val_rollouts=0)
+    monitored = ModelCheckpoint(monitor="val/acc_non_finite", mode="min")
+    trainer = quiet_trainer(tmp_path, max_epochs=2, callbacks=[monitored, LastCheckpoint()])
+    trainer.fit(model, make_dm(dataset, steps_per_epoch=2))
+    assert Path(monitored.best_model_path).name.startswith("epoch=0")  # never improved after the first
+    last = torch.load(Path(monitored.dirpath) / "last.ckpt", weights_only=False)
+    assert last["global_step"] == 4 and last["epoch"] == 1

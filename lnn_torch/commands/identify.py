@@ -49,8 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     rec.add_argument("--trajectory", type=int, default=0, help="trajectory index within the split (.h5)")
     rec.add_argument("--start", type=float, default=0.0, help="first time used, s after the recording's start")
     rec.add_argument("--duration", type=float, default=None, help="seconds used (default: all)")
-    rec.add_argument("--use", choices=("q", "q,qd", "q,qd,qdd"), default="q,qd",
-                     help="what is taken from the recording; the rest is estimated (default q,qd: positions and "
+    rec.add_argument("--use", choices=("q", "q+qd", "q+qd+qdd"), default="q+qd",
+                     help="what is taken from the recording; the rest is estimated (default q+qd: positions and "
                           "velocities, as encoders give; accelerations only where the file has true ones)")
     csv = ap.add_argument_group("CSV columns")
     csv.add_argument("--time", default="t", help="time column, s (default t)")
@@ -67,12 +67,12 @@ def _parser() -> argparse.ArgumentParser:
                      help="add Gaussian noise of this std to the observed positions (studies; default 0)")
     fit.add_argument("--seed", type=int, default=0)
     ap.add_argument("--output-dir", "-o", default="identification", help="where the report goes")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the fit's operations are small)")
     return ap
 
 
 def read_observation(path: str | Path, system, *, split: str = "test", trajectory: int = 0, start: float = 0.0,
-                     duration: float | None = None, use: str = "q,qd", time: str = "t", coordinates=None,
+                     duration: float | None = None, use: str = "q+qd", time: str = "t", coordinates=None,
                      velocities=None, inputs=None) -> Observation:
     """One trajectory of a dataset file or a CSV recording, cut to ``[start, start + duration]``."""
     from ..systems.base import InputError
@@ -129,7 +129,7 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
     t = t - t[0]
     keep = (t >= start - 1e-9) & (t <= (np.inf if duration is None else start + duration) + 1e-9)
     cut = lambda x: None if x is None else x[keep]  # noqa: E731
-    parts = set(use.split(","))
+    parts = set(use.split("+"))
     return Observation(t=t[keep] - t[keep][0] if keep.any() else t[keep], q=q[keep],
                        qd=cut(qd) if "qd" in parts else None, tau=cut(tau),
                        qdd=cut(qdd) if "qdd" in parts else None, truth=truth, source=source)
@@ -163,7 +163,8 @@ def main(argv: list[str]) -> int:
                           if v["identifiable"]}
     report = {"checkpoint": args.checkpoint, "recording": obs.source, "scene": system.name,
               "observation": {"seconds": float(obs.t[-1]), "points": len(obs.t), "dt": float(obs.t[1] - obs.t[0]),
-                              "used": args.use, "noise_added": args.noise},
+                              "used": "+".join(n for n, x in (("q", q), ("qd", obs.qd), ("qdd", obs.qdd))
+                                               if x is not None), "noise_added": args.noise},
               **result.to_json(), "truth": obs.truth, "true_structure": true_structure, "least_squares": reference}
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
