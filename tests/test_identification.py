@@ -61,7 +61,7 @@ def test_trajectory_fit_of_the_closed_form_recovers_the_parameters():
     """Rollouts (RK4 at the sampling step) against the exact trajectory: the fit's bias is the
     integrator's error alone."""
     system, t, q, qd, _ = observe(seconds=0.5)
-    result = identify(ClosedForm(system), system, t, q, qd, method="trajectory", starts=2, steps=80)
+    result = identify(ClosedForm(system), system, t, q, qd, method="trajectory", starts=2, steps=60, window=0.1)
     for name, value in true_quantities().items():
         assert result.quantities[name]["value"] == pytest.approx(value, rel=1e-4), name
     assert result.method == "trajectory" and result.residual_rms["trajectory"] < 1e-3
