@@ -231,11 +231,19 @@ CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
-def test_every_shipped_config_instantiates(config):
+def test_every_shipped_config_instantiates(config, tmp_path):
     from lnn_torch.data.datamodule import TrajectoryDataModule as DM
     from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
 
-    cli = LNNCLI(LNNModule, DM, args=["-c", str(config)], run=False, trainer_defaults=TRAINER_DEFAULTS)
+    args = ["-c", str(config)]
+    importer = ROOT / "configs" / "import" / config.name
+    if importer.exists():  # a config of measured data: its scene comes from the imported file
+        data = tmp_path / "d.h5"
+        recordings = sorted((ROOT / "lnn_torch" / "datasets" / config.stem / "recordings").glob("*.csv.gz"))
+        out = _cli("import", *map(str, recordings), "--config", str(importer), "-o", str(data), cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-3000:]
+        args.append(f"--data.path={data}")
+    cli = LNNCLI(LNNModule, DM, args=args, run=False, trainer_defaults=TRAINER_DEFAULTS)
     assert isinstance(cli.model, LNNModule) and isinstance(cli.datamodule, DM)
     assert cli.trainer.validate_loop.inference_mode is False and cli.trainer.predict_loop.inference_mode is False
 
