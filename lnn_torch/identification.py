@@ -146,8 +146,7 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
     dof, P = system.dof, system.num_params
     if P == 0:
         raise InputError(f"scene '{system.name}' has no parameters to identify")
-    f64 = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
-    t, q, qd, tau, qdd = (f64(x) for x in (t, q, qd, tau, qdd))
+    t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
     if q.ndim != 3 or q.shape[2] != dof:
         raise InputError(f"q must be (N, T, {dof}) for scene '{system.name}' (dof {dof}), got {tuple(q.shape)}")
     if t.ndim != 1 or t.shape[0] != q.shape[1]:
@@ -267,10 +266,6 @@ class _Objectives:
         per = 0.5 * self.residuals(kind, params, states).pow(2).mean(-1)  # (N, S)
         return per.sum() if reduce else per.detach()
 
-    def window_of(self, kind: str) -> torch.Tensor:
-        """The window of each trajectory residual (``(n,)``)."""
-        return torch.arange(self.W).repeat_interleave(self.k * self.dof)
-
 
 def _adam(fn, u, steps: int, lr: float = 0.05):
     u = u.clone().requires_grad_(True)
@@ -328,14 +323,14 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
                                         (eye[p].expand_as(x).clone(),))[1] for p in range(P)], -1).detach()
     if states is not None:  # (N, n, M): window w's rows depend on its own 2 dof start-state entries
         two_dof, W = 2 * objectives.dof, objectives.W
-        window = objectives.window_of(kind)
+        window = objectives.blocks["trajectory"]  # the window of each residual
         J_s = torch.zeros(N, r_all.shape[1], W * two_dof, dtype=x.dtype)
         for j in range(two_dof):
             tangent = torch.zeros(N, W, two_dof, dtype=x.dtype)
             tangent[:, :, j] = 1.0
             d = torch.func.jvp(lambda ss: residual(x, ss), (states.clone(),), (tangent.reshape(N, -1),))[1].detach()
             J_s[:, torch.arange(len(window)), window * two_dof + j] = d
-    named = dict(getattr(system, "identifiable_quantities", lambda: {})() or {})
+    named = dict(system.identifiable_quantities())
     for name in names:
         named.setdefault(name, {name: 1.0})
     out = []
@@ -383,6 +378,11 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
     return out
 
 
+def _f64(x):
+    """An observation array as a float64 tensor (None stays None)."""
+    return None if x is None else torch.as_tensor(np.asarray(x), dtype=torch.float64)
+
+
 def _flat_members(directions: torch.Tensor) -> torch.Tensor:
     """The parameters that move along an unidentifiable direction (their value there is arbitrary)."""
     if directions.shape[1] == 0:
@@ -400,8 +400,7 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     cluster-robust covariance over time blocks of ``window`` s, propagated to the quantities by their
     Jacobian), or None where the scene has no linear form.
     """
-    f64 = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
-    t, q, qd, tau, qdd = (f64(x) for x in (t, q, qd, tau, qdd))
+    t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
     dt = float(t[1] - t[0])
     qd, qdd = _derivatives(q[None], dt, None if qd is None else qd[None], None if qdd is None else qdd[None],
                            derivative)

@@ -64,6 +64,13 @@ def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: t
     return fig
 
 
+def _solid_and_dashed(ax, x, true, model, curves: int = 6) -> None:
+    """The first ``curves`` rows of ``true`` (solid) and ``model`` (dashed, the same colour) against ``x``."""
+    for b in range(min(curves, true.shape[0])):
+        line = ax.plot(x, true[b], "-", lw=1.4)[0]
+        ax.plot(x, model[b], "--", lw=1.2, color=line.get_color())
+
+
 def evaluation_plots(result: dict, output_dir, system) -> list:
     """Trajectories, energy drift, error growth against the predictability limit, and a frame strip
     of the first out-of-distribution case (scenes that define ``positions``). Returns the PNG paths."""
@@ -116,9 +123,7 @@ def evaluation_plots(result: dict, output_dir, system) -> list:
         n_j = fa["true"].shape[-1]
         fig, axes = plt.subplots(1, n_j, figsize=(4.2 * n_j, 3.2), squeeze=False)
         for j, ax in enumerate(axes[0]):
-            for b in range(min(6, fa["true"].shape[0])):
-                line = ax.plot(fa["rates"], fa["true"][b, :, j], "-", lw=1.4)[0]
-                ax.plot(fa["rates"], fa["learned"][b, :, j], "--", lw=1.2, color=line.get_color())
+            _solid_and_dashed(ax, fa["rates"], fa["true"][..., j], fa["learned"][..., j])
             ax.set_xlabel(f"joint {j + 1} rate [rad/s]")
             ax.set_ylabel("friction torque [N m]")
             ax.set_title("true (solid) and learned (dashed)", fontsize=9)
@@ -129,9 +134,7 @@ def evaluation_plots(result: dict, output_dir, system) -> list:
         da = result["_decay_arrays"]
         t_d = torch.arange(da["E_true"].shape[1]) * da["dt"]
         fig, ax = plt.subplots(figsize=(7, 2.8))
-        for b in range(min(6, da["E_true"].shape[0])):
-            line = ax.plot(t_d, da["E_true"][b], "-", lw=1.4)[0]
-            ax.plot(t_d, da["E_model"][b], "--", lw=1.2, color=line.get_color())
+        _solid_and_dashed(ax, t_d, da["E_true"], da["E_model"])
         ax.set_xlabel("t [s]")
         ax.set_ylabel("E(t) - E(0) [J]")
         ax.set_title("free decay, inputs off: true energy (solid), the model's own (dashed)", fontsize=9)
