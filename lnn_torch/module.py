@@ -33,6 +33,11 @@ _UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps
                              "hnn_coordinates": "canonical"}
 
 
+# film_lnn's default widths before the cost-accuracy front moved them to (64, 64): a checkpoint that
+# recorded no widths (hidden_dims None, saved before every checkpoint recorded its widths) has these
+_OLD_DEFAULT_WIDTHS = {"film_lnn": [128, 128]}
+
+
 class LNNModule(L.LightningModule):
     """Train a Lagrangian (or baseline) model of a scene.
 
@@ -102,6 +107,7 @@ class LNNModule(L.LightningModule):
         options = {k: v for k, v in options.items()
                    if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
         self.model = build_model(variant, self.system, **options)
+        self._model_options = options
         if loss not in ("acceleration", "trajectory"):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
@@ -113,6 +119,22 @@ class LNNModule(L.LightningModule):
         self._skip_this_step = False
         self._compiled = None  # the compiled training pass, once built; False after a fallback
         self._last_batch = None
+
+    # ------------------------------------------------------------------ checkpoints
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """Record the model's widths even where they were left to the variant's default, so that a
+        later change of the default cannot change what a checkpoint loads as."""
+        hp = checkpoint.get("hyper_parameters")
+        if hp is not None and hp.get("hidden_dims") is None and hasattr(self.model, "hidden_dims"):
+            hp["hidden_dims"] = list(self.model.hidden_dims)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """A checkpoint without recorded widths predates ``on_save_checkpoint``: it was trained with the
+        variant's old default widths, which the model is rebuilt with before its weights load."""
+        old = _OLD_DEFAULT_WIDTHS.get(self.hparams.variant)
+        if self.hparams.get("hidden_dims") is None and old is not None:
+            self.hparams.hidden_dims = list(old)
+            self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
 
     # ------------------------------------------------------------------ public physics
     def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,

@@ -8,7 +8,9 @@ process-wide defaults cost more time than the arithmetic there:
   those blocks in the heap (measured in ``results/README.md``).
 * tanh/softplus tails produce denormal floats, which slow CPU arithmetic by up to 30x.
 
-``configure_cpu`` applies both; on platforms without glibc the allocator part is a no-op.
+``configure_cpu`` applies both; on platforms without glibc the allocator part is a no-op. The library
+applies them itself when it builds its first model (``apply_cpu_defaults``; ``LNN_TORCH_CPU_TUNING=0``
+opts out), so a Python user gets them without a call.
 """
 
 from __future__ import annotations
@@ -54,6 +56,27 @@ def configure_cpu(num_threads: int | None = None) -> None:
         torch.set_num_threads(int(num_threads))
 
 
+_DEFAULTS_APPLIED = False
+
+
+def apply_cpu_defaults() -> bool:
+    """What the library applies by itself, once per process, when its first model is built (so a
+    Python user gets it without calling anything): ``configure_cpu()`` without changing the thread
+    count, i.e. denormal floats flushed to zero on the calling thread (values below 1.2e-38 in
+    float32 become 0; torch's ``set_flush_denormal``) and glibc's allocator thresholds raised (freed
+    blocks up to 32 MiB stay in the heap instead of going back to the OS). Set the environment
+    variable ``LNN_TORCH_CPU_TUNING=0`` to leave the process untouched. Returns whether it applied
+    them now."""
+    global _DEFAULTS_APPLIED
+    import os
+
+    if _DEFAULTS_APPLIED or os.environ.get("LNN_TORCH_CPU_TUNING", "").strip() == "0":
+        return False
+    _DEFAULTS_APPLIED = True
+    configure_cpu()
+    return True
+
+
 def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
     """Median wall time of ``fn()`` over ``repeats`` calls after ``warmup`` calls, in seconds."""
     for _ in range(warmup):
@@ -64,6 +87,23 @@ def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return statistics.median(times)
+
+
+# A rollout compiles its model's accelerations (``DynamicsModel.compile_dynamics("auto")``, the default)
+# when it makes at least this many acceleration calls (RK4: 4 per step). Measured break-even
+# (``scripts/benchmark_compile_rule.py``, ``results/compile_rule.md``): compilation costs about as much
+# as the eager calls it saves after roughly this many calls on a cold cache.
+AUTO_COMPILE_CALLS = 20_000
+
+
+def compile_pays(calls: int) -> bool:
+    """Whether ``calls`` acceleration calls repay a compilation: ``calls >= AUTO_COMPILE_CALLS``, unless
+    the environment variable ``LNN_TORCH_COMPILE`` is ``0`` (never compile automatically)."""
+    import os
+
+    if os.environ.get("LNN_TORCH_COMPILE", "").strip() == "0":
+        return False
+    return calls >= AUTO_COMPILE_CALLS
 
 
 def compile_fn(fn, device: torch.device | str = "cpu"):

@@ -1,8 +1,14 @@
-import numpy as np
-import pytest
-import torch
+import os
 
-from lnn_torch.systems import SYSTEMS, get_system
+# commands the tests run in subprocesses (lnn-torch fit, import, ...) use one thread too: two test
+# workers on two cores, each running a two-thread command, would oversubscribe the machine
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+from lnn_torch.systems import SYSTEMS, get_system  # noqa: E402
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
 
@@ -14,6 +20,15 @@ SCENES = ([(name, {}) for name in sorted(SYSTEMS) if SYSTEMS[name].closed_form]
 SCENE_IDS = [name + "".join(f"-{k}={v}" for k, v in kw.items()) for name, kw in SCENES]
 QUADRATIC = [(n, kw) for n, kw in SCENES if get_system(n, **kw).quadratic_kinetic]
 QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES) if (n, kw) in QUADRATIC]
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """Commands run in-process (``main([...])``) set their own thread count; restore one thread after
+    each test, so that two test workers never oversubscribe the cores for the rest of a session."""
+    yield
+    if torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
 
 
 @pytest.fixture

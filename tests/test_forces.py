@@ -355,7 +355,7 @@ def test_evaluate_reports_the_forced_sections(actuated_checkpoint, tmp_path):
 
     ckpt, data, _, _ = actuated_checkpoint
     out = tmp_path / "eval"
-    assert main(["evaluate", str(ckpt), "--data", str(data), "--split", "train", "--horizon", "0.5",
+    assert main(["evaluate", str(ckpt), "--data", str(data), "--split", "train", "--horizon", "0.5", "--threads", "1",
                  "--stability-seconds", "0.2", "--long-horizon-steps", "0", "-o", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     for key in ("acc_rel_err", "power_balance_error", "torque_nrmse", "friction", "free_decay", "ood", "stability"):

@@ -539,6 +539,45 @@ def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
     assert model._compile is True
 
 
+def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never(monkeypatch, rng):
+    """The default compilation mode ("auto") compiles the accelerations of a rollout whose work reaches
+    perf.AUTO_COMPILE_CALLS acceleration calls (RK4: 4 a step), and nothing else: not a shorter rollout,
+    not a direct acceleration call, not after compile_dynamics(False) or with LNN_TORCH_COMPILE=0."""
+    import lnn_torch.networks.base as models
+    import lnn_torch.perf as perf
+
+    compiled = []
+
+    def recording(fn, device):
+        def run(*args):
+            compiled.append(fn.__name__)
+            return fn(*args)
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", recording)
+    monkeypatch.setattr(perf, "AUTO_COMPILE_CALLS", 40)
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
+    q, qd, params = random_batch(system, rng, 3)
+    assert model._compile == "auto"
+    short = model.rollout(q, qd, params, 0.01, 9)  # 36 calls
+    model.acceleration(q, qd, params)
+    assert compiled == []
+    long = model.rollout(q, qd, params, 0.01, 10)  # 40 calls
+    assert len(compiled) == 40 and set(compiled) == {"_acceleration_norm_films"}
+    torch.testing.assert_close(long[0][:, :10], short[0], rtol=0, atol=0)
+    model.acceleration(q, qd, params)  # after the rollout: eager again
+    assert len(compiled) == 40
+    monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
+    model.rollout(q, qd, params, 0.01, 10)
+    monkeypatch.delenv("LNN_TORCH_COMPILE")
+    model.compile_dynamics(False)
+    model.rollout(q, qd, params, 0.01, 10)
+    assert len(compiled) == 40
+    with pytest.raises(ValueError, match="compile_dynamics takes"):
+        model.compile_dynamics("sometimes")
+
+
 @pytest.mark.parametrize("variant, kw", [("film_lnn", {}), ("film_lnn", {"potential_film": False}), ("delan", {})])
 def test_rollout_conditions_once(variant, kw, rng):
     """A rollout computes FiLM once (acceleration_fn) and equals, to the bit, integrating

@@ -77,7 +77,7 @@ def test_evaluate_report_of_the_shipped_model(tmp_path):
 
     data = generate_dataset(DatasetSpec(num_trajectories=20, duration=4.0, seed=9), tmp_path / "d.h5")
     out = tmp_path / "eval"
-    assert main(["evaluate", "pretrained:double_pendulum", "--data", str(data), "--horizon", "3",
+    assert main(["evaluate", "pretrained:double_pendulum", "--data", str(data), "--horizon", "3", "--threads", "1",
                  "--stability-seconds", "0.5", "--long-horizon-steps", "200", "-o", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     for key in ("acc_rel_err", "divergence_time@0.1", "divergence_time@0.5", "energy_drift", "mass_matrix", "ood",

@@ -481,3 +481,29 @@ def test_last_checkpoint_holds_the_final_weights_when_validation_stops_improving
     assert Path(monitored.best_model_path).name.startswith("epoch=0")  # never improved after the first
     last = torch.load(Path(monitored.dirpath) / "last.ckpt", weights_only=False)
     assert last["global_step"] == 4 and last["epoch"] == 1
+
+
+def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(dataset, tmp_path):
+    """A checkpoint of a model built with the default widths records them (64 x 64 now), so a later
+    change of the default cannot change what it loads as; a checkpoint that recorded none (saved before)
+    loads with the old default, 128 x 128, with its own weights."""
+    trainer = quiet_trainer(tmp_path, max_epochs=1, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    model = LNNModule(val_rollouts=0)
+    trainer.fit(model, make_dm(dataset, steps_per_epoch=1))
+    trainer.save_checkpoint(tmp_path / "new.ckpt")
+    ckpt = torch.load(tmp_path / "new.ckpt", weights_only=False)
+    assert ckpt["hyper_parameters"]["hidden_dims"] == [64, 64]
+    assert LNNModule.load_from_checkpoint(tmp_path / "new.ckpt").model.hidden_dims == (64, 64)
+
+    old = LNNModule(hidden_dims=[128, 128], val_rollouts=0)
+    trainer = quiet_trainer(tmp_path, max_epochs=1, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    trainer.fit(old, make_dm(dataset, steps_per_epoch=1))
+    trainer.save_checkpoint(tmp_path / "old.ckpt")
+    ckpt = torch.load(tmp_path / "old.ckpt", weights_only=False)
+    ckpt["hyper_parameters"]["hidden_dims"] = None  # as the checkpoints of LNNModule() recorded it before
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    loaded = LNNModule.load_from_checkpoint(tmp_path / "old.ckpt")
+    assert loaded.model.hidden_dims == (128, 128)
+    q, qd, params = torch.zeros(3, 2) + 0.3, torch.ones(3, 2), torch.tensor([[1.0, 0.6, 1.2, 1.1]]).expand(3, -1)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.acceleration(q, qd, params), old.acceleration(q, qd, params))

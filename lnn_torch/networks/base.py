@@ -7,6 +7,7 @@ returns SI units. Shapes: ``q, qd (B, dof)``, ``params (B, P)`` -> ``(B, dof)``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from dataclasses import dataclass
@@ -16,9 +17,13 @@ from torch import nn
 
 from .. import integrators
 from ..dynamics import SingularHessianError
-from ..perf import compile_fn
+from ..perf import apply_cpu_defaults, compile_fn, compile_pays
 from ..systems.base import InputError
 from .normalization import Normalizer
+
+
+# acceleration calls per step of each integrator (a rollout's work, for the compilation rule)
+STAGES = {"rk4": 4, "rk8": 12, "semi_implicit_euler": 1, "leapfrog": 2}
 
 
 def wrap_angle(q: torch.Tensor) -> torch.Tensor:
@@ -89,6 +94,7 @@ class DynamicsModel(nn.Module):
 
     def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__()
+        apply_cpu_defaults()  # once per process; LNN_TORCH_CPU_TUNING=0 leaves the process as it is
         self.scene = SceneInfo.of(scene)
         dof = self.scene.dof
         self.normalizer = Normalizer(dof, self.scene.num_params, self.scene.angle_mask, self.scene.kinds,
@@ -287,7 +293,8 @@ class DynamicsModel(nn.Module):
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
-        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
+        with self._compiled_if_long(num_steps * STAGES.get(method, 1)):
+            return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
 
     def acceleration_fn(self, params: torch.Tensor):
         """``(q, qd, params[, tau]) -> qdd`` (SI, unchecked) for states of systems with these ``params``
@@ -319,25 +326,45 @@ class DynamicsModel(nn.Module):
         q_norm, qd_norm = self.normalizer.state(q.to(dtype), qd.to(dtype))
         return self.normalizer.accel_to_phys(self._run(fn, q_norm, qd_norm, params_norm, *extra)).to(q.dtype)
 
-    # ------------------------------------------------------------------ opt-in compilation
-    _compile = False  # False, True (compile on first use) or "failed"
+    # ------------------------------------------------------------------ compilation
+    _compile = "auto"  # "auto" (long rollouts compiled), True (always), False (never) or "failed"
     _compiled: dict | None = None  # compiled functions by name
+    _compiling_now = False  # inside a long rollout under "auto"
 
-    def compile_dynamics(self, enabled: bool = True) -> "DynamicsModel":
-        """Opt in (or out) of running ``acceleration``, and so ``rollout``, through ``torch.compile``.
+    def compile_dynamics(self, enabled: bool | str = True) -> "DynamicsModel":
+        """Choose when ``acceleration``, and so ``rollout``, runs through ``torch.compile``.
 
-        Compiled on first use for each batch shape, dtype and grad mode (10-30 s each; inductor
-        caches compiled code on disk across processes); the C++ wrapper on the CPU
-        (``lnn_torch.perf.compile_fn``). If compilation or a compiled call fails, a warning is
-        issued once and the model continues eagerly. Returns the model.
+        ``"auto"`` (the default): eagerly, except inside a rollout long enough to repay the
+        compilation (``perf.AUTO_COMPILE_CALLS`` acceleration calls or more; the environment variable
+        ``LNN_TORCH_COMPILE=0`` switches it off). ``True``: always. ``False``: never.
+
+        Compiled on first use for each batch shape, dtype and grad mode (10-30 s each the first
+        time; inductor caches compiled code on disk across processes, later compilations take a few
+        seconds); the C++ wrapper on the CPU (``lnn_torch.perf.compile_fn``). If compilation or a
+        compiled call fails, a warning is issued once and the model continues eagerly. Returns the model.
         """
-        self._compile, self._compiled = bool(enabled), {}
+        if enabled not in (True, False, "auto"):
+            raise ValueError(f"compile_dynamics takes True, False or 'auto', got {enabled!r}")
+        self._compile, self._compiled = enabled, {}
         return self
 
+    @contextlib.contextmanager
+    def _compiled_if_long(self, calls: int):
+        """Within the block, accelerations run compiled if the model is in ``"auto"`` mode and the
+        work (``calls`` acceleration calls) repays the compilation (``perf.compile_pays``)."""
+        before = self._compiling_now
+        self._compiling_now = before or (self._compile == "auto" and compile_pays(calls))
+        try:
+            yield
+        finally:
+            self._compiling_now = before
+
     def _run(self, fn, *args):
-        """``fn(*args)``, compiled after ``compile_dynamics()`` (with the eager fallback)."""
-        if self._compile is not True:
+        """``fn(*args)``, compiled where the compilation mode asks for it (with the eager fallback)."""
+        if not (self._compile is True or (self._compile == "auto" and self._compiling_now)):
             return fn(*args)
+        if self._compiled is None:
+            self._compiled = {}
         compiled = self._compiled.get(fn.__name__)
         if compiled is None:
             compiled = self._compiled[fn.__name__] = compile_fn(fn, args[0].device)

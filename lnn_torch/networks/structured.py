@@ -28,7 +28,8 @@ class StructuredLagrangian(DynamicsModel):
 
     Args:
         scene: a ``System``, its ``describe()`` dict or a ``SceneInfo``.
-        hidden_dims: hidden widths of the kinetic and the potential MLP.
+        hidden_dims: hidden widths of the kinetic and the potential MLP (default 64 x 64: the knee of the
+            cost-accuracy front, ``results/cost_accuracy/README.md``; 128 x 128 before).
         activation: ``tanh`` (default), ``softplus``, ``sigmoid`` or ``isru``.
         film_mode: ``neuron`` (a (gamma, beta) pair per hidden neuron) or ``layer`` (one scalar pair
             per layer, the reference design).
@@ -43,7 +44,7 @@ class StructuredLagrangian(DynamicsModel):
     variant = "film_lnn"
     conditioning = "film"
 
-    def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", film_mode: str = "neuron",
+    def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
                  learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
@@ -54,6 +55,7 @@ class StructuredLagrangian(DynamicsModel):
             )
         dof, P, F = self.scene.dof, self.scene.num_params, self.num_features
         hidden_dims = list(hidden_dims)
+        self.hidden_dims = tuple(hidden_dims)
         self.eps, self.diag_shift = float(eps), float(diag_shift)
         self.num_chol = dof * (dof + 1) // 2
         film = self.conditioning == "film" and P > 0

@@ -1,0 +1,92 @@
+"""A library user's plain path, timed in fresh processes: import, load the shipped model, call it.
+
+Each measurement is a new Python process (so nothing is warm or configured that a user would not
+have): ``import lnn_torch`` -> ``load_model("pretrained:double_pendulum")`` -> 512 float32
+accelerations (first call, then the median of 30) and a 1000-step RK4 rollout of 64 trajectories,
+on one thread. Variants, run alternately (``--repeats`` processes each):
+
+* ``plain``: exactly that, nothing else called (the library applies its CPU settings itself when it
+  builds the model: ``lnn_torch.perf.apply_cpu_defaults``);
+* ``configure_cpu``: the same after an explicit ``lnn_torch.perf.configure_cpu()``;
+* ``LNN_TORCH_CPU_TUNING=0``: the plain path with the library's own CPU settings switched off.
+
+    python scripts/benchmark_first_call.py                # writes results/first_call.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CHILD = r"""
+import json, statistics, sys, time
+t0 = time.perf_counter()
+import torch
+torch.set_num_threads(1)
+import lnn_torch
+from lnn_torch.checkpoints import load_model
+if sys.argv[1] == "configure_cpu":
+    lnn_torch.perf.configure_cpu()
+t_import = time.perf_counter() - t0
+model = load_model("pretrained:double_pendulum")
+t_load = time.perf_counter() - t0 - t_import
+g = torch.Generator().manual_seed(0)
+q = (torch.rand(512, 2, generator=g) - 0.5) * 3
+qd = (torch.rand(512, 2, generator=g) - 0.5) * 4
+p = torch.tensor([1.0, 0.6, 1.2, 1.1]).expand(512, -1)
+def accel():
+    with torch.no_grad():
+        return model.acceleration(q, qd, p)
+t = time.perf_counter(); accel(); first = time.perf_counter() - t
+for _ in range(5): accel()
+samples = []
+for _ in range(30):
+    t = time.perf_counter(); accel(); samples.append(time.perf_counter() - t)
+def roll():
+    with torch.no_grad():
+        return model.rollout(q[:64], qd[:64], p[:64], 0.005, 1000)
+t = time.perf_counter(); roll(); roll_first = time.perf_counter() - t
+t = time.perf_counter(); roll(); roll_second = time.perf_counter() - t
+print(json.dumps({"import_s": t_import, "load_s": t_load, "accel_first_ms": 1e3 * first,
+                  "accel_median_ms": 1e3 * statistics.median(samples), "rollout_first_s": roll_first,
+                  "rollout_second_s": roll_second}))
+"""
+
+VARIANTS = {"plain": ({}, "plain"), "configure_cpu": ({}, "configure_cpu"),
+            "LNN_TORCH_CPU_TUNING=0": ({"LNN_TORCH_CPU_TUNING": "0"}, "plain")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=7, help="fresh processes per variant")
+    ap.add_argument("--out", default=str(ROOT / "results" / "first_call.md"))
+    args = ap.parse_args()
+    runs = {name: [] for name in VARIANTS}
+    for _ in range(args.repeats):
+        for name, (env, arg) in VARIANTS.items():
+            out = subprocess.run([sys.executable, "-c", CHILD, arg], env={**os.environ, **env}, cwd=ROOT,
+                                 capture_output=True, text=True, check=True)
+            runs[name].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    keys = ("import_s", "load_s", "accel_first_ms", "accel_median_ms", "rollout_first_s", "rollout_second_s")
+    lines = ["# A library user's first calls, in fresh processes", "",
+             f"Command: `python scripts/benchmark_first_call.py --repeats {args.repeats}`; torch threads 1; medians over "
+             f"{args.repeats} fresh processes per variant, run alternately.", "",
+             "| variant | import (s) | load model (s) | 512 accel, first call (ms) | 512 accel, median of 30 (ms) | "
+             "rollout 64 x 1000 RK4 steps, first (s) | second (s) |", "|---|---|---|---|---|---|---|"]
+    for name, rs in runs.items():
+        cells = [f"{statistics.median(r[k] for r in rs):.3g}" for k in keys]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    Path(args.out).write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
