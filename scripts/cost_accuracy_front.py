@@ -392,7 +392,7 @@ def report(args) -> None:
         ax.set_xlabel(f"{what} cost (ms, 512 states, one thread)")
         ax.set_ylabel("held-out acceleration error (%)")
         ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=7)
+    axes[1].legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(OUT / "front.png", dpi=110)
     print("\n".join(lines))
