@@ -135,6 +135,24 @@ METHODS = {
 FIRST_ORDER_METHODS = {"rk4": 4, "rk8": 8}  # name -> order
 
 
+def check_rollout(q0, qd0, params, dt: float, num_steps: int, method: str, substeps: int = 1, tau=None):
+    """The arguments of ``rollout`` checked (``ValueError`` naming the problem); returns the step function."""
+    try:
+        step = METHODS[method]
+    except KeyError:
+        raise ValueError(f"unknown integrator '{method}'; known: {', '.join(METHODS)}") from None
+    if q0.shape != qd0.shape or q0.ndim != 2:
+        raise ValueError(f"q0 and qd0 must both be (batch, dof), got {tuple(q0.shape)} and {tuple(qd0.shape)}")
+    if params.ndim != 2 or params.shape[0] != q0.shape[0]:
+        raise ValueError(f"params must be (batch, num_params) with batch {q0.shape[0]}, got {tuple(params.shape)}")
+    if not dt > 0 or num_steps < 0 or substeps < 1:
+        raise ValueError(f"need dt > 0, num_steps >= 0, substeps >= 1; got {dt}, {num_steps}, {substeps}")
+    if tau is not None and (tau.ndim != 3 or tau.shape[:2] != (q0.shape[0], num_steps)):
+        raise ValueError(f"tau must be (batch, num_steps, num_inputs) = ({q0.shape[0]}, {num_steps}, n_u), "
+                         f"got {tuple(tau.shape)}")
+    return step
+
+
 def rollout(
     accel_fn: AccelFn,
     q0: torch.Tensor,
@@ -162,19 +180,7 @@ def rollout(
     Returns:
         ``(q, qd)`` each of shape ``(B, num_steps + 1, dof)``, starting with the initial state.
     """
-    try:
-        step = METHODS[method]
-    except KeyError:
-        raise ValueError(f"unknown integrator '{method}'; known: {', '.join(METHODS)}") from None
-    if q0.shape != qd0.shape or q0.ndim != 2:
-        raise ValueError(f"q0 and qd0 must both be (batch, dof), got {tuple(q0.shape)} and {tuple(qd0.shape)}")
-    if params.ndim != 2 or params.shape[0] != q0.shape[0]:
-        raise ValueError(f"params must be (batch, num_params) with batch {q0.shape[0]}, got {tuple(params.shape)}")
-    if not dt > 0 or num_steps < 0 or substeps < 1:
-        raise ValueError(f"need dt > 0, num_steps >= 0, substeps >= 1; got {dt}, {num_steps}, {substeps}")
-    if tau is not None and (tau.ndim != 3 or tau.shape[:2] != (q0.shape[0], num_steps)):
-        raise ValueError(f"tau must be (batch, num_steps, num_inputs) = ({q0.shape[0]}, {num_steps}, n_u), "
-                         f"got {tuple(tau.shape)}")
+    step = check_rollout(q0, qd0, params, dt, num_steps, method, substeps, tau)
     h = dt / substeps
     qs, qds = [q0], [qd0]
     q, qd = q0, qd0

@@ -507,3 +507,18 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
     q, qd, params = torch.zeros(3, 2) + 0.3, torch.ones(3, 2), torch.tensor([[1.0, 0.6, 1.2, 1.1]]).expand(3, -1)
     with torch.no_grad():
         torch.testing.assert_close(loaded.acceleration(q, qd, params), old.acceleration(q, qd, params))
+
+
+def test_a_measured_config_without_its_imported_file_says_to_import_it(tmp_path):
+    """Fitting the real-pendulum config before importing its recordings names the missing file and the
+    import command (it used to fall back to generating a simulated double pendulum and then refuse the
+    torque loss with an unrelated message); a spec'd dataset still generates."""
+    out = _cli("fit", "-c", str(ROOT / "configs" / "real_double_pendulum.yaml"),
+               f"--data.path={tmp_path / 'absent.h5'}", "--trainer.fast_dev_run=true", cwd=tmp_path)
+    assert out.returncode != 0
+    assert "absent.h5 not found" in out.stderr and "lnn-torch import" in out.stderr, out.stderr[-2000:]
+    assert not (tmp_path / "absent.h5").exists()
+    with pytest.raises(FileNotFoundError, match="import them first"):
+        TrajectoryDataModule(path=str(tmp_path / "absent.h5"), targets="savgol")
+    assert TrajectoryDataModule(path=str(tmp_path / "sim.h5"), spec=dict(num_trajectories=4, duration=0.2),
+                                targets="savgol").model_scene()[0] == "double_pendulum"

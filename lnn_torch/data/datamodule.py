@@ -214,6 +214,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.file: TrajectoryFile | None = None
         self._sources: dict = {}
         self.train_set: ChunkDataset | None = None
+        if not self.path.exists():
+            self._refuse_to_generate_recordings()
 
     # ------------------------------------------------------------------ preparation
     @property
@@ -223,6 +225,7 @@ class TrajectoryDataModule(L.LightningDataModule):
 
     def prepare_data(self) -> None:
         if not self.path.exists():
+            self._refuse_to_generate_recordings()
             spec = self.spec
             print(f"dataset {self.path} not found: generating it ({spec.num_trajectories} trajectories)")
             generate_dataset(spec, self.path, progress=True)
@@ -265,7 +268,16 @@ class TrajectoryDataModule(L.LightningDataModule):
         if self.path.exists():
             scene = read_dataset(self.path).scene
             return scene["name"], scene.get("config", {})
+        self._refuse_to_generate_recordings()
         return self.spec_fields.get("scene", "double_pendulum"), dict(self.spec_fields.get("scene_config", {}))
+
+    def _refuse_to_generate_recordings(self) -> None:
+        """Derivative targets without a spec mean measured recordings: a missing file is then not
+        something to generate (it would be a simulated double pendulum) but to import."""
+        if self.targets is not None and not self.spec_fields:
+            raise FileNotFoundError(f"data file {self.path} not found: it is set up for measured recordings "
+                                    f"(data.targets, no data.spec); import them first: lnn-torch import RECORDINGS.csv "
+                                    f"--config configs/import/<name>.yaml -o {self.path}")
 
     @property
     def dt(self) -> float:

@@ -7,7 +7,6 @@ returns SI units. Shapes: ``q, qd (B, dof)``, ``params (B, P)`` -> ``(B, dof)``.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import warnings
 from dataclasses import dataclass
@@ -293,8 +292,55 @@ class DynamicsModel(nn.Module):
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
-        with self._compiled_if_long(num_steps * STAGES.get(method, 1)):
-            return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
+        integrators.check_rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+        if self._compile is True or (self._compile == "auto" and compile_pays(num_steps * STAGES.get(method, 1))):
+            out = self._compiled_rollout(q0, qd0, params, dt, num_steps, method, tau)
+            if out is not None:
+                return out
+        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
+
+    def rollout_conditioning(self, params: torch.Tensor) -> tuple[str, torch.Tensor, tuple]:
+        """``(name, params_norm, cond)``: the method ``name(q_norm, qd_norm, params_norm, *cond[, tau_norm])``
+        that gives normalised accelerations, and what it needs from the parameters alone (computed once
+        per rollout, passed to the compiled step as tensors)."""
+        return "acceleration_norm", self.normalizer.params(params.to(self.dtype)), ()
+
+    def _rollout_step(self, name: str, method: str, dt: float, q, qd, params_norm, cond: tuple, tau=None):
+        """One integrator step in SI units from precomputed conditioning: a pure function of its tensors
+        (``rollout`` compiles it whole: the four RK4 stages in one program)."""
+        fn = getattr(self, name)
+        extra = () if tau is None else (self.tau_norm(tau),)
+
+        def accel(q_, qd_, _params):
+            return self._acceleration_si(fn, q_, qd_, params_norm, *cond, *extra)
+
+        return integrators.METHODS[method](accel, q, qd, params_norm, dt)
+
+    def _compiled_rollout(self, q0, qd0, params, dt, num_steps, method, tau):
+        """``rollout`` through the compiled ``_rollout_step`` (compiled once per batch shape, dtype, grad
+        mode, method and step); None after a compilation failure (warned once; the caller continues
+        eagerly)."""
+        if self._compiled is None:
+            self._compiled = {}
+        compiled = self._compiled.get("_rollout_step")
+        if compiled is None:
+            compiled = self._compiled["_rollout_step"] = compile_fn(self._rollout_step, q0.device)
+        name, params_norm, cond = self.rollout_conditioning(params)
+        qs, qds, q, qd = [q0], [qd0], q0, qd0
+        try:
+            for i in range(num_steps):
+                q, qd = compiled(name, method, float(dt), q, qd, params_norm, cond, None if tau is None else tau[:, i])
+                qs.append(q)
+                qds.append(qd)
+        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
+            raise
+        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
+            warnings.warn(f"compiled rollout failed ({type(err).__name__}: "
+                          f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
+                          RuntimeWarning, stacklevel=3)
+            self._compile, self._compiled = "failed", {}
+            return None
+        return torch.stack(qs, dim=1), torch.stack(qds, dim=1)
 
     def acceleration_fn(self, params: torch.Tensor):
         """``(q, qd, params[, tau]) -> qdd`` (SI, unchecked) for states of systems with these ``params``
@@ -329,14 +375,14 @@ class DynamicsModel(nn.Module):
     # ------------------------------------------------------------------ compilation
     _compile = "auto"  # "auto" (long rollouts compiled), True (always), False (never) or "failed"
     _compiled: dict | None = None  # compiled functions by name
-    _compiling_now = False  # inside a long rollout under "auto"
 
     def compile_dynamics(self, enabled: bool | str = True) -> "DynamicsModel":
         """Choose when ``acceleration``, and so ``rollout``, runs through ``torch.compile``.
 
-        ``"auto"`` (the default): eagerly, except inside a rollout long enough to repay the
-        compilation (``perf.AUTO_COMPILE_CALLS`` acceleration calls or more; the environment variable
-        ``LNN_TORCH_COMPILE=0`` switches it off). ``True``: always. ``False``: never.
+        ``"auto"`` (the default): eagerly, except a rollout long enough to repay the compilation
+        (``perf.AUTO_COMPILE_CALLS`` acceleration calls or more; the environment variable
+        ``LNN_TORCH_COMPILE=0`` switches it off), whose integrator step is compiled whole (all its
+        stages in one program). ``True``: accelerations and every rollout compiled. ``False``: never.
 
         Compiled on first use for each batch shape, dtype and grad mode (10-30 s each the first
         time; inductor caches compiled code on disk across processes, later compilations take a few
@@ -348,20 +394,10 @@ class DynamicsModel(nn.Module):
         self._compile, self._compiled = enabled, {}
         return self
 
-    @contextlib.contextmanager
-    def _compiled_if_long(self, calls: int):
-        """Within the block, accelerations run compiled if the model is in ``"auto"`` mode and the
-        work (``calls`` acceleration calls) repays the compilation (``perf.compile_pays``)."""
-        before = self._compiling_now
-        self._compiling_now = before or (self._compile == "auto" and compile_pays(calls))
-        try:
-            yield
-        finally:
-            self._compiling_now = before
-
     def _run(self, fn, *args):
-        """``fn(*args)``, compiled where the compilation mode asks for it (with the eager fallback)."""
-        if not (self._compile is True or (self._compile == "auto" and self._compiling_now)):
+        """``fn(*args)``, compiled after ``compile_dynamics(True)`` (with the eager fallback); inside a
+        compiled rollout step it is part of that step's program."""
+        if self._compile is not True or torch.compiler.is_compiling():
             return fn(*args)
         if self._compiled is None:
             self._compiled = {}

@@ -163,6 +163,12 @@ class StructuredLagrangian(DynamicsModel):
         force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
         return self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
 
+    def rollout_conditioning(self, params: torch.Tensor):
+        if self.kinetic_film is None and self.potential_film is None:
+            return super().rollout_conditioning(params)
+        params_norm = self.normalizer.params(params.to(self.dtype))
+        return "_acceleration_norm_films", params_norm, (self.films(params_norm),)
+
     def acceleration_fn(self, params: torch.Tensor):
         """As ``DynamicsModel.acceleration_fn``, with both networks' FiLM computed once, not at
         every call (an RK4 step makes four)."""
