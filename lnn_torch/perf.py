@@ -89,7 +89,7 @@ def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
     return statistics.median(times)
 
 
-# A rollout compiles its model's accelerations (``DynamicsModel.compile_dynamics("auto")``, the default)
+# A rollout compiles its integrator step (``DynamicsModel.compile_dynamics("auto")``, the default)
 # when it makes at least this many acceleration calls (RK4: 4 per step). Measured break-even
 # (``scripts/benchmark_compile_rule.py``, ``results/compile_rule.md``): compilation costs about as much
 # as the eager calls it saves after roughly this many calls on a cold cache.

@@ -1,7 +1,7 @@
 """Where compiling a rollout pays: compilation time against the time it saves per acceleration call.
 
 For the shipped double-pendulum model (film_lnn 128 x 128, float32, one thread, no autograd) and
-batch sizes 1, 20, 64 and 512: the time of one RK4 step eagerly and with compiled accelerations
+batch sizes 1, 20, 64 and 512: the time of one RK4 step eagerly and compiled (the whole step, as a rollout runs it)
 (medians), the first compiled call's time on an empty inductor cache (a fresh cache directory: what
 a user's first run pays) and again in a new process with that cache filled, and the break-even: the
 number of acceleration calls (4 per RK4 step) after which the compiled rollout has repaid its
@@ -77,17 +77,20 @@ def main() -> None:
 
     lines = ["# When a compiled rollout pays", "",
              "Command: `python scripts/benchmark_compile_rule.py`. The shipped model (film_lnn 128 x 128, float32), one "
-             "thread, no autograd (run beside one other single-thread job); each batch size in two fresh processes sharing a new inductor cache directory (cold: "
+             "thread, no autograd; each batch size in two fresh processes sharing a new inductor cache directory (cold: "
              "empty cache, a user's first run; warm: the second process). Step times are medians of 7 x 50 RK4 steps.",
-             "", "| batch | RK4 step eager (ms) | RK4 step, compiled accelerations (ms) | compilation, cold cache (s) | "
+             "", "| batch | RK4 step eager (ms) | RK4 step compiled (ms) | compilation, cold cache (s) | "
              "compilation, warm cache (s) | break-even, cold (acceleration calls) | break-even, warm (calls) |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['batch']} | {r['eager_ms']:.2f} | {r['compiled_ms']:.2f} | {r['compile_cold_s']:.1f} | "
                      f"{r['compile_warm_s']:.1f} | {r['break_even_cold']:,.0f} | {r['break_even_warm']:,.0f} |")
-    lines += ["", f"The rule in the library: a rollout compiles its model's accelerations when it makes at least "
+    lines += ["", f"The rule in the library: a rollout compiles its integrator step when it makes at least "
               f"`lnn_torch.perf.AUTO_COMPILE_CALLS` = {AUTO_COMPILE_CALLS:,} acceleration calls (default mode "
-              "`compile_dynamics(\"auto\")`; `LNN_TORCH_COMPILE=0` or `compile_dynamics(False)` switch it off)."]
+              "`compile_dynamics(\"auto\")`; `LNN_TORCH_COMPILE=0` or `compile_dynamics(False)` switch it off). "
+              f"It sits between the warm-cache break-even ({min(r['break_even_warm'] for r in rows):,.0f}–"
+              f"{max(r['break_even_warm'] for r in rows):,.0f} calls) and the cold one "
+              f"({min(r['break_even_cold'] for r in rows):,.0f}–{max(r['break_even_cold'] for r in rows):,.0f})."]
     text = "\n".join(lines) + "\n"
     (ROOT / "results" / "compile_rule.md").write_text(text)
     print(text)

@@ -372,6 +372,7 @@ def report(args) -> None:
             lines.append(f"| {r['point']} | {r['dtype']} | {r['aten calls (incl. nested)']} | "
                          f"{100 * r['matrix-product share']:.0f} % |")
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
+    summary(rows, trained, orig_acc)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, what in zip(axes, ("accel", "train step")):
         for path, marker in (("eager", "o"), ("compiled", "s"), ("jit", "*")):
@@ -396,6 +397,38 @@ def report(args) -> None:
     fig.tight_layout()
     fig.savefig(OUT / "front.png", dpi=110)
     print("\n".join(lines))
+
+
+# the README's short table: point -> its label there
+SUMMARY = {"w16": "`film_lnn` 16 × 16", "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
+           "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`)",
+           "w128": "`film_lnn` 128 × 128 (the configs, the shipped model)",
+           "w32, 16k steps": "`film_lnn` 32 × 32, 16,000 steps",
+           "w64, 16k steps": "`film_lnn` 64 × 64, 16,000 steps (the main job's budget)"}
+
+
+def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:
+    """``summary.md``: the README's table (ratios to the original, eager / compiled)."""
+    by = {(r["point"], r["path"], r["dtype"]): r for r in rows}
+    orig = by.get((ORIGINAL, "jit", "float32"))
+    lines = ["| configuration | held-out acc. error | time within 0.1 rad (median) | 512 accel, eager / compiled | "
+             "train step, eager / compiled | RK4 step of 64, eager / compiled |", "|---|---|---|---|---|---|"]
+    if orig is not None and orig_acc:
+        lines.append(f"| JAX original (released, 50,000 steps) | {100 * orig_acc['acc_rel_err']:.2f} % | "
+                     f"{orig_acc['divergence_median_s']:.1f} s | 1 ({orig['accel ms']:.2f} ms) | "
+                     f"1 ({orig['train step ms']:.1f} ms) | 1 ({orig['rollout step ms']:.2f} ms) |")
+    for point, label in SUMMARY.items():
+        eager, comp = by.get((point, "eager", "float32")), by.get((point, "compiled", "float32"))
+        if point not in trained or eager is None or comp is None:
+            continue
+        t = trained[point]
+        div = t["divergence_median_s"]
+        cells = [label, f"{100 * t['acc_rel_err']:.2f} %",
+                 f"≥ {t['horizon_s']:.0f} s" if div >= t["horizon_s"] else f"{div:.1f} s"]
+        for what in ("accel", "train step", "rollout step"):
+            cells.append(f"{eager[f'{what} / original']:.2f} / {comp[f'{what} / original']:.2f} ×")
+        lines.append("| " + " | ".join(cells) + " |")
+    (OUT / "summary.md").write_text("\n".join(lines) + "\n")
 
 
 def main() -> None:
