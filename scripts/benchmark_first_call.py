@@ -30,7 +30,7 @@ import json, statistics, sys, time
 t0 = time.perf_counter()
 import torch
 torch.set_num_threads(1)
-import lnn_torch
+import lnn_torch.perf
 from lnn_torch.checkpoints import load_model
 if sys.argv[1] == "configure_cpu":
     lnn_torch.perf.configure_cpu()
