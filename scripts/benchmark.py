@@ -113,7 +113,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     flat = lambda x: x[:, idx].reshape(-1, x.shape[-1]).float()  # noqa: E731
     T = val.q[:, idx].shape[1]
     sample = [flat(val.q), flat(val.qd), flat(val.qdd), flat(val.params[:, None].expand(-1, T, -1))]
-    model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, **overrides)
+    model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, hidden_dims=[128, 128], **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
     trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
                         num_sanity_val_steps=0, inference_mode=False, gradient_clip_val=1.0,

@@ -129,7 +129,7 @@ def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conserv
     q, qd = (torch.tensor(x).to(dtype) for x in scene.sample_state(rng, n))
     tau = torch.tensor(rng.uniform(-1, 1, (n, 2))).to(dtype)
     torch.manual_seed(0)
-    model = build_model(variant, scene).to(dtype)
+    model = build_model(variant, scene, hidden_dims=(128, 128)).to(dtype)
     model.fit_normalizer({"q": q, "qd": qd, "qdd": scene.acceleration(q, qd, params, tau), "params": params,
                           "params_points": params, "tau": tau})
     qn, qdn, pn = model.normalize(q, qd, params)
@@ -180,7 +180,7 @@ def main() -> None:
         for variant in args.variants:
             torch._dynamo.reset()  # fresh compile caches per model: no recompile limit across rows
             torch.manual_seed(0)
-            model = build_model(variant, system).to(dtype)
+            model = build_model(variant, system, hidden_dims=(128, 128)).to(dtype)
             model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
             qn, qdn, pn = model.normalize(qq, qqd, pp)
             target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))

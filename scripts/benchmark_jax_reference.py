@@ -359,7 +359,7 @@ def run_interleaved(rounds: int) -> None:
 
     # lnn_torch film_lnn, as in benchmark_dynamics.py
     torch.manual_seed(0)
-    tm = build_model("film_lnn", system)
+    tm = build_model("film_lnn", system, hidden_dims=(128, 128))
     tq, tqd, tp = (torch.tensor(x, dtype=torch.float32) for x in (q, qd, params))
     tm.normalizer.fit(tq, tqd, system.acceleration(tq, tqd, tp), tp)
     tqn, tqdn, tpn = tm.normalize(tq, tqd, tp)

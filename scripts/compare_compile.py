@@ -38,7 +38,7 @@ def main() -> None:
     params = torch.tensor(system.sample_params(rng, args.batch)).float()
     q, qd = (torch.tensor(x).float() for x in system.sample_state(rng, args.batch))
     torch.manual_seed(0)
-    model = build_model("film_lnn", system).float()
+    model = build_model("film_lnn", system, hidden_dims=(128, 128)).float()
     model.normalizer.fit(q, qd, system.acceleration(q, qd, params), params)
     inputs = model.normalize(q, qd, params)
     candidates = {
