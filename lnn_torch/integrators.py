@@ -2,7 +2,7 @@
 first-order systems ``ydot = vector_field_fn(y, params)`` (e.g. Hamiltonian networks in (q, p)).
 
 Entry points: ``rollout`` (second order) and ``rollout_first_order``, each picking a method by name.
-Every step function has an ``order`` attribute.
+Every step function has ``order`` and ``stages`` (acceleration calls per step) attributes.
 
 * ``rk4``: classical Runge-Kutta, order 4 (first and second order systems).
 * ``rk8``: the 12-stage, 8th-order Dormand-Prince tableau (the one DOP853 uses) as a fixed step;
@@ -71,7 +71,7 @@ def explicit_rk_step(name: str, fn: VectorFieldFn, y: torch.Tensor, params: torc
     return y + dt * torch.tensordot(B, torch.stack(ks), dims=1)
 
 
-def _second_order_rk(name: str, order: int):
+def _second_order_rk(name: str, order: int, stages: int):
     def step(accel_fn: AccelFn, q, qd, params, dt):
         dof = q.shape[-1]
 
@@ -81,7 +81,7 @@ def _second_order_rk(name: str, order: int):
         y = explicit_rk_step(name, fn, torch.cat([q, qd], dim=-1), params, dt)
         return y[..., :dof], y[..., dof:]
 
-    step.order = order
+    step.order, step.stages = order, stages
     step.__name__ = f"{name}_step"
     return step
 
@@ -102,8 +102,8 @@ def rk4_step(accel_fn: AccelFn, q, qd, params, dt):
     return q_new, qd_new
 
 
-rk4_step.order = 4
-rk8_step = _second_order_rk("rk8", 8)
+rk4_step.order, rk4_step.stages = 4, 4
+rk8_step = _second_order_rk("rk8", 8, 12)  # the 12-stage Dormand-Prince tableau
 
 
 def semi_implicit_euler_step(accel_fn: AccelFn, q, qd, params, dt):
@@ -111,7 +111,7 @@ def semi_implicit_euler_step(accel_fn: AccelFn, q, qd, params, dt):
     return q + dt * qd_new, qd_new
 
 
-semi_implicit_euler_step.order = 1
+semi_implicit_euler_step.order, semi_implicit_euler_step.stages = 1, 1
 
 
 def leapfrog_step(accel_fn: AccelFn, q, qd, params, dt):
@@ -124,7 +124,7 @@ def leapfrog_step(accel_fn: AccelFn, q, qd, params, dt):
     return q_new, qd_new
 
 
-leapfrog_step.order = 2
+leapfrog_step.order, leapfrog_step.stages = 2, 2
 
 METHODS = {
     "rk4": rk4_step,

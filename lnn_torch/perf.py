@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import statistics
 import sys
 import time
@@ -68,8 +69,6 @@ def apply_cpu_defaults() -> bool:
     variable ``LNN_TORCH_CPU_TUNING=0`` to leave the process untouched. Returns whether it applied
     them now."""
     global _DEFAULTS_APPLIED
-    import os
-
     if _DEFAULTS_APPLIED or os.environ.get("LNN_TORCH_CPU_TUNING", "").strip() == "0":
         return False
     _DEFAULTS_APPLIED = True
@@ -99,8 +98,6 @@ AUTO_COMPILE_CALLS = 20_000
 def compile_pays(calls: int) -> bool:
     """Whether ``calls`` acceleration calls repay a compilation: ``calls >= AUTO_COMPILE_CALLS``, unless
     the environment variable ``LNN_TORCH_COMPILE`` is ``0`` (never compile automatically)."""
-    import os
-
     if os.environ.get("LNN_TORCH_COMPILE", "").strip() == "0":
         return False
     return calls >= AUTO_COMPILE_CALLS

@@ -311,9 +311,7 @@ def time_all(args) -> None:
                 base = times[(ORIGINAL, "jit", "float32", what)]
                 row[f"{what} / original"] = statistics.median(a / b for a, b in zip(own, base))
         rows.append(row)
-    import torch as _t
-
-    header = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {_t.__version__}",
+    header = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}",
               "rounds": args.rounds, "calls_per_round": args.calls, "command": " ".join(["python", *sys.argv]),
               "original_accuracy": original_accuracy}
     if not args.no_original:

@@ -268,7 +268,6 @@ class TrajectoryDataModule(L.LightningDataModule):
         if self.path.exists():
             scene = read_dataset(self.path).scene
             return scene["name"], scene.get("config", {})
-        self._refuse_to_generate_recordings()
         return self.spec_fields.get("scene", "double_pendulum"), dict(self.spec_fields.get("scene_config", {}))
 
     def _refuse_to_generate_recordings(self) -> None:

@@ -21,10 +21,6 @@ from ..systems.base import InputError
 from .normalization import Normalizer
 
 
-# acceleration calls per step of each integrator (a rollout's work, for the compilation rule)
-STAGES = {"rk4": 4, "rk8": 12, "semi_implicit_euler": 1, "leapfrog": 2}
-
-
 def wrap_angle(q: torch.Tensor) -> torch.Tensor:
     """``q`` reduced to [-pi, pi), same dtype. The reduction runs in float64 where the device has it:
     in float32, ``remainder(q + pi, 2 pi)`` loses up to 3e-4 rad at |q| = 1e4 (q + pi is rounded to
@@ -292,8 +288,10 @@ class DynamicsModel(nn.Module):
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
-        integrators.check_rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
-        if self._compile is True or (self._compile == "auto" and compile_pays(num_steps * STAGES.get(method, 1))):
+        step = integrators.METHODS.get(method)  # an unknown name is refused by the eager path
+        if step is not None and (self._compile is True
+                                 or (self._compile == "auto" and compile_pays(num_steps * step.stages))):
+            integrators.check_rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
             out = self._compiled_rollout(q0, qd0, params, dt, num_steps, method, tau)
             if out is not None:
                 return out
@@ -320,11 +318,7 @@ class DynamicsModel(nn.Module):
         """``rollout`` through the compiled ``_rollout_step`` (compiled once per batch shape, dtype, grad
         mode, method and step); None after a compilation failure (warned once; the caller continues
         eagerly)."""
-        if self._compiled is None:
-            self._compiled = {}
-        compiled = self._compiled.get("_rollout_step")
-        if compiled is None:
-            compiled = self._compiled["_rollout_step"] = compile_fn(self._rollout_step, q0.device)
+        compiled = self._compiled_fn(self._rollout_step, q0.device)
         name, params_norm, cond = self.rollout_conditioning(params)
         qs, qds, q, qd = [q0], [qd0], q0, qd0
         try:
@@ -335,10 +329,7 @@ class DynamicsModel(nn.Module):
         except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
             raise
         except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
-            warnings.warn(f"compiled rollout failed ({type(err).__name__}: "
-                          f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
-                          RuntimeWarning, stacklevel=3)
-            self._compile, self._compiled = "failed", {}
+            self._compile_failed("rollout", err)
             return None
         return torch.stack(qs, dim=1), torch.stack(qds, dim=1)
 
@@ -399,21 +390,29 @@ class DynamicsModel(nn.Module):
         compiled rollout step it is part of that step's program."""
         if self._compile is not True or torch.compiler.is_compiling():
             return fn(*args)
+        try:
+            return self._compiled_fn(fn, args[0].device)(*args)
+        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
+            raise
+        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
+            self._compile_failed("accelerations", err)
+            return fn(*args)
+
+    def _compiled_fn(self, fn, device):
+        """``fn`` compiled (``perf.compile_fn``), built on first use and kept by its name."""
         if self._compiled is None:
             self._compiled = {}
         compiled = self._compiled.get(fn.__name__)
         if compiled is None:
-            compiled = self._compiled[fn.__name__] = compile_fn(fn, args[0].device)
-        try:
-            return compiled(*args)
-        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
-            raise
-        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
-            warnings.warn(f"compiled accelerations failed ({type(err).__name__}: "
-                          f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
-                          RuntimeWarning, stacklevel=3)
-            self._compile, self._compiled = "failed", {}
-            return fn(*args)
+            compiled = self._compiled[fn.__name__] = compile_fn(fn, device)
+        return compiled
+
+    def _compile_failed(self, what: str, err: Exception) -> None:
+        """Warn once that compiled ``what`` failed and continue eagerly from now on."""
+        warnings.warn(f"compiled {what} failed ({type(err).__name__}: "
+                      f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
+                      RuntimeWarning, stacklevel=4)
+        self._compile, self._compiled = "failed", {}
 
     def __getstate__(self):
         state = super().__getstate__()  # a copy of __dict__
