@@ -10,7 +10,8 @@ the data's step first exceeds 0.1 rad, 10 s horizon).
 Costs are timed in ONE process, interleaved (round-robin; per round and candidate one untimed
 call, then the median of ``--calls`` timed calls), one thread, after warm-up and compilation:
 
-* ``accel``: 512 accelerations (float32, no autograd), test states;
+* ``accel``: 512 accelerations (float32, no autograd; ``model.acceleration`` as a user calls it,
+  input checks included), test states;
 * ``train step``: a training step on 512 states (loss, backward, gradient clipping, AdamW step);
 * ``rollout step``: one RK4 step of 64 trajectories (4 acceleration evaluations);
 
@@ -61,10 +62,17 @@ POINTS = {
     "w64 x3": dict(hidden_dims=[64, 64, 64]),
     "w128": dict(hidden_dims=[128, 128]),
     "w128 layer-FiLM": dict(hidden_dims=[128, 128], film_mode="layer"),
+    # one shared network for the Cholesky entries and the potential (film_lnn's shared=True)
+    "w16 shared": dict(hidden_dims=[16, 16], model_options={"shared": True}),
+    "w32 shared": dict(hidden_dims=[32, 32], model_options={"shared": True}),
+    "w64 shared": dict(hidden_dims=[64, 64], model_options={"shared": True}),
+    "w96 shared": dict(hidden_dims=[96, 96], model_options={"shared": True}),
+    "w128 shared": dict(hidden_dims=[128, 128], model_options={"shared": True}),
 }
 # the same networks trained longer (16,000 steps, the quickstart's budget): accuracy only, their costs
 # are those of the network they share
-LONGER = {"w64, 16k steps": ("w64", 16000), "w32, 16k steps": ("w32", 16000)}
+LONGER = {"w64, 16k steps": ("w64", 16000), "w32, 16k steps": ("w32", 16000),
+          "w64 shared, 16k steps": ("w64 shared", 16000)}
 ORIGINAL = "JAX original (released)"
 
 
@@ -153,7 +161,7 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict):
 
     def accel():
         with torch.no_grad():
-            model.acceleration(q, qd, params, check=False)
+            model.acceleration(q, qd, params)  # a user's default call, input checks included
 
     def step():
         loss, _ = module._training_loss(chunk, module._pass_fn())

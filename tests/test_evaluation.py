@@ -129,6 +129,17 @@ def test_module_refuses_an_option_its_variant_does_not_take_but_loads_old_checkp
     assert LNNModule(**old).model.variant == "mlp"
 
 
+def test_shared_network_option_travels_with_the_module_hyperparameters():
+    from lnn_torch import LNNModule
+
+    module = LNNModule(hidden_dims=[8, 8], model_options={"shared": True})
+    assert module.model.shared and module.model.kinetic_net is None and module.model.trunk_film is not None
+    rebuilt = LNNModule(**module.hparams)
+    rebuilt.load_state_dict(module.state_dict())  # same parameters, same names
+    assert rebuilt.model.shared
+    assert not LNNModule(hidden_dims=[8, 8]).model.shared  # off by default
+
+
 # ---------------------------------------------------------------------------- scenes own their cases
 def test_generic_modules_name_no_scene():
     """Evaluation, stability and plots take cases, drawings and time steps from the scene and the

@@ -29,13 +29,15 @@ def normalized_batch(model, system, rng, n=64):
 
 @pytest.mark.parametrize("scene, config", QUADRATIC, ids=QUADRATIC_IDS)
 @pytest.mark.parametrize("variant", ["film_lnn", "delan"])
-@pytest.mark.parametrize("activation", ACTIVATIONS)
-def test_structured_fast_path_equals_generic_solve(scene, config, variant, activation, rng):
+@pytest.mark.parametrize("activation, shared", [(a, False) for a in ACTIVATIONS] + [("tanh", True), ("softplus", True)])
+def test_structured_fast_path_equals_generic_solve(scene, config, variant, activation, shared, rng):
     """The fast structured solve (hand tangents, hand reverse pass, unrolled Cholesky, sigmoid-form
-    layers) equals the readable model (``networks.reference``: plain formulas, torch's activations)
-    solved two independent ways: torch.func jvp/vjp + LAPACK Cholesky, and the generic Hessian solve."""
+    layers; two networks or one shared) equals the readable model (``networks.reference``: plain
+    formulas, torch's activations) solved two independent ways: torch.func jvp/vjp + LAPACK Cholesky,
+    and the generic Hessian solve."""
     system = get_system(scene, **config)
-    model = perturbed(build_model(variant, system, hidden_dims=(32, 32), activation=activation).double())
+    model = perturbed(build_model(variant, system, hidden_dims=(32, 32), activation=activation,
+                                  shared=shared).double())
     qn, qdn, pn = normalized_batch(model, system, rng)
     # scenes with inputs and friction: the same generalised force on both sides (random inputs)
     tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
@@ -53,9 +55,10 @@ def test_structured_fast_path_equals_generic_solve(scene, config, variant, activ
                                rtol=1e-12, atol=1e-12)
 
 
-def test_structured_energy_is_legendre_transform(rng):
+@pytest.mark.parametrize("shared", [False, True])
+def test_structured_energy_is_legendre_transform(shared, rng):
     system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32)).double())
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32), shared=shared).double())
     qn, qdn, pn = normalized_batch(model, system, rng, 16)
     H, T, V = model.energy_norm(qn, qdn, pn)
     L = torch.func.vmap(model.lagrangian_norm)(qn, qdn, pn)
@@ -64,9 +67,10 @@ def test_structured_energy_is_legendre_transform(rng):
     torch.testing.assert_close(T - V, L, rtol=1e-12, atol=1e-12)
 
 
-def test_potential_gradient_matches_autograd(rng):
+@pytest.mark.parametrize("shared", [False, True])
+def test_potential_gradient_matches_autograd(shared, rng):
     system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32)).double())
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(32, 32), shared=shared).double())
     qn, _, pn = normalized_batch(model, system, rng, 16)
     qn = qn.clone().requires_grad_(True)
     V, dV = model.potential_norm(qn, pn, grad=True)
@@ -124,14 +128,16 @@ def test_vmap_equals_loop(variant, rng):
     torch.testing.assert_close(vm, loop, rtol=1e-12, atol=1e-12)
 
 
-def test_gradcheck_through_structured_solve(rng):
+@pytest.mark.parametrize("shared", [False, True])
+def test_gradcheck_through_structured_solve(shared, rng):
     system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(4, 4)).double())
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(4, 4), shared=shared).double())
     qn, qdn, pn = (x[:3].clone().requires_grad_(True) for x in normalized_batch(model, system, rng, 3))
     assert torch.autograd.gradcheck(lambda a, b: model.acceleration_norm(a, b, pn), (qn, qdn))
     # and with respect to network weights (what training differentiates)
     q, qd, params = (x[:3] for x in random_batch(system, rng, 3))
-    names = ("kinetic_net.hidden.1.weight", "potential_net.hidden.0.weight", "kinetic_film.net.2.weight")
+    names = (("trunk.hidden.1.weight", "trunk.out.weight", "trunk_film.net.2.weight") if shared else
+             ("kinetic_net.hidden.1.weight", "potential_net.hidden.0.weight", "kinetic_film.net.2.weight"))
     weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
 
     def accel(*ws):
@@ -180,8 +186,23 @@ def test_bad_input_raises_clear_errors(variant, rng):
     nan_q[1, 0] = float("nan")
     with pytest.raises(InputError, match="q contains NaN"):
         model.acceleration(nan_q, qd, params)
+    inf_qd = qd.clone()
+    inf_qd[2, 1] = -float("inf")
+    with pytest.raises(InputError, match="qd contains NaN or Inf"):
+        model.acceleration(q, inf_qd, params)
+    nan_params = params.clone()
+    nan_params[0, 3] = float("nan")
+    with pytest.raises(InputError, match="params contains NaN"):
+        model.acceleration(q, qd, nan_params)
     with pytest.raises(InputError, match="positive"):
         model.acceleration(q, qd, -params)
+    zero_m2 = params.clone()
+    zero_m2[3, 1] = 0.0
+    with pytest.raises(InputError, match=r"non-positive values in \['params\[1\]'\]"):
+        model.acceleration(q, qd, zero_m2)
+    # finite values whose sum overflows are not refused (the one-sum check falls back to each tensor)
+    huge = torch.full_like(qd, 1e308)
+    model.check_inputs(q, huge, params)
 
 
 def test_film_identity_init_and_modes():
@@ -432,7 +453,7 @@ def test_spd_solve_equals_linalg_solve(dof):
     assert torch.autograd.gradcheck(sym, (M, rhs))
 
 
-@pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}])
+@pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}, {"shared": True}])
 def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
     """Training chunks share their parameters: FiLM once per chunk (``chunks=C``) gives the per-row
     result, values and parameter gradients (float64); parameters that vary inside a chunk are not
@@ -590,7 +611,8 @@ def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never
     assert model._compile == "failed"
 
 
-@pytest.mark.parametrize("variant, kw", [("film_lnn", {}), ("film_lnn", {"potential_film": False}), ("delan", {})])
+@pytest.mark.parametrize("variant, kw", [("film_lnn", {}), ("film_lnn", {"potential_film": False}), ("delan", {}),
+                                         ("film_lnn", {"shared": True})])
 def test_rollout_conditions_once(variant, kw, rng):
     """A rollout computes FiLM once (acceleration_fn) and equals, to the bit, integrating
     model.acceleration, which computes it at every stage; other parameters are refused."""
@@ -604,6 +626,6 @@ def test_rollout_conditions_once(variant, kw, rng):
         torch.testing.assert_close(got, want, rtol=0, atol=0)
     accel = model.acceleration_fn(params)
     torch.testing.assert_close(accel(q, qd, params), model.acceleration(q, qd, params), rtol=0, atol=0)
-    if model.kinetic_film is not None:
+    if model._has_film:
         with pytest.raises(InputError, match="other parameters"):
             accel(q, qd, params.clone())

@@ -67,11 +67,12 @@ def sigmoid_form_tanh_layer(h, weight, bias, film, grad: bool):
     """A tanh layer ``gamma tanh(W h + b) + beta`` in sigmoid form: ``(h_next, g, c)`` with the layer's
     derivative ``d h_next = c * g * (W dh)`` (``g`` None unless ``grad``).
 
-    ``s = sigmoid(2 (W h + b))`` (the 2 on the weights, not on the ``(B, H)`` output, so that its
-    backward is no ``(B, H)`` product); ``tanh = 2 s - 1``, ``tanh' = 4 s (1 - s)``. ``film`` is the
-    layer's pair in sigmoid form ``(2 gamma, beta - gamma)`` or None.
+    ``s = sigmoid(2 (W h + b))`` (the 2 as the product's scalar factors, not on the ``(B, H)``
+    output, so that its backward is no ``(B, H)`` product); ``tanh = 2 s - 1``,
+    ``tanh' = 4 s (1 - s)``. ``film`` is the layer's pair in sigmoid form ``(2 gamma, beta - gamma)``
+    or None.
     """
-    s = torch.sigmoid(affine(h, weight + weight, bias + bias))
+    s = torch.sigmoid(torch.addmm(bias, h, weight.t(), beta=2, alpha=2))
     if film is None:
         g = torch.addcmul(s, s, s, value=-1) if grad else None  # s (1 - s)
         return torch.add(minus_one(s), s, alpha=2), g, 4.0

@@ -224,9 +224,13 @@ class DynamicsModel(nn.Module):
                              f"got {tuple(params.shape)}")
         if inputs:
             check_inputs(tau, self.scene.num_inputs, q.shape[:1])
-        for name, x in (("q", q), ("qd", qd), ("params", params), ("tau", tau)):
-            if x is not None and not torch.isfinite(x).all():
-                raise InputError(f"{name} contains NaN or Inf")
+        named = [(n, x) for n, x in (("q", q), ("qd", qd), ("params", params), ("tau", tau)) if x is not None]
+        # one sum over everything is finite unless something is NaN or Inf (or the sum overflows): only
+        # then is each tensor checked, to name it
+        if not math.isfinite(float(torch.cat([x.reshape(x.shape[0], -1) for _, x in named], -1).sum())):
+            for name, x in named:
+                if not torch.isfinite(x).all():
+                    raise InputError(f"{name} contains NaN or Inf")
         check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params")
 
     def normalize(self, q, qd, params):

@@ -57,14 +57,23 @@ def features(model, q_norm: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.sin(qa), torch.cos(qa), q_norm[..., linear]], -1)
 
 
+def _shared_outputs(model, q_norm, params_norm) -> torch.Tensor:
+    """The shared network's outputs ``(B, n_chol + 1)``: the Cholesky entries, then ``V``."""
+    film = None if model.trunk_film is None else film_pairs(model.trunk_film, params_norm)
+    return mlp(model.trunk, torch.cat([features(model, q_norm), params_norm], -1), film)
+
+
 def cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
     """A structured model's Cholesky factor ``(B, dof, dof)``: lower-triangular, diagonal first in
     the network's outputs, ``softplus(.) + diag_shift`` on the diagonal."""
     dof = model.scene.dof
-    phi = features(model, q_norm)
-    film = None if model.kinetic_film is None else film_pairs(model.kinetic_film, params_norm)
-    x = phi if model.kinetic_film is not None else torch.cat([phi, params_norm], -1)
-    entries = mlp(model.kinetic_net, x, film)  # (B, n_chol): the dof diagonal entries, then the rest
+    if model.shared:
+        entries = _shared_outputs(model, q_norm, params_norm)[..., :-1]
+    else:
+        phi = features(model, q_norm)
+        film = None if model.kinetic_film is None else film_pairs(model.kinetic_film, params_norm)
+        x = phi if model.kinetic_film is not None else torch.cat([phi, params_norm], -1)
+        entries = mlp(model.kinetic_net, x, film)  # (B, n_chol): the dof diagonal entries, then the rest
     rows, cols = torch.tril_indices(dof, dof)
     diagonal = rows == cols
     rows = torch.cat([rows[diagonal], rows[~diagonal]])
@@ -82,6 +91,8 @@ def mass_matrix(model, q_norm, params_norm) -> torch.Tensor:
 
 def potential(model, q_norm, params_norm) -> torch.Tensor:
     """A structured model's potential ``V (B,)``."""
+    if model.shared:
+        return _shared_outputs(model, q_norm, params_norm)[..., -1]
     film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
     return mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
 

@@ -39,6 +39,11 @@ class StructuredLagrangian(DynamicsModel):
         diag_shift: added to the softplus of the Cholesky diagonal.
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
+        shared: ONE network (``trunk``, with one FiLM) whose outputs are both the Cholesky entries and
+            the potential, as Deep Lagrangian Networks share their hidden layers: a single pass with
+            forward tangents gives ``chol``, ``d chol / dq``, ``V`` and ``dV/dq`` (about half the work
+            of two networks; ``results/cost_accuracy/README.md``). Its input is the features and the
+            parameters. Default False: a kinetic and a potential network.
     """
 
     variant = "film_lnn"
@@ -46,7 +51,7 @@ class StructuredLagrangian(DynamicsModel):
 
     def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
-                 learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+                 learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False) -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
@@ -59,16 +64,27 @@ class StructuredLagrangian(DynamicsModel):
         self.eps, self.diag_shift = float(eps), float(diag_shift)
         self.num_chol = dof * (dof + 1) // 2
         film = self.conditioning == "film" and P > 0
-        self.kinetic_net = TangentMLP(F if film else F + P, hidden_dims, self.num_chol, activation)
-        self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
-        self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
-        self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
+        self.shared = bool(shared)
+        if self.shared:  # one network: outputs [Cholesky entries | V]
+            self.trunk = TangentMLP(F + P, hidden_dims, self.num_chol + 1, activation)
+            self.trunk_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
+            self.kinetic_net = self.potential_net = self.kinetic_film = self.potential_film = None
+        else:
+            self.kinetic_net = TangentMLP(F if film else F + P, hidden_dims, self.num_chol, activation)
+            self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
+            self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
+            self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
+            self.trunk = self.trunk_film = None
         # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
         # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
+        # (the shared network's last output, V, passes through)
         rows, cols = torch.tril_indices(dof, dof)
         order = torch.cat([torch.nonzero(rows == cols)[:, 0], torch.nonzero(rows != cols)[:, 0]])
-        scatter = torch.zeros(self.num_chol, dof * dof)
+        n_out = self.num_chol + self.shared
+        scatter = torch.zeros(n_out, dof * dof + self.shared)
         scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
+        if self.shared:
+            scatter[-1, -1] = 1.0
         self.register_buffer("chol_scatter", scatter, persistent=False)
         self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
         self.chunk_conditioning = film
@@ -78,6 +94,8 @@ class StructuredLagrangian(DynamicsModel):
         """The FiLM pairs ``(kinetic, potential)`` for these parameters (None for a network without
         FiLM): per row ``(B, H)``, or per chunk ``(C, 1, H)`` when the batch is ``chunks`` runs of
         rows that share their parameters (one FiLM evaluation per chunk)."""
+        if self.shared:
+            return self._film(self.trunk_film, self.trunk, params_norm, chunks), None
         return (self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks),
                 self._film(self.potential_film, self.potential_net, params_norm, chunks))
 
@@ -94,20 +112,42 @@ class StructuredLagrangian(DynamicsModel):
         """The kinetic network's input: the features, plus the parameters where FiLM does not carry them."""
         return phi if self.kinetic_film is not None else torch.cat([phi, params_norm], -1)
 
-    # ------------------------------------------------------------------ the two networks
+    # ------------------------------------------------------------------ the networks
+    def _terms(self, q_norm, params_norm, films, tangents: bool = True):
+        """``(phi, chol, dchol, V, dV)`` from one pass of each network (of the one shared network):
+        Cholesky factor ``(B, dof, dof)``, ``d chol / d q_k`` ``(dof, B, dof, dof)``, potential ``(B,)``
+        and ``dV/dq`` ``(B, dof)`` (the derivatives None without ``tangents``)."""
+        phi, dphi, sin_cos = self._features(q_norm, tangents)
+        if not self.shared:
+            chol, dchol = self._cholesky(phi, dphi, params_norm, films[0])
+            V, dV = self._potential(q_norm, phi, sin_cos, params_norm, films[1], grad=tangents)
+            return phi, chol, dchol, V, dV
+        n = self.scene.dof ** 2
+        y, dy = self.trunk(torch.cat([phi, params_norm], -1), dphi, films[0], out_map=self.chol_scatter.to(phi.dtype))
+        chol, dchol = self._chol_from(y[:, :n], None if dy is None else dy[..., :n])
+        return phi, chol, dchol, y[:, n], (None if dy is None else dy[..., n].mT)
+
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
         """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
-        phi, dphi = self.features(q_norm, tangents)
-        return self._cholesky(phi, dphi, params_norm, self.films(params_norm)[0])
+        if not self.shared:
+            phi, dphi = self.features(q_norm, tangents)
+            return self._cholesky(phi, dphi, params_norm, self.films(params_norm)[0])
+        _, chol, dchol, _, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents)
+        return chol, dchol
 
     def _cholesky(self, phi, dphi, params_norm, film):
-        dof, B = self.scene.dof, phi.shape[0]
         S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
         # (B, dof^2), (K, B, dof^2); 0 above the diagonal
         raw, draw = self.kinetic_net(self._inputs(phi, params_norm), dphi, film, out_map=S)
+        return self._chol_from(raw, draw)
+
+    def _chol_from(self, raw, draw):
+        """The factor and its tangents from the network's ``(B, dof^2)`` outputs (0 above the diagonal)
+        and their tangents ``(K, B, dof^2)``."""
+        dof, B = self.scene.dof, raw.shape[0]
         # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
         chol = torch.where(self.chol_diag, nn.functional.softplus(raw) + self.diag_shift, raw).view(B, dof, dof)
-        if dphi is None:
+        if draw is None:
             return chol, None
         dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), one(raw))  # d softplus = sigmoid
         return chol, dchol.reshape(-1, B, dof, dof)
@@ -123,7 +163,11 @@ class StructuredLagrangian(DynamicsModel):
         return self.mass_matrix_norm(q_norm, params_norm)
 
     def potential_norm(self, q_norm, params_norm, grad: bool = False):
-        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass)."""
+        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass, or the
+        shared network's tangents)."""
+        if self.shared:
+            _, _, _, V, dV = self._terms(q_norm, params_norm, self.films(params_norm), grad)
+            return V, dV
         phi, _, sin_cos = self._features(q_norm, False)
         return self._potential(q_norm, phi, sin_cos, params_norm, self.films(params_norm)[1], grad)
 
@@ -138,10 +182,7 @@ class StructuredLagrangian(DynamicsModel):
     def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool, force=None):
         """Accelerations (and, with ``energy``, ``H, T, V``) from ONE pass of each network, under
         the normalised generalised force ``force`` (None: none)."""
-        kinetic_film, potential_film = films
-        phi, dphi, sin_cos = self._features(q_norm, True)
-        chol, dchol = self._cholesky(phi, dphi, params_norm, kinetic_film)
-        V, dV = self._potential(q_norm, phi, sin_cos, params_norm, potential_film, grad=True)
+        _, chol, dchol, V, dV = self._terms(q_norm, params_norm, films)
         if not energy:
             return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, force=force)
         qdd, T = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps, return_kinetic=True,
@@ -163,8 +204,12 @@ class StructuredLagrangian(DynamicsModel):
         force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
         return self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
 
+    @property
+    def _has_film(self) -> bool:
+        return any(f is not None for f in (self.kinetic_film, self.potential_film, self.trunk_film))
+
     def rollout_conditioning(self, params: torch.Tensor):
-        if self.kinetic_film is None and self.potential_film is None:
+        if not self._has_film:
             return super().rollout_conditioning(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
         return "_acceleration_norm_films", params_norm, (self.films(params_norm),)
@@ -172,7 +217,7 @@ class StructuredLagrangian(DynamicsModel):
     def acceleration_fn(self, params: torch.Tensor):
         """As ``DynamicsModel.acceleration_fn``, with both networks' FiLM computed once, not at
         every call (an RK4 step makes four)."""
-        if self.kinetic_film is None and self.potential_film is None:
+        if not self._has_film:
             return super().acceleration_fn(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
         films = self.films(params_norm)
@@ -191,10 +236,7 @@ class StructuredLagrangian(DynamicsModel):
         ``M qdd - (dT/dq - dV/dq - Mdot qd) - Q_diss`` (Deep Lagrangian Networks' inverse model)."""
         if self.forces is None or not self.forces.num_inputs:
             raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
-        kinetic_film, potential_film = self.films(params_norm, chunks)
-        phi, dphi, sin_cos = self._features(q_norm, True)
-        chol, dchol = self._cholesky(phi, dphi, params_norm, kinetic_film)
-        _, dV = self._potential(q_norm, phi, sin_cos, params_norm, potential_film, grad=True)
+        phi, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm, chunks))
         M = torch.baddbmm(torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device) * self.eps, chol, chol.mT)
         free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
         norm = self.normalizer
@@ -213,17 +255,20 @@ class StructuredLagrangian(DynamicsModel):
         return self.forces.solve_inputs(Btau).to(q.dtype)
 
     # ------------------------------------------------------------------ energies
+    def _mass_and_potential(self, q_norm, params_norm):
+        _, chol, _, V, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents=False)
+        eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
+        return torch.baddbmm(eye * self.eps, chol, chol.mT), V
+
     def energy_norm(self, q_norm, qd_norm, params_norm):
-        M = self.mass_matrix_norm(q_norm, params_norm)
+        M, V = self._mass_and_potential(q_norm, params_norm)
         T = 0.5 * torch.einsum("bi,bij,bj->b", qd_norm, M, qd_norm)
-        V, _ = self.potential_norm(q_norm, params_norm)
         return T + V, T, V
 
     def lagrangian_norm(self, q_norm, qd_norm, params_norm):
         """Scalar Lagrangian of ONE sample ``(dof,), (dof,), (P,) -> ()`` (for torch.func references)."""
-        M = self.mass_matrix_norm(q_norm[None], params_norm[None])[0]
-        V, _ = self.potential_norm(q_norm[None], params_norm[None])
-        return 0.5 * qd_norm @ M @ qd_norm - V[0]
+        M, V = self._mass_and_potential(q_norm[None], params_norm[None])
+        return 0.5 * qd_norm @ M[0] @ qd_norm - V[0]
 
 
 class DeLaN(StructuredLagrangian):
@@ -234,6 +279,7 @@ class DeLaN(StructuredLagrangian):
     conditioning = "concat"
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
-                 diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+                 diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
+                 shared: bool = False) -> None:
         super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift,
-                         learn_input_matrix=learn_input_matrix, dissipation=dissipation)
+                         learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared)

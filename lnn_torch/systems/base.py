@@ -67,17 +67,16 @@ def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
     """Raise ``InputError`` naming the parameters that are not positive (kind ``positive``) or are
     negative (kind ``nonnegative``, e.g. friction coefficients)."""
     kinds = list(kinds)
-    if not kinds:  # a system without parameters (a measured one)
+    if not kinds or params.numel() == 0:  # a system without parameters (a measured one), or no rows
         return
-    positive = torch.tensor([k == "positive" for k in kinds], dtype=torch.bool, device=params.device)
-    bad_pos = ((params <= 0) & positive).reshape(-1, len(kinds)).any(0)
-    bad_neg = ((params < 0) & ~positive).reshape(-1, len(kinds)).any(0)
-    if bad_pos.any():
-        raise InputError(f"{where}: parameters must be positive; non-positive values in "
-                         f"{[n for n, b in zip(names, bad_pos.tolist()) if b]}")
-    if bad_neg.any():
-        raise InputError(f"{where}: friction coefficients must be >= 0; negative values in "
-                         f"{[n for n, b in zip(names, bad_neg.tolist()) if b]}")
+    # one reduction: the smallest value of each parameter (NaN propagates and is refused too)
+    lowest = params.reshape(-1, len(kinds)).amin(0).tolist()
+    bad_pos = [n for n, k, v in zip(names, kinds, lowest) if k == "positive" and not v > 0]
+    bad_neg = [n for n, k, v in zip(names, kinds, lowest) if k != "positive" and not v >= 0]
+    if bad_pos:
+        raise InputError(f"{where}: parameters must be positive; non-positive values in {bad_pos}")
+    if bad_neg:
+        raise InputError(f"{where}: friction coefficients must be >= 0; negative values in {bad_neg}")
 
 
 class System(abc.ABC):
