@@ -24,7 +24,7 @@ from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
 from .losses import acceleration_loss, energy_variance
 from .networks import build_model
 from .networks import model_options as model_options_of
-from .perf import adamw, compile_fn, configure_cpu
+from .perf import adamw, compile_fn, compile_pays_training, configure_cpu
 from .systems import get_system
 
 # options that older checkpoints record with these values for every variant; a variant that does not
@@ -78,10 +78,13 @@ class LNNModule(L.LightningModule):
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
         val_threshold: coordinate error (rad or m) that defines the divergence time.
         figure_every_n_epochs: log trajectory/energy figures this often (0: never).
-        compile: run the training pass through ``torch.compile`` (``lnn_torch.perf.compile_fn``;
-            measured in ``results/README.md``). If compilation or the compiled backward fails,
-            training warns once and continues eagerly. Validation and test run eagerly
-            (``model.compile_dynamics()`` compiles accelerations and rollouts).
+        compile: run the training pass through ``torch.compile`` (``lnn_torch.perf.compile_fn``):
+            ``"auto"`` (default) when the run is planned for at least
+            ``lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS`` optimiser steps (the measured break-even of the
+            compilation, ``results/compile_rule.md``; ``LNN_TORCH_COMPILE=0`` switches it off), ``True``
+            always, ``False`` never. If compilation or the compiled backward fails, training warns
+            once and continues eagerly. Validation and test use the model's own rule for rollouts
+            (``model.compile_dynamics``).
 
     The learning rate follows a cosine from ``lr`` to ``lr_min`` that ends with the run: at the
     trainer's step budget or, when ``max_time`` is set, its time budget, whichever comes first.
@@ -96,7 +99,7 @@ class LNNModule(L.LightningModule):
                  torque_weight: float = 0.0, loss: str = "acceleration", trajectory_integrator: str = "rk4",
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
-                 val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool = False) -> None:
+                 val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool | str = "auto") -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -110,6 +113,8 @@ class LNNModule(L.LightningModule):
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
+        if compile not in (True, False, "auto"):
+            raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
         if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
             raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
                              f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
@@ -118,6 +123,7 @@ class LNNModule(L.LightningModule):
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))
         self._skip_this_step = False
         self._compiled = None  # the compiled training pass, once built; False after a fallback
+        self._auto_compile = None  # compile="auto": the decision, made at the first training step
         self._last_batch = None
 
     # ------------------------------------------------------------------ checkpoints
@@ -235,8 +241,19 @@ class LNNModule(L.LightningModule):
         return self.model.training_terms(q, qd, qdd, params, tau=tau, energy=self._with_energy(), chunks=chunks,
                                          torque=self.hparams.get("torque_weight", 0) > 0)
 
+    def _compile_training(self) -> bool:
+        """Whether training runs its pass compiled: ``compile``, or under ``"auto"`` whether the run's
+        planned steps (the trainer's ``estimated_stepping_batches``) repay the compilation."""
+        choice = self.hparams.get("compile", False)
+        if choice != "auto":
+            return bool(choice)
+        if self._auto_compile is None:
+            steps = self.trainer.estimated_stepping_batches if self._trainer is not None else 0
+            self._auto_compile = compile_pays_training(steps)
+        return self._auto_compile
+
     def _pass_fn(self):
-        if not self.hparams.compile or self._compiled is False:
+        if self._compiled is False or not self._compile_training():
             return self._training_pass
         if self._compiled is None:
             self._compiled = compile_fn(self._training_pass, self.device)

@@ -103,6 +103,25 @@ def compile_pays(calls: int) -> bool:
     return calls >= AUTO_COMPILE_CALLS
 
 
+# Training compiles its pass (``LNNModule(compile="auto")``, the default) when the run is planned for at
+# least this many optimiser steps. Measured break-even (``scripts/benchmark_compile_rule.py``,
+# ``results/compile_rule.md``): the compilation of the training pass (forward and backward) costs about
+# as much as the eager steps it saves after roughly this many steps on a cold cache.
+AUTO_COMPILE_TRAIN_STEPS = 10_000
+
+
+def compile_pays_training(steps: float) -> bool:
+    """Whether a training run of ``steps`` optimiser steps repays compiling its pass: ``steps >=
+    AUTO_COMPILE_TRAIN_STEPS`` (a run of unknown length does not), unless ``LNN_TORCH_COMPILE`` is ``0``."""
+    if os.environ.get("LNN_TORCH_COMPILE", "").strip() == "0":
+        return False
+    return steps is not None and steps == steps and steps != float("inf") and steps >= AUTO_COMPILE_TRAIN_STEPS
+
+
+# dynamo's cache entries per compiled code object that ``compile_fn`` allows at least (see there)
+RECOMPILE_LIMIT = 64
+
+
 def compile_fn(fn, device: torch.device | str = "cpu"):
     """``torch.compile(fn)`` as lnn_torch compiles its dynamics: static shapes (one graph per batch
     shape, dtype and grad mode) and, on the CPU, inductor's C++ wrapper (the generated code calls
@@ -110,6 +129,12 @@ def compile_fn(fn, device: torch.device | str = "cpu"):
     both wrappers against eager: ``results/compare_compile.md``)."""
     # inductor's own call of a deprecated torch helper (torch 2.13) warns on every compilation
     warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
+    # every compiled model of a class shares its methods' code: each model (and batch shape) takes one
+    # of dynamo's per-code cache entries, and past the limit (8 by default) calls run eagerly behind
+    # every cached guard (slower than plain eager). Allow several models per process.
+    import torch._dynamo.config as dynamo_config
+
+    dynamo_config.recompile_limit = max(dynamo_config.recompile_limit, RECOMPILE_LIMIT)
     options = {"cpp_wrapper": True} if torch.device(device).type == "cpu" else None
     return torch.compile(fn, dynamic=False, options=options)
 

@@ -1,4 +1,5 @@
-"""Where compiling a rollout pays: compilation time against the time it saves per acceleration call.
+"""Where compiling pays: compilation time against the time it saves per acceleration call (rollouts)
+and per optimiser step (training).
 
 For the shipped double-pendulum model (film_lnn 128 x 128, float32, one thread, no autograd) and
 batch sizes 1, 20, 64 and 512: the time of one RK4 step eagerly and compiled (the whole step, as a rollout runs it)
@@ -7,7 +8,14 @@ a user's first run pays) and again in a new process with that cache filled, and 
 number of acceleration calls (4 per RK4 step) after which the compiled rollout has repaid its
 compilation. ``lnn_torch.perf.AUTO_COMPILE_CALLS`` is set from it.
 
-    python scripts/benchmark_compile_rule.py        # writes results/compile_rule.md (~5 min)
+Training: for film_lnn 64 x 64 (its default) and 128 x 128 (the configs), one training step of the
+quickstart's batch (64 chunks of 8 points of data/quickstart.h5: loss, backward, gradient clipping,
+AdamW), eagerly and through the compiled pass (forward and backward), the first compiled step on a
+cold and a warm cache, and the break-even in optimiser steps. ``lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS``
+is set from it.
+
+    python scripts/benchmark_compile_rule.py        # writes results/compile_rule.{json,md} (~10 min)
+    python scripts/benchmark_compile_rule.py --only training    # re-measure one part
 """
 
 from __future__ import annotations
@@ -50,15 +58,71 @@ compiled = per_step()
 print(json.dumps({"eager_step_s": eager, "compiled_step_s": compiled, "first_call_s": first}))
 """
 
+TRAIN_CHILD = r"""
+import json, statistics, sys, time
+import torch
+torch.set_num_threads(1)
+from lnn_torch import LNNModule, TrajectoryDataModule
+from lnn_torch.perf import adamw
+width = int(sys.argv[1])
+dm = TrajectoryDataModule(path="data/quickstart.h5", spec=dict(scene="double_pendulum", num_trajectories=200,
+                          duration=20.0, dt=0.005, seed=0), chunk_len=8, chunks_per_batch=64, seed=0)
+dm.prepare_data()
+dm.setup("fit")
+batch = dm.train_set[0]
+module = LNNModule(hidden_dims=[width, width], val_rollouts=0, compile=False)
+module.model.fit_normalizer(dm.normalization_data())
+opt = adamw(module.parameters(), lr=1e-6)
+def step(pass_fn):
+    loss, _ = module._training_loss(batch, pass_fn)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
+    opt.step()
+    opt.zero_grad(set_to_none=True)
+def per_step(pass_fn, n=20, repeats=7):
+    step(pass_fn)
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(n):
+            step(pass_fn)
+        ts.append((time.perf_counter() - t) / n)
+    return statistics.median(ts)
+eager = per_step(module._training_pass)
+module.hparams.compile = True
+fn = module._pass_fn()
+t = time.perf_counter(); step(fn); first = time.perf_counter() - t
+compiled = per_step(fn)
+print(json.dumps({"eager_step_s": eager, "compiled_step_s": compiled, "first_call_s": first}))
+"""
 
-def run(batch: int, cache: str) -> dict:
+
+def run(arg: int, cache: str, child: str = CHILD) -> dict:
     env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache, "TORCHINDUCTOR_COMPILE_THREADS": "1"}
-    out = subprocess.run([sys.executable, "-c", CHILD, str(batch)], env=env, cwd=ROOT, capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", child, str(arg)], env=env, cwd=ROOT, capture_output=True, text=True,
                          check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main() -> None:
+def training_rows() -> list[dict]:
+    rows = []
+    for width in (64, 128):
+        with tempfile.TemporaryDirectory() as cache:
+            cold = run(width, cache, TRAIN_CHILD)
+            warm = run(width, cache, TRAIN_CHILD)
+        saved = (statistics.mean([cold["eager_step_s"], warm["eager_step_s"]])
+                 - statistics.mean([cold["compiled_step_s"], warm["compiled_step_s"]]))
+        compile_cold = cold["first_call_s"] - cold["compiled_step_s"]
+        compile_warm = warm["first_call_s"] - warm["compiled_step_s"]
+        rows.append({"width": width, "eager_ms": 1e3 * warm["eager_step_s"], "compiled_ms": 1e3 * warm["compiled_step_s"],
+                     "compile_cold_s": compile_cold, "compile_warm_s": compile_warm,
+                     "break_even_cold": compile_cold / saved if saved > 0 else float("inf"),
+                     "break_even_warm": compile_warm / saved if saved > 0 else float("inf")})
+        print(rows[-1], flush=True)
+    return rows
+
+
+def rollout_rows() -> list[dict]:
     rows = []
     for batch in BATCHES:
         with tempfile.TemporaryDirectory() as cache:
@@ -73,7 +137,24 @@ def main() -> None:
                      "break_even_cold": compile_cold / saved_per_call if saved_per_call > 0 else float("inf"),
                      "break_even_warm": compile_warm / saved_per_call if saved_per_call > 0 else float("inf")})
         print(rows[-1], flush=True)
-    from lnn_torch.perf import AUTO_COMPILE_CALLS
+    return rows
+
+
+def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=("rollouts", "training"), help="measure one part, keep the other's last result")
+    args = ap.parse_args()
+    store = ROOT / "results" / "compile_rule.json"
+    measured = json.loads(store.read_text()) if store.exists() else {}
+    if args.only != "training":
+        measured["rollouts"] = rollout_rows()
+    if args.only != "rollouts":
+        measured["training"] = training_rows()
+    store.write_text(json.dumps(measured, indent=1))
+    rows, train = measured.get("rollouts", []), measured.get("training", [])
+    from lnn_torch.perf import AUTO_COMPILE_CALLS, AUTO_COMPILE_TRAIN_STEPS
 
     lines = ["# When a compiled rollout pays", "",
              "Command: `python scripts/benchmark_compile_rule.py`. The shipped model (film_lnn 128 x 128, float32), one "
@@ -91,6 +172,20 @@ def main() -> None:
               f"It sits between the warm-cache break-even ({min(r['break_even_warm'] for r in rows):,.0f}–"
               f"{max(r['break_even_warm'] for r in rows):,.0f} calls) and the cold one "
               f"({min(r['break_even_cold'] for r in rows):,.0f}–{max(r['break_even_cold'] for r in rows):,.0f})."]
+    lines += ["", "## When a compiled training pass pays", "",
+              "film_lnn on the quickstart's training batch (64 chunks of 8 points), float32, one thread; a step is "
+              "the loss, its backward, gradient clipping and AdamW. Step times: medians of 7 x 20 steps (warm process).",
+              "", "| widths | step eager (ms) | step compiled (ms) | compilation, cold cache (s) | "
+              "compilation, warm cache (s) | break-even, cold (steps) | break-even, warm (steps) |",
+              "|---|---|---|---|---|---|---|"]
+    for r in train:
+        lines.append(f"| {r['width']} x {r['width']} | {r['eager_ms']:.2f} | {r['compiled_ms']:.2f} | "
+                     f"{r['compile_cold_s']:.1f} | {r['compile_warm_s']:.1f} | {r['break_even_cold']:,.0f} | "
+                     f"{r['break_even_warm']:,.0f} |")
+    lines += ["", "The rule in the library: training compiles its pass when the run is planned for at least "
+              f"`lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS` = {AUTO_COMPILE_TRAIN_STEPS:,} optimiser steps (the "
+              "trainer's `estimated_stepping_batches`; default `compile: auto`, `--model.compile false` or "
+              "`LNN_TORCH_COMPILE=0` switch it off)."]
     text = "\n".join(lines) + "\n"
     (ROOT / "results" / "compile_rule.md").write_text(text)
     print(text)

@@ -59,6 +59,7 @@ POINTS = {
     "w32 layer-FiLM": dict(hidden_dims=[32, 32], film_mode="layer"),
     "w64": dict(hidden_dims=[64, 64]),
     "w64 no potential FiLM": dict(hidden_dims=[64, 64], potential_film=False),
+    "w64 layer-FiLM": dict(hidden_dims=[64, 64], film_mode="layer"),
     "w64 x3": dict(hidden_dims=[64, 64, 64]),
     "w128": dict(hidden_dims=[128, 128]),
     "w128 layer-FiLM": dict(hidden_dims=[128, 128], film_mode="layer"),
@@ -72,7 +73,7 @@ POINTS = {
 # the same networks trained longer (16,000 steps, the quickstart's budget): accuracy only, their costs
 # are those of the network they share
 LONGER = {"w64, 16k steps": ("w64", 16000), "w32, 16k steps": ("w32", 16000),
-          "w64 shared, 16k steps": ("w64 shared", 16000)}
+          "w64 shared, 16k steps": ("w64 shared", 16000), "w64 layer-FiLM, 16k steps": ("w64 layer-FiLM", 16000)}
 ORIGINAL = "JAX original (released)"
 
 

@@ -520,6 +520,10 @@ def test_compiled_dynamics_equal_eager(rng):
     torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
     assert model._compile is True and set(model._compiled) == {"acceleration_norm", "_rollout_step"}
     assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
+    # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
+    from lnn_torch.perf import RECOMPILE_LIMIT
+
+    assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT >= 32
     model.compile_dynamics(False)
     torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
 

@@ -409,6 +409,38 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
     assert model._compiled not in (None, False) and trainer.global_step == 3
 
 
+def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset, tmp_path, monkeypatch):
+    """compile="auto" (the default): a run planned for fewer than AUTO_COMPILE_TRAIN_STEPS steps
+    trains eagerly; one planned for at least that many compiles its pass; LNN_TORCH_COMPILE=0 and
+    compile=False never compile."""
+    from lnn_torch import perf
+
+    built = []
+
+    def recording_compile(fn, **kw):
+        built.append(fn)
+        return fn  # the eager pass under a recorded "compilation": the decision is what is tested
+
+    monkeypatch.setattr(torch, "compile", recording_compile)
+    monkeypatch.setattr(perf, "AUTO_COMPILE_TRAIN_STEPS", 4)
+
+    def fit(steps, **kw):
+        model = LNNModule(val_rollouts=0, hidden_dims=[8], **kw)
+        trainer = quiet_trainer(tmp_path, max_steps=steps, limit_val_batches=0, logger=False,
+                                enable_checkpointing=False)
+        trainer.fit(model, make_dm(dataset, steps_per_epoch=steps))
+        return model
+
+    assert LNNModule(hidden_dims=[8]).hparams.compile == "auto"
+    assert fit(3)._compiled is None and not built  # 3 < 4 planned steps: eager
+    assert fit(4)._compiled is not None and len(built) == 1  # 4 planned steps: compiled
+    assert fit(6, compile=False)._compiled is None and len(built) == 1
+    monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
+    assert fit(6)._compiled is None and len(built) == 1
+    with pytest.raises(ValueError, match="compile must be true, false or 'auto'"):
+        LNNModule(compile="sometimes")
+
+
 @pytest.mark.parametrize("where", ["forward", "backward"])
 def test_compile_failure_falls_back_to_eager(where, dataset, tmp_path, monkeypatch):
     class Boom(torch.autograd.Function):
