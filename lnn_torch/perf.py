@@ -105,9 +105,9 @@ def compile_pays(calls: int) -> bool:
 
 # Training compiles its pass (``LNNModule(compile="auto")``, the default) when the run is planned for at
 # least this many optimiser steps. Measured break-even (``scripts/benchmark_compile_rule.py``,
-# ``results/compile_rule.md``): the compilation of the training pass (forward and backward) costs about
-# as much as the eager steps it saves after roughly this many steps on a cold cache.
-AUTO_COMPILE_TRAIN_STEPS = 10_000
+# ``results/compile_rule.md``): the compilation of the training pass (forward and backward) costs as
+# much as the eager steps it saves after 4,500-5,200 steps on a cold cache, 300-600 on a warm one.
+AUTO_COMPILE_TRAIN_STEPS = 5_000
 
 
 def compile_pays_training(steps: float) -> bool:
