@@ -633,3 +633,31 @@ def test_rollout_conditions_once(variant, kw, rng):
     if model._has_film:
         with pytest.raises(InputError, match="other parameters"):
             accel(q, qd, params.clone())
+
+
+@pytest.mark.parametrize("variant", ["film_lnn", "delan"])
+def test_mass_invariance_keeps_the_solve_exact(variant, rng):
+    """A mass matrix independent of the base joint (``mass_invariant``) still solves exactly as the
+    readable references, and the mass matrix does not change when the whole arm turns about its base
+    joint (it does without the option)."""
+    system = get_system("actuated_double_pendulum")
+    for invariant in ([0], None):
+        model = perturbed(build_model(variant, system, hidden_dims=(32, 32), mass_invariant=invariant).double())
+        qn, qdn, pn = normalized_batch(model, system, rng, 16)
+        force = model.force_norm(qn, qdn, pn, torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64))
+        fast = model.solve_norm(qn, qdn, pn, force)
+        generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
+        assert (fast - generic).abs().max() <= 1e-10 * generic.abs().max()
+        turned = qn + torch.tensor([1.3, 0.0], dtype=torch.float64)
+        same = torch.allclose(model.mass_matrix_norm(turned, pn), model.mass_matrix_norm(qn, pn), rtol=0, atol=1e-14)
+        assert same == (invariant is not None)
+
+
+def test_mass_invariant_refuses_bad_coordinates():
+    system = get_system("actuated_double_pendulum")
+    with pytest.raises(InputError, match="mass_invariant"):
+        build_model("film_lnn", system, mass_invariant=[2])
+    with pytest.raises(InputError, match="no feature"):
+        build_model("film_lnn", system, mass_invariant=[0, 1])
+    with pytest.raises(InputError, match="cannot be combined with shared"):
+        build_model("film_lnn", system, mass_invariant=[0], shared=True)

@@ -262,3 +262,21 @@ def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     assert "horizons" in metrics and "acc_rel_err" in metrics and "energy_drift" not in metrics
     h = metrics["horizons"]
     assert h["num_starts"] >= 2 and math.isfinite(h["error@0.1s"]["median"])
+
+
+def test_smoothed_inputs_reach_the_training_split_only(recordings):
+    """``smooth_inputs``: the training split's inputs pass through the targets' filter; validation
+    reads the recorded inputs unchanged."""
+    from lnn_torch import TrajectoryDataModule
+
+    root, files, _, spec = recordings
+    path = import_recordings(files, root / "smooth.h5", spec, overwrite=True)
+    targets = {"method": "butterworth", "cutoff": 10.0}
+    raw = TrajectoryDataModule(path=str(path), targets=targets)
+    smooth = TrajectoryDataModule(path=str(path), targets=targets, smooth_inputs=True)
+    for j, n in enumerate(raw.source("train").lengths):
+        want = derivatives.smooth_inputs(raw.trajectories("train").tau[j, :n].numpy(), raw.dt,
+                                         derivatives.settings(targets))
+        np.testing.assert_allclose(smooth.trajectories("train").tau[j, :n].numpy(), want, rtol=1e-12, atol=1e-12)
+        assert not np.allclose(want, raw.trajectories("train").tau[j, :n].numpy())
+    torch.testing.assert_close(smooth.trajectories("val").tau, raw.trajectories("val").tau, equal_nan=True)

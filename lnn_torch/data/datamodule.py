@@ -44,7 +44,7 @@ class _Source:
     then estimated from the recorded signals, in memory, over each trajectory's own length."""
 
     def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype,
-                 targets: dict | None = None) -> None:
+                 targets: dict | None = None, smooth_inputs: bool = False) -> None:
         self.file, self.indices, self.dtype = file, np.asarray(indices), dtype
         self.in_memory = in_memory or targets is not None or "qdd" not in self._names()
         self.fields = FIELDS + (("tau",) if file.num_inputs else ())
@@ -63,6 +63,11 @@ class _Source:
                                      f"derivative method ({', '.join(derivatives.METHODS)}) or train by trajectory "
                                      "matching")
                 arrays["qd"], arrays["qdd"] = self._estimate(arrays["q"], arrays["qd"], file.dt, targets)
+            if smooth_inputs and targets is not None and "tau" in arrays:
+                tau = np.array(arrays["tau"], dtype=np.float64)
+                for j, n in enumerate(self.lengths):
+                    tau[j, :n] = derivatives.smooth_inputs(tau[j, :n], file.dt, targets)
+                arrays["tau"] = tau
             self._arrays = {k: torch.as_tensor(v, dtype=dtype) for k, v in arrays.items()}
 
     def _names(self) -> set:
@@ -200,12 +205,16 @@ class TrajectoryDataModule(L.LightningDataModule):
             accelerations from the recorded signals: a method of ``lnn_torch.data.derivatives``
             (``finite_difference``, ``butterworth``, ``savgol``, ``spline``) as a name or a dict with
             its settings, e.g. ``{"method": "butterworth", "cutoff": 10}``.
+        smooth_inputs: with estimated targets, pass the training split's recorded inputs through the
+            same smoothing (both sides of ``M qdd + ... = B tau`` filtered alike, so that the inputs'
+            noise does not bias a fit of smoothed accelerations to them); validation and test keep
+            the recorded inputs.
     """
 
     def __init__(self, path: str = "data/double_pendulum.h5", spec: dict | None = None, chunk_len: int = 64,
                  chunks_per_batch: int = 8, steps_per_epoch: int = 250, eval_stride: int = 10,
                  eval_trajectories_per_batch: int = 16, num_workers: int = 0, in_memory: bool = True,
-                 seed: int = 0, targets: dict | str = "file") -> None:
+                 seed: int = 0, targets: dict | str = "file", smooth_inputs: bool = False) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.path = Path(path)
@@ -255,7 +264,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         key = (split, dtype)
         if key not in self._sources:
             f = self._open()
-            self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets)
+            smooth = bool(self.hparams.get("smooth_inputs", False)) and split == "train"
+            self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets, smooth)
         return self._sources[key]
 
     @property

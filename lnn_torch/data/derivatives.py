@@ -83,6 +83,13 @@ def estimate(q: np.ndarray, dt: float, s: dict, qd: np.ndarray | None = None):
     return _smooth(q, dt, s, 1), _smooth(q, dt, s, 2)
 
 
+def smooth_inputs(tau: np.ndarray, dt: float, s: dict) -> np.ndarray:
+    """The inputs ``tau (T, n_u)`` of ONE recording through the same smoothing as the targets (the
+    smoothed signal itself, no derivative): with both sides of ``M qdd + ... = B tau`` filtered alike,
+    noise in the recorded inputs no longer biases a fit of accelerations to them."""
+    return _smooth(tau, dt, s, 0)
+
+
 def describe(s: dict | None) -> str:
     if s is None:
         return "the file's accelerations"

@@ -71,6 +71,8 @@ def cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Te
         entries = _shared_outputs(model, q_norm, params_norm)[..., :-1]
     else:
         phi = features(model, q_norm)
+        if model.kinetic_index is not None:  # a mass matrix independent of some coordinates
+            phi = phi[..., model.kinetic_index]
         film = None if model.kinetic_film is None else film_pairs(model.kinetic_film, params_norm)
         x = phi if model.kinetic_film is not None else torch.cat([phi, params_norm], -1)
         entries = mlp(model.kinetic_net, x, film)  # (B, n_chol): the dof diagonal entries, then the rest

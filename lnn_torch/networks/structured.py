@@ -39,6 +39,10 @@ class StructuredLagrangian(DynamicsModel):
         diag_shift: added to the softplus of the Cholesky diagonal.
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
+        mass_invariant: coordinates (indices) that the mass matrix does not depend on: the kinetic
+            network then reads only the features that do not involve them (e.g. ``[0]`` for a serial
+            arm in joint angles, whose kinetic energy is unchanged by turning the whole arm about its
+            base joint). None (default): every coordinate. Needs the two networks (not ``shared``).
         shared: ONE network (``trunk``, with one FiLM) whose outputs are both the Cholesky entries and
             the potential, as Deep Lagrangian Networks share their hidden layers: a single pass with
             forward tangents gives ``chol``, ``d chol / dq``, ``V`` and ``dV/dq`` (about half the work
@@ -51,7 +55,8 @@ class StructuredLagrangian(DynamicsModel):
 
     def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
-                 learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False) -> None:
+                 learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
+                 mass_invariant: list[int] | None = None) -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
@@ -65,12 +70,16 @@ class StructuredLagrangian(DynamicsModel):
         self.num_chol = dof * (dof + 1) // 2
         film = self.conditioning == "film" and P > 0
         self.shared = bool(shared)
+        if self.shared and mass_invariant is not None:
+            raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
+        self.mass_invariant = self._kinetic_features(mass_invariant)
         if self.shared:  # one network: outputs [Cholesky entries | V]
             self.trunk = TangentMLP(F + P, hidden_dims, self.num_chol + 1, activation)
             self.trunk_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
             self.kinetic_net = self.potential_net = self.kinetic_film = self.potential_film = None
         else:
-            self.kinetic_net = TangentMLP(F if film else F + P, hidden_dims, self.num_chol, activation)
+            Fk = F if self.kinetic_index is None else len(self.kinetic_index)  # the kinetic network's features
+            self.kinetic_net = TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
             self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
             self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
             self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
@@ -88,6 +97,26 @@ class StructuredLagrangian(DynamicsModel):
         self.register_buffer("chol_scatter", scatter, persistent=False)
         self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
         self.chunk_conditioning = film
+
+    def _kinetic_features(self, invariant) -> list[int] | None:
+        """Registers ``kinetic_index``: the features the kinetic network reads when the mass matrix
+        does not depend on the coordinates ``invariant`` (None: all features, nothing registered)."""
+        if invariant is None:
+            self.kinetic_index = None
+            return None
+        dof = self.scene.dof
+        invariant = sorted({int(i) for i in invariant})
+        if any(not 0 <= i < dof for i in invariant):
+            raise InputError(f"mass_invariant must list coordinate indices in [0, {dof}), got {invariant}")
+        G = self.sel_angle.T  # (n_angles, dof): the feature angles in terms of q
+        na = G.shape[0]
+        angles = [i for i in range(na) if not G[i, invariant].any()]
+        linear = [k for k, j in enumerate(self.linear_idx.tolist()) if j not in invariant]
+        index = angles + [na + i for i in angles] + [2 * na + k for k in linear]
+        if not index:
+            raise InputError(f"mass_invariant {invariant} leaves the kinetic network no feature to read")
+        self.register_buffer("kinetic_index", torch.tensor(index, dtype=torch.long), persistent=False)
+        return invariant
 
     # ------------------------------------------------------------------ conditioning
     def films(self, params_norm: torch.Tensor, chunks: int | None = None):
@@ -137,6 +166,9 @@ class StructuredLagrangian(DynamicsModel):
 
     def _cholesky(self, phi, dphi, params_norm, film):
         S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
+        if self.kinetic_index is not None:  # only the features the mass matrix depends on
+            phi = phi[..., self.kinetic_index]
+            dphi = None if dphi is None else dphi[..., self.kinetic_index]
         # (B, dof^2), (K, B, dof^2); 0 above the diagonal
         raw, draw = self.kinetic_net(self._inputs(phi, params_norm), dphi, film, out_map=S)
         return self._chol_from(raw, draw)
@@ -280,6 +312,7 @@ class DeLaN(StructuredLagrangian):
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
                  diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
-                 shared: bool = False) -> None:
+                 shared: bool = False, mass_invariant: list[int] | None = None) -> None:
         super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift,
-                         learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared)
+                         learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
+                         mass_invariant=mass_invariant)
