@@ -99,9 +99,9 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
             self._record(module)
 
         def _record(self, module):
-            q, qd, qdd, params = self.sample
+            q, qd, qdd, params, tau = self.sample
             with torch.no_grad():
-                pred = module.model.acceleration(q, qd, params, check=False)
+                pred = module.model.acceleration(q, qd, params, tau, check=False)
             self.points.append((self.train_s, float((pred - qdd).norm() / qdd.norm())))
 
     torch.manual_seed(args.seed)
@@ -112,7 +112,9 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     idx = slice(0, None, 50)
     flat = lambda x: x[:, idx].reshape(-1, x.shape[-1]).float()  # noqa: E731
     T = val.q[:, idx].shape[1]
-    sample = [flat(val.q), flat(val.qd), flat(val.qdd), flat(val.params[:, None].expand(-1, T, -1))]
+    # every sampled point with its trajectory's parameters (and recorded inputs, for an actuated scene)
+    params = val.params[:, None].expand(-1, T, -1).reshape(-1, val.params.shape[-1]).float()
+    sample = [flat(val.q), flat(val.qd), flat(val.qdd), params, None if val.tau is None else flat(val.tau)]
     model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, hidden_dims=[128, 128], **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
     trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
@@ -145,10 +147,11 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     rep = lambda x: x[torch.arange(n) % x.shape[0]].float()  # noqa: E731
     T = test.q[:, ::10].shape[1]
     qq, qqd, pp = rep(states[0]), rep(states[1]), rep(test.params[:, None].expand(-1, T, -1).reshape(-1, test.params.shape[-1]))
+    uu = None if test.tau is None else rep(test.tau[:, ::10].reshape(-1, test.tau.shape[-1]))  # recorded inputs
 
     def ev():
         with torch.no_grad():
-            model.acceleration(qq, qqd, pp, check=False)
+            model.acceleration(qq, qqd, pp, uu, check=False)
 
     throughput = n / median_seconds(ev, repeats=5)
     rows = []
