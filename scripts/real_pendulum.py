@@ -34,6 +34,7 @@ def main() -> None:
     ap.add_argument("--time-limit", type=float, default=4.0)
     ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum"))
     ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
     from lnn_torch.checkpoints import data_hparams, load_model
     from lnn_torch.data import TrajectoryDataModule
@@ -41,7 +42,7 @@ def main() -> None:
     from lnn_torch.identified import RigidArmModel
     from lnn_torch.perf import configure_cpu
 
-    configure_cpu(2)
+    configure_cpu(args.threads)
     module = load_model(args.checkpoint)
     saved = data_hparams(args.checkpoint)
     dm = TrajectoryDataModule(path=args.data or saved["path"], targets=saved.get("targets", "file"))
