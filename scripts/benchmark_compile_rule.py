@@ -104,40 +104,32 @@ def run(arg: int, cache: str, child: str = CHILD) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def cold_and_warm(key: str, arg: int, child: str, calls_per_step: int) -> dict:
+    """One row: ``child`` run in two fresh processes sharing a new inductor cache (cold, then warm);
+    step times, compilation times and the break-even in calls (``calls_per_step`` per timed step)."""
+    with tempfile.TemporaryDirectory() as cache:
+        cold = run(arg, cache, child)
+        warm = run(arg, cache, child)
+    saved = (statistics.mean([cold["eager_step_s"], warm["eager_step_s"]])
+             - statistics.mean([cold["compiled_step_s"], warm["compiled_step_s"]])) / calls_per_step
+    compile_cold = cold["first_call_s"] - cold["compiled_step_s"]
+    compile_warm = warm["first_call_s"] - warm["compiled_step_s"]
+    row = {key: arg, "eager_ms": 1e3 * warm["eager_step_s"], "compiled_ms": 1e3 * warm["compiled_step_s"],
+           "compile_cold_s": compile_cold, "compile_warm_s": compile_warm,
+           "break_even_cold": compile_cold / saved if saved > 0 else float("inf"),
+           "break_even_warm": compile_warm / saved if saved > 0 else float("inf")}
+    print(row, flush=True)
+    return row
+
+
 def training_rows() -> list[dict]:
-    rows = []
-    for width in (64, 128):
-        with tempfile.TemporaryDirectory() as cache:
-            cold = run(width, cache, TRAIN_CHILD)
-            warm = run(width, cache, TRAIN_CHILD)
-        saved = (statistics.mean([cold["eager_step_s"], warm["eager_step_s"]])
-                 - statistics.mean([cold["compiled_step_s"], warm["compiled_step_s"]]))
-        compile_cold = cold["first_call_s"] - cold["compiled_step_s"]
-        compile_warm = warm["first_call_s"] - warm["compiled_step_s"]
-        rows.append({"width": width, "eager_ms": 1e3 * warm["eager_step_s"], "compiled_ms": 1e3 * warm["compiled_step_s"],
-                     "compile_cold_s": compile_cold, "compile_warm_s": compile_warm,
-                     "break_even_cold": compile_cold / saved if saved > 0 else float("inf"),
-                     "break_even_warm": compile_warm / saved if saved > 0 else float("inf")})
-        print(rows[-1], flush=True)
-    return rows
+    """Break-even in optimiser steps, per network width."""
+    return [cold_and_warm("width", width, TRAIN_CHILD, 1) for width in (64, 128)]
 
 
 def rollout_rows() -> list[dict]:
-    rows = []
-    for batch in BATCHES:
-        with tempfile.TemporaryDirectory() as cache:
-            cold = run(batch, cache)
-            warm = run(batch, cache)
-        saved_per_call = (statistics.mean([cold["eager_step_s"], warm["eager_step_s"]])
-                          - statistics.mean([cold["compiled_step_s"], warm["compiled_step_s"]])) / 4
-        compile_cold = cold["first_call_s"] - cold["compiled_step_s"]
-        compile_warm = warm["first_call_s"] - warm["compiled_step_s"]
-        rows.append({"batch": batch, "eager_ms": 1e3 * warm["eager_step_s"], "compiled_ms": 1e3 * warm["compiled_step_s"],
-                     "compile_cold_s": compile_cold, "compile_warm_s": compile_warm,
-                     "break_even_cold": compile_cold / saved_per_call if saved_per_call > 0 else float("inf"),
-                     "break_even_warm": compile_warm / saved_per_call if saved_per_call > 0 else float("inf")})
-        print(rows[-1], flush=True)
-    return rows
+    """Break-even in acceleration calls (4 per RK4 step), per batch size."""
+    return [cold_and_warm("batch", batch, CHILD, 4) for batch in BATCHES]
 
 
 def main() -> None:
