@@ -184,10 +184,13 @@ class StructuredLagrangian(DynamicsModel):
         dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), one(raw))  # d softplus = sigmoid
         return chol, dchol.reshape(-1, B, dof, dof)
 
-    def mass_matrix_norm(self, q_norm, params_norm):
-        chol, _ = self.cholesky(q_norm, params_norm)
+    def _mass_from(self, chol):
+        """``M = chol chol^T + eps I`` ``(B, dof, dof)``."""
         eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
         return torch.baddbmm(eye * self.eps, chol, chol.mT)
+
+    def mass_matrix_norm(self, q_norm, params_norm):
+        return self._mass_from(self.cholesky(q_norm, params_norm)[0])
 
     def mass_matrix(self, q, params):
         """The learned mass matrix in normalised units, ``(B, dof, dof)`` (physical M up to a scale per system)."""
@@ -269,7 +272,7 @@ class StructuredLagrangian(DynamicsModel):
         if self.forces is None or not self.forces.num_inputs:
             raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
         phi, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm, chunks))
-        M = torch.baddbmm(torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device) * self.eps, chol, chol.mT)
+        M = self._mass_from(chol)
         free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
         norm = self.normalizer
         qd = qd_norm * (norm.coord_scale.to(qd_norm.dtype) / norm.time_scale.to(qd_norm.dtype))
@@ -289,8 +292,7 @@ class StructuredLagrangian(DynamicsModel):
     # ------------------------------------------------------------------ energies
     def _mass_and_potential(self, q_norm, params_norm):
         _, chol, _, V, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents=False)
-        eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
-        return torch.baddbmm(eye * self.eps, chol, chol.mT), V
+        return self._mass_from(chol), V
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         M, V = self._mass_and_potential(q_norm, params_norm)
