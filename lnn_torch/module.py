@@ -332,9 +332,10 @@ class LNNModule(L.LightningModule):
                 raise
             self._compile_failed(err)
             loss, parts = self._training_loss(batch, self._training_pass)
-        for name, value in parts.items():
-            self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
-        self.log("train/loss", loss.detach(), on_step=True, on_epoch=False, prog_bar=True)
+        if self._writes_logs():
+            for name, value in parts.items():
+                self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
+            self.log("train/loss", loss.detach(), on_step=True, on_epoch=False, prog_bar=True)
         self._skip_this_step = not bool(torch.isfinite(loss))
         if self._skip_this_step:
             # keep the graph (DDP needs every rank to run backward) but contribute nothing
@@ -362,14 +363,27 @@ class LNNModule(L.LightningModule):
         flag = torch.tensor(float(bad), device=self.device)
         if self.trainer.world_size > 1:  # every rank skips together
             flag = self.trainer.strategy.reduce(flag, reduce_op="max")
-        if flag.item() > 0:
+        skip = flag.item() > 0
+        if skip:
             self.skipped_steps += 1
             for p in self.parameters():
                 p.grad = None  # AdamW leaves parameters without gradients untouched
-        else:
+        if not self._writes_logs():
+            return
+        if not skip:
             self.log("train/grad_norm", norm, on_step=True, on_epoch=False)
         self.log("train/skipped_steps", self.skipped_steps.float(), on_step=True, on_epoch=False)
         self.log("train/lr", optimizer.param_groups[0]["lr"], on_step=True, on_epoch=False)
+
+    def _writes_logs(self) -> bool:
+        """Whether the logger writes this step's per-step values (every ``log_every_n_steps`` steps):
+        a ``self.log`` call costs a fraction of a millisecond, several per step, so per-step values
+        are logged only on the steps that are written (always outside a trainer's fit loop)."""
+        connector = getattr(self._trainer, "_logger_connector", None) if self._trainer is not None else None
+        try:
+            return bool(connector.should_update_logs) if connector is not None else True
+        except Exception:  # noqa: BLE001 - a Lightning version without this property: log every step
+            return True
 
     # ------------------------------------------------------------------ evaluation
     def _evaluate(self, batch: dict, prefix: str) -> None:

@@ -113,6 +113,32 @@ def _fit(dataset, tmp_path, **model_kw):
     return model, trainer
 
 
+def test_per_step_values_are_logged_on_the_written_steps_with_that_steps_values(dataset, tmp_path):
+    """Per-step training values are logged only on the steps the logger writes (every
+    log_every_n_steps): the written steps are those multiples, and each written value is that step's
+    own (the learning rate of the step, which changes every step)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    model = LNNModule(val_rollouts=0, hidden_dims=[16, 16], lr=1e-3, lr_min=1e-5, compile=False)
+    seen = []
+
+    class Record(L.Callback):
+        def on_before_optimizer_step(self, trainer, pl_module, optimizer):
+            seen.append(optimizer.param_groups[0]["lr"])
+
+    trainer = quiet_trainer(tmp_path, max_epochs=-1, max_steps=12, log_every_n_steps=4, limit_val_batches=0,
+                            callbacks=[Record()])
+    trainer.fit(model, make_dm(dataset))
+    events = glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "events.*"))
+    acc = EventAccumulator(str(Path(events[0]).parent), size_guidance={"scalars": 0})
+    acc.Reload()
+    lr = acc.Scalars("train/lr")
+    assert [e.step for e in lr] == [3, 7, 11]
+    np.testing.assert_allclose([e.value for e in lr], [seen[3], seen[7], seen[11]], rtol=1e-6)
+    assert [e.step for e in acc.Scalars("train/loss")] == [3, 7, 11]
+    assert len(set(seen)) == 12  # the learning rate differs at every step: the test can tell steps apart
+
+
 def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
