@@ -24,6 +24,7 @@ accelerations, our RK4). Its rollout step is its accelerations inside one jitted
     LNN_JAX_ORIGINAL_SRC=... PYTHONPATH=.venv/lib/python3.11/site-packages:. \\
         ../jax_original/venv/bin/python scripts/cost_accuracy_front.py time     # needs the original
     python scripts/cost_accuracy_front.py time --no-original    # lnn_torch points only
+    ... cost_accuracy_front.py time --untrained   # time freshly initialised networks where a checkpoint is absent
     python scripts/cost_accuracy_front.py report                # table and plot
 
 The ``time`` step runs under the original's environment (jax 0.9.1, see ``scripts/jax_original.py``)
@@ -53,6 +54,8 @@ SPEC = dict(scene="double_pendulum", num_trajectories=200, duration=20.0, dt=0.0
 
 # name -> film_lnn options; "w128" is the configuration of the shipped model and the configs
 POINTS = {
+    "w8": dict(hidden_dims=[8, 8]),
+    "w16 x1": dict(hidden_dims=[16]),
     "w16": dict(hidden_dims=[16, 16]),
     "w32": dict(hidden_dims=[32, 32]),
     "w32 layer-FiLM": dict(hidden_dims=[32, 32], film_mode="layer"),
@@ -143,13 +146,19 @@ class Candidate:
         self.name, self.path, self.dtype, self.calls = name, path, dtype, calls
 
 
-def torch_candidates(name: str, compiled: bool, dtype, batch: dict):
+def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: bool = False):
     import torch
 
     from lnn_torch import LNNModule
     from lnn_torch.perf import adamw
 
-    module = LNNModule.load_from_checkpoint(str(CKPT / f"{slug(name)}.ckpt"), compile=compiled).to(dtype)
+    ckpt = CKPT / f"{slug(name)}.ckpt"
+    if ckpt.exists():
+        module = LNNModule.load_from_checkpoint(str(ckpt), compile=compiled).to(dtype)
+    elif untrained:  # the same network, freshly initialised: a call's cost does not depend on the weights' values
+        module = LNNModule(variant="film_lnn", val_rollouts=0, compile=compiled, **POINTS[name]).to(dtype)
+    else:
+        raise SystemExit(f"{ckpt} is missing: run the train step first, or time fresh networks with --untrained")
     model = module.model
     if compiled:
         model.compile_dynamics()
@@ -281,11 +290,11 @@ def time_all(args) -> None:
         print(f"original: {original_accuracy}", flush=True)
     names = args.points or [n for n in POINTS if n in trained]
     for name in names:
-        candidates.append(torch_candidates(name, False, torch.float32, batch))
+        candidates.append(torch_candidates(name, False, torch.float32, batch, args.untrained))
         if not args.no_compile:
-            candidates.append(torch_candidates(name, True, torch.float32, batch))
+            candidates.append(torch_candidates(name, True, torch.float32, batch, args.untrained))
     if "w128" in names:
-        candidates.append(torch_candidates("w128", False, torch.float64, batch))
+        candidates.append(torch_candidates("w128", False, torch.float64, batch, args.untrained))
     whats = ("accel", "train step", "rollout step")
     start = time.perf_counter()
     for c in candidates:  # warm-up: compilation, caches
@@ -321,7 +330,7 @@ def time_all(args) -> None:
         rows.append(row)
     header = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}",
               "rounds": args.rounds, "calls_per_round": args.calls, "command": " ".join(["python", *sys.argv]),
-              "original_accuracy": original_accuracy}
+              "original_accuracy": original_accuracy, "untrained_networks": bool(args.untrained)}
     if not args.no_original:
         import jax
 
@@ -448,6 +457,9 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=9)
     ap.add_argument("--no-original", action="store_true")
     ap.add_argument("--no-compile", action="store_true")
+    ap.add_argument("--untrained", action="store_true",
+                    help="time: build a point's network freshly initialised where its checkpoint is absent (costs do "
+                         "not depend on the weights' values; accuracies come from train.json)")
     args = ap.parse_args()
     {"train": train, "time": time_all, "report": report}[args.step](args)
 
