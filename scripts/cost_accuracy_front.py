@@ -363,7 +363,10 @@ def report(args) -> None:
              f"{head['calls_per_round']} calls per round; the table gives the median over rounds and the median "
              "per-round ratio to the original (the comparable quantity on a shared machine).", "",
              "Accuracy on the 20 held-out test trajectories of the quickstart dataset: acceleration rel. L2 error "
-             "(every 10th point) and the median time until an RK4 rollout (dt = 5 ms) leaves 0.1 rad (10 s horizon).",
+             "(every 10th point) and the median time until an RK4 rollout (dt = 5 ms) leaves 0.1 rad (10 s horizon)."
+             + (" Points whose checkpoint was absent when timed were timed as freshly initialised networks of the "
+                "same architecture (`--untrained`: a call's cost does not depend on the weights' values); their "
+                "accuracy is that of the trained network (`train.json`)." if head.get("untrained_networks") else ""),
              "", "| point | parameters | path | dtype | test acc. error | time within 0.1 rad, median (s) | "
              "512 accel (ms) | × original | train step (ms) | × original | RK4 step, 64 traj. (ms) | × original |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -415,7 +418,7 @@ def report(args) -> None:
 
 
 # the README's short table: point -> its label there
-SUMMARY = {"w16": "`film_lnn` 16 × 16", "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
+SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 16", "w16": "`film_lnn` 16 × 16", "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
            "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`)",
            "w128": "`film_lnn` 128 × 128 (the configs, the shipped model)",
            "w32, 16k steps": "`film_lnn` 32 × 32, 16,000 steps",
