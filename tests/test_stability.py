@@ -126,6 +126,25 @@ def test_generator_fails_clearly_when_it_cannot_reach_its_tolerance():
         generate_arrays(spec)
 
 
+def test_generator_tightens_its_adaptive_tolerance_for_trajectories_that_still_fail():
+    """A trajectory that fails the energy check at ``adaptive_tol`` is integrated again ten and a
+    hundred times tighter: here the check (2e-8) is missed at 1e-6 and 1e-7 and met at 1e-8, so the
+    generation succeeds; with a check no tolerance down to 1e-8 meets it names the tightest one."""
+    from lnn_torch.ground_truth import power_balance_residual
+    from lnn_torch.systems import get_system
+
+    system = get_system("double_pendulum", theta_range=[3.0, 3.2], omega_range=[-10.0, 10.0])
+    rng = np.random.default_rng(11)
+    params = torch.tensor(system.sample_params(rng, 3))
+    q0, qd0 = (torch.tensor(x) for x in system.sample_state(rng, 3))
+    q, qd, steps = integrate_ground_truth(system, q0, qd0, params, 0.1, 20, energy_tol=2e-8, adaptive_tol=1e-6)
+    drift = power_balance_residual(system, q, qd, params, torch.zeros(q.shape[:2], dtype=q.dtype)).amax(1)
+    assert (drift <= 2e-8).all() and (drift > 1e-12).any(), drift
+    assert (steps > 20).all()  # adaptive steps, more than the 20 output intervals
+    with pytest.raises(GenerationError, match=r"adaptive steps at tolerance 1e-08 \(energy_tol 1e-12\)"):
+        integrate_ground_truth(system, q0, qd0, params, 0.1, 20, energy_tol=1e-12, adaptive_tol=1e-6)
+
+
 # ---------------------------------------------------------------------------- invalid input
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_invalid_input_gets_a_clear_error(variant):

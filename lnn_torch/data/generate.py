@@ -144,7 +144,8 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "tolerances": json.dumps({
             "method": f"fixed-step {spec.integrator}, h = dt / substeps = {spec.dt / spec.substeps:g} s; trajectories "
                       f"whose relative {check} exceeds {spec.energy_tol:g} of the energy scale are integrated again "
-                      f"with adaptive DOP853 steps (rtol = atol = {spec.adaptive_tol:g})",
+                      f"with adaptive DOP853 steps (rtol = atol = {spec.adaptive_tol:g}; ten, then a hundred times "
+                      "tighter for those that still exceed it)",
             "check": check,
             "energy_tol": spec.energy_tol,
             "adaptive_tol": spec.adaptive_tol,
