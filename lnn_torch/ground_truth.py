@@ -87,11 +87,12 @@ def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, i
     # trajectories that fail the check go to adaptive steps; those that still fail are integrated
     # again with a tolerance ten, then a hundred times tighter (a borderline trajectory among thousands
     # should not fail a whole dataset) before the error
-    for tol in (adaptive_tol, adaptive_tol / 10, adaptive_tol / 100):
+    tolerances = (adaptive_tol, adaptive_tol / 10, adaptive_tol / 100)
+    for tol in tolerances:
         if not todo.numel():
             break
-        y[todo], steps[todo] = _adaptive(system, y0 if system.has_forces else None, q0, qd0, params, todo, dt,
-                                         num_steps, tol, tau)
+        y[todo], steps[todo] = _adaptive(system, q0[todo], qd0[todo], params[todo], dt, num_steps, tol,
+                                         None if tau is None else tau[todo])
         check[todo] = residual(todo)
         todo = todo[~(check[todo] <= energy_tol)]
     if todo.numel():
@@ -100,24 +101,23 @@ def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, i
         raise GenerationError(
             f"{todo.numel()} trajectories (indices {names[todo.numpy()][:10].tolist()}) {what} by up to "
             f"{check[todo].max().item():.2e} of the energy scale even with adaptive steps at tolerance "
-            f"{adaptive_tol / 100:g} (energy_tol {energy_tol:g}): lower adaptive_tol, raise energy_tol or shorten dt")
+            f"{tolerances[-1]:g} (energy_tol {energy_tol:g}): lower adaptive_tol, raise energy_tol or shorten dt")
     q, qd = y[..., :dof], y[..., dof:2 * dof]
     return (q, qd, steps, y[..., 2 * dof:]) if return_work else (q, qd, steps)
 
 
-def _adaptive(system, y0, q0, qd0, params, rows, dt: float, num_steps: int, tol: float, tau):
-    """Adaptive DOP853 rollouts ``(len(rows), num_steps + 1, 2 dof + 2)`` of the trajectories ``rows``
-    (the augmented state with the work of the forces, zero without forces) and their step counts."""
+def _adaptive(system, q0, qd0, params, dt: float, num_steps: int, tol: float, tau):
+    """Adaptive DOP853 rollouts from ``(q0, qd0)``: the state with the work of the forces (zero
+    without forces) ``(B, num_steps + 1, 2 dof + 2)``, and the steps each took."""
     dof = system.dof
     if system.has_forces:
-        return rollout_adaptive(_augmented_field(system), y0[rows], params[rows], dt, num_steps, rtol=tol, atol=tol,
-                                tau=None if tau is None else tau[rows])
+        y0 = torch.cat([q0, qd0, torch.zeros(len(q0), 2, dtype=q0.dtype, device=q0.device)], -1)
+        return rollout_adaptive(_augmented_field(system), y0, params, dt, num_steps, rtol=tol, atol=tol, tau=tau)
 
     def field(z, params_):
         return torch.cat([z[:, dof:], system.acceleration(z[:, :dof], z[:, dof:], params_)], -1)
 
-    y_state, n = rollout_adaptive(field, torch.cat([q0[rows], qd0[rows]], -1), params[rows], dt, num_steps,
-                                  rtol=tol, atol=tol)
+    y_state, n = rollout_adaptive(field, torch.cat([q0, qd0], -1), params, dt, num_steps, rtol=tol, atol=tol)
     return torch.cat([y_state, torch.zeros(*y_state.shape[:2], 2, dtype=y_state.dtype)], -1), n
 
 

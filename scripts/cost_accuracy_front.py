@@ -418,7 +418,8 @@ def report(args) -> None:
 
 
 # the README's short table: point -> its label there
-SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 16", "w16": "`film_lnn` 16 × 16", "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
+SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 16", "w16": "`film_lnn` 16 × 16",
+           "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
            "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`)",
            "w128": "`film_lnn` 128 × 128 (the configs, the shipped model)",
            "w32, 16k steps": "`film_lnn` 32 × 32, 16,000 steps",
