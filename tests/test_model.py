@@ -661,3 +661,63 @@ def test_mass_invariant_refuses_bad_coordinates():
         build_model("film_lnn", system, mass_invariant=[0, 1])
     with pytest.raises(InputError, match="cannot be combined with shared"):
         build_model("film_lnn", system, mass_invariant=[0], shared=True)
+
+
+@pytest.mark.parametrize("variant", ["film_lnn", "delan"])
+@pytest.mark.parametrize("scene", ["double_pendulum", "actuated_double_pendulum", "measured"])
+def test_harmonic_potential_solves_exactly(variant, scene, rng):
+    """``potential='harmonic'``: the fast solve (hand-written dV/dq) equals the generic torch.func
+    solve of the readable Lagrangian (float64; with parameters, and with none for a measured system),
+    and dV/dq equals a central difference of V."""
+    from lnn_torch.systems.measured import MeasuredSystem
+
+    if scene == "measured":
+        system = MeasuredSystem(2, input_names=("tau1", "tau2"), angle_combinations=[[1, 1]])
+        q = torch.randn(16, 2, dtype=torch.float64)
+        qd, params = torch.randn(16, 2, dtype=torch.float64), torch.zeros(16, 0, dtype=torch.float64)
+    else:
+        system = get_system(scene)
+        q, qd, params = random_batch(system, rng, 16)
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16), potential="harmonic").double(), scale=0.3)
+    assert model.potential_net is None
+    qn, qdn, pn = model.normalize(q, qd, params)
+    force = None
+    if system.num_inputs:
+        force = model.force_norm(qn, qdn, pn, torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64))
+    fast = model.solve_norm(qn, qdn, pn, force)
+    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
+    assert (fast - generic).abs().max() <= 1e-10 * generic.abs().max()
+    V, dV = model.potential_norm(qn, pn, grad=True)
+    torch.testing.assert_close(V, reference.potential(model, qn, pn), rtol=1e-12, atol=1e-12)
+    h = 1e-4
+    for k in range(system.dof):
+        e = torch.zeros(system.dof, dtype=torch.float64)
+        e[k] = h
+        fd = (model.potential_norm(qn + e, pn)[0] - model.potential_norm(qn - e, pn)[0]) / (2 * h)
+        torch.testing.assert_close(dV[:, k], fd, rtol=1e-7, atol=1e-9)
+
+
+def test_harmonic_potential_spans_the_rigid_arm_potential(rng):
+    """The form is exact for rigid links under gravity: for fixed parameters of the actuated double
+    pendulum (joint-relative q2, angle combination q1 + q2), the closed-form potential minus its
+    constant is a least-squares combination of the model's features to round-off; a potential with a
+    second harmonic (cos 2 q1) is not (so the check can fail)."""
+    system = get_system("actuated_double_pendulum")
+    model = build_model("film_lnn", system, hidden_dims=(8, 8), potential="harmonic").double()
+    q, _, params = random_batch(system, rng, 200)
+    params = params[:1].expand(200, -1)
+    phi, _ = model.features(q)
+    for target, fits in ((system.potential(q, params), True), (torch.cos(2 * q[:, 0]), False)):
+        A = torch.cat([phi, torch.ones(200, 1, dtype=torch.float64)], -1)
+        coef = torch.linalg.lstsq(A, target[:, None]).solution
+        residual = (A @ coef)[:, 0] - target
+        assert (residual.abs().max() <= 1e-10 * target.abs().max()) == fits
+
+
+def test_harmonic_potential_is_refused_where_it_cannot_hold():
+    with pytest.raises(InputError, match="harmonic"):
+        build_model("film_lnn", get_system("mass_spring"), potential="harmonic")
+    with pytest.raises(InputError, match="harmonic"):
+        build_model("film_lnn", get_system("double_pendulum"), potential="harmonic", shared=True)
+    with pytest.raises(InputError, match="potential must be"):
+        build_model("film_lnn", get_system("double_pendulum"), potential="fourier")

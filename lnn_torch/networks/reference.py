@@ -95,6 +95,10 @@ def potential(model, q_norm, params_norm) -> torch.Tensor:
     """A structured model's potential ``V (B,)``."""
     if model.shared:
         return _shared_outputs(model, q_norm, params_norm)[..., -1]
+    if model.harmonic:  # V = c(theta) . [sin a, cos a], written out
+        qa = q_norm @ model.sel_angle.to(q_norm.dtype)
+        coef = model.harmonic_coefficients(params_norm)
+        return (torch.cat([torch.sin(qa), torch.cos(qa)], -1) * coef).sum(-1)
     film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
     return mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
 

@@ -23,6 +23,13 @@ from .base import DynamicsModel
 from .layers import FiLM, TangentMLP
 
 
+# The harmonic potential's coefficients are stored divided by this gain: Adam moves a parameter by
+# about the learning rate per step, and gravity-sized coefficients in the normalised units of a forced
+# system are O(10) (on the real double pendulum a gain of 1 reached about 60 % of the lab model's
+# gravity torques in 6,000 steps; 10, 30 and 100 fitted alike).
+HARMONIC_GAIN = 10.0
+
+
 class StructuredLagrangian(DynamicsModel):
     """``film_lnn``: FiLM-conditioned Cholesky mass matrix and potential.
 
@@ -48,6 +55,14 @@ class StructuredLagrangian(DynamicsModel):
             forward tangents gives ``chol``, ``d chol / dq``, ``V`` and ``dV/dq`` (about half the work
             of two networks; ``results/cost_accuracy/README.md``). Its input is the features and the
             parameters. Default False: a kinetic and a potential network.
+        potential: ``mlp`` (default: the potential MLP) or ``harmonic``: ``V = sum_k c_k(theta) phi_k(q)``,
+            linear in the first-harmonic features ``sin, cos`` of the angles and the scene's angle
+            combinations, its coefficients constant (no parameters) or from a small network of the
+            parameters. This is the exact form of the gravitational potential of any chain of rigid
+            links on revolute joints in a uniform field (each centre of mass's height is a sum of
+            ``l cos`` and ``l sin`` of absolute link angles, which the angle combinations supply for
+            joint-relative angles); unlike an MLP it cannot bend where the data never went. Needs
+            angle coordinates only, and the two networks (not ``shared``).
     """
 
     variant = "film_lnn"
@@ -56,7 +71,7 @@ class StructuredLagrangian(DynamicsModel):
     def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
                  learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
-                 mass_invariant: list[int] | None = None) -> None:
+                 mass_invariant: list[int] | None = None, potential: str = "mlp") -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
@@ -73,6 +88,15 @@ class StructuredLagrangian(DynamicsModel):
         if self.shared and mass_invariant is not None:
             raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
         self.mass_invariant = self._kinetic_features(mass_invariant)
+        if potential not in ("mlp", "harmonic"):
+            raise InputError(f"potential must be 'mlp' or 'harmonic', got {potential!r}")
+        self.potential = potential
+        self.harmonic = potential == "harmonic"
+        if self.harmonic and (self.shared or not self.all_angles):
+            raise InputError("potential 'harmonic' needs angle coordinates only and the two networks (not shared); "
+                             f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
+                             + (", shared is set" if self.shared else ""))
+        self.potential_coef = self.potential_coef_net = None
         if self.shared:  # one network: outputs [Cholesky entries | V]
             self.trunk = TangentMLP(F + P, hidden_dims, self.num_chol + 1, activation)
             self.trunk_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
@@ -80,9 +104,17 @@ class StructuredLagrangian(DynamicsModel):
         else:
             Fk = F if self.kinetic_index is None else len(self.kinetic_index)  # the kinetic network's features
             self.kinetic_net = TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
-            self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
             self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
-            self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
+            if self.harmonic:  # V = c(theta) . phi(q)
+                self.potential_net = self.potential_film = None
+                if P:
+                    self.potential_coef_net = nn.Sequential(nn.Linear(P, film_hidden), nn.Tanh(),
+                                                            nn.Linear(film_hidden, F))
+                else:
+                    self.potential_coef = nn.Parameter(torch.zeros(F))
+            else:
+                self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
+                self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
             self.trunk = self.trunk_film = None
         # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
         # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
@@ -206,7 +238,17 @@ class StructuredLagrangian(DynamicsModel):
         phi, _, sin_cos = self._features(q_norm, False)
         return self._potential(q_norm, phi, sin_cos, params_norm, self.films(params_norm)[1], grad)
 
+    def harmonic_coefficients(self, params_norm: torch.Tensor) -> torch.Tensor:
+        """The harmonic potential's coefficients ``(B, F)`` (or ``(F,)`` without parameters)."""
+        if self.potential_coef is not None:
+            return HARMONIC_GAIN * self.potential_coef.to(params_norm.dtype)
+        return HARMONIC_GAIN * self.potential_coef_net(params_norm)
+
     def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool):
+        if self.harmonic:
+            c = self.harmonic_coefficients(params_norm)
+            V = (phi * c).sum(-1)
+            return V, (self.features_vjp(q_norm, c.expand_as(phi), sin_cos) if grad else None)
         x = torch.cat([phi, params_norm], -1)
         if not grad:
             return self.potential_net(x, None, film)[0][..., 0], None
@@ -314,7 +356,7 @@ class DeLaN(StructuredLagrangian):
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
                  diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
-                 shared: bool = False, mass_invariant: list[int] | None = None) -> None:
+                 shared: bool = False, mass_invariant: list[int] | None = None, potential: str = "mlp") -> None:
         super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
-                         mass_invariant=mass_invariant)
+                         mass_invariant=mass_invariant, potential=potential)
