@@ -280,3 +280,10 @@ def test_smoothed_inputs_reach_the_training_split_only(recordings):
         np.testing.assert_allclose(smooth.trajectories("train").tau[j, :n].numpy(), want, rtol=1e-12, atol=1e-12)
         assert not np.allclose(want, raw.trajectories("train").tau[j, :n].numpy())
     torch.testing.assert_close(smooth.trajectories("val").tau, raw.trajectories("val").tau, equal_nan=True)
+    # asked for explicitly (evaluation in the reference's band): any split, whatever the configuration
+    for j, n in enumerate(raw.source("val").lengths):
+        want = derivatives.smooth_inputs(raw.trajectories("val").tau[j, :n].numpy(), raw.dt, derivatives.settings(targets))
+        np.testing.assert_allclose(raw.trajectories("val", smooth_inputs=True).tau[j, :n].numpy(), want, rtol=1e-12,
+                                   atol=1e-12)
+    with pytest.raises(ValueError, match="smooth_inputs needs estimated targets"):
+        TrajectoryDataModule(path=str(path)).trajectories("val", smooth_inputs=True)

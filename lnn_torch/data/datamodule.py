@@ -260,11 +260,14 @@ class TrajectoryDataModule(L.LightningDataModule):
                           f"({', '.join(f'{k}: file {recorded[k]!r} vs config {configured[k]!r}' for k in differ)}); "
                           "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning)
 
-    def source(self, split: str, dtype=torch.float32) -> _Source:
-        key = (split, dtype)
+    def source(self, split: str, dtype=torch.float32, smooth_inputs: bool | None = None) -> _Source:
+        """The arrays of a split; ``smooth_inputs`` None: the configured smoothing of the inputs
+        (training split only), True/False: the inputs smoothed alike with the targets or recorded."""
+        smooth = (bool(self.hparams.get("smooth_inputs", False)) and split == "train") if smooth_inputs is None \
+            else bool(smooth_inputs)
+        key = (split, dtype, smooth)
         if key not in self._sources:
             f = self._open()
-            smooth = bool(self.hparams.get("smooth_inputs", False)) and split == "train"
             self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets, smooth)
         return self._sources[key]
 
@@ -344,12 +347,17 @@ class TrajectoryDataModule(L.LightningDataModule):
         out["params_points"] = torch.cat([p["params"] for p in parts])
         return out
 
-    def trajectories(self, split: str = "val", num_trajectories: int | None = None) -> Trajectories:
+    def trajectories(self, split: str = "val", num_trajectories: int | None = None,
+                     smooth_inputs: bool | None = None) -> Trajectories:
         """Whole trajectories of a split (float64 ``Trajectories``, with the estimated velocities
-        and accelerations where ``targets`` asks for them): the first ``num_trajectories`` (None: all)."""
+        and accelerations where ``targets`` asks for them): the first ``num_trajectories`` (None: all).
+        ``smooth_inputs``: as ``source`` (True: the inputs through the targets' smoothing, e.g. to
+        compare predicted accelerations with smoothed ones in the same band; needs ``targets``)."""
+        if smooth_inputs and self.targets is None:
+            raise ValueError("smooth_inputs needs estimated targets (data.targets): there is no smoothing to apply")
         if self.targets is None and not self._open().measured:
             return self._open().trajectories(split, num_trajectories)
-        return self.source(split, torch.float64).trajectories(self.dt, num_trajectories)
+        return self.source(split, torch.float64, smooth_inputs).trajectories(self.dt, num_trajectories)
 
     def spec_dict(self) -> dict:
         return asdict(self.spec)
