@@ -106,7 +106,8 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
 
     torch.manual_seed(args.seed)
     dm = TrajectoryDataModule(path=str(ROOT / cfg["path"]), spec=dict(scene=scene, **cfg["spec"]),
-                              chunk_len=8, chunks_per_batch=64, steps_per_epoch=500, seed=args.seed)
+                              chunk_len=args.chunk_len, chunks_per_batch=args.chunks_per_batch, steps_per_epoch=500,
+                              seed=args.seed)
     dm.prepare_data()
     val = dm.trajectories("val", 64)
     idx = slice(0, None, 50)
@@ -332,6 +333,8 @@ def main() -> None:
     ap.add_argument("--variants", nargs="*", default=None, help="row names to run (default: all applicable)")
     ap.add_argument("--energy-weight", type=float, default=None, help="default: LNNModule's default")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
+    ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
     ap.add_argument("--stability-seconds", type=float, default=2.0)
     ap.add_argument("--output", default=str(OUT))
@@ -362,7 +365,9 @@ def main() -> None:
               "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
-                                                                   (("scene", args.scene), ("minutes", args.minutes))),
+                                                                   (("scene", args.scene), ("minutes", args.minutes),
+                                                                    ("chunk_len", args.chunk_len),
+                                                                    ("chunks_per_batch", args.chunks_per_batch))),
               "rows": [], "training": {}, "stability": {}, "stability_seconds": args.stability_seconds}
     test = None
     for name, overrides in rows_spec:
