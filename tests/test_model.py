@@ -665,7 +665,8 @@ def test_mass_invariant_refuses_bad_coordinates():
 
 @pytest.mark.parametrize("variant", ["film_lnn", "delan"])
 @pytest.mark.parametrize("scene", ["double_pendulum", "actuated_double_pendulum", "measured"])
-def test_harmonic_potential_solves_exactly(variant, scene, rng):
+@pytest.mark.parametrize("potential", ["harmonic", "harmonic+mlp"])
+def test_harmonic_potential_solves_exactly(variant, scene, potential, rng):
     """``potential='harmonic'``: the fast solve (hand-written dV/dq) equals the generic torch.func
     solve of the readable Lagrangian (float64; with parameters, and with none for a measured system),
     and dV/dq equals a central difference of V."""
@@ -678,8 +679,8 @@ def test_harmonic_potential_solves_exactly(variant, scene, rng):
     else:
         system = get_system(scene)
         q, qd, params = random_batch(system, rng, 16)
-    model = perturbed(build_model(variant, system, hidden_dims=(16, 16), potential="harmonic").double(), scale=0.3)
-    assert model.potential_net is None
+    model = perturbed(build_model(variant, system, hidden_dims=(16, 16), potential=potential).double(), scale=0.3)
+    assert (model.potential_net is None) == (potential == "harmonic")
     qn, qdn, pn = model.normalize(q, qd, params)
     force = None
     if system.num_inputs:

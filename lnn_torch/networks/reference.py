@@ -95,12 +95,15 @@ def potential(model, q_norm, params_norm) -> torch.Tensor:
     """A structured model's potential ``V (B,)``."""
     if model.shared:
         return _shared_outputs(model, q_norm, params_norm)[..., -1]
-    if model.harmonic:  # V = c(theta) . [sin a, cos a], written out
+    V = 0.0
+    if model.potential_net is not None:
+        film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
+        V = mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
+    if model.harmonic:  # plus c(theta) . [sin a, cos a], written out
         qa = q_norm @ model.sel_angle.to(q_norm.dtype)
         coef = model.harmonic_coefficients(params_norm)
-        return (torch.cat([torch.sin(qa), torch.cos(qa)], -1) * coef).sum(-1)
-    film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
-    return mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
+        V = V + (torch.cat([torch.sin(qa), torch.cos(qa)], -1) * coef).sum(-1)
+    return V
 
 
 def lagrangian(model, q_norm, qd_norm, params_norm) -> torch.Tensor:

@@ -55,14 +55,15 @@ class StructuredLagrangian(DynamicsModel):
             forward tangents gives ``chol``, ``d chol / dq``, ``V`` and ``dV/dq`` (about half the work
             of two networks; ``results/cost_accuracy/README.md``). Its input is the features and the
             parameters. Default False: a kinetic and a potential network.
-        potential: ``mlp`` (default: the potential MLP) or ``harmonic``: ``V = sum_k c_k(theta) phi_k(q)``,
+        potential: ``mlp`` (default: the potential MLP), ``harmonic``: ``V = sum_k c_k(theta) phi_k(q)``,
             linear in the first-harmonic features ``sin, cos`` of the angles and the scene's angle
             combinations, its coefficients constant (no parameters) or from a small network of the
             parameters. This is the exact form of the gravitational potential of any chain of rigid
             links on revolute joints in a uniform field (each centre of mass's height is a sum of
             ``l cos`` and ``l sin`` of absolute link angles, which the angle combinations supply for
-            joint-relative angles); unlike an MLP it cannot bend where the data never went. Needs
-            angle coordinates only, and the two networks (not ``shared``).
+            joint-relative angles); unlike an MLP it cannot bend where the data never went; or
+            ``harmonic+mlp``: that series plus the potential MLP. The harmonic forms need angle
+            coordinates only, and the two networks (not ``shared``).
     """
 
     variant = "film_lnn"
@@ -88,10 +89,10 @@ class StructuredLagrangian(DynamicsModel):
         if self.shared and mass_invariant is not None:
             raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
         self.mass_invariant = self._kinetic_features(mass_invariant)
-        if potential not in ("mlp", "harmonic"):
-            raise InputError(f"potential must be 'mlp' or 'harmonic', got {potential!r}")
+        if potential not in ("mlp", "harmonic", "harmonic+mlp"):
+            raise InputError(f"potential must be 'mlp', 'harmonic' or 'harmonic+mlp', got {potential!r}")
         self.potential = potential
-        self.harmonic = potential == "harmonic"
+        self.harmonic = potential.startswith("harmonic")
         if self.harmonic and (self.shared or not self.all_angles):
             raise InputError("potential 'harmonic' needs angle coordinates only and the two networks (not shared); "
                              f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
@@ -103,18 +104,19 @@ class StructuredLagrangian(DynamicsModel):
             self.kinetic_net = self.potential_net = self.kinetic_film = self.potential_film = None
         else:
             Fk = F if self.kinetic_index is None else len(self.kinetic_index)  # the kinetic network's features
+            # (the construction order fixes the random initialisation of a seed: kept as it was)
             self.kinetic_net = TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
+            mlp_potential = potential != "harmonic"
+            self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False) if mlp_potential else None
             self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
-            if self.harmonic:  # V = c(theta) . phi(q)
-                self.potential_net = self.potential_film = None
+            self.potential_film = (FiLM(P, hidden_dims, film_mode, film_hidden)
+                                   if (film and potential_film and mlp_potential) else None)
+            if self.harmonic:  # V (+)= c(theta) . phi(q)
                 if P:
                     self.potential_coef_net = nn.Sequential(nn.Linear(P, film_hidden), nn.Tanh(),
                                                             nn.Linear(film_hidden, F))
                 else:
                     self.potential_coef = nn.Parameter(torch.zeros(F))
-            else:
-                self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False)
-                self.potential_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and potential_film) else None
             self.trunk = self.trunk_film = None
         # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
         # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
@@ -245,15 +247,18 @@ class StructuredLagrangian(DynamicsModel):
         return HARMONIC_GAIN * self.potential_coef_net(params_norm)
 
     def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool):
-        if self.harmonic:
+        V, dV_dphi = 0.0, 0.0
+        if self.potential_net is not None:
+            x = torch.cat([phi, params_norm], -1)
+            if not grad:
+                V = self.potential_net(x, None, film)[0][..., 0]
+            else:
+                V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
+        if self.harmonic:  # plus c(theta) . phi(q)
             c = self.harmonic_coefficients(params_norm)
-            V = (phi * c).sum(-1)
-            return V, (self.features_vjp(q_norm, c.expand_as(phi), sin_cos) if grad else None)
-        x = torch.cat([phi, params_norm], -1)
-        if not grad:
-            return self.potential_net(x, None, film)[0][..., 0], None
-        V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
-        return V, self.features_vjp(q_norm, dV_dphi, sin_cos)
+            V = V + (phi * c).sum(-1)
+            dV_dphi = dV_dphi + c
+        return V, (self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad else None)
 
     # ------------------------------------------------------------------ the solve
     def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool, force=None):
