@@ -722,3 +722,16 @@ def test_harmonic_potential_is_refused_where_it_cannot_hold():
         build_model("film_lnn", get_system("double_pendulum"), potential="harmonic", shared=True)
     with pytest.raises(InputError, match="potential must be"):
         build_model("film_lnn", get_system("double_pendulum"), potential="fourier")
+
+
+def test_networks_are_built_in_a_fixed_order():
+    """The order in which the structured model creates its networks is the order in which they draw
+    from the random generator: changing it changes every seed's initialisation (and every result
+    measured from a seed). The forces (built by the base class), the kinetic network, the potential
+    network, then their FiLM networks."""
+    model = build_model("film_lnn", get_system("actuated_double_pendulum"))
+    order = list(dict.fromkeys(name.split(".")[0] for name, _ in model.named_parameters()))
+    assert order == ["forces", "kinetic_net", "potential_net", "kinetic_film", "potential_film"]
+    harmonic = build_model("film_lnn", get_system("actuated_double_pendulum"), potential="harmonic+mlp")
+    order = list(dict.fromkeys(name.split(".")[0] for name, _ in harmonic.named_parameters()))
+    assert order[:5] == ["forces", "kinetic_net", "potential_net", "kinetic_film", "potential_film"]
