@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import torch
@@ -66,11 +67,12 @@ def main() -> None:
         r["per_recording"] = {rec: {"filtered_torques": err_f, "recorded_torques": err_r} for rec, err_f, err_r
                               in zip(held_out, recording_errors(model, smoothed), recording_errors(model, data))}
         results[name] = r
+    structure = compare_structure(module.model, lab, data, held_out)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"checkpoint": args.checkpoint, "held_out": held_out, "targets": saved.get("targets"),
             "start_every_s": args.start_every, "time_limit_s": args.time_limit, "note": args.note}
-    (out / "metrics.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
+    (out / "metrics.json").write_text(json.dumps({"meta": meta, "results": results, "structure": structure}, indent=1))
     lines = [f"Held-out recordings: {', '.join(held_out)}; reference accelerations: the checkpoint's estimate "
              f"({saved.get('targets')}); open-loop rollouts (RK4 at the data's 2 ms step, the recorded torques held "
              f"over each step) started every {args.start_every:g} s with the measured state. {args.note}", "",
@@ -89,10 +91,37 @@ def main() -> None:
     for name, r in results.items():
         lines.append(f"| {name} | " + " | ".join(f"{100 * e['filtered_torques']:.1f} % ({100 * e['recorded_torques']:.1f} %)"
                                                  for e in r["per_recording"].values()) + " |")
+    m = structure["mass_matrix"]
+    lines += ["", f"Learned against the lab's model: mass matrix over q2 in [-pi, pi] (q1 = 0; the learned one in its normalised units, after "
+              f"one best scale), relative Frobenius difference median {100 * m['median']:.1f} %, max "
+              f"{100 * m['max']:.1f} %; static torque (inverse dynamics at zero velocity and acceleration: gravity) along "
+              "each recording's measured angles, RMS [max] difference: "
+              + ", ".join(f"{k} {v['rms']:.3f} [{v['max']:.3f}] N m" for k, v in structure["static_torque"].items())]
     table = "\n".join(lines) + "\n"
     (out / "report.md").write_text(table)
     print(table)
     plot(results, horizons, out)
+
+
+def compare_structure(model, lab, data, names) -> dict:
+    """The learned model's mass matrix and static (gravity) torque against the lab model's."""
+    q2 = torch.linspace(-math.pi, math.pi, 73, dtype=torch.float64)
+    q = torch.stack([torch.zeros_like(q2), q2], -1)
+    none = torch.zeros(len(q2), 0, dtype=torch.float64)
+    with torch.no_grad():
+        M_lab, M = lab.mass_matrix(q), model.mass_matrix(q.to(model.dtype), none.to(model.dtype)).double()
+    scale = (M_lab * M).sum() / (M * M).sum()
+    err = torch.linalg.matrix_norm(scale * M - M_lab) / torch.linalg.matrix_norm(M_lab)
+    static = {}
+    for b, name in enumerate(names):
+        n = int(data.lengths[b])
+        qb, zero = data.q[b, :n], torch.zeros(n, 2, dtype=torch.float64)
+        with torch.no_grad():
+            lab_static = -(lab.mass_matrix(qb) @ lab.acceleration(qb, zero, tau=zero)[..., None])[..., 0]
+            learned = model.inverse_dynamics(qb, zero, zero, data.params[b : b + 1].expand(n, -1)).double()
+        diff = (learned - lab_static).norm(dim=-1)
+        static[name] = {"rms": float(diff.pow(2).mean().sqrt()), "max": float(diff.max())}
+    return {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
 
 
 def recording_errors(model, data) -> list[float]:
