@@ -58,14 +58,14 @@ def main() -> None:
     horizons = (0.1, 0.25, 0.5, 1.0)
     results = {}
     for name, model in (("lab's identified model", lab), (f"{module.hparams.variant} (this checkpoint)", module.model)):
-        r = evaluate_model(model, module.system, data, sections=("accelerations", "horizons"), thresholds=(0.1,),
-                           accel_stride=1, horizons=horizons, start_every=args.start_every, time_limit=args.time_limit)
+        r = evaluate_model(model, module.system, data, sections=("horizons",), thresholds=(0.1,), horizons=horizons,
+                           start_every=args.start_every, time_limit=args.time_limit)
         r = {k: v for k, v in r.items() if not k.startswith("_")}
-        r["acc_rel_err_recorded_torques"] = r.pop("acc_rel_err")
-        r["acc_rel_err"] = evaluate_model(model, module.system, smoothed, sections=("accelerations",),
-                                          accel_stride=1)["acc_rel_err"]
-        r["per_recording"] = {rec: {"filtered_torques": err_f, "recorded_torques": err_r} for rec, err_f, err_r
-                              in zip(held_out, recording_errors(model, smoothed), recording_errors(model, data))}
+        (r["acc_rel_err"], filtered), (r["acc_rel_err_recorded_torques"], recorded) = (
+            acceleration_report(model, smoothed, module.system.coord_names),
+            acceleration_report(model, data, module.system.coord_names))
+        r["per_recording"] = {rec: {"filtered_torques": f, "recorded_torques": e}
+                              for rec, f, e in zip(held_out, filtered, recorded)}
         results[name] = r
     structure = compare_structure(module.model, lab, data, held_out)
     out = Path(args.output)
@@ -124,18 +124,15 @@ def compare_structure(model, lab, data, names) -> dict:
     return {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
 
 
-def recording_errors(model, data) -> list[float]:
-    """The relative L2 acceleration error of each recording (its own length)."""
+def acceleration_report(model, data, coord_names) -> tuple[dict, list[float]]:
+    """The pooled acceleration errors (``lnn_torch.metrics.acceleration_errors``) and the relative L2
+    error of each recording over its own length, from one prediction at every point."""
     from lnn_torch.evaluation import model_accelerations
-    from lnn_torch.metrics import relative_l2
+    from lnn_torch.metrics import acceleration_errors, relative_l2
 
-    out = []
-    for b in range(len(data)):
-        n = int(data.lengths[b])
-        tau = None if data.tau is None else data.tau[b : b + 1, :n]
-        pred = model_accelerations(model, data.q[b : b + 1, :n], data.qd[b : b + 1, :n], data.params[b : b + 1], tau)
-        out.append(float(relative_l2(pred, data.qdd[b : b + 1, :n])))
-    return out
+    pred = model_accelerations(model, data.q, data.qd, data.params, data.tau)
+    per = [float(relative_l2(pred[b, : int(n)], data.qdd[b, : int(n)])) for b, n in enumerate(data.lengths)]
+    return acceleration_errors(pred, data.qdd, coord_names), per
 
 
 def plot(results: dict, horizons, out: Path) -> None:

@@ -95,14 +95,12 @@ def potential(model, q_norm, params_norm) -> torch.Tensor:
     """A structured model's potential ``V (B,)``."""
     if model.shared:
         return _shared_outputs(model, q_norm, params_norm)[..., -1]
-    V = 0.0
+    phi, V = features(model, q_norm), 0.0
     if model.potential_net is not None:
         film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
-        V = mlp(model.potential_net, torch.cat([features(model, q_norm), params_norm], -1), film)[..., 0]
-    if model.harmonic:  # plus c(theta) . [sin a, cos a], written out
-        qa = q_norm @ model.sel_angle.to(q_norm.dtype)
-        coef = model.harmonic_coefficients(params_norm)
-        V = V + (torch.cat([torch.sin(qa), torch.cos(qa)], -1) * coef).sum(-1)
+        V = mlp(model.potential_net, torch.cat([phi, params_norm], -1), film)[..., 0]
+    if model.harmonic:  # plus c(theta) . [sin a, cos a]
+        V = V + (phi * model.harmonic_coefficients(params_norm)).sum(-1)
     return V
 
 

@@ -91,10 +91,9 @@ class StructuredLagrangian(DynamicsModel):
         self.mass_invariant = self._kinetic_features(mass_invariant)
         if potential not in ("mlp", "harmonic", "harmonic+mlp"):
             raise InputError(f"potential must be 'mlp', 'harmonic' or 'harmonic+mlp', got {potential!r}")
-        self.potential = potential
         self.harmonic = potential.startswith("harmonic")
         if self.harmonic and (self.shared or not self.all_angles):
-            raise InputError("potential 'harmonic' needs angle coordinates only and the two networks (not shared); "
+            raise InputError(f"potential {potential!r} needs angle coordinates only and the two networks (not shared); "
                              f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
                              + (", shared is set" if self.shared else ""))
         self.potential_coef = self.potential_coef_net = None
