@@ -27,6 +27,13 @@ def lightning_main(argv: list[str]) -> int:
     from .lightning_cli import run_cli
 
     run_cli(argv)
+    # Lightning's DDP leaves the process group alive; left to interpreter shutdown, gloo's worker
+    # threads can abort the process ("terminate called without an active exception", exit -6) after
+    # a successful run. Only on success: a rank that failed must not wait on the others here.
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
     return 0
 
 
