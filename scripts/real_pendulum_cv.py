@@ -1,0 +1,167 @@
+"""Leave-one-recording-out cross-validation of model settings on the real double pendulum.
+
+The held-out test recordings of ``configs/import/real_double_pendulum.yaml`` stay out of it. Each of
+the other recordings (training and validation) is held out in turn; for every setting (a YAML
+mapping of ``model.model_options``), ``lnn-torch fit -c configs/real_double_pendulum.yaml`` trains on
+the rest and the held-out recording is predicted: the acceleration error against the filtered
+reference with the torques through the same filter (as ``scripts/real_pendulum.py`` leads with),
+beside the lab's identified model. The criterion is the pooled relative L2 error over all folds
+(every recording's squared errors summed, then divided by the summed squared reference). One
+validation recording of moderate swings says little about angles and speeds no other recording
+reaches; holding out each recording in turn, the high-energy one included, does.
+
+    lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
+        --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
+    python scripts/real_pendulum_cv.py      # about a minute per fit on one thread
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+PARAMS = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
+LAB = "lab's identified model"
+SETTINGS = {
+    "MLP potential (the configuration)": {"mass_invariant": [0]},
+    "harmonic potential": {"mass_invariant": [0], "potential": "harmonic"},
+    "harmonic series + MLP": {"mass_invariant": [0], "potential": "harmonic+mlp"},
+}
+
+
+def fold_file(source: Path, dest: Path, held_out: int, keep: list[int], test: np.ndarray) -> None:
+    """A copy of the imported dataset whose training split is ``keep`` and validation split ``held_out``."""
+    from lnn_torch.data.hdf5 import _h5py
+
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(source, dest)
+    with _h5py().File(dest, "r+") as f:
+        for name, idx in (("train", keep), ("val", [held_out]), ("test", test)):
+            del f[f"splits/{name}"]
+            f.create_dataset(f"splits/{name}", data=np.asarray(idx, dtype=np.int64))
+
+
+def squared_errors(model, data) -> tuple[float, float]:
+    """Summed squared acceleration error and summed squared reference over a split's valid points."""
+    from lnn_torch.evaluation import model_accelerations
+
+    pred = model_accelerations(model, data.q, data.qd, data.params, data.tau)
+    err = ref = 0.0
+    for b, n in enumerate(data.lengths):
+        n = int(n)
+        err += float((pred[b, :n] - data.qdd[b, :n]).pow(2).sum())
+        ref += float(data.qdd[b, :n].pow(2).sum())
+    return err, ref
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(ROOT / "data" / "real_double_pendulum.h5"))
+    ap.add_argument("--config", default=str(ROOT / "configs" / "real_double_pendulum.yaml"))
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), help="names of SETTINGS to compare")
+    ap.add_argument("--work", default=str(ROOT / "data" / "real_cv"), help="fold files and training runs")
+    ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum" / "cross_validation"))
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--report-only", action="store_true", help="rewrite the report from OUTPUT's JSON")
+    args = ap.parse_args()
+    if args.report_only:
+        out = Path(args.output)
+        return write_report(json.loads((out / "cross_validation.json").read_text()), out)
+    unknown = [s for s in args.settings if s not in SETTINGS]
+    if unknown:
+        raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
+    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.perf import configure_cpu
+
+    configure_cpu(args.threads)
+    source = read_dataset(args.data)
+    names = json.loads(source.attrs["recordings"])
+    pool = sorted(np.concatenate([source.splits["train"], source.splits["val"]]).tolist())
+    lab = RigidArmModel.from_yaml(PARAMS)
+    work, out = Path(args.work), Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    sums = {name: {} for name in [LAB, *args.settings]}  # held-out recording: (squared error, squared reference)
+    fitted = {name: {} for name in sums}  # the fold's training recordings, alike
+    seconds = {name: [] for name in args.settings}
+    for held in pool:
+        rec = names[held]
+        path = work / f"fold_{rec}.h5"
+        fold_file(Path(args.data), path, held, [i for i in pool if i != held], source.splits["test"])
+        reference = None
+        for k, setting in enumerate(args.settings):
+            run_dir = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(setting)}"
+            if run_dir.exists():
+                shutil.rmtree(run_dir)
+            cmd = [sys.executable, "-m", "lnn_torch.cli", "fit", "-c", args.config, f"--data.path={path}",
+                   f"--model.model_options={json.dumps(SETTINGS[setting])}", f"--trainer.default_root_dir={run_dir}",
+                   "--trainer.enable_progress_bar=false"]
+            start = time.perf_counter()
+            done = subprocess.run(cmd, capture_output=True, text=True)
+            seconds[setting].append(time.perf_counter() - start)
+            if done.returncode != 0:
+                raise SystemExit(f"fit failed ({setting}, held out {rec}):\n{done.stderr[-3000:]}")
+            ckpt = str(run_dir / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt")
+            module = load_model(ckpt)
+            if reference is None:
+                saved = data_hparams(ckpt)
+                dm = TrajectoryDataModule(path=str(path), targets=saved.get("targets", "file"))
+                reference = dm.trajectories("val", smooth_inputs=True)
+                seen = dm.trajectories("train", smooth_inputs=True)
+                sums[LAB][rec], fitted[LAB][rec] = squared_errors(lab, reference), squared_errors(lab, seen)
+            with torch.no_grad():
+                sums[setting][rec] = squared_errors(module.model, reference)
+                fitted[setting][rec] = squared_errors(module.model, seen)
+            e, r = sums[setting][rec]
+            print(f"held out {rec}: {setting:36s} {100 * np.sqrt(e / r):6.1f} %  "
+                  f"(lab {100 * np.sqrt(np.divide(*sums[LAB][rec])):.1f} %)",
+                  flush=True)
+    def pooled(per: dict) -> float:
+        return float(np.sqrt(sum(e for e, _ in per.values()) / sum(r for _, r in per.values())))
+
+    table = {name: {"per_recording": {rec: float(np.sqrt(e / r)) for rec, (e, r) in per.items()},
+                    "pooled": pooled(per), "training_recordings_pooled": pooled(fitted[name])}
+             for name, per in sums.items()}
+    config = Path(args.config).resolve()
+    config = str(config.relative_to(ROOT) if config.is_relative_to(ROOT) else config)
+    result = {"config": config, "settings": {s: SETTINGS[s] for s in args.settings}, "fit_seconds": seconds,
+              "results": table}
+    (out / "cross_validation.json").write_text(json.dumps(result, indent=1))
+    write_report(result, out)
+
+
+def write_report(result: dict, out: Path) -> None:
+    """``cross_validation.md`` from the study's JSON."""
+    table, seconds = result["results"], result["fit_seconds"]
+    recs = list(table[LAB]["per_recording"])
+    lines = [f"Leave-one-recording-out cross-validation over the non-test recordings ({', '.join(recs)}): each held "
+             f"out in turn, `lnn-torch fit -c {result.get('config', 'configs/real_double_pendulum.yaml')}` on the "
+             "rest with the setting's `model.model_options`; acceleration relative L2 error on the held-out recording "
+             "against the filtered reference, torques filtered alike. Pooled: all folds' squared errors over all "
+             "folds' squared reference (the criterion). Seen: the same error on each fold's own training "
+             "recordings, pooled over the folds. Fit: wall-clock seconds of the whole command (one thread; other jobs "
+             "may have shared the machine). `python scripts/real_pendulum_cv.py`", "",
+             "| model | pooled | " + " | ".join(recs) + " | seen | fit (s, median) |",
+             "|---|---|" + "---|" * (len(recs) + 2)]
+    for name, r in table.items():
+        fit = f"{np.median(seconds[name]):.0f}" if name in seconds else "–"
+        seen = f"{100 * r['training_recordings_pooled']:.1f} %" if "training_recordings_pooled" in r else "–"
+        lines.append(f"| {name} | {100 * r['pooled']:.1f} % | "
+                     + " | ".join(f"{100 * r['per_recording'][rec]:.1f} %" for rec in recs) + f" | {seen} | {fit} |")
+    text = "\n".join(lines) + "\n"
+    (out / "cross_validation.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
