@@ -235,7 +235,8 @@ def test_shooting_windows_never_cross_a_recording_end(recordings):
 # ---------------------------------------------------------------------------- end to end from the CLI
 def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     """Import, fit (a parameter-free measured system, acceleration targets from Savitzky-Golay, and
-    trajectory matching), evaluate with horizons from many start points; all from the command line."""
+    trajectory matching with the grey-box rigid chain), evaluate (the chain's checkpoint) with horizons
+    from many start points; all from the command line."""
     import subprocess
     import sys
 
@@ -251,11 +252,15 @@ def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
               "--data.steps_per_epoch", "3", "--model.hidden_dims", "[8,8]", "--model.val_rollout_seconds", "0.2",
               "--trainer.max_epochs", "1", "--trainer.enable_progress_bar", "false", "--trainer.accelerator", "cpu"]
     for extra in (["--data.targets", '{"method": "savgol", "window": 21, "polyorder": 3}'],
-                  ["--data.targets", "butterworth", "--model.loss", "trajectory"]):
+                  ["--data.targets", "butterworth", "--model.loss", "trajectory", "--model.model_options",
+                   '{"kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "harmonic"}']):
         out = run("fit", *common, *extra)
         assert out.returncode == 0, out.stderr[-3000:]
     ckpts = sorted(tmp_path.glob("lightning_logs/version_*/checkpoints/last.ckpt"))
     assert len(ckpts) == 2
+    from lnn_torch.checkpoints import load_model
+
+    assert load_model(str(ckpts[-1])).model.chain is not None  # the options travel with the checkpoint
     out = run("evaluate", str(ckpts[-1]), "--split", "test", "--threads", "1", "-o", str(tmp_path / "eval"))
     assert out.returncode == 0, out.stderr[-3000:]
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())

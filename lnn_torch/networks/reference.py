@@ -63,9 +63,50 @@ def _shared_outputs(model, q_norm, params_norm) -> torch.Tensor:
     return mlp(model.trunk, torch.cat([features(model, q_norm), params_norm], -1), film)
 
 
+def chain_positions(chain, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
+    """The centres of mass ``(B, n, 2)`` of a ``RigidChainKinetic``'s links, written out: joint k + 1 is
+    at ``sum_{j <= k} l_j (sin phi_j, -cos phi_j)``, link i's centre of mass ``a_i`` along and ``b_i``
+    across its own direction from joint i."""
+    p = chain.parameters_of(params_norm)
+    phi = q_norm @ chain.link_map.to(q_norm.dtype).T
+    out, joint = [], torch.zeros(*q_norm.shape[:-1], 2, dtype=q_norm.dtype)
+    for i in range(chain.num_links):
+        s, c = torch.sin(phi[..., i]), torch.cos(phi[..., i])
+        along, across = p["along"][..., i], p["across"][..., i]
+        out.append(joint + torch.stack([along * s + across * c, -along * c + across * s], -1))
+        if i < chain.num_links - 1:
+            joint = joint + p["length"][..., i, None] * torch.stack([s, -c], -1)
+    return torch.stack(out, -2)
+
+
+def chain_factor(chain, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
+    """``F (B, dof, r)`` with ``F F^T = sum_i m_i J_i^T J_i + K``, ``J_i = dp_i/dq`` by torch.func and
+    ``K = L_K L_K^T`` the constant part (``M = F F^T`` is the chain's mass matrix)."""
+    p = chain.parameters_of(params_norm)
+
+    def one(q1, p1):
+        return chain_positions(chain, q1[None], p1[None])[0].flatten()  # (2 n,)
+
+    J = torch.func.vmap(torch.func.jacrev(one))(q_norm, params_norm.expand(q_norm.shape[0], -1))  # (B, 2n, dof)
+    B = q_norm.shape[0]
+    mass = p["mass"].expand(B, -1).repeat_interleave(2, -1)  # (B, 2n): x and y of each link
+    return torch.cat([(mass.sqrt()[..., None] * J).mT, p["const"].expand(B, -1, -1)], -1)
+
+
 def cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-    """A structured model's Cholesky factor ``(B, dof, dof)``: lower-triangular, diagonal first in
-    the network's outputs, ``softplus(.) + diag_shift`` on the diagonal."""
+    """A structured model's mass-matrix factor ``F`` (``M = F F^T + eps I``): the Cholesky MLP's
+    ``(B, dof, dof)``, lower-triangular, diagonal first in the network's outputs, ``softplus(.) +
+    diag_shift`` on the diagonal; the rigid chain's ``chain_factor`` (``kinetic: chain``); both side
+    by side (``chain+mlp``)."""
+    if model.chain is not None:
+        Fc = chain_factor(model.chain, q_norm, params_norm)
+        if model.kinetic_net is None:
+            return Fc
+        return torch.cat([Fc, _mlp_cholesky(model, q_norm, params_norm)], -1)
+    return _mlp_cholesky(model, q_norm, params_norm)
+
+
+def _mlp_cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
     dof = model.scene.dof
     if model.shared:
         entries = _shared_outputs(model, q_norm, params_norm)[..., :-1]

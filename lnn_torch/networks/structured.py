@@ -3,6 +3,9 @@
 ``M = chol chol^T + eps I`` with ``chol`` lower-triangular (softplus + shift on its diagonal), from a
 kinetic MLP; ``V`` from a potential MLP. ``film_lnn`` conditions both networks on the parameters by
 FiLM; ``delan`` (Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs.
+Grey-box options for real arms: ``kinetic: chain`` (the mass matrix of a planar rigid chain,
+``lnn_torch.networks.chain``, a rectangular factor ``F`` with ``M = F F^T + eps I``) and
+``potential: harmonic`` (gravity's first-harmonic series), each optionally plus its MLP.
 
 The solve needs no Hessian: the kinetic MLP carries forward-mode tangents along each coordinate by
 hand (``d chol / d q_k``), the potential MLP has a hand-written reverse pass (``dV/dq``), and
@@ -64,6 +67,15 @@ class StructuredLagrangian(DynamicsModel):
             joint-relative angles); unlike an MLP it cannot bend where the data never went; or
             ``harmonic+mlp``: that series plus the potential MLP. The harmonic forms need angle
             coordinates only, and the two networks (not ``shared``).
+        kinetic: ``mlp`` (default: the Cholesky factor from the kinetic MLP), ``chain``: the mass matrix
+            of a planar chain of rigid links on revolute joints (``lnn_torch.networks.chain``: masses,
+            centres of mass, link lengths and a constant inertia matrix for the links' rotations and
+            any motor rotors; constants without parameters, else from a small network of them), or ``chain+mlp``: that plus the
+            Cholesky MLP's ``chol chol^T`` as a residual (which starts near zero). The chain forms need
+            angle coordinates only, ``links``, and the two networks (not ``shared``).
+        links: for the chain forms: each link's absolute angle (from the downward vertical) as a row of
+            coefficients over the coordinates: ``[[1, 0], [0, 1]]`` for the double pendulum's absolute
+            angles, ``[[1, 0], [1, 1]]`` for joint-relative angles.
     """
 
     variant = "film_lnn"
@@ -72,7 +84,8 @@ class StructuredLagrangian(DynamicsModel):
     def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
                  learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
-                 mass_invariant: list[int] | None = None, potential: str = "mlp") -> None:
+                 mass_invariant: list[int] | None = None, potential: str = "mlp", kinetic: str = "mlp",
+                 links: list[list[float]] | None = None) -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
@@ -97,6 +110,21 @@ class StructuredLagrangian(DynamicsModel):
                              f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
                              + (", shared is set" if self.shared else ""))
         self.potential_coef = self.potential_coef_net = None
+        if kinetic not in ("mlp", "chain", "chain+mlp"):
+            raise InputError(f"kinetic must be 'mlp', 'chain' or 'chain+mlp', got {kinetic!r}")
+        self.kinetic = kinetic
+        self.chain = None
+        if kinetic != "mlp":
+            if self.shared or not self.all_angles or links is None:
+                raise InputError(f"kinetic {kinetic!r} needs angle coordinates only, the two networks (not shared) "
+                                 "and links (each link's absolute angle over the coordinates); scene "
+                                 f"'{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
+                                 + (", shared is set" if self.shared else "") + ("" if links else ", links not given"))
+            from .chain import RigidChainKinetic
+
+            self.chain = RigidChainKinetic(links, P, film_hidden)
+            if self.chain.dof != dof:
+                raise InputError(f"links must be rows of {dof} coefficients (one per coordinate), got {links!r}")
         if self.shared:  # one network: outputs [Cholesky entries | V]
             self.trunk = TangentMLP(F + P, hidden_dims, self.num_chol + 1, activation)
             self.trunk_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
@@ -104,10 +132,11 @@ class StructuredLagrangian(DynamicsModel):
         else:
             Fk = F if self.kinetic_index is None else len(self.kinetic_index)  # the kinetic network's features
             # (the construction order fixes the random initialisation of a seed: kept as it was)
-            self.kinetic_net = TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
+            self.kinetic_net = (TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
+                                if kinetic != "chain" else None)
             mlp_potential = potential != "harmonic"
             self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False) if mlp_potential else None
-            self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
+            self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and self.kinetic_net is not None) else None
             self.potential_film = (FiLM(P, hidden_dims, film_mode, film_hidden)
                                    if (film and potential_film and mlp_potential) else None)
             if self.harmonic:  # V (+)= c(theta) . phi(q)
@@ -130,6 +159,11 @@ class StructuredLagrangian(DynamicsModel):
         self.register_buffer("chol_scatter", scatter, persistent=False)
         self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
         self.chunk_conditioning = film
+        if kinetic == "chain+mlp":  # the Cholesky MLP is a residual: it starts at chol ~ 0.02 I
+            with torch.no_grad():
+                self.kinetic_net.out.weight.zero_()
+                self.kinetic_net.out.bias.zero_()
+                self.kinetic_net.out.bias[:dof] = -4.0
 
     def _kinetic_features(self, invariant) -> list[int] | None:
         """Registers ``kinetic_index``: the features the kinetic network reads when the mass matrix
@@ -177,11 +211,12 @@ class StructuredLagrangian(DynamicsModel):
     # ------------------------------------------------------------------ the networks
     def _terms(self, q_norm, params_norm, films, tangents: bool = True):
         """``(phi, chol, dchol, V, dV)`` from one pass of each network (of the one shared network):
-        Cholesky factor ``(B, dof, dof)``, ``d chol / d q_k`` ``(dof, B, dof, dof)``, potential ``(B,)``
+        mass-matrix factor ``(B, dof, r)`` (``r = dof``: the Cholesky factor; see ``_cholesky``),
+        ``d chol / d q_k`` ``(dof, B, dof, r)``, potential ``(B,)``
         and ``dV/dq`` ``(B, dof)`` (the derivatives None without ``tangents``)."""
         phi, dphi, sin_cos = self._features(q_norm, tangents)
         if not self.shared:
-            chol, dchol = self._cholesky(phi, dphi, params_norm, films[0])
+            chol, dchol = self._cholesky(q_norm, phi, dphi, params_norm, films[0])
             V, dV = self._potential(q_norm, phi, sin_cos, params_norm, films[1], grad=tangents)
             return phi, chol, dchol, V, dV
         n = self.scene.dof ** 2
@@ -190,14 +225,27 @@ class StructuredLagrangian(DynamicsModel):
         return phi, chol, dchol, y[:, n], (None if dy is None else dy[..., n].mT)
 
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
-        """Cholesky factor ``(B, dof, dof)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, dof)``."""
+        """Mass-matrix factor ``(B, dof, r)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, r)``
+        (``r = dof``, the Cholesky factor, unless ``kinetic`` is a chain form: see ``_cholesky``)."""
         if not self.shared:
             phi, dphi = self.features(q_norm, tangents)
-            return self._cholesky(phi, dphi, params_norm, self.films(params_norm)[0])
+            return self._cholesky(q_norm, phi, dphi, params_norm, self.films(params_norm)[0])
         _, chol, dchol, _, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents)
         return chol, dchol
 
-    def _cholesky(self, phi, dphi, params_norm, film):
+    def _cholesky(self, q_norm, phi, dphi, params_norm, film):
+        """The mass matrix's factor ``(B, dof, r)`` (``M = F F^T + eps I``; square lower-triangular for
+        the kinetic MLP, rectangular for the rigid chain, the two side by side for ``chain+mlp``) and
+        its tangents ``(dof, B, dof, r)`` (None without ``dphi``)."""
+        if self.chain is not None:
+            Fc, dFc = self.chain.factor(q_norm, params_norm, tangents=dphi is not None)
+            if self.kinetic_net is None:
+                return Fc, dFc
+            chol, dchol = self._mlp_cholesky(phi, dphi, params_norm, film)
+            return torch.cat([Fc, chol], -1), (None if dchol is None else torch.cat([dFc, dchol], -1))
+        return self._mlp_cholesky(phi, dphi, params_norm, film)
+
+    def _mlp_cholesky(self, phi, dphi, params_norm, film):
         S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
         if self.kinetic_index is not None:  # only the features the mass matrix depends on
             phi = phi[..., self.kinetic_index]
@@ -218,7 +266,7 @@ class StructuredLagrangian(DynamicsModel):
         return chol, dchol.reshape(-1, B, dof, dof)
 
     def _mass_from(self, chol):
-        """``M = chol chol^T + eps I`` ``(B, dof, dof)``."""
+        """``M = chol chol^T + eps I`` ``(B, dof, dof)`` (``chol``: any factor ``(B, dof, r)``)."""
         eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
         return torch.baddbmm(eye * self.eps, chol, chol.mT)
 

@@ -1,0 +1,129 @@
+"""The kinetic energy of a planar chain of rigid links on parallel revolute joints (grey box).
+
+Any such arm, whatever its masses, centres of mass, inertias and motors, has
+
+    T = 1/2 sum_i m_i |v_i|^2 + 1/2 qd^T K qd
+
+with ``v_i`` the velocity of link i's centre of mass and ``K`` a CONSTANT positive semi-definite
+matrix in the coordinates: a link's rotation about its centre of mass (inertia ``I_i``, angular
+rate ``G_i qd``) adds ``I_i G_i^T G_i``, and a motor rotor, whose rate is a fixed combination of the
+coordinate rates whatever its gear ratio and carrier link, adds a constant term of the same kind.
+With ``phi = G q`` the absolute link angles (``G``: the ``links`` option, e.g. ``[[1, 0], [1, 1]]``
+for joint-relative angles), ``e(phi) = (sin phi, -cos phi)`` the direction of a link hanging at
+``phi`` from the downward vertical and ``n(phi) = (cos phi, sin phi) = de/dphi``, link i's centre
+of mass is at
+
+    p_i = sum_{k < i} l_k e(phi_k) + a_i e(phi_i) + b_i n(phi_i)
+
+(``l_k`` the joint-to-joint length of link k, ``(a_i, b_i)`` the centre of mass along and across
+link i). ``M = F F^T`` with the rectangular factor ``F = [sqrt(m_i) dp_i/dq | L_K]`` (dof, 2 n + dof),
+``K = L_K L_K^T`` (``L_K`` lower-triangular, positive diagonal): positive definite by construction.
+It enters ``lnn_torch.dynamics.structured_acceleration_from_factor`` as a Cholesky factor would:
+that solve needs ``M = F F^T`` and ``dF/dq``, not a triangular F. Few parameters (4 per link less
+one length, plus ``dof (dof + 1) / 2``), all learned: constants for a measured system, or the output
+of a small network of the scene's parameters. This is the mass matrix of the lab's physical model
+family, so it cannot bend where the data never went; ``kinetic: chain+mlp`` adds the Cholesky MLP as
+a residual.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..systems.base import InputError
+
+_SOFTPLUS_ONE = math.log(math.expm1(1.0))
+_SOFTPLUS_THIRD = math.log(math.expm1(0.3))
+
+
+class RigidChainKinetic(nn.Module):
+    """Mass-matrix factor of a planar rigid chain ``F (B, dof, r)`` and ``dF/dq_k (dof, B, dof, r)``,
+    ``r = 2 n + dof``.
+
+    Args:
+        links: ``(n, dof)``: each link's absolute angle as coefficients over the coordinates.
+        num_params: the scene's number of parameters (0: the chain's are free constants).
+        hidden: width of the network of the scene's parameters (when there are any).
+    """
+
+    def __init__(self, links, num_params: int, hidden: int = 16) -> None:
+        super().__init__()
+        try:
+            G = torch.tensor(links, dtype=torch.float32)
+        except (TypeError, ValueError):
+            raise InputError(f"links must be rows of coordinate coefficients, got {links!r}") from None
+        if G.ndim != 2 or G.shape[0] < 1:
+            raise InputError(f"links must be a non-empty list of rows, got {links!r}")
+        self.num_links, self.dof = G.shape
+        self.register_buffer("link_map", G, persistent=False)
+        n, dof = self.num_links, self.dof
+        rows, cols = torch.tril_indices(dof, dof)
+        self.register_buffer("const_rows", rows, persistent=False)
+        self.register_buffer("const_cols", cols, persistent=False)
+        # raw parameters: mass, centre of mass along and across (n each), lengths (n - 1), and the constant
+        # factor L_K's lower triangle (row-major; softplus on its diagonal)
+        const = torch.where(rows == cols, torch.full((len(rows),), _SOFTPLUS_THIRD), torch.zeros(len(rows)))
+        init = torch.cat([torch.full((n,), _SOFTPLUS_ONE), torch.full((n,), 0.5), torch.zeros(n), torch.ones(n - 1),
+                          const])
+        self.num_raw = init.numel()
+        if num_params:
+            self.net = nn.Sequential(nn.Linear(num_params, hidden), nn.Tanh(), nn.Linear(hidden, self.num_raw))
+            nn.init.zeros_(self.net[-1].weight)
+            with torch.no_grad():
+                self.net[-1].bias.copy_(init)
+            self.raw = None
+        else:
+            self.net = None
+            self.raw = nn.Parameter(init)
+        self.num_columns = 2 * n + dof
+
+    def parameters_of(self, params_norm: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The chain's parameters in normalised units, each ``(B, .)`` or ``(1, .)`` (no scene parameters):
+        ``mass (n) >= 0``, centre of mass ``along, across (n)``, ``length (n - 1)``, and ``const``: the
+        factor ``L_K (dof, dof)`` of the constant part ``K = L_K L_K^T``."""
+        raw = self.raw.to(params_norm.dtype)[None] if self.net is None else self.net(params_norm)
+        n, dof = self.num_links, self.dof
+        mass, along, across, length, tri = raw.split([n, n, n, n - 1, len(self.const_rows)], -1)
+        diag = (self.const_rows == self.const_cols).to(tri.device)
+        tri = torch.where(diag, F.softplus(tri), tri)
+        const = tri.new_zeros(tri.shape[0], dof * dof).index_copy(-1, self.const_rows * dof + self.const_cols, tri)
+        return {"mass": F.softplus(mass), "along": along, "across": across, "length": length,
+                "const": const.view(-1, dof, dof)}
+
+    def _coefficients(self, p: dict, batch: int):
+        """``C[i, k]``: the coefficient of ``n(phi_k)`` in ``dp_i/dphi_k`` along the link (``l_k`` below
+        the diagonal, ``a_i`` on it), ``S[i, k]``: that of ``-e(phi_k)`` (``b_i`` on the diagonal)."""
+        n = self.num_links
+        lengths = torch.cat([p["length"], p["length"].new_zeros(p["length"].shape[0], 1)], -1)  # (., n)
+        below = torch.tril(torch.ones(n, n, dtype=lengths.dtype, device=lengths.device), -1)  # k < i
+        C = below * lengths[:, None, :] + torch.diag_embed(p["along"])
+        S = torch.diag_embed(p["across"])
+        return C.expand(batch, n, n), S.expand(batch, n, n)
+
+    def factor(self, q_norm: torch.Tensor, params_norm: torch.Tensor, tangents: bool = True):
+        """``F (B, dof, 2 n + dof)`` and, with ``tangents``, ``dF/dq_k (dof, B, dof, 2 n + dof)``."""
+        B, dtype = q_norm.shape[0], q_norm.dtype
+        G = self.link_map.to(dtype)
+        p = self.parameters_of(params_norm)
+        C, S = self._coefficients(p, B)
+        phi = q_norm @ G.T  # (B, n)
+        e = torch.stack([torch.sin(phi), -torch.cos(phi)], -1)  # (B, n, 2)
+        nrm = torch.stack([torch.cos(phi), torch.sin(phi)], -1)  # de/dphi
+        # dp_i/dphi_k = C_ik n_k - S_ik e_k;  dp_i/dq_j = sum_k (.) G_kj   -> (B, n, 2, dof)
+        dp_dphi = C[..., None] * nrm[:, None] - S[..., None] * e[:, None]  # (B, i, k, 2)
+        jac = torch.einsum("bikx,kj->bixj", dp_dphi, G)
+        root_m = p["mass"].sqrt().expand(B, -1)  # (B, n)
+        linear = (root_m[..., None, None] * jac).reshape(B, 2 * self.num_links, self.dof).mT  # (B, dof, 2n)
+        Fq = torch.cat([linear, p["const"].expand(B, -1, -1)], -1)
+        if not tangents:
+            return Fq, None
+        # d/dphi_k (dp_i/dphi_k) = -C_ik e_k - S_ik n_k (the only non-zero phi-derivative)
+        d2 = -(C[..., None] * e[:, None] + S[..., None] * nrm[:, None])  # (B, i, k, 2)
+        djac = torch.einsum("bikx,km,kj->mbixj", d2, G, G)  # (dof_m, B, n, 2, dof_j)
+        dlinear = (root_m[None, ..., None, None] * djac).reshape(self.dof, B, 2 * self.num_links, self.dof).mT
+        dF = torch.cat([dlinear, Fq.new_zeros(self.dof, B, self.dof, Fq.shape[-1] - 2 * self.num_links)], -1)
+        return Fq, dF

@@ -1,0 +1,146 @@
+"""The rigid-chain kinetic energy (``kinetic: chain``): closed forms, coordinate changes, the fast
+factor and its tangents against torch.func on the plain positions, and the solve against the
+generic Hessian solve."""
+
+import math
+
+import pytest
+import torch
+
+from lnn_torch.dynamics import generic_acceleration
+from lnn_torch.networks import build_model, reference
+from lnn_torch.systems import InputError, get_system
+from lnn_torch.systems.measured import MeasuredSystem
+
+from .conftest import random_batch
+
+ABSOLUTE2, RELATIVE2 = [[1, 0], [0, 1]], [[1, 0], [1, 1]]
+
+
+def inv_softplus(x: float) -> float:
+    return math.log(math.expm1(x))
+
+
+def set_chain(model, mass, along, across, length, const=None):
+    """Sets a parameter-free chain's raw parameters from physical values (normalised units); ``const``:
+    the lower-triangular factor of the constant part K (None: K = 0 to round-off)."""
+    dof = model.chain.dof
+    L = torch.zeros(dof, dof, dtype=torch.float64) if const is None else torch.as_tensor(const, dtype=torch.float64)
+    rows, cols = torch.tril_indices(dof, dof)
+    tri = [inv_softplus(max(float(L[r, c]), 1e-300)) if r == c else float(L[r, c]) for r, c in zip(rows, cols)]
+    raw = [inv_softplus(m) for m in mass] + list(along) + list(across) + list(length) + tri
+    with torch.no_grad():
+        model.chain.raw.copy_(torch.tensor(raw, dtype=model.chain.raw.dtype))
+    return model
+
+
+def chain_mass(model, q):
+    """The chain's mass matrix ``F F^T`` (without the eps I of the model) at normalised angles ``q``."""
+    F, _ = model.chain.factor(q, q.new_zeros(q.shape[0], 0), tangents=False)
+    return F @ F.mT
+
+
+def test_point_mass_chain_is_the_double_pendulums_mass_matrix():
+    """Point masses at the ends of massless rods, in absolute angles: the closed form of ``double_pendulum``."""
+    model = build_model("film_lnn", MeasuredSystem(2), kinetic="chain", links=ABSOLUTE2, potential="harmonic").double()
+    m1, m2, l1, l2 = 0.7, 1.3, 0.9, 0.6
+    set_chain(model, mass=(m1, m2), along=(l1, l2), across=(0.0, 0.0), length=(l1,))
+    q = torch.randn(32, 2, dtype=torch.float64) * 2
+    expected = get_system("double_pendulum").mass_matrix(q, torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(32, -1))
+    torch.testing.assert_close(chain_mass(model, q), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_three_link_point_masses_are_the_chain_pendulums_mass_matrix():
+    system = get_system("chain_pendulum", num_links=3)
+    model = build_model("film_lnn", MeasuredSystem(3), kinetic="chain", links=torch.eye(3).tolist(),
+                        potential="harmonic").double()
+    m, l = (0.5, 1.1, 0.8), (0.7, 0.9, 0.4)
+    set_chain(model, mass=m, along=l, across=(0.0,) * 3, length=l[:2])
+    q = torch.randn(16, 3, dtype=torch.float64)
+    expected = system.mass_matrix(q, torch.tensor(m + l, dtype=torch.float64).expand(16, -1))
+    torch.testing.assert_close(chain_mass(model, q), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_joint_angles_are_a_change_of_coordinates_of_absolute_angles():
+    """The same arm (centres of mass off the link axes) in joint-relative angles: ``M_rel = G^T M_abs G``
+    with ``phi = G q``; the constant part adds ``K = L_K L_K^T`` (link inertias, motor rotors)."""
+    values = dict(mass=(0.8, 0.5), along=(0.3, 0.25), across=(0.05, -0.04), length=(0.6,))
+    absolute = set_chain(build_model("film_lnn", MeasuredSystem(2), kinetic="chain", links=ABSOLUTE2).double(), **values)
+    L_K = [[0.2, 0.0], [-0.1, 0.15]]
+    relative = set_chain(build_model("film_lnn", MeasuredSystem(2, input_names=["tau1", "tau2"]), kinetic="chain",
+                                     links=RELATIVE2).double(), **values, const=L_K)
+    q = torch.randn(16, 2, dtype=torch.float64)
+    G, L_K = torch.tensor(RELATIVE2, dtype=torch.float64), torch.tensor(L_K, dtype=torch.float64)
+    expected = G.T @ chain_mass(absolute, q @ G.T) @ G + L_K @ L_K.T
+    torch.testing.assert_close(chain_mass(relative, q), expected, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("scene, config, links", [
+    ("double_pendulum", {}, ABSOLUTE2),  # parameters: the chain's from a network of them
+    ("actuated_double_pendulum", {}, RELATIVE2),  # inputs (rotor inertias), friction, joint angles
+    ("chain_pendulum", {"num_links": 3}, torch.eye(3).tolist()),
+    ("pendulum", {}, [[1]]),
+])
+@pytest.mark.parametrize("kinetic", ["chain", "chain+mlp"])
+@pytest.mark.parametrize("potential", ["harmonic", "mlp"])
+def test_chain_fast_path_equals_generic_solve(scene, config, links, kinetic, potential, rng):
+    """The hand-derived factor and tangents solve as the plain positions differentiated by torch.func
+    (``reference.chain_factor``) and as the generic Hessian solve of the reference Lagrangian."""
+    system = get_system(scene, **config)
+    model = build_model("film_lnn", system, hidden_dims=(16, 16), kinetic=kinetic, links=links,
+                        potential=potential).double()
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.3 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    q, qd, params = random_batch(system, rng, 32)
+    qn, qdn, pn = model.normalize(q, qd, params)
+    tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
+    force = model.force_norm(qn, qdn, pn, tau_n)
+    fast = model.acceleration_norm(qn, qdn, pn, tau_n)
+    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
+    structured = reference.structured_model_acceleration(model, qn, qdn, pn, force)
+    scale = generic.abs().max()
+    assert (fast - generic).abs().max() <= 1e-10 * scale
+    assert (fast - structured).abs().max() <= 1e-10 * scale
+    # the factor's tangents: a central difference of the factor itself
+    F, dF = model.cholesky(qn, pn, tangents=True)
+    h = 1e-6
+    for k in range(system.dof):
+        e = torch.zeros_like(qn)
+        e[:, k] = h
+        fd = (model.cholesky(qn + e, pn)[0] - model.cholesky(qn - e, pn)[0]) / (2 * h)
+        torch.testing.assert_close(dF[k], fd, rtol=1e-7, atol=1e-7)
+
+
+def test_a_chain_builds_no_kinetic_network():
+    model = build_model("film_lnn", get_system("double_pendulum"), kinetic="chain", links=ABSOLUTE2)
+    assert model.chain.num_columns == 6  # x and y of two links, and the constant 2 x 2 factor
+    assert model.kinetic_net is None and model.kinetic_film is None
+    assert sum(p.numel() for p in model.chain.parameters()) == 4 * 16 + 16 + 17 * (4 * 2 - 1 + 3)
+
+
+def test_chain_mass_matrix_is_positive_definite_and_the_residual_starts_small(rng):
+    model = build_model("film_lnn", MeasuredSystem(2, input_names=["a", "b"]), kinetic="chain+mlp", links=RELATIVE2,
+                        mass_invariant=[0]).double()
+    q = torch.randn(256, 2, dtype=torch.float64) * 3
+    p = q.new_zeros(256, 0)
+    M = model.mass_matrix_norm(q, p)
+    assert torch.linalg.eigvalsh(M).min() > 0
+    F, _ = model.cholesky(q, p)
+    residual = F[..., model.chain.num_columns:]
+    assert residual.abs().max() < 0.03 * F[..., :model.chain.num_columns].abs().max()
+
+
+def test_chain_refusals():
+    dp = get_system("double_pendulum")
+    with pytest.raises(InputError, match="links not given"):
+        build_model("film_lnn", dp, kinetic="chain")
+    with pytest.raises(InputError, match="rows of 2 coefficients"):
+        build_model("film_lnn", dp, kinetic="chain", links=[[1, 0, 0]])
+    with pytest.raises(InputError, match="shared is set"):
+        build_model("film_lnn", dp, kinetic="chain", links=ABSOLUTE2, shared=True)
+    with pytest.raises(InputError, match="angle mask"):
+        build_model("film_lnn", get_system("mass_spring"), kinetic="chain", links=[[1]])
+    with pytest.raises(InputError, match="kinetic must be"):
+        build_model("film_lnn", dp, kinetic="rigid")
