@@ -50,6 +50,25 @@ def test_point_mass_chain_is_the_double_pendulums_mass_matrix():
     torch.testing.assert_close(chain_mass(model, q), expected, rtol=1e-12, atol=1e-12)
 
 
+def test_chain_gravity_is_the_double_pendulums_potential():
+    """``potential: chain``: g on the chain's own masses; point masses give ``double_pendulum``'s V (and,
+    with a time scale tau, the normalised V is g tau^2 times the same sum: lengths in metres)."""
+    model = build_model("film_lnn", MeasuredSystem(2), kinetic="chain", links=ABSOLUTE2, potential="chain").double()
+    m1, m2, l1, l2 = 0.7, 1.3, 0.9, 0.6
+    set_chain(model, mass=(m1, m2), along=(l1, l2), across=(0.0, 0.0), length=(l1,))
+    q = torch.randn(32, 2, dtype=torch.float64) * 2
+    params = torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(32, -1)
+    none = q.new_zeros(32, 0)
+    expected = get_system("double_pendulum").potential(q, params)
+    torch.testing.assert_close(model.potential_norm(q, none)[0], expected, rtol=1e-12, atol=1e-12)
+    with torch.no_grad():
+        model.normalizer.time_scale.fill_(0.3)
+    V, dV = model.potential_norm(q, none, grad=True)
+    torch.testing.assert_close(V, 0.09 * expected, rtol=1e-12, atol=1e-12)
+    grad = torch.func.vmap(torch.func.grad(lambda x: get_system("double_pendulum").potential(x, params[0])))(q)
+    torch.testing.assert_close(dV, 0.09 * grad, rtol=1e-12, atol=1e-12)
+
+
 def test_three_link_point_masses_are_the_chain_pendulums_mass_matrix():
     system = get_system("chain_pendulum", num_links=3)
     model = build_model("film_lnn", MeasuredSystem(3), kinetic="chain", links=torch.eye(3).tolist(),
@@ -82,7 +101,7 @@ def test_joint_angles_are_a_change_of_coordinates_of_absolute_angles():
     ("pendulum", {}, [[1]]),
 ])
 @pytest.mark.parametrize("kinetic", ["chain", "chain+mlp"])
-@pytest.mark.parametrize("potential", ["harmonic", "mlp"])
+@pytest.mark.parametrize("potential", ["harmonic", "mlp", "chain"])
 def test_chain_fast_path_equals_generic_solve(scene, config, links, kinetic, potential, rng):
     """The hand-derived factor and tangents solve as the plain positions differentiated by torch.func
     (``reference.chain_factor``) and as the generic Hessian solve of the reference Lagrangian."""
@@ -144,3 +163,5 @@ def test_chain_refusals():
         build_model("film_lnn", get_system("mass_spring"), kinetic="chain", links=[[1]])
     with pytest.raises(InputError, match="kinetic must be"):
         build_model("film_lnn", dp, kinetic="rigid")
+    with pytest.raises(InputError, match="needs kinetic 'chain'"):
+        build_model("film_lnn", dp, potential="chain")

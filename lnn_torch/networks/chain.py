@@ -127,3 +127,21 @@ class RigidChainKinetic(nn.Module):
         dlinear = (root_m[None, ..., None, None] * djac).reshape(self.dof, B, 2 * self.num_links, self.dof).mT
         dF = torch.cat([dlinear, Fq.new_zeros(self.dof, B, self.dof, Fq.shape[-1] - 2 * self.num_links)], -1)
         return Fq, dF
+
+    def gravity(self, q_norm: torch.Tensor, params_norm: torch.Tensor, g: torch.Tensor, grad: bool = True):
+        """``V = g sum_i m_i y_i`` (``y`` the height of each centre of mass; the angles hang from the
+        downward vertical) ``(B,)`` and, with ``grad``, ``dV/dq (B, dof)``. With ``w_k = sum_i m_i C_ik``
+        and ``s_k = sum_i m_i S_ik``: ``V = g sum_k (s_k sin phi_k - w_k cos phi_k)``."""
+        B, dtype = q_norm.shape[0], q_norm.dtype
+        G = self.link_map.to(dtype)
+        p = self.parameters_of(params_norm)
+        C, S = self._coefficients(p, B)
+        mass = p["mass"].expand(B, -1)[..., None]  # (B, n, 1)
+        w, s = (mass * C).sum(-2), (mass * S).sum(-2)  # (B, n): over the links i whose position phi_k moves
+        phi = q_norm @ G.T
+        sin, cos = torch.sin(phi), torch.cos(phi)
+        V = g * (s * sin - w * cos).sum(-1)
+        if not grad:
+            return V, None
+        return V, (g * (s * cos + w * sin)) @ G
+

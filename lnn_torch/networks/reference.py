@@ -142,6 +142,9 @@ def potential(model, q_norm, params_norm) -> torch.Tensor:
         V = mlp(model.potential_net, torch.cat([phi, params_norm], -1), film)[..., 0]
     if model.harmonic:  # plus c(theta) . [sin a, cos a]
         V = V + (phi * model.harmonic_coefficients(params_norm)).sum(-1)
+    if model.chain_gravity:  # g times each centre of mass's height, weighted by its mass
+        heights = chain_positions(model.chain, q_norm, params_norm)[..., 1]
+        V = V + model.gravity_norm(q_norm.dtype) * (model.chain.parameters_of(params_norm)["mass"] * heights).sum(-1)
     return V
 
 

@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from ..dynamics import structured_acceleration_from_factor
-from ..systems.base import InputError
+from ..systems.base import GRAVITY, InputError
 from ._kernels import one
 from .base import DynamicsModel
 from .layers import FiLM, TangentMLP
@@ -66,7 +66,10 @@ class StructuredLagrangian(DynamicsModel):
             ``l cos`` and ``l sin`` of absolute link angles, which the angle combinations supply for
             joint-relative angles); unlike an MLP it cannot bend where the data never went; or
             ``harmonic+mlp``: that series plus the potential MLP. The harmonic forms need angle
-            coordinates only, and the two networks (not ``shared``).
+            coordinates only, and the two networks (not ``shared``). ``chain`` (with a chain kinetic
+            energy): gravity ``g = 9.81 m/s^2`` on the chain's own masses and centres of mass, pointing
+            along the angles' downward vertical: no parameter of its own, and it pins the chain's
+            lengths to metres.
         kinetic: ``mlp`` (default: the Cholesky factor from the kinetic MLP), ``chain``: the mass matrix
             of a planar chain of rigid links on revolute joints (``lnn_torch.networks.chain``: masses,
             centres of mass, link lengths and a constant inertia matrix for the links' rotations and
@@ -102,8 +105,12 @@ class StructuredLagrangian(DynamicsModel):
         if self.shared and mass_invariant is not None:
             raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
         self.mass_invariant = self._kinetic_features(mass_invariant)
-        if potential not in ("mlp", "harmonic", "harmonic+mlp"):
-            raise InputError(f"potential must be 'mlp', 'harmonic' or 'harmonic+mlp', got {potential!r}")
+        if potential not in ("mlp", "harmonic", "harmonic+mlp", "chain"):
+            raise InputError(f"potential must be 'mlp', 'harmonic', 'harmonic+mlp' or 'chain', got {potential!r}")
+        if potential == "chain" and kinetic == "mlp":
+            raise InputError("potential 'chain' is the gravity of the rigid chain's masses: it needs kinetic 'chain' "
+                             "or 'chain+mlp'")
+        self.chain_gravity = potential == "chain"
         self.harmonic = potential.startswith("harmonic")
         if self.harmonic and (self.shared or not self.all_angles):
             raise InputError(f"potential {potential!r} needs angle coordinates only and the two networks (not shared); "
@@ -134,7 +141,7 @@ class StructuredLagrangian(DynamicsModel):
             # (the construction order fixes the random initialisation of a seed: kept as it was)
             self.kinetic_net = (TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
                                 if kinetic != "chain" else None)
-            mlp_potential = potential != "harmonic"
+            mlp_potential = potential in ("mlp", "harmonic+mlp")
             self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False) if mlp_potential else None
             self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and self.kinetic_net is not None) else None
             self.potential_film = (FiLM(P, hidden_dims, film_mode, film_hidden)
@@ -305,7 +312,14 @@ class StructuredLagrangian(DynamicsModel):
             c = self.harmonic_coefficients(params_norm)
             V = V + (phi * c).sum(-1)
             dV_dphi = dV_dphi + c
+        if self.chain_gravity:  # the chain's masses in gravity (the only potential: no features)
+            return self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad)
         return V, (self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad else None)
+
+    def gravity_norm(self, dtype=torch.float32) -> torch.Tensor:
+        """``g`` in normalised units, ``g tau^2`` (angles are not scaled): with it the chain's lengths are
+        in metres (``V_norm / M_norm = tau^2 V / M`` whatever the force scale)."""
+        return GRAVITY * self.normalizer.time_scale.to(dtype) ** 2
 
     # ------------------------------------------------------------------ the solve
     def _solve(self, q_norm, qd_norm, params_norm, films, energy: bool, force=None):
