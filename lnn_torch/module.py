@@ -59,7 +59,8 @@ class LNNModule(L.LightningModule):
             the LNN paper's counter-example).
         model_options: further options of the variant (a dict), for variants with options of their own.
         lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run.
-        weight_decay: AdamW weight decay.
+        weight_decay: AdamW weight decay of the network weights (physical coefficients are exempt:
+            ``DynamicsModel.coefficient_parameters``).
         huber_delta: Huber threshold (normalised units).
         energy_weight: weight of the energy-conservation (power-balance, with forces) term (0 disables it).
         torque_weight: weight of the inverse-dynamics term: Huber on the inputs (motor torques) that
@@ -210,7 +211,13 @@ class LNNModule(L.LightningModule):
             dm.set_epoch(self.current_epoch)
 
     def configure_optimizers(self):
-        opt = adamw(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        params = list(self.parameters())
+        if self.hparams.weight_decay:  # the network weights decay, the physical coefficients do not
+            coefficients = {id(p) for p in self.model.coefficient_parameters()}
+            groups = [{"params": [p for p in params if id(p) not in coefficients]},
+                      {"params": [p for p in params if id(p) in coefficients], "weight_decay": 0.0}]
+            params = [g for g in groups if g["params"]]
+        opt = adamw(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         floor = self.hparams.lr_min / self.hparams.lr
         sched = torch.optim.lr_scheduler.LambdaLR(
             opt, lambda step: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * self._progress(step))))

@@ -98,6 +98,11 @@ def main() -> None:
               f"{100 * m['max']:.1f} %; static torque (inverse dynamics at zero velocity and acceleration: gravity) along "
               "each recording's measured angles, RMS [max] difference: "
               + ", ".join(f"{k} {v['rms']:.3f} [{v['max']:.3f}] N m" for k, v in structure["static_torque"].items())]
+    if "identified" in structure:  # the lab's values of the same quantities
+        lines += ["", "Identified rigid chain (SI) against the lab's parameters: " + ", ".join(
+            f"{k} {v:.3f} ({lab.values[k]:.3f})" if k in lab.values else f"{k} {v:.3f}"
+            for k, v in structure["identified"].items()) + " (kg, m; r: centre of mass along the link from its joint, "
+            "r2_across: across link 2, 0 in the lab's model)"]
     table = "\n".join(lines) + "\n"
     (out / "report.md").write_text(table)
     print(table)
@@ -122,7 +127,13 @@ def compare_structure(model, lab, data, names) -> dict:
             learned = model.inverse_dynamics(qb, zero, zero, data.params[b : b + 1].expand(n, -1)).double()
         diff = (learned - lab_static).norm(dim=-1)
         static[name] = {"rms": float(diff.pow(2).mean().sqrt()), "max": float(diff.max())}
-    return {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
+    out = {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
+    if getattr(model, "chain_gravity", False) and not model.harmonic:  # gravity alone: the chain in SI
+        si = model.chain_si()
+        out["identified"] = {"m1": float(si["mass"][0, 0]), "m2": float(si["mass"][0, 1]),
+                             "l1": float(si["length"][0, 0]), "r1": float(si["along"][0, 0]),
+                             "r2": float(si["along"][0, 1]), "r2_across": float(si["across"][0, 1])}
+    return out
 
 
 def acceleration_report(model, data, coord_names) -> tuple[dict, list[float]]:

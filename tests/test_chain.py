@@ -28,7 +28,7 @@ def set_chain(model, mass, along, across, length, const=None):
     L = torch.zeros(dof, dof, dtype=torch.float64) if const is None else torch.as_tensor(const, dtype=torch.float64)
     rows, cols = torch.tril_indices(dof, dof)
     tri = [inv_softplus(max(float(L[r, c]), 1e-300)) if r == c else float(L[r, c]) for r, c in zip(rows, cols)]
-    raw = [inv_softplus(m) for m in mass] + list(along) + list(across) + list(length) + tri
+    raw = [math.log(m) for m in mass] + list(along) + list(across) + list(length) + tri
     with torch.no_grad():
         model.chain.raw.copy_(torch.tensor(raw, dtype=model.chain.raw.dtype))
     return model
@@ -101,7 +101,7 @@ def test_joint_angles_are_a_change_of_coordinates_of_absolute_angles():
     ("pendulum", {}, [[1]]),
 ])
 @pytest.mark.parametrize("kinetic", ["chain", "chain+mlp"])
-@pytest.mark.parametrize("potential", ["harmonic", "mlp", "chain"])
+@pytest.mark.parametrize("potential", ["harmonic", "mlp", "chain", "chain+harmonic"])
 def test_chain_fast_path_equals_generic_solve(scene, config, links, kinetic, potential, rng):
     """The hand-derived factor and tangents solve as the plain positions differentiated by torch.func
     (``reference.chain_factor``) and as the generic Hessian solve of the reference Lagrangian."""
@@ -165,3 +165,48 @@ def test_chain_refusals():
         build_model("film_lnn", dp, kinetic="rigid")
     with pytest.raises(InputError, match="needs kinetic 'chain'"):
         build_model("film_lnn", dp, potential="chain")
+
+
+def test_weight_decay_spares_the_physical_coefficients():
+    """AdamW's decay pulls towards zero: on the chain's masses and lengths, the potential's and the
+    friction's coefficients it would bias the physics, so only the network weights decay."""
+    from lnn_torch.module import LNNModule
+
+    module = LNNModule(scene="measured", scene_config=MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config(),
+                       variant="film_lnn", hidden_dims=[8, 8], weight_decay=0.1,
+                       model_options={"kinetic": "chain+mlp", "links": RELATIVE2, "potential": "harmonic+mlp"})
+    opt = module.configure_optimizers()["optimizer"]
+    decayed, spared = opt.param_groups
+    names = {id(p): n for n, p in module.model.named_parameters()}
+    assert sorted(names[id(p)] for p in spared["params"]) == ["chain.raw", "forces.coefficients_raw", "potential_coef"]
+    assert spared["weight_decay"] == 0.0 and decayed["weight_decay"] == 0.1
+    assert any(names[id(p)].startswith("kinetic_net") for p in decayed["params"])
+
+
+def test_si_chain_parameters_undo_the_normalisation():
+    """``M_norm = force_scale M_SI / tau^2`` (angles unscaled): the SI masses and K come back from the
+    normalised ones, the lengths (pinned to metres by g tau^2) as they are."""
+    scene = MeasuredSystem(2, input_names=["tau1", "tau2"], angle_combinations=[[1, 1]])
+    model = build_model("film_lnn", scene, kinetic="chain", links=RELATIVE2, potential="chain").double()
+    tau, fs = 0.17, 2.9
+    with torch.no_grad():
+        model.normalizer.time_scale.fill_(tau)
+        model.normalizer.force_scale.fill_(fs)
+    masses = (0.64, 0.56)
+    set_chain(model, mass=[m * fs / tau**2 for m in masses], along=(0.2, 0.32), across=(0.0, 0.01), length=(0.2,),
+              const=[[0.1, 0.0], [0.02, 0.05]])
+    si = model.chain_si()
+    torch.testing.assert_close(si["mass"][0], torch.tensor(masses, dtype=torch.float64))
+    torch.testing.assert_close(si["length"][0], torch.tensor([0.2], dtype=torch.float64))
+    L = torch.tensor([[0.1, 0.0], [0.02, 0.05]], dtype=torch.float64)
+    torch.testing.assert_close(si["constant"][0], L @ L.T * tau**2 / fs)
+    # the model's SI mass matrix is that chain's
+    q = torch.randn(8, 2, dtype=torch.float64)
+    m1, m2 = masses
+    c = torch.cos(q[:, 1])
+    M11 = m1 * 0.2**2 + m2 * (0.2**2 + 0.32**2 + 0.01**2) + 2 * m2 * 0.2 * (0.32 * c - 0.01 * torch.sin(q[:, 1]))
+    M_si = chain_mass(model, q) * tau**2 / fs
+    K = L @ L.T * tau**2 / fs
+    torch.testing.assert_close(M_si[:, 0, 0] - K[0, 0], M11)
+    with pytest.raises(InputError, match="SI chain parameters need"):
+        build_model("film_lnn", scene, kinetic="chain", links=RELATIVE2, potential="chain+harmonic").chain_si()

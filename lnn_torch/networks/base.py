@@ -428,4 +428,11 @@ class DynamicsModel(nn.Module):
     def dtype(self) -> torch.dtype:
         return next(self.parameters()).dtype
 
+    def coefficient_parameters(self) -> list[nn.Parameter]:
+        """The parameters that are physical coefficients, not network weights (a friction coefficient,
+        a learned input matrix, a potential's or a rigid chain's constants): training exempts them
+        from weight decay, which would pull a mass or a length towards zero."""
+        names = ("coefficients_raw", "input_matrix", "potential_coef", "chain.raw")
+        return [p for n, p in self.named_parameters() if n.endswith(names)]
+
     forward = acceleration

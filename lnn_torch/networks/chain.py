@@ -36,7 +36,6 @@ from torch import nn
 
 from ..systems.base import InputError
 
-_SOFTPLUS_ONE = math.log(math.expm1(1.0))
 _SOFTPLUS_THIRD = math.log(math.expm1(0.3))
 
 
@@ -64,10 +63,12 @@ class RigidChainKinetic(nn.Module):
         rows, cols = torch.tril_indices(dof, dof)
         self.register_buffer("const_rows", rows, persistent=False)
         self.register_buffer("const_cols", cols, persistent=False)
-        # raw parameters: mass, centre of mass along and across (n each), lengths (n - 1), and the constant
-        # factor L_K's lower triangle (row-major; softplus on its diagonal)
+        # raw parameters: log mass, centre of mass along and across (n each), lengths (n - 1), and the
+        # constant factor L_K's lower triangle (row-major; softplus on its diagonal). Masses are scale
+        # parameters: Adam moves a log-mass by a fraction of itself per step, so a mass can reach the
+        # O(100) of normalised units that metre-sized lengths need (potential: chain) within a run.
         const = torch.where(rows == cols, torch.full((len(rows),), _SOFTPLUS_THIRD), torch.zeros(len(rows)))
-        init = torch.cat([torch.full((n,), _SOFTPLUS_ONE), torch.full((n,), 0.5), torch.zeros(n), torch.ones(n - 1),
+        init = torch.cat([torch.zeros(n), torch.full((n,), 0.5), torch.zeros(n), torch.ones(n - 1),
                           const])
         self.num_raw = init.numel()
         if num_params:
@@ -91,7 +92,7 @@ class RigidChainKinetic(nn.Module):
         diag = (self.const_rows == self.const_cols).to(tri.device)
         tri = torch.where(diag, F.softplus(tri), tri)
         const = tri.new_zeros(tri.shape[0], dof * dof).index_copy(-1, self.const_rows * dof + self.const_cols, tri)
-        return {"mass": F.softplus(mass), "along": along, "across": across, "length": length,
+        return {"mass": mass.exp(), "along": along, "across": across, "length": length,
                 "const": const.view(-1, dof, dof)}
 
     def _coefficients(self, p: dict, batch: int):

@@ -69,7 +69,9 @@ class StructuredLagrangian(DynamicsModel):
             coordinates only, and the two networks (not ``shared``). ``chain`` (with a chain kinetic
             energy): gravity ``g = 9.81 m/s^2`` on the chain's own masses and centres of mass, pointing
             along the angles' downward vertical: no parameter of its own, and it pins the chain's
-            lengths to metres.
+            lengths to metres; ``chain+harmonic``: that plus the harmonic series as a residual (forces
+            of springs, cables or a tilted base that gravity on the links does not explain; it decays
+            under weight decay, but it can carry gravity itself, so the lengths are no longer pinned).
         kinetic: ``mlp`` (default: the Cholesky factor from the kinetic MLP), ``chain``: the mass matrix
             of a planar chain of rigid links on revolute joints (``lnn_torch.networks.chain``: masses,
             centres of mass, link lengths and a constant inertia matrix for the links' rotations and
@@ -105,13 +107,14 @@ class StructuredLagrangian(DynamicsModel):
         if self.shared and mass_invariant is not None:
             raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
         self.mass_invariant = self._kinetic_features(mass_invariant)
-        if potential not in ("mlp", "harmonic", "harmonic+mlp", "chain"):
-            raise InputError(f"potential must be 'mlp', 'harmonic', 'harmonic+mlp' or 'chain', got {potential!r}")
-        if potential == "chain" and kinetic == "mlp":
+        if potential not in ("mlp", "harmonic", "harmonic+mlp", "chain", "chain+harmonic"):
+            raise InputError(f"potential must be 'mlp', 'harmonic', 'harmonic+mlp', 'chain' or 'chain+harmonic', "
+                             f"got {potential!r}")
+        if potential.startswith("chain") and kinetic == "mlp":
             raise InputError("potential 'chain' is the gravity of the rigid chain's masses: it needs kinetic 'chain' "
                              "or 'chain+mlp'")
-        self.chain_gravity = potential == "chain"
-        self.harmonic = potential.startswith("harmonic")
+        self.chain_gravity = potential.startswith("chain")
+        self.harmonic = "harmonic" in potential
         if self.harmonic and (self.shared or not self.all_angles):
             raise InputError(f"potential {potential!r} needs angle coordinates only and the two networks (not shared); "
                              f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
@@ -191,6 +194,35 @@ class StructuredLagrangian(DynamicsModel):
             raise InputError(f"mass_invariant {invariant} leaves the kinetic network no feature to read")
         self.register_buffer("kinetic_index", torch.tensor(index, dtype=torch.long), persistent=False)
         return invariant
+
+    def chain_si(self, params: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The rigid chain's identified parameters in SI: ``mass`` (kg), centre of mass ``along`` and
+        ``across`` each link and joint-to-joint ``length`` (m), and ``constant`` ``K`` (kg m^2: link
+        inertias about their centres of mass, motor rotors), for the scene's parameters ``params``
+        ``(B, P)`` (None for a measured system). Needs ``potential: chain`` (gravity alone pins the
+        lengths to metres; beside the harmonic series, which can carry gravity itself, it does not) and a
+        scene with inputs (the torques fix the mass scale,
+        ``M_SI = M_norm tau^2 / force_scale``)."""
+        if (self.chain is None or not self.chain_gravity or self.harmonic or self.forces is None
+                or not self.forces.num_inputs):
+            raise InputError("SI chain parameters need kinetic 'chain', potential 'chain' and a scene with inputs "
+                             "(without gravity alone only products of masses and lengths are identified)")
+        norm = self.normalizer
+        if params is None:
+            params = torch.zeros(1, self.scene.num_params)
+        with torch.no_grad():
+            p = self.chain.parameters_of(norm.params(params.to(self.dtype)))
+            scale = norm.time_scale ** 2 / norm.force_scale
+            return {"mass": p["mass"] * scale, "along": p["along"], "across": p["across"], "length": p["length"],
+                    "constant": p["const"] @ p["const"].mT * scale}
+
+    def coefficient_parameters(self):
+        """As ``DynamicsModel.coefficient_parameters``; but the harmonic series beside the chain's own
+        gravity (``potential: chain+harmonic``) is a residual, and decays like a network's weights."""
+        params = super().coefficient_parameters()
+        if self.chain_gravity and self.potential_coef is not None:
+            params = [p for p in params if p is not self.potential_coef]
+        return params
 
     # ------------------------------------------------------------------ conditioning
     def films(self, params_norm: torch.Tensor, chunks: int | None = None):
@@ -312,9 +344,13 @@ class StructuredLagrangian(DynamicsModel):
             c = self.harmonic_coefficients(params_norm)
             V = V + (phi * c).sum(-1)
             dV_dphi = dV_dphi + c
-        if self.chain_gravity:  # the chain's masses in gravity (the only potential: no features)
-            return self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad)
-        return V, (self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad else None)
+        on_features = self.potential_net is not None or self.harmonic
+        dV = self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad and on_features else None
+        if self.chain_gravity:  # plus gravity on the chain's masses
+            Vg, dVg = self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad)
+            V = V + Vg
+            dV = dVg if dV is None else dV + dVg
+        return V, dV
 
     def gravity_norm(self, dtype=torch.float32) -> torch.Tensor:
         """``g`` in normalised units, ``g tau^2`` (angles are not scaled): with it the chain's lengths are
