@@ -124,11 +124,11 @@ def structured_acceleration(
     """Accelerations of ``L = 1/2 qd^T M qd - V`` with ``M = chol chol^T + eps I`` (torch.func reference).
 
     ``M qdd = dT/dq - dV/dq - Mdot qd`` where ``Mdot qd`` comes from a jvp of ``M(q)`` along ``qd``
-    and ``dT/dq = 1/2 d(qd^T M qd)/dq`` from a vjp. Solved with ``cholesky_solve`` when
-    ``eps == 0`` (then chol is M's own factor), else with a Cholesky factorisation of M.
+    and ``dT/dq = 1/2 d(qd^T M qd)/dq`` from a vjp. Solved by a LAPACK Cholesky factorisation of M
+    and ``cholesky_solve``.
 
     Args:
-        chol_fn: ``(q, params) -> chol`` for ONE sample, lower-triangular ``(dof, dof)``.
+        chol_fn: ``(q, params) -> chol`` for ONE sample, any factor ``(dof, r)`` of ``M - eps I``.
         potential_fn: ``(q, params) -> V`` for ONE sample, scalar.
         q, qd: ``(*batch, dof)``; params ``(*batch, P)``.
     """
@@ -212,8 +212,9 @@ def structured_acceleration_from_factor(
     (``spd_solve``: unrolled for small systems, ``cholesky_solve`` otherwise).
 
     Args:
-        chol: ``(B, dof, dof)`` lower-triangular factor.
-        dchol: ``(dof, B, dof, dof)``: ``dchol[k] = d chol / d q_k``.
+        chol: ``(B, dof, r)``: any factor with ``M = chol chol^T + eps I`` (the lower-triangular
+            Cholesky factor, ``r = dof``, or a rectangular one such as the rigid chain's).
+        dchol: ``(dof, B, dof, r)``: ``dchol[k] = d chol / d q_k``.
         qd: ``(B, dof)``; dV_dq: ``(B, dof)``.
         return_kinetic: also return ``T = 1/2 qd^T M qd``, shape ``(B,)``.
         force: a generalised force ``(B, dof)`` added to the right-hand side (None: none).

@@ -178,7 +178,8 @@ def test_weight_decay_spares_the_physical_coefficients():
     opt = module.configure_optimizers()["optimizer"]
     decayed, spared = opt.param_groups
     names = {id(p): n for n, p in module.model.named_parameters()}
-    assert sorted(names[id(p)] for p in spared["params"]) == ["chain.raw", "forces.coefficients_raw", "potential_coef"]
+    assert sorted(names[id(p)] for p in spared["params"]) == ["chain.raw", "forces.coefficients_raw",
+                                                              "kinetic_net.out.bias", "potential_coef"]
     assert spared["weight_decay"] == 0.0 and decayed["weight_decay"] == 0.1
     assert any(names[id(p)].startswith("kinetic_net") for p in decayed["params"])
 
@@ -210,3 +211,44 @@ def test_si_chain_parameters_undo_the_normalisation():
     torch.testing.assert_close(M_si[:, 0, 0] - K[0, 0], M11)
     with pytest.raises(InputError, match="SI chain parameters need"):
         build_model("film_lnn", scene, kinetic="chain", links=RELATIVE2, potential="chain+harmonic").chain_si()
+
+
+def test_si_inverse_dynamics_of_a_point_mass_chain_is_the_closed_form():
+    """End to end through the normalisation (time scale, force scale, g tau^2): a chain set from SI
+    point masses in absolute angles returns the torques ``M(q) qdd + dV/dq`` of ``double_pendulum``'s
+    closed form (at zero velocity: no Coriolis term, no friction)."""
+    scene = MeasuredSystem(2, input_names=["tau1", "tau2"])
+    model = build_model("film_lnn", scene, kinetic="chain", links=ABSOLUTE2, potential="chain").double()
+    tau, fs = 0.21, 3.7
+    with torch.no_grad():
+        model.normalizer.time_scale.fill_(tau)
+        model.normalizer.force_scale.fill_(fs)
+    m1, m2, l1, l2 = 0.6, 0.45, 0.3, 0.25
+    set_chain(model, mass=(m1 * fs / tau**2, m2 * fs / tau**2), along=(l1, l2), across=(0.0, 0.0), length=(l1,))
+    q, qdd = torch.randn(16, 2, dtype=torch.float64), torch.randn(16, 2, dtype=torch.float64)
+    params = torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(16, -1)
+    dp = get_system("double_pendulum")
+    gravity = torch.func.vmap(torch.func.grad(lambda x: dp.potential(x, params[0])))(q)
+    eps_si = model.eps * tau**2 / fs  # the model's M = F F^T + eps I (eps in normalised units)
+    expected = (dp.mass_matrix(q, params) @ qdd[..., None])[..., 0] + eps_si * qdd + gravity
+    got = model.inverse_dynamics(q, torch.zeros_like(q), qdd, q.new_zeros(16, 0))
+    torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(model.chain_si()["mass"][0], torch.tensor([m1, m2], dtype=torch.float64))
+
+
+def test_the_residuals_decay_and_the_chain_constants_do_not():
+    from lnn_torch.module import LNNModule
+
+    scene = MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config()
+    module = LNNModule(scene="measured", scene_config=scene, variant="film_lnn", hidden_dims=[8, 8], weight_decay=0.1,
+                       model_options={"kinetic": "chain+mlp", "links": RELATIVE2, "potential": "chain+harmonic"})
+    decayed, spared = module.configure_optimizers()["optimizer"].param_groups
+    names = {id(p): n for n, p in module.model.named_parameters()}
+    assert sorted(names[id(p)] for p in spared["params"]) == ["chain.raw", "forces.coefficients_raw",
+                                                              "kinetic_net.out.bias"]
+    assert "potential_coef" in {names[id(p)] for p in decayed["params"]}  # the harmonic residual decays
+    # a scene with parameters: the chain's constants are its network's output bias, spared too
+    dp = build_model("film_lnn", get_system("double_pendulum"), kinetic="chain", links=ABSOLUTE2)
+    assert any(p is dp.chain.net[-1].bias for p in dp.coefficient_parameters())
+    with pytest.raises(InputError, match="drop mass_invariant"):
+        build_model("film_lnn", get_system("double_pendulum"), kinetic="chain", links=ABSOLUTE2, mass_invariant=[0])

@@ -124,6 +124,9 @@ class StructuredLagrangian(DynamicsModel):
             raise InputError(f"kinetic must be 'mlp', 'chain' or 'chain+mlp', got {kinetic!r}")
         self.kinetic = kinetic
         self.chain = None
+        if kinetic == "chain" and mass_invariant is not None:
+            raise InputError("mass_invariant selects the kinetic network's inputs; kinetic 'chain' has no kinetic "
+                             "network (its mass matrix never depends on the base angle): drop mass_invariant")
         if kinetic != "mlp":
             if self.shared or not self.all_angles or links is None:
                 raise InputError(f"kinetic {kinetic!r} needs angle coordinates only, the two networks (not shared) "
@@ -209,7 +212,7 @@ class StructuredLagrangian(DynamicsModel):
                              "(without gravity alone only products of masses and lengths are identified)")
         norm = self.normalizer
         if params is None:
-            params = torch.zeros(1, self.scene.num_params)
+            params = torch.zeros(1, self.scene.num_params, device=norm.time_scale.device)
         with torch.no_grad():
             p = self.chain.parameters_of(norm.params(params.to(self.dtype)))
             scale = norm.time_scale ** 2 / norm.force_scale
@@ -217,11 +220,18 @@ class StructuredLagrangian(DynamicsModel):
                     "constant": p["const"] @ p["const"].mT * scale}
 
     def coefficient_parameters(self):
-        """As ``DynamicsModel.coefficient_parameters``; but the harmonic series beside the chain's own
-        gravity (``potential: chain+harmonic``) is a residual, and decays like a network's weights."""
+        """As ``DynamicsModel.coefficient_parameters``, plus the chain's constants where a network of
+        the scene's parameters gives them (its output bias) and the Cholesky residual's output bias
+        (``chain+mlp``: decay towards 0 would grow a diagonal that starts at softplus(-4)); but the
+        harmonic series beside the chain's own gravity (``potential: chain+harmonic``) is a residual,
+        and decays like a network's weights."""
         params = super().coefficient_parameters()
         if self.chain_gravity and self.potential_coef is not None:
             params = [p for p in params if p is not self.potential_coef]
+        if self.chain is not None and self.chain.net is not None:  # the chain's constants for a scene's parameters
+            params.append(self.chain.net[-1].bias)
+        if self.kinetic == "chain+mlp":  # the residual's bias (its diagonal starts at -4): decay would grow it
+            params.append(self.kinetic_net.out.bias)
         return params
 
     # ------------------------------------------------------------------ conditioning
