@@ -7,12 +7,12 @@ import math
 import pytest
 import torch
 
-from lnn_torch.dynamics import generic_acceleration
-from lnn_torch.networks import build_model, reference
+from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
 from lnn_torch.systems.measured import MeasuredSystem
 
 from .conftest import random_batch
+from .test_model import assert_fast_path_is_the_references
 
 ABSOLUTE2, RELATIVE2 = [[1, 0], [0, 1]], [[1, 0], [1, 1]]
 
@@ -114,14 +114,7 @@ def test_chain_fast_path_equals_generic_solve(scene, config, links, kinetic, pot
             p.add_(0.3 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
     q, qd, params = random_batch(system, rng, 32)
     qn, qdn, pn = model.normalize(q, qd, params)
-    tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
-    force = model.force_norm(qn, qdn, pn, tau_n)
-    fast = model.acceleration_norm(qn, qdn, pn, tau_n)
-    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
-    structured = reference.structured_model_acceleration(model, qn, qdn, pn, force)
-    scale = generic.abs().max()
-    assert (fast - generic).abs().max() <= 1e-10 * scale
-    assert (fast - structured).abs().max() <= 1e-10 * scale
+    assert_fast_path_is_the_references(model, system, qn, qdn, pn)
     # the factor's tangents: a central difference of the factor itself
     F, dF = model.cholesky(qn, pn, tangents=True)
     h = 1e-6
