@@ -14,7 +14,7 @@ training and change nothing in it); the study evaluates each held-out recording 
 
     lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
         --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
-    python scripts/real_pendulum_cv.py      # about 25 s per fit on one thread
+    python scripts/real_pendulum_cv.py      # about 25-40 s per fit on one thread, alone on the machine
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ SETTINGS = {
     "harmonic series + MLP": {"mass_invariant": [0], "potential": "harmonic+mlp"},
     "rigid chain + harmonic": {"kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "harmonic"},
     "rigid chain + its gravity": {"kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "chain"},
-    "rigid chain + its gravity + harmonic series (the configuration)": {"kinetic": "chain", "links": [[1, 0], [1, 1]],
-                                                   "potential": "chain+harmonic"},
+    "rigid chain + its gravity + harmonic series (the configuration)": {
+        "kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "chain+harmonic"},
 }
 
 

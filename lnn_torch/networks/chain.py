@@ -105,15 +105,22 @@ class RigidChainKinetic(nn.Module):
         S = torch.diag_embed(p["across"])
         return C.expand(batch, n, n), S.expand(batch, n, n)
 
-    def factor(self, q_norm: torch.Tensor, params_norm: torch.Tensor, tangents: bool = True):
-        """``F (B, dof, 2 n + dof)`` and, with ``tangents``, ``dF/dq_k (dof, B, dof, 2 n + dof)``."""
+    def geometry(self, q_norm: torch.Tensor, params_norm: torch.Tensor) -> tuple:
+        """What ``factor`` and ``gravity`` share, computed once per state batch: the parameters,
+        ``C`` and ``S`` (``_coefficients``) and ``sin, cos`` of the absolute link angles ``(B, n)``."""
+        p = self.parameters_of(params_norm)
+        C, S = self._coefficients(p, q_norm.shape[0])
+        phi = q_norm @ self.link_map.to(q_norm.dtype).T  # (B, n)
+        return p, C, S, torch.sin(phi), torch.cos(phi)
+
+    def factor(self, q_norm: torch.Tensor, params_norm: torch.Tensor, tangents: bool = True, geometry=None):
+        """``F (B, dof, 2 n + dof)`` and, with ``tangents``, ``dF/dq_k (dof, B, dof, 2 n + dof)``
+        (``geometry``: this state's ``geometry(q_norm, params_norm)`` where already computed)."""
         B, dtype = q_norm.shape[0], q_norm.dtype
         G = self.link_map.to(dtype)
-        p = self.parameters_of(params_norm)
-        C, S = self._coefficients(p, B)
-        phi = q_norm @ G.T  # (B, n)
-        e = torch.stack([torch.sin(phi), -torch.cos(phi)], -1)  # (B, n, 2)
-        nrm = torch.stack([torch.cos(phi), torch.sin(phi)], -1)  # de/dphi
+        p, C, S, sin, cos = geometry or self.geometry(q_norm, params_norm)
+        e = torch.stack([sin, -cos], -1)  # (B, n, 2)
+        nrm = torch.stack([cos, sin], -1)  # de/dphi
         # dp_i/dphi_k = C_ik n_k - S_ik e_k;  dp_i/dq_j = sum_k (.) G_kj   -> (B, n, 2, dof)
         dp_dphi = C[..., None] * nrm[:, None] - S[..., None] * e[:, None]  # (B, i, k, 2)
         jac = torch.einsum("bikx,kj->bixj", dp_dphi, G)
@@ -129,20 +136,18 @@ class RigidChainKinetic(nn.Module):
         dF = torch.cat([dlinear, Fq.new_zeros(self.dof, B, self.dof, Fq.shape[-1] - 2 * self.num_links)], -1)
         return Fq, dF
 
-    def gravity(self, q_norm: torch.Tensor, params_norm: torch.Tensor, g: torch.Tensor, grad: bool = True):
+    def gravity(self, q_norm: torch.Tensor, params_norm: torch.Tensor, g: torch.Tensor, grad: bool = True,
+                geometry=None):
         """``V = g sum_i m_i y_i`` (``y`` the height of each centre of mass; the angles hang from the
         downward vertical) ``(B,)`` and, with ``grad``, ``dV/dq (B, dof)``. With ``w_k = sum_i m_i C_ik``
-        and ``s_k = sum_i m_i S_ik``: ``V = g sum_k (s_k sin phi_k - w_k cos phi_k)``."""
-        B, dtype = q_norm.shape[0], q_norm.dtype
-        G = self.link_map.to(dtype)
-        p = self.parameters_of(params_norm)
-        C, S = self._coefficients(p, B)
+        and ``s_k = sum_i m_i S_ik``: ``V = g sum_k (s_k sin phi_k - w_k cos phi_k)`` (``geometry``: as
+        for ``factor``)."""
+        B = q_norm.shape[0]
+        p, C, S, sin, cos = geometry or self.geometry(q_norm, params_norm)
         mass = p["mass"].expand(B, -1)[..., None]  # (B, n, 1)
         w, s = (mass * C).sum(-2), (mass * S).sum(-2)  # (B, n): over the links i whose position phi_k moves
-        phi = q_norm @ G.T
-        sin, cos = torch.sin(phi), torch.cos(phi)
         V = g * (s * sin - w * cos).sum(-1)
         if not grad:
             return V, None
-        return V, (g * (s * cos + w * sin)) @ G
+        return V, (g * (s * cos + w * sin)) @ self.link_map.to(q_norm.dtype)
 

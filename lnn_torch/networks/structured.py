@@ -265,8 +265,9 @@ class StructuredLagrangian(DynamicsModel):
         and ``dV/dq`` ``(B, dof)`` (the derivatives None without ``tangents``)."""
         phi, dphi, sin_cos = self._features(q_norm, tangents)
         if not self.shared:
-            chol, dchol = self._cholesky(q_norm, phi, dphi, params_norm, films[0])
-            V, dV = self._potential(q_norm, phi, sin_cos, params_norm, films[1], grad=tangents)
+            geo = None if self.chain is None else self.chain.geometry(q_norm, params_norm)  # shared by M and V
+            chol, dchol = self._cholesky(q_norm, phi, dphi, params_norm, films[0], geo)
+            V, dV = self._potential(q_norm, phi, sin_cos, params_norm, films[1], grad=tangents, chain_geometry=geo)
             return phi, chol, dchol, V, dV
         n = self.scene.dof ** 2
         y, dy = self.trunk(torch.cat([phi, params_norm], -1), dphi, films[0], out_map=self.chol_scatter.to(phi.dtype))
@@ -282,12 +283,12 @@ class StructuredLagrangian(DynamicsModel):
         _, chol, dchol, _, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents)
         return chol, dchol
 
-    def _cholesky(self, q_norm, phi, dphi, params_norm, film):
+    def _cholesky(self, q_norm, phi, dphi, params_norm, film, chain_geometry=None):
         """The mass matrix's factor ``(B, dof, r)`` (``M = F F^T + eps I``; square lower-triangular for
         the kinetic MLP, rectangular for the rigid chain, the two side by side for ``chain+mlp``) and
         its tangents ``(dof, B, dof, r)`` (None without ``dphi``)."""
         if self.chain is not None:
-            Fc, dFc = self.chain.factor(q_norm, params_norm, tangents=dphi is not None)
+            Fc, dFc = self.chain.factor(q_norm, params_norm, tangents=dphi is not None, geometry=chain_geometry)
             if self.kinetic_net is None:
                 return Fc, dFc
             chol, dchol = self._mlp_cholesky(phi, dphi, params_norm, film)
@@ -342,7 +343,7 @@ class StructuredLagrangian(DynamicsModel):
             return HARMONIC_GAIN * self.potential_coef.to(params_norm.dtype)
         return HARMONIC_GAIN * self.potential_coef_net(params_norm)
 
-    def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool):
+    def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool, chain_geometry=None):
         V, dV_dphi = 0.0, 0.0
         if self.potential_net is not None:
             x = torch.cat([phi, params_norm], -1)
@@ -357,7 +358,7 @@ class StructuredLagrangian(DynamicsModel):
         on_features = self.potential_net is not None or self.harmonic
         dV = self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad and on_features else None
         if self.chain_gravity:  # plus gravity on the chain's masses
-            Vg, dVg = self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad)
+            Vg, dVg = self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad, chain_geometry)
             V = V + Vg
             dV = dVg if dV is None else dV + dVg
         return V, dV
