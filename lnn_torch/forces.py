@@ -12,6 +12,19 @@ A scene (or a model) with forces obeys ``M qdd = dL/dq - (d2L/dqd dq) qd + Q`` w
   injects energy).
 
 Power balance: ``dE/dt = qd . B tau + qd . Q_diss``. Shapes ``(*batch, dof)``, SI units.
+
+Static friction (stiction, a Karnopp-type model): a joint turning slower than the stick velocity
+``v_s`` is held by whatever torque keeps it at rest, up to its static level ``s`` (the learned models
+take the Coulomb level ``c``), and its kinetic friction fades in that window. With ``w_j = exp(-(r_j / v_s)^2)`` the holding torques ``lam`` solve,
+by projected Gauss-Seidel sweeps (a fixed number, differentiable),
+
+    lam_j = w_j s_j sat((lam_j - rho_j / A_jj) / s_j),    rho = rho_0 + A lam,
+
+with ``rho_0`` the joint accelerations without them, ``A = D M^-1 D^T`` the joints' response to a
+unit joint torque and ``sat`` a smooth clip (``soft_clip``): a joint at rest whose other torques stay below
+``s`` keeps still (``rho_j = 0``); beyond, it slips with ``s`` opposing. The holding torque opposes
+the tendency to move, not the velocity: its power ``-r . lam`` is bounded by ``sum_j s_j v_s |x|
+exp(-x^2) <= 0.43 sum_j s_j v_s`` (``x = r_j / v_s``), not signed.
 """
 
 from __future__ import annotations
@@ -24,6 +37,36 @@ def joint_friction(rates: torch.Tensor, viscous: torch.Tensor, coulomb: torch.Te
     """Friction torque per joint ``b r + c tanh(r / v)``: ``rates (*batch, n_j)``, coefficients
     broadcasting to it (N m s/rad and N m), ``v`` in rad/s. Returns ``(*batch, n_j)`` in N m."""
     return viscous * rates + coulomb * torch.tanh(rates / coulomb_velocity)
+
+
+def stick_weight(rates: torch.Tensor, stick_velocity: float) -> torch.Tensor:
+    """The weight ``w = exp(-(r / v_s)^2)`` of the stuck state of each joint, ``(*batch, n_j)``."""
+    return torch.exp(-(rates / stick_velocity).square())
+
+
+def holding_torque(rho0: torch.Tensor, response: torch.Tensor, weight: torch.Tensor, static: torch.Tensor,
+                   sweeps: int = 4) -> torch.Tensor:
+    """The static-friction torques ``lam (B, n_j)`` that hold the joints at rest up to their static
+    levels (module docstring): ``rho0 (B, n_j)`` the joint accelerations without them, ``response
+    (B, n_j, n_j)`` the joint accelerations per unit joint torque (``D M^-1 D^T``, positive definite),
+    ``weight (B, n_j)`` the stuck weights, ``static`` the levels ``s >= 0`` (broadcasting to
+    ``(B, n_j)``, N m). ``sweeps`` projected Gauss-Seidel sweeps (one is exact for one joint)."""
+    static = static.expand_as(rho0).clamp_min(1e-12)
+    diag = torch.diagonal(response, dim1=-2, dim2=-1)
+    lam = [torch.zeros_like(rho0[..., 0]) for _ in range(rho0.shape[-1])]
+    for _ in range(sweeps):
+        for j in range(rho0.shape[-1]):
+            rho_j = rho0[..., j] + sum(response[..., j, k] * lam[k] for k in range(len(lam)))
+            x = (lam[j] - rho_j / diag[..., j]) / static[..., j]
+            lam[j] = weight[..., j] * static[..., j] * soft_clip(x)
+    return torch.stack(lam, -1)
+
+
+def soft_clip(x: torch.Tensor) -> torch.Tensor:
+    """A smooth clip to [-1, 1] that is nearly the identity inside: ``x / (1 + x^8)^(1/8)`` (0.5 -> 0.4998,
+    1 -> 0.917); ``x`` is clamped to [-10, 10] first (the power stays finite in float32)."""
+    x = x.clamp(-10.0, 10.0)
+    return x * (1 + x.pow(8)).pow(-0.125)
 
 
 def dissipative_force(qd: torch.Tensor, joint_map: torch.Tensor | None, friction_fn) -> torch.Tensor:

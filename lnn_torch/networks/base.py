@@ -86,6 +86,7 @@ class DynamicsModel(nn.Module):
     # the model represents the scene's generalised forces with ``LearnedForces`` (the direct MLP
     # reads the inputs as features instead)
     uses_forces = True
+    affine_in_force = True  # accelerations affine in the generalised force (static friction needs it)
 
     def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__()
@@ -118,6 +119,9 @@ class DynamicsModel(nn.Module):
             from .forces import LearnedForces
 
             self.forces = LearnedForces(self.scene, self.num_features, learn_input_matrix, dissipation)
+            if self.forces.stiction and not self.affine_in_force:
+                raise InputError(f"dissipation 'joint+stiction' needs a model whose accelerations are affine in the "
+                                 f"generalised force (a Lagrangian one), not variant '{self.variant}'")
 
     # ------------------------------------------------------------------ features
     def features(self, q_norm: torch.Tensor, tangents: bool = False):
@@ -187,10 +191,36 @@ class DynamicsModel(nn.Module):
         """Inputs in SI ``(B, n_u)`` -> normalised (None stays None)."""
         return None if tau is None else tau.to(self.dtype) / self.normalizer.input_rms.to(self.dtype)
 
+    def with_static_friction(self, qdd_norm, force_norm, solve, qd_norm, params_norm):
+        """The accelerations ``qdd_norm`` (under ``force_norm``) with static friction's holding torques
+        added (``dissipation: joint+stiction``; unchanged otherwise). ``solve(force_norm)`` gives the
+        model's accelerations under another generalised force at the same state."""
+        if self.forces is None or not self.forces.stiction:
+            return qdd_norm
+        U, lam = self.holding_torques(qdd_norm, force_norm, solve, qd_norm, params_norm)
+        return qdd_norm + (U * lam[:, None, :]).sum(-1)
+
+    def holding_torques(self, qdd_norm, force_norm, solve, qd_norm, params_norm):
+        """``(U, lam)``: the normalised accelerations per N m at each joint ``U (B, dof, n_j)`` and static
+        friction's holding torques ``lam (B, n_j)`` in N m (``with_static_friction``). The accelerations
+        are affine in the generalised force, so one more solve per joint gives ``U = M^-1 D^T``."""
+        forces, norm, dt = self.forces, self.normalizer, qdd_norm.dtype
+        D = forces.joint_map.to(dt)  # (n_j, dof)
+        unit = norm.force_to_norm(D)  # 1 N m at each joint, as normalised generalised forces
+        U = torch.stack([solve(force_norm + unit[j]) - qdd_norm for j in range(D.shape[0])], -1)  # (B, dof, n_j)
+        to_si = (norm.coord_scale / norm.time_scale**2).to(dt)
+        rho0 = (qdd_norm * to_si) @ D.T
+        response = torch.einsum("jd,bdk->bjk", D, U * to_si[:, None])
+        qd = qd_norm * (norm.coord_scale / norm.time_scale).to(dt)
+        return U, forces.holding_torque(qd, params_norm, rho0, response)
+
     # ------------------------------------------------------------------ interface
     def acceleration_norm(self, q_norm, qd_norm, params_norm, tau_norm=None) -> torch.Tensor:
         """Normalised accelerations under the inputs ``tau_norm`` (None for an unactuated scene)."""
-        return self.solve_norm(q_norm, qd_norm, params_norm, self.force_norm(q_norm, qd_norm, params_norm, tau_norm))
+        force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
+        qdd = self.solve_norm(q_norm, qd_norm, params_norm, force)
+        return self.with_static_friction(qdd, force, lambda f: self.solve_norm(q_norm, qd_norm, params_norm, f),
+                                         qd_norm, params_norm)
 
     def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None) -> torch.Tensor:
         """The model's accelerations under a normalised generalised force (None: none)."""
@@ -275,6 +305,8 @@ class DynamicsModel(nn.Module):
         if energy or (chunks is not None and self.chunk_conditioning):
             force = self.force_norm(q_n, qd_n, p_n, tau_n)
             out["pred"], H, T, V = self.acceleration_and_energy_norm(q_n, qd_n, p_n, chunks, force)
+            out["pred"] = self.with_static_friction(out["pred"], force, lambda f: self.solve_norm(q_n, qd_n, p_n, f),
+                                                    qd_n, p_n)
             if energy:
                 out.update(H=H, T=T, V=V)
                 if force is not None:

@@ -11,10 +11,18 @@ conservative scene has no such module and no extra parameter.
   with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
   the rest of the model), or free coefficients where the scene has no parameters. ``v`` is the
   scene's Coulomb smoothing velocity.
+* ``dissipation="joint+stiction"`` adds static friction to the joint friction: a joint slower than
+  the stick velocity ``v_s`` (2.5 times the scene's Coulomb smoothing velocity) is held at rest by
+  up to its Coulomb level ``c`` (no parameter of its own), its kinetic friction fading in that
+  window (``lnn_torch.forces.holding_torque``; the model solves for the holding torques, which need
+  its mass matrix). A free static level above ``c`` fitted the real pendulum's training holds and
+  predicted its held-out recordings worse (two cross-validation folds), so the level is ``c``.
+  For models whose accelerations are affine in the generalised force (the Lagrangian ones).
 * ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
   semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
 
-Every term has ``qd . Q_diss <= 0`` by construction. Coefficients are in SI units (``unit``
+Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction (the holding torque of static
+friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``). Coefficients are in SI units (``unit``
 buffers, set from the training data, scale the network outputs).
 """
 
@@ -26,9 +34,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..forces import dissipative_force, identity_or_none, input_force, joint_friction
+from ..forces import dissipative_force, holding_torque, identity_or_none, input_force, joint_friction, stick_weight
 
-DISSIPATION = ("joint", "joint+rayleigh")
+DISSIPATION = ("joint", "joint+rayleigh", "joint+stiction")
 _INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1 of their unit
 
 
@@ -38,6 +46,9 @@ class LearnedForces(nn.Module):
         super().__init__()
         if dissipation not in DISSIPATION:
             raise ValueError(f"dissipation must be one of {', '.join(DISSIPATION)}, got '{dissipation}'")
+        self.stiction = dissipation == "joint+stiction"
+        if self.stiction and not scene.friction:
+            raise ValueError(f"dissipation 'joint+stiction' needs a scene with joint friction ('{scene.name}' has none)")
         self.dof, P = scene.dof, scene.num_params
         self.num_inputs = scene.num_inputs
         if scene.num_inputs:
@@ -54,6 +65,7 @@ class LearnedForces(nn.Module):
             self.identity_joints = identity_or_none(D.double()) is None
             self.register_buffer("joint_map", D, persistent=False)
             self.coulomb_velocity = float(scene.coulomb_velocity)
+            self.stick_velocity = 2.5 * float(scene.coulomb_velocity)  # the stick window (joint+stiction)
             if P:
                 self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(), nn.Linear(hidden, 2 * self.num_joints))
                 nn.init.zeros_(self.coefficient_net[-1].weight)
@@ -87,10 +99,24 @@ class LearnedForces(nn.Module):
         units = self.units.to(raw.dtype)
         return b * units[0], c * units[1]
 
+    def static_level(self, params_norm: torch.Tensor) -> torch.Tensor:
+        """The static friction level per joint (``joint+stiction``): the Coulomb level ``c``, N m."""
+        return self.coefficients(params_norm)[1]
+
     def friction_torque(self, rates: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-        """Per-joint friction torque at joint rates ``(B, num_joints)``, N m."""
+        """Per-joint (kinetic) friction torque at joint rates ``(B, num_joints)``, N m; with static
+        friction it fades as ``1 - w`` in the stick window."""
         b, c = self.coefficients(params_norm)
-        return joint_friction(rates, b, c, self.coulomb_velocity)
+        torque = joint_friction(rates, b, c, self.coulomb_velocity)
+        return torque * (1 - stick_weight(rates, self.stick_velocity)) if self.stiction else torque
+
+    def holding_torque(self, qd: torch.Tensor, params_norm: torch.Tensor, rho0: torch.Tensor,
+                       response: torch.Tensor) -> torch.Tensor:
+        """Static friction's holding torques ``(B, num_joints)`` in N m at SI velocities ``qd``, from the
+        joint accelerations without them ``rho0 (B, n_j)`` and the response ``D M^-1 D^T (B, n_j, n_j)``
+        (``lnn_torch.forces.holding_torque``)."""
+        rates = qd if self.identity_joints else qd @ self.joint_map.to(qd.dtype).T
+        return holding_torque(rho0, response, stick_weight(rates, self.stick_velocity), self.static_level(params_norm))
 
     def dissipative_force(self, qd: torch.Tensor, params_norm: torch.Tensor, features=None, qd_norm=None):
         """``Q_diss (B, dof)`` in SI at SI velocities ``qd``; ``features``/``qd_norm`` feed the Rayleigh term."""

@@ -392,7 +392,9 @@ class StructuredLagrangian(DynamicsModel):
 
     def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films, tau_norm=None):
         force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
-        return self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
+        qdd = self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
+        return self.with_static_friction(qdd, force, lambda f: self._solve(q_norm, qd_norm, params_norm, films, False, f),
+                                         qd_norm, params_norm)
 
     @property
     def _has_film(self) -> bool:
