@@ -103,6 +103,13 @@ def main() -> None:
             f"{k} {v:.3f} ({lab.values[k]:.3f})" if k in lab.values else f"{k} {v:.3f}"
             for k, v in structure["identified"].items()) + " (kg, m; r: centre of mass along the link from its joint, "
             "r2_across: across link 2, 0 in the lab's model)"]
+    if "friction" in structure:
+        lab_friction = {**{f"b{i}": lab.values[f"b{i}"] for i in (1, 2)},
+                        **{f"coulomb{i}": lab.values[f"cf{i}"] * math.pi / 2 for i in (1, 2)}}
+        lines += ["", "Joint friction against the lab's: " + ", ".join(
+            f"{k} {v:.4f} ({lab_friction[k]:.4f})" for k, v in structure["friction"].items())
+            + " (b: viscous, N m s/rad; coulomb: the level at high speed, N m, the lab's cf arctan(100 qd) "
+            "reaching cf pi / 2)"]
     table = "\n".join(lines) + "\n"
     (out / "report.md").write_text(table)
     print(table)
@@ -133,6 +140,12 @@ def compare_structure(model, lab, data, names) -> dict:
         out["identified"] = {"m1": float(si["mass"][0, 0]), "m2": float(si["mass"][0, 1]),
                              "l1": float(si["length"][0, 0]), "r1": float(si["along"][0, 0]),
                              "r2": float(si["along"][0, 1]), "r2_across": float(si["across"][0, 1])}
+    forces = getattr(model, "forces", None)
+    if forces is not None and forces.friction:  # viscous b and the Coulomb level (the lab's: cf pi / 2)
+        with torch.no_grad():
+            b, c = (x.reshape(-1) for x in forces.coefficients(data.params[:1].to(model.dtype)))
+        out["friction"] = {**{f"b{i + 1}": float(v) for i, v in enumerate(b)},
+                           **{f"coulomb{i + 1}": float(v) for i, v in enumerate(c)}}
     return out
 
 

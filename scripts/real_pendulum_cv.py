@@ -1,8 +1,8 @@
 """Leave-one-recording-out cross-validation of model settings on the real double pendulum.
 
 The held-out test recordings of ``configs/import/real_double_pendulum.yaml`` stay out of it. Each of
-the other recordings (training and validation) is held out in turn; for every setting (a YAML
-mapping of ``model.model_options``), ``lnn-torch fit -c configs/real_double_pendulum.yaml`` trains on
+the other recordings (training and validation) is held out in turn; for every setting (its
+``model.model_options`` and any other overrides of the config, ``SETTINGS``), ``lnn-torch fit -c configs/real_double_pendulum.yaml`` trains on
 the rest and the held-out recording is predicted: the acceleration error against the filtered
 reference with the torques through the same filter (as ``scripts/real_pendulum.py`` leads with),
 beside the lab's identified model. The criterion is the pooled relative L2 error over all folds
@@ -14,7 +14,9 @@ training and change nothing in it); the study evaluates each held-out recording 
 
     lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
         --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
-    python scripts/real_pendulum_cv.py      # about 25-40 s per fit on one thread, alone on the machine
+    python scripts/real_pendulum_cv.py      # about 35-60 s per fit on one thread, alone on the machine
+    python scripts/real_pendulum_cv.py --define NAME '{"model_options": {...}, "args": ["--model.lr=1e-2"]}' \
+        --folds sysid_04 sysid_12          # a setting of your own on some folds: printed, not saved
 """
 
 from __future__ import annotations
@@ -33,15 +35,29 @@ import torch
 from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison script
 
 ROOT = Path(__file__).resolve().parents[1]
+CHAIN = {"kinetic": "chain", "links": [[1, 0], [1, 1]]}
+DECAY = ["--model.weight_decay=0.1"]  # on network weights and on a residual beside the chain's gravity
 SETTINGS = {
-    "MLP potential (the default)": {"mass_invariant": [0]},
-    "harmonic potential": {"mass_invariant": [0], "potential": "harmonic"},
-    "harmonic series + MLP": {"mass_invariant": [0], "potential": "harmonic+mlp"},
-    "rigid chain + harmonic": {"kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "harmonic"},
-    "rigid chain + its gravity": {"kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "chain"},
-    "rigid chain + its gravity + harmonic series (the configuration)": {
-        "kinetic": "chain", "links": [[1, 0], [1, 1]], "potential": "chain+harmonic"},
+    "MLP potential (the default)": {"model_options": {"mass_invariant": [0]}, "args": DECAY},
+    "harmonic potential": {"model_options": {"mass_invariant": [0], "potential": "harmonic"}, "args": DECAY},
+    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": "harmonic+mlp"}, "args": DECAY},
+    "rigid chain + harmonic": {**CHAIN, "potential": "harmonic"},
+    "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": "chain+harmonic"},
+                                                      "args": DECAY},
+    "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
+    "rigid chain + its gravity + static friction (the configuration)": {**CHAIN, "potential": "chain",
+                                                                        "dissipation": "joint+stiction"},
+    "the configuration, other training batches (data.seed 1)": {
+        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }
+
+
+def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
+    """A setting's ``model.model_options`` and its other command-line overrides of the config: a setting
+    is either the options themselves or ``{"model_options": {...}, "args": ["--model.lr=...", ...]}``."""
+    if "model_options" in setting:
+        return setting["model_options"], list(setting.get("args", []))
+    return setting, []
 
 
 def fold_file(source: Path, dest: Path, held_out: int, keep: list[int], test: np.ndarray) -> None:
@@ -69,6 +85,11 @@ def main() -> None:
     ap.add_argument("--data", default=str(ROOT / "data" / "real_double_pendulum.h5"))
     ap.add_argument("--config", default=str(ROOT / "configs" / "real_double_pendulum.yaml"))
     ap.add_argument("--settings", nargs="+", default=list(SETTINGS), help="names of SETTINGS to compare")
+    ap.add_argument("--define", nargs=2, action="append", default=[], metavar=("NAME", "JSON"),
+                    help="one more setting (model options, or {\"model_options\": ..., \"args\": [...]}), compared "
+                         "as NAME; repeatable")
+    ap.add_argument("--folds", nargs="+", default=None, help="hold out only these recordings (a quick look; "
+                    "the pooled criterion needs them all)")
     ap.add_argument("--work", default=str(ROOT / "data" / "real_cv"), help="fold files and training runs")
     ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum" / "cross_validation"))
     ap.add_argument("--threads", type=int, default=1)
@@ -79,6 +100,10 @@ def main() -> None:
     if args.report_only:
         out = Path(args.output)
         return write_report(json.loads((out / "cross_validation.json").read_text()), out)
+    for name, text in args.define:
+        SETTINGS[name] = json.loads(text)
+    if args.define and args.settings == list(SETTINGS)[:len(SETTINGS) - len(args.define)]:
+        args.settings = [name for name, _ in args.define]  # only the defined ones unless others are named
     unknown = [s for s in args.settings if s not in SETTINGS]
     if unknown:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
@@ -97,8 +122,14 @@ def main() -> None:
     sums = {name: {} for name in [LAB, *args.settings]}  # held-out recording: (squared error, squared reference)
     fitted = {name: {} for name in sums}  # the fold's training recordings, alike
     seconds = {name: [] for name in args.settings}
+    if args.folds:
+        pool_names = [names[i] for i in pool]
+        if not set(args.folds) <= set(pool_names):
+            raise SystemExit(f"--folds must name recordings of {pool_names}, got {args.folds}")
     for held in pool:
         rec = names[held]
+        if args.folds and rec not in args.folds:
+            continue
         path = work / f"fold_{rec}.h5"
         fold_file(Path(args.data), path, held, [i for i in pool if i != held], source.splits["test"])
         reference = None
@@ -106,9 +137,10 @@ def main() -> None:
             run_dir = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(setting)}"
             if run_dir.exists():
                 shutil.rmtree(run_dir)
+            options, extra = setting_arguments(SETTINGS[setting])
             cmd = [sys.executable, "-m", "lnn_torch.cli", "fit", "-c", args.config, f"--data.path={path}",
-                   f"--model.model_options={json.dumps(SETTINGS[setting])}", f"--trainer.default_root_dir={run_dir}",
-                   "--trainer.enable_progress_bar=false", "--trainer.limit_val_batches=0"]
+                   f"--model.model_options={json.dumps(options)}", f"--trainer.default_root_dir={run_dir}",
+                   "--trainer.enable_progress_bar=false", "--trainer.limit_val_batches=0", *extra]
             start = time.perf_counter()
             done = subprocess.run(cmd, capture_output=True, text=True)
             seconds[setting].append(time.perf_counter() - start)
@@ -139,6 +171,8 @@ def main() -> None:
     config = str(config.relative_to(ROOT) if config.is_relative_to(ROOT) else config)
     result = {"config": config, "settings": {s: SETTINGS[s] for s in args.settings}, "fit_seconds": seconds,
               "results": table}
+    if args.folds:  # a quick look at some folds: printed, never written over the study's files
+        return write_report(result, out, save=False)
     previous = out / "cross_validation.json"
     if args.add and previous.exists():  # the other settings' earlier results, in SETTINGS order
         old = json.loads(previous.read_text())
@@ -155,8 +189,8 @@ def main() -> None:
     write_report(result, out)
 
 
-def write_report(result: dict, out: Path) -> None:
-    """``cross_validation.md`` from the study's JSON."""
+def write_report(result: dict, out: Path, save: bool = True) -> None:
+    """``cross_validation.md`` from the study's JSON (printed; written unless ``save`` is False)."""
     table, seconds = result["results"], result["fit_seconds"]
     recs = list(table[LAB]["per_recording"])
     lines = [f"Leave-one-recording-out cross-validation over the non-test recordings ({', '.join(recs)}): each held "
@@ -176,7 +210,8 @@ def write_report(result: dict, out: Path) -> None:
     if result.get("note"):
         lines += ["", result["note"]]
     text = "\n".join(lines) + "\n"
-    (out / "cross_validation.md").write_text(text)
+    if save:
+        (out / "cross_validation.md").write_text(text)
     print(text)
 
 

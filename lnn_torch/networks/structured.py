@@ -216,8 +216,9 @@ class StructuredLagrangian(DynamicsModel):
         with torch.no_grad():
             p = self.chain.parameters_of(norm.params(params.to(self.dtype)))
             scale = norm.time_scale ** 2 / norm.force_scale
-            return {"mass": p["mass"] * scale, "along": p["along"], "across": p["across"], "length": p["length"],
-                    "constant": p["const"] @ p["const"].mT * scale}
+            out = {"mass": p["mass"] * scale, "along": p["along"], "across": p["across"], "length": p["length"],
+                   "constant": p["const"] @ p["const"].mT * scale}
+        return {k: v.detach() for k, v in out.items()}  # a parameter passed through as it is stays detached too
 
     def coefficient_parameters(self):
         """As ``DynamicsModel.coefficient_parameters``, plus the chain's constants where a network of
