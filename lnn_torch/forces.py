@@ -45,15 +45,18 @@ def stick_weight(rates: torch.Tensor, stick_velocity: float) -> torch.Tensor:
 
 
 def holding_torque(rho0: torch.Tensor, response: torch.Tensor, weight: torch.Tensor, static: torch.Tensor,
-                   sweeps: int = 4) -> torch.Tensor:
+                   sweeps: int = 8) -> torch.Tensor:
     """The static-friction torques ``lam (B, n_j)`` that hold the joints at rest up to their static
     levels (module docstring): ``rho0 (B, n_j)`` the joint accelerations without them, ``response
     (B, n_j, n_j)`` the joint accelerations per unit joint torque (``D M^-1 D^T``, positive definite),
     ``weight (B, n_j)`` the stuck weights, ``static`` the levels ``s >= 0`` (broadcasting to
-    ``(B, n_j)``, N m). ``sweeps`` projected Gauss-Seidel sweeps (one is exact for one joint)."""
+    ``(B, n_j)``, N m). The sweeps start from the exact holds of all joints together, ``-A^-1 rho0``
+    (weighted and clipped): an arm held below its levels is held from the start, however strongly its
+    joints couple; ``sweeps`` projected Gauss-Seidel sweeps then settle the joints that slip."""
     static = static.expand_as(rho0).clamp_min(1e-12)
     diag = torch.diagonal(response, dim1=-2, dim2=-1)
-    lam = [torch.zeros_like(rho0[..., 0]) for _ in range(rho0.shape[-1])]
+    start = weight * static * soft_clip(-torch.linalg.solve(response, rho0[..., None])[..., 0] / static)
+    lam = list(start.unbind(-1))
     for _ in range(sweeps):
         for j in range(rho0.shape[-1]):
             rho_j = rho0[..., j] + sum(response[..., j, k] * lam[k] for k in range(len(lam)))

@@ -119,6 +119,9 @@ class LNNModule(L.LightningModule):
         if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
             raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
                              f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
+        if (energy_weight > 0 or torque_weight > 0) and getattr(self.model.forces, "stiction", False):
+            raise ValueError("energy_weight and torque_weight need the model's force at each state, which static "
+                             "friction's holding torque is not (dissipation 'joint+stiction'): set them to 0")
         self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)
         self.register_buffer("normalizer_fitted", torch.tensor(False))
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))

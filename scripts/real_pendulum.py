@@ -143,7 +143,7 @@ def compare_structure(model, lab, data, names) -> dict:
     forces = getattr(model, "forces", None)
     if forces is not None and forces.friction:  # viscous b and the Coulomb level (the lab's: cf pi / 2)
         with torch.no_grad():
-            b, c = (x.reshape(-1) for x in forces.coefficients(data.params[:1].to(model.dtype)))
+            b, c = (x.reshape(-1) for x in forces.coefficients(model.normalizer.params(data.params[:1].to(model.dtype))))
         out["friction"] = {**{f"b{i + 1}": float(v) for i, v in enumerate(b)},
                            **{f"coulomb{i + 1}": float(v) for i, v in enumerate(c)}}
     return out

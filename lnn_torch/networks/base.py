@@ -86,7 +86,9 @@ class DynamicsModel(nn.Module):
     # the model represents the scene's generalised forces with ``LearnedForces`` (the direct MLP
     # reads the inputs as features instead)
     uses_forces = True
-    affine_in_force = True  # accelerations affine in the generalised force (static friction needs it)
+    # static friction needs accelerations affine in the generalised force through a positive definite
+    # mass matrix (the joints' response D M^-1 D^T to a torque)
+    static_friction = True
 
     def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__()
@@ -119,9 +121,9 @@ class DynamicsModel(nn.Module):
             from .forces import LearnedForces
 
             self.forces = LearnedForces(self.scene, self.num_features, learn_input_matrix, dissipation)
-            if self.forces.stiction and not self.affine_in_force:
-                raise InputError(f"dissipation 'joint+stiction' needs a model whose accelerations are affine in the "
-                                 f"generalised force (a Lagrangian one), not variant '{self.variant}'")
+            if self.forces.stiction and not self.static_friction:
+                raise InputError(f"dissipation 'joint+stiction' needs a positive definite mass matrix through which "
+                                 f"accelerations are affine in the force (film_lnn, delan), not variant '{self.variant}'")
 
     # ------------------------------------------------------------------ features
     def features(self, q_norm: torch.Tensor, tangents: bool = False):

@@ -19,6 +19,7 @@ class BlackBoxLagrangian(DynamicsModel):
     """The LNN paper's model: an MLP ``L(q, qd, theta)`` and the generic Euler-Lagrange solve."""
 
     variant = "lnn"
+    static_friction = False  # its velocity Hessian (the mass matrix) can be indefinite
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
                  hessian_reg: float = 0.0, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:

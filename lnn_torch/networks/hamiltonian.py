@@ -29,7 +29,7 @@ class HamiltonianNN(DynamicsModel):
     """
 
     variant = "hnn"
-    affine_in_force = False  # its own flow (static friction's holding torques are not solved for)
+    static_friction = False  # its own flow (static friction's holding torques are not solved for)
     has_energy = False  # its Hamiltonian is conserved by construction; no T/V split
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", hnn_coordinates: str = "canonical",
