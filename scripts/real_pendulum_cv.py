@@ -14,7 +14,7 @@ training and change nothing in it); the study evaluates each held-out recording 
 
     lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
         --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
-    python scripts/real_pendulum_cv.py      # about 35-60 s per fit on one thread, alone on the machine
+    python scripts/real_pendulum_cv.py      # about 35-65 s per fit on one thread, alone on the machine
     python scripts/real_pendulum_cv.py --define NAME '{"model_options": {...}, "args": ["--model.lr=1e-2"]}' \
         --folds sysid_04 sysid_12          # a setting of your own on some folds: printed, not saved
 """

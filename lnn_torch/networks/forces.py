@@ -15,9 +15,9 @@ conservative scene has no such module and no extra parameter.
   the stick velocity ``v_s`` (2.5 times the scene's Coulomb smoothing velocity) is held at rest by
   up to its Coulomb level ``c`` (no parameter of its own), its kinetic friction fading in that
   window (``lnn_torch.forces.holding_torque``; the model solves for the holding torques, which need
-  its mass matrix). A free static level above ``c`` fitted the real pendulum's training holds and
-  predicted its held-out recordings worse (two cross-validation folds), so the level is ``c``.
-  For models whose accelerations are affine in the generalised force (the Lagrangian ones).
+  its mass matrix). A free static level fitted the real pendulum's training holds and predicted
+  two held-out recordings worse (results/real_double_pendulum/cross_validation/), so the level is
+  ``c``. For models with a positive definite mass matrix (``film_lnn``, ``delan``).
 * ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
   semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
 
