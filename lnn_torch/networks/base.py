@@ -206,23 +206,27 @@ class DynamicsModel(nn.Module):
         """``(U, lam)``: the normalised accelerations per N m at each joint ``U (B, dof, n_j)`` and static
         friction's holding torques ``lam (B, n_j)`` in N m (``with_static_friction``). The accelerations
         are affine in the generalised force, so one more solve per joint gives ``U = M^-1 D^T``."""
-        forces, norm, dt = self.forces, self.normalizer, qdd_norm.dtype
-        D = forces.joint_map.to(dt)  # (n_j, dof)
+        forces, norm = self.forces, self.normalizer
+        D = forces.joint_map.to(qdd_norm.dtype)  # (n_j, dof)
         unit = norm.force_to_norm(D)  # 1 N m at each joint, as normalised generalised forces
         U = torch.stack([solve(force_norm + unit[j]) - qdd_norm for j in range(D.shape[0])], -1)  # (B, dof, n_j)
-        to_si = (norm.coord_scale / norm.time_scale**2).to(dt)
-        rho0 = (qdd_norm * to_si) @ D.T
-        response = torch.einsum("jd,bdk->bjk", D, U * to_si[:, None])
-        qd = qd_norm * (norm.coord_scale / norm.time_scale).to(dt)
+        rho0 = norm.accel_to_phys(qdd_norm) @ D.T
+        response = D @ norm.accel_to_phys(U.mT).mT
+        qd = qd_norm * (norm.coord_scale / norm.time_scale).to(qd_norm.dtype)
         return U, forces.holding_torque(qd, params_norm, rho0, response)
+
+    def forced_acceleration_norm(self, solve, q_norm, qd_norm, params_norm, tau_norm=None) -> torch.Tensor:
+        """Normalised accelerations under the model's generalised force at this state (inputs
+        ``tau_norm``, friction), static friction included: ``solve(force_norm)`` is the model's solve
+        at the state."""
+        force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
+        return self.with_static_friction(solve(force), force, solve, qd_norm, params_norm)
 
     # ------------------------------------------------------------------ interface
     def acceleration_norm(self, q_norm, qd_norm, params_norm, tau_norm=None) -> torch.Tensor:
         """Normalised accelerations under the inputs ``tau_norm`` (None for an unactuated scene)."""
-        force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
-        qdd = self.solve_norm(q_norm, qd_norm, params_norm, force)
-        return self.with_static_friction(qdd, force, lambda f: self.solve_norm(q_norm, qd_norm, params_norm, f),
-                                         qd_norm, params_norm)
+        return self.forced_acceleration_norm(lambda f: self.solve_norm(q_norm, qd_norm, params_norm, f),
+                                             q_norm, qd_norm, params_norm, tau_norm)
 
     def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None) -> torch.Tensor:
         """The model's accelerations under a normalised generalised force (None: none)."""

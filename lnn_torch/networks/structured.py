@@ -392,10 +392,8 @@ class StructuredLagrangian(DynamicsModel):
         return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm, chunks), energy=True, force=force_norm)
 
     def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films, tau_norm=None):
-        force = self.force_norm(q_norm, qd_norm, params_norm, tau_norm)
-        qdd = self._solve(q_norm, qd_norm, params_norm, films, energy=False, force=force)
-        return self.with_static_friction(qdd, force, lambda f: self._solve(q_norm, qd_norm, params_norm, films, False, f),
-                                         qd_norm, params_norm)
+        return self.forced_acceleration_norm(lambda f: self._solve(q_norm, qd_norm, params_norm, films, False, f),
+                                             q_norm, qd_norm, params_norm, tau_norm)
 
     @property
     def _has_film(self) -> bool:
