@@ -90,7 +90,8 @@ def matmul_floor(model, batch: int, dtype):
         return torch.randn(*shape, generator=gen, dtype=dtype)
 
     K = model.scene.dof  # tangents of the kinetic network
-    nets = [(model.kinetic_net, model.kinetic_film, False), (model.potential_net, model.potential_film, True)]
+    kinetic, potential = model.kinetic["mlp"], model.potential["mlp"]
+    nets = [(kinetic.net, kinetic.film, False), (potential.net, potential.film, True)]
     inputs = [(rand(batch, net.hidden[0].in_features), rand(K * batch, model.num_features),
                None if film is None else rand(batch, film.net[0].in_features)) for net, film, _ in nets]
 

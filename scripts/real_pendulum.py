@@ -135,7 +135,7 @@ def compare_structure(model, lab, data, names) -> dict:
         diff = (learned - lab_static).norm(dim=-1)
         static[name] = {"rms": float(diff.pow(2).mean().sqrt()), "max": float(diff.max())}
     out = {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
-    if getattr(model, "chain_gravity", False) and not model.harmonic:  # gravity alone: the chain in SI
+    if getattr(model, "has_si_chain", False):  # gravity alone on the rigid chain: the chain in SI
         si = model.chain_si()
         out["identified"] = {"m1": float(si["mass"][0, 0]), "m2": float(si["mass"][0, 1]),
                              "l1": float(si["length"][0, 0]), "r1": float(si["along"][0, 0]),

@@ -35,14 +35,14 @@ import torch
 from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison script
 
 ROOT = Path(__file__).resolve().parents[1]
-CHAIN = {"kinetic": "chain", "links": [[1, 0], [1, 1]]}
+CHAIN = {"kinetic": {"chain": {"links": [[1, 0], [1, 1]]}}}
 DECAY = ["--model.weight_decay=0.1"]  # on network weights and on a residual beside the chain's gravity
 SETTINGS = {
     "MLP potential (the default)": {"model_options": {"mass_invariant": [0]}, "args": DECAY},
     "harmonic potential": {"model_options": {"mass_invariant": [0], "potential": "harmonic"}, "args": DECAY},
-    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": "harmonic+mlp"}, "args": DECAY},
+    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": ["harmonic", "mlp"]}, "args": DECAY},
     "rigid chain + harmonic": {**CHAIN, "potential": "harmonic"},
-    "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": "chain+harmonic"},
+    "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": ["chain", "harmonic"]},
                                                       "args": DECAY},
     "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
     "rigid chain + its gravity + static friction (the configuration)": {**CHAIN, "potential": "chain",

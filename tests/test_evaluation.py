@@ -111,7 +111,7 @@ def test_registry_maps_every_variant_and_each_class_declares_its_defaults():
         assert "hidden_dims" in model_options(name) and "activation" in model_options(name)
     assert model_options("lnn")["activation"] == "softplus" and model_options("film_lnn")["activation"] == "tanh"
     system = get_system("pendulum")
-    assert build_model("film_lnn", system, film_mode="layer").kinetic_film.mode == "layer"
+    assert build_model("film_lnn", system, film_mode="layer").kinetic["mlp"].film.mode == "layer"
     with pytest.raises(InputError, match="model variant 'mlp' takes no option 'film_mode'"):
         build_model("mlp", system, film_mode="layer")
     with pytest.raises(InputError, match="unknown model variant 'hnnn'"):
@@ -133,7 +133,7 @@ def test_shared_network_option_travels_with_the_module_hyperparameters():
     from lnn_torch import LNNModule
 
     module = LNNModule(hidden_dims=[8, 8], model_options={"shared": True})
-    assert module.model.shared and module.model.kinetic_net is None and module.model.trunk_film is not None
+    assert module.model.shared and list(module.model.kinetic) == ["shared"] and module.model.kinetic["shared"].film
     rebuilt = LNNModule(**module.hparams)
     rebuilt.load_state_dict(module.state_dict())  # same parameters, same names
     assert rebuilt.model.shared

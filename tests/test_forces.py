@@ -238,7 +238,7 @@ def test_gradcheck_through_the_forced_structured_solve(rng):
     q_n, qd_n, p_n = (x.clone().requires_grad_(True) for x in model.normalize(q, qd, params))
     tau_n = torch.randn(3, 2, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda a, b, u: model.acceleration_norm(a, b, p_n, u), (q_n, qd_n, tau_n))
-    names = ("forces.coefficient_net.2.weight", "kinetic_net.hidden.0.weight")
+    names = ("forces.coefficient_net.2.weight", "kinetic.mlp.net.hidden.0.weight")
     weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
     tau = torch.randn(3, 2, dtype=torch.float64)
 

@@ -142,8 +142,9 @@ def test_gradcheck_through_structured_solve(shared, rng):
     assert torch.autograd.gradcheck(lambda a, b: model.acceleration_norm(a, b, pn), (qn, qdn))
     # and with respect to network weights (what training differentiates)
     q, qd, params = (x[:3] for x in random_batch(system, rng, 3))
-    names = (("trunk.hidden.1.weight", "trunk.out.weight", "trunk_film.net.2.weight") if shared else
-             ("kinetic_net.hidden.1.weight", "potential_net.hidden.0.weight", "kinetic_film.net.2.weight"))
+    names = (("kinetic.shared.net.hidden.1.weight", "kinetic.shared.net.out.weight", "kinetic.shared.film.net.2.weight")
+             if shared else ("kinetic.mlp.net.hidden.1.weight", "potential.mlp.net.hidden.0.weight",
+                             "kinetic.mlp.film.net.2.weight"))
     weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
 
     def accel(*ws):
@@ -312,11 +313,11 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
     n_combos = 0 if combos is None else combos.shape[0]  # e.g. a joint-angle chain's absolute link angles
     assert model.num_features == 2 * (n_angles + n_combos) + (system.dof - n_angles)
     if variant == "film_lnn":
-        assert model.kinetic_film.net[0].in_features == system.num_params
-        assert model.num_chol == system.dof * (system.dof + 1) // 2
-        assert model.kinetic_net.hidden[0].in_features == model.num_features  # parameters only through FiLM
+        assert model.kinetic["mlp"].film.net[0].in_features == system.num_params
+        assert model.kinetic["mlp"].net.out.out_features == system.dof * (system.dof + 1) // 2
+        assert model.kinetic["mlp"].net.hidden[0].in_features == model.num_features  # parameters only through FiLM
     if variant == "delan":
-        assert model.kinetic_net.hidden[0].in_features == model.num_features + system.num_params
+        assert model.kinetic["mlp"].net.hidden[0].in_features == model.num_features + system.num_params
     q, qd, params = random_batch(system, rng, 7)
     tau = random_inputs(system, rng, 7)
     if variant == "hnn" and system.has_forces:  # the velocity-coordinate HNN has no force port
@@ -665,7 +666,7 @@ def test_mass_invariant_refuses_bad_coordinates():
         build_model("film_lnn", system, mass_invariant=[2])
     with pytest.raises(InputError, match="no feature"):
         build_model("film_lnn", system, mass_invariant=[0, 1])
-    with pytest.raises(InputError, match="cannot be combined with shared"):
+    with pytest.raises(InputError, match="shared .* cannot be combined with mass_invariant"):
         build_model("film_lnn", system, mass_invariant=[0], shared=True)
 
 
@@ -686,7 +687,7 @@ def test_harmonic_potential_solves_exactly(variant, scene, potential, rng):
         system = get_system(scene)
         q, qd, params = random_batch(system, rng, 16)
     model = perturbed(build_model(variant, system, hidden_dims=(16, 16), potential=potential).double(), scale=0.3)
-    assert (model.potential_net is None) == (potential == "harmonic")
+    assert (model.part("potential", "mlp") is None) == (potential == "harmonic")
     qn, qdn, pn = model.normalize(q, qd, params)
     force = None
     if system.num_inputs:
@@ -726,18 +727,33 @@ def test_harmonic_potential_is_refused_where_it_cannot_hold():
         build_model("film_lnn", get_system("mass_spring"), potential="harmonic")
     with pytest.raises(InputError, match="harmonic"):
         build_model("film_lnn", get_system("double_pendulum"), potential="harmonic", shared=True)
-    with pytest.raises(InputError, match="potential must be"):
+    with pytest.raises(InputError, match="unknown potential part 'fourier'"):
         build_model("film_lnn", get_system("double_pendulum"), potential="fourier")
 
 
-def test_networks_are_built_in_a_fixed_order():
+@pytest.mark.parametrize("potential", ["mlp", "harmonic+mlp"])
+def test_networks_are_built_in_a_fixed_order(potential):
     """The order in which the structured model creates its networks is the order in which they draw
     from the random generator: changing it changes every seed's initialisation (and every result
     measured from a seed). The forces (built by the base class), the kinetic network, the potential
-    network, then their FiLM networks."""
-    model = build_model("film_lnn", get_system("actuated_double_pendulum"))
-    order = list(dict.fromkeys(name.split(".")[0] for name, _ in model.named_parameters()))
-    assert order == ["forces", "kinetic_net", "potential_net", "kinetic_film", "potential_film"]
-    harmonic = build_model("film_lnn", get_system("actuated_double_pendulum"), potential="harmonic+mlp")
-    order = list(dict.fromkeys(name.split(".")[0] for name, _ in harmonic.named_parameters()))
-    assert order[:5] == ["forces", "kinetic_net", "potential_net", "kinetic_film", "potential_film"]
+    network, then their FiLM networks (then the harmonic series' coefficient network): checked by
+    drawing the same networks from the same seed in that order."""
+    from lnn_torch.networks import FiLM, TangentMLP
+
+    system = get_system("actuated_double_pendulum")
+    torch.manual_seed(3)
+    model = build_model("film_lnn", system, potential=potential)
+    torch.manual_seed(3)
+    forces = build_model("film_lnn", system).forces  # draws exactly what the base class draws
+    torch.manual_seed(3)
+    forces_again = type(forces)(model.scene, model.num_features)
+    F, P, H = model.num_features, system.num_params, [64, 64]
+    kinetic, potential_net = TangentMLP(F, H, 3), TangentMLP(F + P, H, 1, out_bias=False)
+    films = FiLM(P, H), FiLM(P, H)
+    expected = {"forces": forces_again, "kinetic.mlp.net": kinetic, "potential.mlp.net": potential_net,
+                "kinetic.mlp.film": films[0], "potential.mlp.film": films[1]}
+    modules = dict(model.named_modules())
+    for name, net in expected.items():
+        for (n, a), (_, b) in zip(modules[name].named_parameters(), net.named_parameters()):
+            assert torch.equal(a, b), f"{name}.{n}"
+    assert torch.equal(forces.coefficient_net[0].weight, forces_again.coefficient_net[0].weight)

@@ -157,7 +157,7 @@ def test_a_measured_system_has_no_parameters_and_no_closed_form():
                 build_model(variant, system, hidden_dims=(8,), **kw)
             continue
         model = build_model(variant, system, hidden_dims=(8,))
-        assert getattr(model, "kinetic_film", None) is None  # nothing to condition on
+        assert not getattr(model, "_has_film", False)  # nothing to condition on
         a = model.acceleration(torch.zeros(3, 2), torch.ones(3, 2), torch.zeros(3, 0), torch.zeros(3, 2))
         assert a.shape == (3, 2) and torch.isfinite(a).all()
 
@@ -203,7 +203,7 @@ def test_trajectory_matching_gradient_equals_finite_differences(tmp_path):
     arrays = generate_arrays(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=2, duration=0.05, seed=3))
     batch = {k: torch.from_numpy(arrays[k]) for k in ("q", "qd", "tau")}
     batch["params"] = torch.from_numpy(arrays["params"])[:, None].expand(-1, batch["q"].shape[1], -1)
-    weight = model.model.kinetic_net.hidden[0].weight
+    weight = model.model.kinetic["mlp"].net.hidden[0].weight
     loss, _ = model._training_loss(batch, None)
     (grad,) = torch.autograd.grad(loss, weight)
     h = 1e-6

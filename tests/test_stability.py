@@ -170,11 +170,10 @@ def test_mass_matrix_guards_keep_saturated_networks_solvable():
     """With the Cholesky diagonal driven to 0 (saturated softplus), M = chol chol^T is singular: the
     guards (softplus + diag_shift on the diagonal, + eps I) keep M SPD with min eigenvalue >= eps."""
     def saturated(eps, diag_shift):
-        model = build_model("film_lnn", DP, hidden_dims=(8, 8), eps=eps).double()
-        model.diag_shift = diag_shift
+        model = build_model("film_lnn", DP, hidden_dims=(8, 8), eps=eps, diag_shift=diag_shift).double()
         with torch.no_grad():
-            model.kinetic_net.out.weight.zero_()
-            model.kinetic_net.out.bias.copy_(torch.tensor([-800.0, -800.0, 0.0]))  # softplus(-800) = 0
+            model.kinetic["mlp"].net.out.weight.zero_()
+            model.kinetic["mlp"].net.out.bias.copy_(torch.tensor([-800.0, -800.0, 0.0]))  # softplus(-800) = 0
         return model
 
     q, qd = torch.randn(16, 2, dtype=torch.float64), torch.randn(16, 2, dtype=torch.float64)

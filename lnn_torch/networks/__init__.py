@@ -2,7 +2,7 @@
 their registry.
 
 Where things live: ``base`` (features, normalisation glue, checks, rollouts), ``structured``
-(``film_lnn``, ``delan``), ``blackbox`` (``lnn``), ``direct`` (``mlp``), ``hamiltonian`` (``hnn``),
+(``film_lnn``, ``delan``: the structured Lagrangian of its ``parts``), ``blackbox`` (``lnn``), ``direct`` (``mlp``), ``hamiltonian`` (``hnn``),
 ``registry`` (name -> class, ``build_model``), ``layers`` (FiLM, TangentMLP), ``reference`` (the
 plain formulas the fast paths are tested against), ``_kernels`` (private CPU-oriented forms).
 """
@@ -14,7 +14,7 @@ from .hamiltonian import HamiltonianNN
 from .layers import FiLM, TangentMLP
 from .normalization import Normalizer
 from .registry import MODELS, VARIANTS, build_model, model_options
-from .structured import DeLaN, StructuredLagrangian
+from .structured import DeLaN, FiLMLagrangian, StructuredLagrangian
 
-__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "DeLaN",
+__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "FiLMLagrangian", "DeLaN",
            "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model", "model_options"]

@@ -470,7 +470,6 @@ class DynamicsModel(nn.Module):
         """The parameters that are physical coefficients, not network weights (a friction coefficient,
         a learned input matrix, a potential's or a rigid chain's constants): training exempts them
         from weight decay, which would pull a mass or a length towards zero."""
-        names = ("coefficients_raw", "input_matrix", "potential_coef", "chain.raw")
-        return [p for n, p in self.named_parameters() if n.endswith(names)]
+        return [] if self.forces is None else self.forces.coefficient_parameters()
 
     forward = acceleration

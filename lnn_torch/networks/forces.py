@@ -83,6 +83,11 @@ class LearnedForces(nn.Module):
             rows, cols = torch.tril_indices(self.dof, self.dof)
             self.register_buffer("tril_index", rows * self.dof + cols, persistent=False)
 
+    def coefficient_parameters(self) -> list[nn.Parameter]:
+        """The physical coefficients (exempt from weight decay): constant friction coefficients and a
+        learned input matrix."""
+        return [p for n, p in self.named_parameters(recurse=False) if n in ("coefficients_raw", "input_matrix")]
+
     # ------------------------------------------------------------------ set-up
     @torch.no_grad()
     def fit_units(self, torque_scale: float, rate_rms: float) -> None:

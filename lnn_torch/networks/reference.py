@@ -1,6 +1,6 @@
 """The readable form of the networks: plain formulas, torch's own activations, torch.func derivatives.
 
-The fast paths (``TangentMLP``, ``FiLM``, ``StructuredLagrangian``) compute the same functions in
+The fast paths (``TangentMLP``, ``FiLM``, the parts of ``StructuredLagrangian``) compute the same functions in
 cheaper forms (tanh layers in sigmoid form, FiLM pairs mapped onto the weights, hand-carried
 tangents, a hand-written reverse pass, an unrolled Cholesky solve); the tests compare them with the
 functions here in float64. Nothing here is meant to be fast.
@@ -57,95 +57,23 @@ def features(model, q_norm: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.sin(qa), torch.cos(qa), q_norm[..., linear]], -1)
 
 
-def _shared_outputs(model, q_norm, params_norm) -> torch.Tensor:
-    """The shared network's outputs ``(B, n_chol + 1)``: the Cholesky entries, then ``V``."""
-    film = None if model.trunk_film is None else film_pairs(model.trunk_film, params_norm)
-    return mlp(model.trunk, torch.cat([features(model, q_norm), params_norm], -1), film)
-
-
-def chain_positions(chain, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-    """The centres of mass ``(B, n, 2)`` of a ``RigidChainKinetic``'s links, written out: joint k + 1 is
-    at ``sum_{j <= k} l_j (sin phi_j, -cos phi_j)``, link i's centre of mass ``a_i`` along and ``b_i``
-    across its own direction from joint i."""
-    p = chain.parameters_of(params_norm)
-    phi = q_norm @ chain.link_map.to(q_norm.dtype).T
-    out, joint = [], torch.zeros(*q_norm.shape[:-1], 2, dtype=q_norm.dtype)
-    for i in range(chain.num_links):
-        s, c = torch.sin(phi[..., i]), torch.cos(phi[..., i])
-        along, across = p["along"][..., i], p["across"][..., i]
-        out.append(joint + torch.stack([along * s + across * c, -along * c + across * s], -1))
-        if i < chain.num_links - 1:
-            joint = joint + p["length"][..., i, None] * torch.stack([s, -c], -1)
-    return torch.stack(out, -2)
-
-
-def chain_factor(chain, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-    """``F (B, dof, r)`` with ``F F^T = sum_i m_i J_i^T J_i + K``, ``J_i = dp_i/dq`` by torch.func and
-    ``K = L_K L_K^T`` the constant part (``M = F F^T`` is the chain's mass matrix)."""
-    p = chain.parameters_of(params_norm)
-
-    def one(q1, p1):
-        return chain_positions(chain, q1[None], p1[None])[0].flatten()  # (2 n,)
-
-    J = torch.func.vmap(torch.func.jacrev(one))(q_norm, params_norm.expand(q_norm.shape[0], -1))  # (B, 2n, dof)
-    B = q_norm.shape[0]
-    mass = p["mass"].expand(B, -1).repeat_interleave(2, -1)  # (B, 2n): x and y of each link
-    return torch.cat([(mass.sqrt()[..., None] * J).mT, p["const"].expand(B, -1, -1)], -1)
-
-
 def cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-    """A structured model's mass-matrix factor ``F`` (``M = F F^T + eps I``): the Cholesky MLP's
-    ``(B, dof, dof)``, lower-triangular, diagonal first in the network's outputs, ``softplus(.) +
-    diag_shift`` on the diagonal; the rigid chain's ``chain_factor`` (``kinetic: chain``); both side
-    by side (``chain+mlp``)."""
-    if model.chain is not None:
-        Fc = chain_factor(model.chain, q_norm, params_norm)
-        if model.kinetic_net is None:
-            return Fc
-        return torch.cat([Fc, _mlp_cholesky(model, q_norm, params_norm)], -1)
-    return _mlp_cholesky(model, q_norm, params_norm)
-
-
-def _mlp_cholesky(model, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
-    dof = model.scene.dof
-    if model.shared:
-        entries = _shared_outputs(model, q_norm, params_norm)[..., :-1]
-    else:
-        phi = features(model, q_norm)
-        if model.kinetic_index is not None:  # a mass matrix independent of some coordinates
-            phi = phi[..., model.kinetic_index]
-        film = None if model.kinetic_film is None else film_pairs(model.kinetic_film, params_norm)
-        x = phi if model.kinetic_film is not None else torch.cat([phi, params_norm], -1)
-        entries = mlp(model.kinetic_net, x, film)  # (B, n_chol): the dof diagonal entries, then the rest
-    rows, cols = torch.tril_indices(dof, dof)
-    diagonal = rows == cols
-    rows = torch.cat([rows[diagonal], rows[~diagonal]])
-    cols = torch.cat([cols[diagonal], cols[~diagonal]])
-    values = torch.cat([F.softplus(entries[..., :dof]) + model.diag_shift, entries[..., dof:]], -1)
-    flat = entries.new_zeros(*entries.shape[:-1], dof * dof).index_copy(-1, rows * dof + cols, values)
-    return flat.view(*entries.shape[:-1], dof, dof)
+    """A structured model's mass-matrix factor ``F`` (``M = F F^T + eps I``): its kinetic parts'
+    references side by side (``lnn_torch.networks.parts``)."""
+    phi = features(model, q_norm)
+    return torch.cat([part.reference_factor(q_norm, params_norm, phi) for part in model.kinetic.values()], -1)
 
 
 def mass_matrix(model, q_norm, params_norm) -> torch.Tensor:
-    """``M = chol chol^T + eps I``, ``(B, dof, dof)``."""
+    """``M = F F^T + eps I``, ``(B, dof, dof)``."""
     chol = cholesky(model, q_norm, params_norm)
     return chol @ chol.mT + model.eps * torch.eye(model.scene.dof, dtype=chol.dtype, device=chol.device)
 
 
 def potential(model, q_norm, params_norm) -> torch.Tensor:
-    """A structured model's potential ``V (B,)``."""
-    if model.shared:
-        return _shared_outputs(model, q_norm, params_norm)[..., -1]
-    phi, V = features(model, q_norm), 0.0
-    if model.potential_net is not None:
-        film = None if model.potential_film is None else film_pairs(model.potential_film, params_norm)
-        V = mlp(model.potential_net, torch.cat([phi, params_norm], -1), film)[..., 0]
-    if model.harmonic:  # plus c(theta) . [sin a, cos a]
-        V = V + (phi * model.harmonic_coefficients(params_norm)).sum(-1)
-    if model.chain_gravity:  # g times each centre of mass's height, weighted by its mass
-        heights = chain_positions(model.chain, q_norm, params_norm)[..., 1]
-        V = V + model.gravity_norm(q_norm.dtype) * (model.chain.parameters_of(params_norm)["mass"] * heights).sum(-1)
-    return V
+    """A structured model's potential ``V (B,)``: the sum of its potential parts' references."""
+    phi, g = features(model, q_norm), model.gravity_norm(q_norm.dtype)
+    return sum(part.reference_potential(q_norm, params_norm, phi, g) for part in model._potential_parts)
 
 
 def lagrangian(model, q_norm, qd_norm, params_norm) -> torch.Tensor:

@@ -11,10 +11,10 @@ from .base import DynamicsModel
 from .blackbox import BlackBoxLagrangian
 from .direct import DirectMLP
 from .hamiltonian import HamiltonianNN
-from .structured import DeLaN, StructuredLagrangian
+from .structured import DeLaN, FiLMLagrangian
 
 MODELS: dict[str, type[DynamicsModel]] = {
-    cls.variant: cls for cls in (StructuredLagrangian, BlackBoxLagrangian, DeLaN, DirectMLP, HamiltonianNN)
+    cls.variant: cls for cls in (FiLMLagrangian, BlackBoxLagrangian, DeLaN, DirectMLP, HamiltonianNN)
 }
 VARIANTS = tuple(MODELS)
 

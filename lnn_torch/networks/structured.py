@@ -1,323 +1,265 @@
-"""Structured Lagrangians ``L = 1/2 qd^T M(q, theta) qd - V(q, theta)`` (variants ``film_lnn`` and ``delan``).
+"""Structured Lagrangians ``L = 1/2 qd^T M(q, theta) qd - V(q, theta)`` built from parts (variants
+``film_lnn`` and ``delan``).
 
-``M = chol chol^T + eps I`` with ``chol`` lower-triangular (softplus + shift on its diagonal), from a
-kinetic MLP; ``V`` from a potential MLP. ``film_lnn`` conditions both networks on the parameters by
-FiLM; ``delan`` (Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs.
-Grey-box options for real arms: ``kinetic: chain`` (the mass matrix of a planar rigid chain,
-``lnn_torch.networks.chain``, a rectangular factor ``F`` with ``M = F F^T + eps I``) and
-``potential: harmonic`` (gravity's first-harmonic series), each optionally plus its MLP.
+``M = F F^T + eps I`` with ``F = [F_1 | F_2 | ...]`` the columns of the model's kinetic parts and ``V``
+the sum of its potential parts (``lnn_torch.networks.parts``): the Cholesky MLP, the rigid planar
+chain, a sum of the two; the potential MLP, the harmonic series, the chain's gravity, sums; or one
+shared network for both. ``film_lnn`` conditions the networks on the parameters by FiLM; ``delan``
+(Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs: the same
+composition with other conditioning.
 
-The solve needs no Hessian: the kinetic MLP carries forward-mode tangents along each coordinate by
-hand (``d chol / d q_k``), the potential MLP has a hand-written reverse pass (``dV/dq``), and
-``M qdd = dT/dq - dV/dq - Mdot qd`` is solved by Cholesky
-(``lnn_torch.dynamics.structured_acceleration_from_factor``). The plain formulas this computes are
-``lnn_torch.networks.reference``; tests compare the two, and the generic Hessian solve, in float64.
+The solve needs no Hessian: the parts carry forward-mode tangents by hand (``d F / d q_k``), the
+potential parts give ``dV/dq`` (a hand-written reverse pass for the MLP), and ``M qdd = dT/dq - dV/dq
+- Mdot qd`` is solved by Cholesky (``lnn_torch.dynamics.structured_acceleration_from_factor``). The
+plain formulas this computes are each part's reference (``lnn_torch.networks.reference`` assembles
+them); tests compare the two, and the generic Hessian solve, in float64.
 """
 
 from __future__ import annotations
+
+import inspect
+import warnings
 
 import torch
 from torch import nn
 
 from ..dynamics import structured_acceleration_from_factor
 from ..systems.base import GRAVITY, InputError
-from ._kernels import one
 from .base import DynamicsModel
-from .layers import FiLM, TangentMLP
+from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
+from .parts import part_options as _part_options
 
+# options of the model that are defaults for its parts (a part's own options override them)
+_PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag_shift", "potential_film")
 
-# The harmonic potential's coefficients are stored divided by this gain: Adam moves a parameter by
-# about the learning rate per step, and gravity-sized coefficients in the normalised units of a forced
-# system are O(10) (on the real double pendulum a gain of 1 reached about 60 % of the lab model's
-# gravity torques in 6,000 steps; 10, 30 and 100 fitted alike).
-HARMONIC_GAIN = 10.0
+# state-dict prefixes of the models before parts: loaded into the parts that replaced them
+_OLD_NAMES = (("kinetic_net.", "kinetic.mlp.net."), ("kinetic_film.", "kinetic.mlp.film."),
+              ("potential_net.", "potential.mlp.net."), ("potential_film.", "potential.mlp.film."),
+              ("potential_coef_net.", "potential.harmonic.coef_net."), ("potential_coef", "potential.harmonic.coef"),
+              ("chain.", "kinetic.chain."), ("trunk_film.", "kinetic.shared.film."), ("trunk.", "kinetic.shared.net."))
 
 
 class StructuredLagrangian(DynamicsModel):
-    """``film_lnn``: FiLM-conditioned Cholesky mass matrix and potential.
+    """Abstract: the structured Lagrangian of its parts; ``FiLMLagrangian`` and ``DeLaN`` fix the
+    conditioning (``conditioning``).
 
     Args:
         scene: a ``System``, its ``describe()`` dict or a ``SceneInfo``.
-        hidden_dims: hidden widths of the kinetic and the potential MLP (default 64 x 64: the knee of the
-            cost-accuracy front, ``results/cost_accuracy/README.md``; 128 x 128 before).
-        activation: ``tanh`` (default), ``softplus``, ``sigmoid`` or ``isru``.
-        film_mode: ``neuron`` (a (gamma, beta) pair per hidden neuron) or ``layer`` (one scalar pair
-            per layer, the reference design).
-        potential_film: FiLM on the potential network too (else it reads the parameters as inputs).
-        film_hidden: hidden width of each FiLM network.
-        eps: ``M = chol chol^T + eps I``.
-        diag_shift: added to the softplus of the Cholesky diagonal.
+        kinetic: the kinetic parts: ``mlp`` (default: the Cholesky factor from an MLP), ``chain`` (the
+            mass matrix of a planar chain of rigid links on revolute joints: masses, centres of mass,
+            link lengths and a constant inertia matrix for the links' rotations and any motor rotors;
+            constants without parameters, else from a small network of them), or a sum: ``{chain:
+            {links: ...}, mlp: {}}`` (the chain plus the Cholesky MLP as a residual, which starts
+            near zero). A name, a list of names or a dict of names to their options
+            (``lnn_torch.networks.parts``).
+        potential: the potential parts: ``mlp`` (default), ``harmonic`` (``V = sum_k c_k(theta)
+            phi_k(q)``, linear in the first-harmonic features of the angles: the exact form of a rigid
+            chain's gravity), ``chain`` (gravity ``g = 9.81 m/s^2`` on the rigid chain's own masses: no
+            parameter of its own, it pins the chain's lengths to metres; needs the kinetic part
+            ``chain``), or a sum (``[harmonic, mlp]``, ``[chain, harmonic]``: beside the chain's
+            gravity the harmonic series is a residual that decays under weight decay).
+        shared: ONE network (the part ``shared``) whose outputs are both the Cholesky entries and the
+            potential, as Deep Lagrangian Networks share their hidden layers (about half the work of
+            two networks; ``results/cost_accuracy/README.md``). Default False.
+        hidden_dims, activation, film_mode, film_hidden, diag_shift, potential_film: defaults of the
+            network parts (each part's own options override them): hidden widths (default 64 x 64 for
+            ``film_lnn``: the knee of the cost-accuracy front), ``tanh``/``softplus``/``sigmoid``/
+            ``isru``, FiLM per ``neuron`` or per ``layer``, the FiLM networks' width, the shift of the
+            Cholesky diagonal's softplus, FiLM on the potential MLP too.
+        eps: ``M = F F^T + eps I``.
+        mass_invariant: the Cholesky MLP's ``mass_invariant`` (coordinates the mass matrix does not
+            depend on, e.g. ``[0]`` for a serial arm in joint angles).
+        links: the rigid chain's ``links`` (deprecated here: give it as the part's option).
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
-        mass_invariant: coordinates (indices) that the mass matrix does not depend on: the kinetic
-            network then reads only the features that do not involve them (e.g. ``[0]`` for a serial
-            arm in joint angles, whose kinetic energy is unchanged by turning the whole arm about its
-            base joint). None (default): every coordinate. Needs the two networks (not ``shared``).
-        shared: ONE network (``trunk``, with one FiLM) whose outputs are both the Cholesky entries and
-            the potential, as Deep Lagrangian Networks share their hidden layers: a single pass with
-            forward tangents gives ``chol``, ``d chol / dq``, ``V`` and ``dV/dq`` (about half the work
-            of two networks; ``results/cost_accuracy/README.md``). Its input is the features and the
-            parameters. Default False: a kinetic and a potential network.
-        potential: ``mlp`` (default: the potential MLP), ``harmonic``: ``V = sum_k c_k(theta) phi_k(q)``,
-            linear in the first-harmonic features ``sin, cos`` of the angles and the scene's angle
-            combinations, its coefficients constant (no parameters) or from a small network of the
-            parameters. This is the exact form of the gravitational potential of any chain of rigid
-            links on revolute joints in a uniform field (each centre of mass's height is a sum of
-            ``l cos`` and ``l sin`` of absolute link angles, which the angle combinations supply for
-            joint-relative angles); unlike an MLP it cannot bend where the data never went; or
-            ``harmonic+mlp``: that series plus the potential MLP. The harmonic forms need angle
-            coordinates only, and the two networks (not ``shared``). ``chain`` (with a chain kinetic
-            energy): gravity ``g = 9.81 m/s^2`` on the chain's own masses and centres of mass, pointing
-            along the angles' downward vertical: no parameter of its own, and it pins the chain's
-            lengths to metres; ``chain+harmonic``: that plus the harmonic series as a residual (forces
-            of springs, cables or a tilted base that gravity on the links does not explain; it decays
-            under weight decay, but it can carry gravity itself, so the lengths are no longer pinned).
-        kinetic: ``mlp`` (default: the Cholesky factor from the kinetic MLP), ``chain``: the mass matrix
-            of a planar chain of rigid links on revolute joints (``lnn_torch.networks.chain``: masses,
-            centres of mass, link lengths and a constant inertia matrix for the links' rotations and
-            any motor rotors; constants without parameters, else from a small network of them), or ``chain+mlp``: that plus the
-            Cholesky MLP's ``chol chol^T`` as a residual (which starts near zero). The chain forms need
-            angle coordinates only, ``links``, and the two networks (not ``shared``).
-        links: for the chain forms: each link's absolute angle (from the downward vertical) as a row of
-            coefficients over the coordinates: ``[[1, 0], [0, 1]]`` for the double pendulum's absolute
-            angles, ``[[1, 0], [1, 1]]`` for joint-relative angles.
+
+    Options given with a value other than their default that no part of the model takes: the
+    part-specific ones (``mass_invariant``, ``links``) are refused, all in one line; the defaults of
+    network parts the model does not have (``hidden_dims``, ...) are named in one warning.
     """
 
-    variant = "film_lnn"
-    conditioning = "film"
+    conditioning = ""  # "film" or "concat": fixed by the concrete variants
 
-    def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
-                 potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
-                 learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
-                 mass_invariant: list[int] | None = None, potential: str = "mlp", kinetic: str = "mlp",
-                 links: list[list[float]] | None = None) -> None:
+    def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
+                 learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links) -> None:
         super().__init__(scene, learn_input_matrix, dissipation)
         if not self.scene.quadratic_kinetic:
             raise InputError(
                 f"scene '{self.scene.name}' has a kinetic energy that is not quadratic in the velocities; "
                 "the structured model (T = 1/2 qd^T M qd) cannot represent it: use variant 'lnn'"
             )
-        dof, P, F = self.scene.dof, self.scene.num_params, self.num_features
-        hidden_dims = list(hidden_dims)
+        given = dict(hidden_dims=tuple(hidden_dims), activation=activation, film_mode=film_mode,
+                     potential_film=potential_film, film_hidden=film_hidden, diag_shift=diag_shift,
+                     mass_invariant=mass_invariant, links=links)
         self.hidden_dims = tuple(hidden_dims)
         self.eps, self.diag_shift = float(eps), float(diag_shift)
-        self.num_chol = dof * (dof + 1) // 2
-        film = self.conditioning == "film" and P > 0
         self.shared = bool(shared)
-        if self.shared and mass_invariant is not None:
-            raise InputError("mass_invariant needs a kinetic network of its own: it cannot be combined with shared")
-        self.mass_invariant = self._kinetic_features(mass_invariant)
-        if potential not in ("mlp", "harmonic", "harmonic+mlp", "chain", "chain+harmonic"):
-            raise InputError(f"potential must be 'mlp', 'harmonic', 'harmonic+mlp', 'chain' or 'chain+harmonic', "
-                             f"got {potential!r}")
-        if potential.startswith("chain") and kinetic == "mlp":
-            raise InputError("potential 'chain' is the gravity of the rigid chain's masses: it needs kinetic 'chain' "
-                             "or 'chain+mlp'")
-        self.chain_gravity = potential.startswith("chain")
-        self.harmonic = "harmonic" in potential
-        if self.harmonic and (self.shared or not self.all_angles):
-            raise InputError(f"potential {potential!r} needs angle coordinates only and the two networks (not shared); "
-                             f"scene '{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
-                             + (", shared is set" if self.shared else ""))
-        self.potential_coef = self.potential_coef_net = None
-        if kinetic not in ("mlp", "chain", "chain+mlp"):
-            raise InputError(f"kinetic must be 'mlp', 'chain' or 'chain+mlp', got {kinetic!r}")
-        self.kinetic = kinetic
-        self.chain = None
-        if kinetic == "chain" and mass_invariant is not None:
-            raise InputError("mass_invariant selects the kinetic network's inputs; kinetic 'chain' has no kinetic "
-                             "network (its mass matrix never depends on the base angle): drop mass_invariant")
-        if kinetic != "mlp":
-            if self.shared or not self.all_angles or links is None:
-                raise InputError(f"kinetic {kinetic!r} needs angle coordinates only, the two networks (not shared) "
-                                 "and links (each link's absolute angle over the coordinates); scene "
-                                 f"'{self.scene.name}' has angle mask {list(self.scene.angle_mask)}"
-                                 + (", shared is set" if self.shared else "") + ("" if links else ", links not given"))
-            from .chain import RigidChainKinetic
-
-            self.chain = RigidChainKinetic(links, P, film_hidden)
-            if self.chain.dof != dof:
-                raise InputError(f"links must be rows of {dof} coefficients (one per coordinate), got {links!r}")
-        if self.shared:  # one network: outputs [Cholesky entries | V]
-            self.trunk = TangentMLP(F + P, hidden_dims, self.num_chol + 1, activation)
-            self.trunk_film = FiLM(P, hidden_dims, film_mode, film_hidden) if film else None
-            self.kinetic_net = self.potential_net = self.kinetic_film = self.potential_film = None
-        else:
-            Fk = F if self.kinetic_index is None else len(self.kinetic_index)  # the kinetic network's features
-            # (the construction order fixes the random initialisation of a seed: kept as it was)
-            self.kinetic_net = (TangentMLP(Fk if film else Fk + P, hidden_dims, self.num_chol, activation)
-                                if kinetic != "chain" else None)
-            mlp_potential = potential in ("mlp", "harmonic+mlp")
-            self.potential_net = TangentMLP(F + P, hidden_dims, 1, activation, out_bias=False) if mlp_potential else None
-            self.kinetic_film = FiLM(P, hidden_dims, film_mode, film_hidden) if (film and self.kinetic_net is not None) else None
-            self.potential_film = (FiLM(P, hidden_dims, film_mode, film_hidden)
-                                   if (film and potential_film and mlp_potential) else None)
-            if self.harmonic:  # V (+)= c(theta) . phi(q)
-                if P:
-                    self.potential_coef_net = nn.Sequential(nn.Linear(P, film_hidden), nn.Tanh(),
-                                                            nn.Linear(film_hidden, F))
-                else:
-                    self.potential_coef = nn.Parameter(torch.zeros(F))
-            self.trunk = self.trunk_film = None
-        # scatter of the Cholesky entries (diagonal first) into a row-major lower-triangular matrix;
-        # folded into the kinetic network's output layer, which so outputs the dof^2 matrix directly
-        # (the shared network's last output, V, passes through)
-        rows, cols = torch.tril_indices(dof, dof)
-        order = torch.cat([torch.nonzero(rows == cols)[:, 0], torch.nonzero(rows != cols)[:, 0]])
-        n_out = self.num_chol + self.shared
-        scatter = torch.zeros(n_out, dof * dof + self.shared)
-        scatter[torch.arange(self.num_chol), rows[order] * dof + cols[order]] = 1.0
+        ctx = BuildContext(self.scene.name, self.scene.dof, self.scene.num_params, self.num_features,
+                           self.all_angles, self.scene.angle_mask, self.conditioning,
+                           {k: given[k] for k in _PART_DEFAULTS}, self.sel_angle,
+                           tuple(self.linear_idx.tolist()))
+        kinetic_spec, potential_spec = self._part_specs(kinetic, potential, given)
+        # phase 1: each part's own network (kinetic parts first); phase 2: their conditioning networks
+        self.kinetic, self.potential = nn.ModuleDict(), nn.ModuleDict()
         if self.shared:
-            scatter[-1, -1] = 1.0
-        self.register_buffer("chol_scatter", scatter, persistent=False)
-        self.register_buffer("chol_diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
-        self.chunk_conditioning = film
-        if kinetic == "chain+mlp":  # the Cholesky MLP is a residual: it starts at chol ~ 0.02 I
-            with torch.no_grad():
-                self.kinetic_net.out.weight.zero_()
-                self.kinetic_net.out.bias.zero_()
-                self.kinetic_net.out.bias[:dof] = -4.0
+            check_angles(SHARED_PART, ctx, "shared")
+            self.kinetic["shared"] = SHARED_PART(ctx, **kinetic_spec.get("shared", {}))
+        else:
+            kin_residual = len(kinetic_spec) > 1
+            for name, opts in kinetic_spec.items():
+                cls = KINETIC_PARTS[name]
+                check_angles(cls, ctx, "kinetic")
+                extra = {"residual": True} if kin_residual and name == "mlp" else {}
+                self.kinetic[name] = ctx.kinetic_parts[name] = cls(ctx, **opts, **extra)
+            for name, opts in potential_spec.items():
+                cls = POTENTIAL_PARTS[name]
+                check_angles(cls, ctx, "potential")
+                extra = {"residual": True} if name == "harmonic" and "chain" in potential_spec else {}
+                self.potential[name] = cls(ctx, **opts, **extra)
+        for part in self._parts:
+            part.build_conditioning(ctx)
+        self.chunk_conditioning = ctx.film
+        self.register_load_state_dict_pre_hook(_load_old_names)
 
-    def _kinetic_features(self, invariant) -> list[int] | None:
-        """Registers ``kinetic_index``: the features the kinetic network reads when the mass matrix
-        does not depend on the coordinates ``invariant`` (None: all features, nothing registered)."""
-        if invariant is None:
-            self.kinetic_index = None
-            return None
-        dof = self.scene.dof
-        invariant = sorted({int(i) for i in invariant})
-        if any(not 0 <= i < dof for i in invariant):
-            raise InputError(f"mass_invariant must list coordinate indices in [0, {dof}), got {invariant}")
-        G = self.sel_angle.T  # (n_angles, dof): the feature angles in terms of q
-        na = G.shape[0]
-        angles = [i for i in range(na) if not G[i, invariant].any()]
-        linear = [k for k, j in enumerate(self.linear_idx.tolist()) if j not in invariant]
-        index = angles + [na + i for i in angles] + [2 * na + k for k in linear]
-        if not index:
-            raise InputError(f"mass_invariant {invariant} leaves the kinetic network no feature to read")
-        self.register_buffer("kinetic_index", torch.tensor(index, dtype=torch.long), persistent=False)
-        return invariant
+    def _part_specs(self, kinetic, potential, given: dict) -> tuple[dict, dict]:
+        """``{name: options}`` of the kinetic and the potential parts, with the model-level options that
+        only some parts take given to them; every option (or part) the model cannot use, in one refusal."""
+        defaults = {k: v.default for k, v in inspect.signature(type(self).__init__).parameters.items()}
+        changed = {k for k, v in given.items() if k in defaults and _differs(v, defaults[k])}
+        if self.shared:
+            kinetic_spec, potential_spec = {"shared": {}}, {}
+            conflicts = [f"kinetic {kinetic!r}" for _ in [0] if kinetic != "mlp"]
+            conflicts += [f"potential {potential!r}" for _ in [0] if potential != "mlp"]
+            conflicts += [k for k in ("mass_invariant", "links", "potential_film") if k in changed]
+            if conflicts:
+                raise InputError(f"shared (one network for both energies) cannot be combined with "
+                                 f"{', '.join(conflicts)}")
+            return kinetic_spec, potential_spec
+        kinetic_spec, potential_spec = parse_parts(kinetic, "kinetic"), parse_parts(potential, "potential")
+        if given["links"] is not None and "chain" in kinetic_spec:
+            warnings.warn("the model option links is deprecated; give it to the chain part, e.g. "
+                          "kinetic: {chain: {links: [[1, 0], [1, 1]]}}", FutureWarning, stacklevel=4)
+            kinetic_spec["chain"].setdefault("links", given["links"])
+        if given["mass_invariant"] is not None and "mlp" in kinetic_spec:
+            kinetic_spec["mlp"].setdefault("mass_invariant", given["mass_invariant"])
+        parts = [KINETIC_PARTS[n] for n in kinetic_spec] + [POTENTIAL_PARTS[n] for n in potential_spec]
+        taken = set().union(*(_part_options(cls) for cls in parts))
+        unused = sorted(k for k in changed if k not in taken)
+        what = f"model variant '{self.variant}' with kinetic {list(kinetic_spec)} and potential {list(potential_spec)}"
+        refused = [k for k in unused if k not in _PART_DEFAULTS]  # options that select a part's structure
+        if refused:
+            raise InputError(f"{what} takes no option {', '.join(refused)} (no part uses it)")
+        if unused:  # defaults of network parts it does not have
+            warnings.warn(f"{what} has no network part: ignored {', '.join(unused)}", UserWarning, stacklevel=4)
+        return kinetic_spec, potential_spec
+
+    @property
+    def _parts(self) -> list:
+        """Every part once: the kinetic parts, then the potential parts (the order of construction)."""
+        return [*self.kinetic.values(), *self.potential.values()]
+
+    @property
+    def _potential_parts(self) -> list:
+        return list(self.kinetic.values()) if self.shared else list(self.potential.values())
+
+    def part(self, role: str, name: str):
+        """The model's ``role`` (``kinetic``/``potential``) part ``name``, or None."""
+        if self.shared:
+            return self.kinetic["shared"] if name == "shared" else None
+        parts = self.kinetic if role == "kinetic" else self.potential
+        return parts[name] if name in parts else None
+
+    @property
+    def chain(self):
+        """The rigid-chain kinetic part, or None."""
+        return self.part("kinetic", "chain")
+
+    @property
+    def has_si_chain(self) -> bool:
+        """Whether ``chain_si`` applies: the rigid chain with its own gravity as the only potential, and inputs."""
+        return (self.chain is not None and list(self.potential) == ["chain"] and self.forces is not None
+                and self.forces.num_inputs > 0)
 
     def chain_si(self, params: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The rigid chain's identified parameters in SI: ``mass`` (kg), centre of mass ``along`` and
         ``across`` each link and joint-to-joint ``length`` (m), and ``constant`` ``K`` (kg m^2: link
         inertias about their centres of mass, motor rotors), for the scene's parameters ``params``
-        ``(B, P)`` (None for a measured system). Needs ``potential: chain`` (gravity alone pins the
-        lengths to metres; beside the harmonic series, which can carry gravity itself, it does not) and a
-        scene with inputs (the torques fix the mass scale,
-        ``M_SI = M_norm tau^2 / force_scale``)."""
-        if (self.chain is None or not self.chain_gravity or self.harmonic or self.forces is None
-                or not self.forces.num_inputs):
+        ``(B, P)`` (None for a measured system). Needs the kinetic part ``chain`` and gravity on it as
+        the only potential part (it pins the lengths to metres; a harmonic series beside it can carry
+        gravity itself) and a scene with inputs (the torques fix the mass scale, ``M_SI = M_norm tau^2
+        / force_scale``)."""
+        if not self.has_si_chain:
             raise InputError("SI chain parameters need kinetic 'chain', potential 'chain' and a scene with inputs "
                              "(without gravity alone only products of masses and lengths are identified)")
         norm = self.normalizer
         if params is None:
             params = torch.zeros(1, self.scene.num_params, device=norm.time_scale.device)
-        with torch.no_grad():
-            p = self.chain.parameters_of(norm.params(params.to(self.dtype)))
-            scale = norm.time_scale ** 2 / norm.force_scale
-            out = {"mass": p["mass"] * scale, "along": p["along"], "across": p["across"], "length": p["length"],
-                   "constant": p["const"] @ p["const"].mT * scale}
-        return {k: v.detach() for k, v in out.items()}  # a parameter passed through as it is stays detached too
+        scales = {"time": norm.time_scale, "force": norm.force_scale}
+        return self.chain.si_report(scales, norm.params(params.to(self.dtype)))
 
     def coefficient_parameters(self):
-        """As ``DynamicsModel.coefficient_parameters``, plus the chain's constants where a network of
-        the scene's parameters gives them (its output bias) and the Cholesky residual's output bias
-        (``chain+mlp``: decay towards 0 would grow a diagonal that starts at softplus(-4)); but the
-        harmonic series beside the chain's own gravity (``potential: chain+harmonic``) is a residual,
-        and decays like a network's weights."""
+        """As ``DynamicsModel.coefficient_parameters``, plus each part's own (the chain's constants, a
+        harmonic series that is not a residual, a Cholesky residual's output bias)."""
         params = super().coefficient_parameters()
-        if self.chain_gravity and self.potential_coef is not None:
-            params = [p for p in params if p is not self.potential_coef]
-        if self.chain is not None and self.chain.net is not None:  # the chain's constants for a scene's parameters
-            params.append(self.chain.net[-1].bias)
-        if self.kinetic == "chain+mlp":  # the residual's bias (its diagonal starts at -4): decay would grow it
-            params.append(self.kinetic_net.out.bias)
+        for part in self._parts:
+            params += part.coefficient_parameters()
         return params
 
     # ------------------------------------------------------------------ conditioning
-    def films(self, params_norm: torch.Tensor, chunks: int | None = None):
-        """The FiLM pairs ``(kinetic, potential)`` for these parameters (None for a network without
-        FiLM): per row ``(B, H)``, or per chunk ``(C, 1, H)`` when the batch is ``chunks`` runs of
-        rows that share their parameters (one FiLM evaluation per chunk)."""
-        if self.shared:
-            return self._film(self.trunk_film, self.trunk, params_norm, chunks), None
-        return (self._film(self.kinetic_film, self.kinetic_net, params_norm, chunks),
-                self._film(self.potential_film, self.potential_net, params_norm, chunks))
+    def films(self, params_norm: torch.Tensor, chunks: int | None = None) -> tuple:
+        """Each part's conditioning (its FiLM pairs, or None) for these parameters: per row ``(B, H)``,
+        or per chunk ``(C, 1, H)`` when the batch is ``chunks`` runs of rows that share their
+        parameters (one FiLM evaluation per chunk)."""
+        return tuple(part.condition(params_norm, chunks) for part in self._parts)
 
-    @staticmethod
-    def _film(film_net, net, params_norm, chunks):
-        if film_net is None:
-            return None
-        if chunks is None:
-            return film_net(params_norm, net.sigmoid_form)
-        cond = params_norm.view(chunks, -1, params_norm.shape[-1])[:, 0]
-        return [(g[:, None], b[:, None]) for g, b in film_net(cond, net.sigmoid_form)]
-
-    def _inputs(self, phi, params_norm):
-        """The kinetic network's input: the features, plus the parameters where FiLM does not carry them."""
-        return phi if self.kinetic_film is not None else torch.cat([phi, params_norm], -1)
-
-    # ------------------------------------------------------------------ the networks
-    def _terms(self, q_norm, params_norm, films, tangents: bool = True):
-        """``(phi, chol, dchol, V, dV)`` from one pass of each network (of the one shared network):
-        mass-matrix factor ``(B, dof, r)`` (``r = dof``: the Cholesky factor; see ``_cholesky``),
-        ``d chol / d q_k`` ``(dof, B, dof, r)``, potential ``(B,)``
-        and ``dV/dq`` ``(B, dof)`` (the derivatives None without ``tangents``)."""
+    # ------------------------------------------------------------------ the parts
+    def _part_inputs(self, q_norm, params_norm, tangents: bool) -> PartInputs:
         phi, dphi, sin_cos = self._features(q_norm, tangents)
-        if not self.shared:
-            geo = None if self.chain is None else self.chain.geometry(q_norm, params_norm)  # shared by M and V
-            chol, dchol = self._cholesky(q_norm, phi, dphi, params_norm, films[0], geo)
-            V, dV = self._potential(q_norm, phi, sin_cos, params_norm, films[1], grad=tangents, chain_geometry=geo)
-            return phi, chol, dchol, V, dV
-        n = self.scene.dof ** 2
-        y, dy = self.trunk(torch.cat([phi, params_norm], -1), dphi, films[0], out_map=self.chol_scatter.to(phi.dtype))
-        chol, dchol = self._chol_from(y[:, :n], None if dy is None else dy[..., :n])
-        return phi, chol, dchol, y[:, n], (None if dy is None else dy[..., n].mT)
+        return PartInputs(q_norm, params_norm, phi, dphi, sin_cos, tangents, self.gravity_norm)
+
+    def _factor(self, inputs: PartInputs, conds):
+        """The mass-matrix factor ``(B, dof, r)`` and its tangents ``(dof, B, dof, r)`` (None without
+        ``inputs.tangents``): the kinetic parts' columns side by side."""
+        out = [part.factor(inputs, cond) for part, cond in zip(self.kinetic.values(), conds)]
+        if len(out) == 1:
+            return out[0]
+        F = torch.cat([f for f, _ in out], -1)
+        return F, (None if out[0][1] is None else torch.cat([d for _, d in out], -1))
+
+    def _potential(self, inputs: PartInputs, conds, grad: bool):
+        """``V (B,)`` and, with ``grad``, ``dV/dq (B, dof)``: the sum of the potential parts, their
+        feature gradients pulled back through the features once."""
+        conds = conds if self.shared else conds[len(self.kinetic):]
+        V = g_phi = dV = None
+        for part, cond in zip(self._potential_parts, conds):
+            term = part.potential(inputs, cond, grad)
+            V = term.V if V is None else V + term.V
+            if term.dV_dphi is not None:
+                g_phi = term.dV_dphi if g_phi is None else g_phi + term.dV_dphi
+            if term.dV_dq is not None:
+                dV = term.dV_dq if dV is None else dV + term.dV_dq
+        if not grad:
+            return V, None
+        if g_phi is not None:
+            pulled = self.features_vjp(inputs.q_norm, g_phi.expand_as(inputs.phi), inputs.sin_cos)
+            dV = pulled if dV is None else pulled + dV
+        return V, dV
+
+    def _terms(self, q_norm, params_norm, conds, tangents: bool = True):
+        """``(phi, F, dF, V, dV)`` from one pass of each part: mass-matrix factor ``(B, dof, r)``,
+        ``d F / d q_k`` ``(dof, B, dof, r)``, potential ``(B,)`` and ``dV/dq`` ``(B, dof)`` (the
+        derivatives None without ``tangents``)."""
+        inputs = self._part_inputs(q_norm, params_norm, tangents)
+        chol, dchol = self._factor(inputs, conds)
+        V, dV = self._potential(inputs, conds, tangents)
+        return inputs.phi, chol, dchol, V, dV
 
     def cholesky(self, q_norm, params_norm, tangents: bool = False):
-        """Mass-matrix factor ``(B, dof, r)`` and, if asked, ``d chol / d q_k`` ``(dof, B, dof, r)``
-        (``r = dof``, the Cholesky factor, unless ``kinetic`` is a chain form: see ``_cholesky``)."""
-        if not self.shared:
-            phi, dphi = self.features(q_norm, tangents)
-            return self._cholesky(q_norm, phi, dphi, params_norm, self.films(params_norm)[0])
-        _, chol, dchol, _, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents)
-        return chol, dchol
-
-    def _cholesky(self, q_norm, phi, dphi, params_norm, film, chain_geometry=None):
-        """The mass matrix's factor ``(B, dof, r)`` (``M = F F^T + eps I``; square lower-triangular for
-        the kinetic MLP, rectangular for the rigid chain, the two side by side for ``chain+mlp``) and
-        its tangents ``(dof, B, dof, r)`` (None without ``dphi``)."""
-        if self.chain is not None:
-            Fc, dFc = self.chain.factor(q_norm, params_norm, tangents=dphi is not None, geometry=chain_geometry)
-            if self.kinetic_net is None:
-                return Fc, dFc
-            chol, dchol = self._mlp_cholesky(phi, dphi, params_norm, film)
-            return torch.cat([Fc, chol], -1), (None if dchol is None else torch.cat([dFc, dchol], -1))
-        return self._mlp_cholesky(phi, dphi, params_norm, film)
-
-    def _mlp_cholesky(self, phi, dphi, params_norm, film):
-        S = self.chol_scatter.to(phi.dtype)  # (n_chol, dof^2)
-        if self.kinetic_index is not None:  # only the features the mass matrix depends on
-            phi = phi[..., self.kinetic_index]
-            dphi = None if dphi is None else dphi[..., self.kinetic_index]
-        # (B, dof^2), (K, B, dof^2); 0 above the diagonal
-        raw, draw = self.kinetic_net(self._inputs(phi, params_norm), dphi, film, out_map=S)
-        return self._chol_from(raw, draw)
-
-    def _chol_from(self, raw, draw):
-        """The factor and its tangents from the network's ``(B, dof^2)`` outputs (0 above the diagonal)
-        and their tangents ``(K, B, dof^2)``."""
-        dof, B = self.scene.dof, raw.shape[0]
-        # positive diagonal: softplus + shift (computed on every entry, kept on the diagonal)
-        chol = torch.where(self.chol_diag, nn.functional.softplus(raw) + self.diag_shift, raw).view(B, dof, dof)
-        if draw is None:
-            return chol, None
-        dchol = draw * torch.where(self.chol_diag, torch.sigmoid(raw), one(raw))  # d softplus = sigmoid
-        return chol, dchol.reshape(-1, B, dof, dof)
+        """Mass-matrix factor ``(B, dof, r)`` and, if asked, ``d F / d q_k`` ``(dof, B, dof, r)``."""
+        return self._factor(self._part_inputs(q_norm, params_norm, tangents), self.films(params_norm))
 
     def _mass_from(self, chol):
-        """``M = chol chol^T + eps I`` ``(B, dof, dof)`` (``chol``: any factor ``(B, dof, r)``)."""
+        """``M = F F^T + eps I`` ``(B, dof, dof)`` (``chol``: any factor ``(B, dof, r)``)."""
         eye = torch.eye(self.scene.dof, dtype=chol.dtype, device=chol.device)
         return torch.baddbmm(eye * self.eps, chol, chol.mT)
 
@@ -330,39 +272,9 @@ class StructuredLagrangian(DynamicsModel):
         return self.mass_matrix_norm(q_norm, params_norm)
 
     def potential_norm(self, q_norm, params_norm, grad: bool = False):
-        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)`` (hand-written reverse pass, or the
-        shared network's tangents)."""
-        if self.shared:
-            _, _, _, V, dV = self._terms(q_norm, params_norm, self.films(params_norm), grad)
-            return V, dV
-        phi, _, sin_cos = self._features(q_norm, False)
-        return self._potential(q_norm, phi, sin_cos, params_norm, self.films(params_norm)[1], grad)
-
-    def harmonic_coefficients(self, params_norm: torch.Tensor) -> torch.Tensor:
-        """The harmonic potential's coefficients ``(B, F)`` (or ``(F,)`` without parameters)."""
-        if self.potential_coef is not None:
-            return HARMONIC_GAIN * self.potential_coef.to(params_norm.dtype)
-        return HARMONIC_GAIN * self.potential_coef_net(params_norm)
-
-    def _potential(self, q_norm, phi, sin_cos, params_norm, film, grad: bool, chain_geometry=None):
-        V, dV_dphi = 0.0, 0.0
-        if self.potential_net is not None:
-            x = torch.cat([phi, params_norm], -1)
-            if not grad:
-                V = self.potential_net(x, None, film)[0][..., 0]
-            else:
-                V, dV_dphi = self.potential_net.value_and_input_grad(x, film, num_grad_inputs=self.num_features)
-        if self.harmonic:  # plus c(theta) . phi(q)
-            c = self.harmonic_coefficients(params_norm)
-            V = V + (phi * c).sum(-1)
-            dV_dphi = dV_dphi + c
-        on_features = self.potential_net is not None or self.harmonic
-        dV = self.features_vjp(q_norm, dV_dphi.expand_as(phi), sin_cos) if grad and on_features else None
-        if self.chain_gravity:  # plus gravity on the chain's masses
-            Vg, dVg = self.chain.gravity(q_norm, params_norm, self.gravity_norm(q_norm.dtype), grad, chain_geometry)
-            V = V + Vg
-            dV = dVg if dV is None else dV + dVg
-        return V, dV
+        """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)``."""
+        inputs = self._part_inputs(q_norm, params_norm, grad and self.shared)  # the shared net's tangents
+        return self._potential(inputs, self.films(params_norm), grad)
 
     def gravity_norm(self, dtype=torch.float32) -> torch.Tensor:
         """``g`` in normalised units, ``g tau^2`` (angles are not scaled): with it the chain's lengths are
@@ -397,7 +309,7 @@ class StructuredLagrangian(DynamicsModel):
 
     @property
     def _has_film(self) -> bool:
-        return any(f is not None for f in (self.kinetic_film, self.potential_film, self.trunk_film))
+        return any(part.has_film for part in self._parts)
 
     def rollout_conditioning(self, params: torch.Tensor):
         if not self._has_film:
@@ -461,16 +373,54 @@ class StructuredLagrangian(DynamicsModel):
         return 0.5 * qd_norm @ M[0] @ qd_norm - V[0]
 
 
+def _differs(value, default) -> bool:
+    if isinstance(value, (list, tuple)) and isinstance(default, (list, tuple)):
+        return list(value) != list(default)
+    return value != default
+
+
+def _load_old_names(module, state_dict, prefix, *args) -> None:
+    """Load a state dict saved before parts (``kinetic_net.*``, ``trunk.*``, ...) into the parts."""
+    for key in [k for k in state_dict if k.startswith(prefix)]:
+        rest = key[len(prefix):]
+        for old, new in _OLD_NAMES:
+            if rest.startswith(old) and not rest.startswith(new):
+                state_dict[prefix + new + rest[len(old):]] = state_dict.pop(key)
+                break
+
+
+class FiLMLagrangian(StructuredLagrangian):
+    """``film_lnn``: the structured Lagrangian with its networks conditioned on the parameters by FiLM
+    (a ``(gamma, beta)`` pair per hidden neuron, or per layer with ``film_mode: layer``; the potential
+    MLP too unless ``potential_film`` is off). Options: ``StructuredLagrangian``."""
+
+    variant = "film_lnn"
+    conditioning = "film"
+
+    def __init__(self, scene, hidden_dims=(64, 64), activation: str = "tanh", film_mode: str = "neuron",
+                 potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
+                 learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
+                 mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
+                 links: list[list[float]] | None = None) -> None:
+        super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
+                         potential_film=potential_film, film_hidden=film_hidden, eps=eps, diag_shift=diag_shift,
+                         learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
+                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links)
+
+
 class DeLaN(StructuredLagrangian):
     """``delan`` (Deep Lagrangian Networks, Lutter et al.): the structured Lagrangian with the
-    parameters concatenated to the inputs of both networks instead of FiLM."""
+    parameters concatenated to the inputs of its networks instead of FiLM. Options:
+    ``StructuredLagrangian``."""
 
     variant = "delan"
     conditioning = "concat"
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
                  diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
-                 shared: bool = False, mass_invariant: list[int] | None = None, potential: str = "mlp") -> None:
-        super().__init__(scene, hidden_dims, activation, eps=eps, diag_shift=diag_shift,
+                 shared: bool = False, mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
+                 links: list[list[float]] | None = None) -> None:
+        super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode="neuron",
+                         potential_film=True, film_hidden=16, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
-                         mass_invariant=mass_invariant, potential=potential)
+                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links)

@@ -24,6 +24,9 @@ one length, plus ``dof (dof + 1) / 2``), all learned: constants for a measured s
 of a small network of the scene's parameters. This is the mass matrix of the lab's physical model
 family, so it cannot bend where the data never went; ``kinetic: chain+mlp`` adds the Cholesky MLP as
 a residual.
+
+Parts here: ``RigidChain`` (kinetic ``chain``) and ``ChainGravity`` (potential ``chain``: gravity on
+the chain's own masses and centres of mass).
 """
 
 from __future__ import annotations
@@ -34,23 +37,33 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..systems.base import InputError
+from ...systems.base import InputError
+from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm, option
 
 _SOFTPLUS_THIRD = math.log(math.expm1(0.3))
 
 
-class RigidChainKinetic(nn.Module):
-    """Mass-matrix factor of a planar rigid chain ``F (B, dof, r)`` and ``dF/dq_k (dof, B, dof, r)``,
-    ``r = 2 n + dof``.
+class RigidChain(KineticPart):
+    """``chain``: mass-matrix factor of a planar rigid chain ``F (B, dof, r)`` and ``dF/dq_k (dof, B,
+    dof, r)``, ``r = 2 n + dof``.
 
-    Args:
-        links: ``(n, dof)``: each link's absolute angle as coefficients over the coordinates.
-        num_params: the scene's number of parameters (0: the chain's are free constants).
-        hidden: width of the network of the scene's parameters (when there are any).
+    Options:
+        links: ``(n, dof)``: each link's absolute angle (from the downward vertical) as coefficients
+            over the coordinates: ``[[1, 0], [0, 1]]`` for the double pendulum's absolute angles,
+            ``[[1, 0], [1, 1]]`` for joint-relative angles.
+        film_hidden: width of the network of the scene's parameters (when there are any; None: the
+            model's default).
     """
 
-    def __init__(self, links, num_params: int, hidden: int = 16) -> None:
+    name = "chain"
+    needs_angles = True
+
+    def __init__(self, ctx: BuildContext, links=None, film_hidden=None) -> None:
         super().__init__()
+        if links is None:
+            raise InputError("kinetic part 'chain' needs links (each link's absolute angle over the coordinates), "
+                             "e.g. kinetic: {chain: {links: [[1, 0], [1, 1]]}}")
+        num_params, hidden = ctx.num_params, option(ctx, film_hidden, "film_hidden")
         try:
             G = torch.tensor(links, dtype=torch.float32)
         except (TypeError, ValueError):
@@ -81,6 +94,58 @@ class RigidChainKinetic(nn.Module):
             self.net = None
             self.raw = nn.Parameter(init)
         self.num_columns = 2 * n + dof
+        if dof != ctx.dof:
+            raise InputError(f"links must be rows of {ctx.dof} coefficients (one per coordinate), got {links!r}")
+
+    def coefficient_parameters(self):
+        # the chain's constants: its raw vector, or the output bias of its network of the parameters
+        return [self.raw] if self.net is None else [self.net[-1].bias]
+
+    def _geometry(self, inputs: PartInputs):
+        return inputs.shared(self, lambda: self.geometry(inputs.q_norm, inputs.params_norm))
+
+    def factor(self, inputs: PartInputs, cond):
+        return self.factor_at(inputs.q_norm, inputs.params_norm, inputs.tangents, self._geometry(inputs))
+
+    def reference_factor(self, q_norm, params_norm, phi):
+        """``F`` with ``F F^T = sum_i m_i J_i^T J_i + K``, ``J_i = dp_i/dq`` by torch.func on the written-out
+        centres of mass (``positions``)."""
+        p = self.parameters_of(params_norm)
+
+        def one(q1, p1):
+            return self.positions(q1[None], p1[None])[0].flatten()  # (2 n,)
+
+        J = torch.func.vmap(torch.func.jacrev(one))(q_norm, params_norm.expand(q_norm.shape[0], -1))  # (B, 2n, dof)
+        B = q_norm.shape[0]
+        mass = p["mass"].expand(B, -1).repeat_interleave(2, -1)  # (B, 2n): x and y of each link
+        return torch.cat([(mass.sqrt()[..., None] * J).mT, p["const"].expand(B, -1, -1)], -1)
+
+    def positions(self, q_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
+        """The centres of mass ``(B, n, 2)``, written out: joint k + 1 is at ``sum_{j <= k} l_j (sin phi_j,
+        -cos phi_j)``, link i's centre of mass ``a_i`` along and ``b_i`` across its own direction from
+        joint i (the readable reference of ``factor`` and ``gravity``)."""
+        p = self.parameters_of(params_norm)
+        phi = q_norm @ self.link_map.to(q_norm.dtype).T
+        out, joint = [], torch.zeros(*q_norm.shape[:-1], 2, dtype=q_norm.dtype)
+        for i in range(self.num_links):
+            s, c = torch.sin(phi[..., i]), torch.cos(phi[..., i])
+            along, across = p["along"][..., i], p["across"][..., i]
+            out.append(joint + torch.stack([along * s + across * c, -along * c + across * s], -1))
+            if i < self.num_links - 1:
+                joint = joint + p["length"][..., i, None] * torch.stack([s, -c], -1)
+        return torch.stack(out, -2)
+
+    def si_report(self, scales: dict, params_norm: torch.Tensor) -> dict:
+        """The chain in SI: ``mass`` (kg), centre of mass ``along`` and ``across`` each link and
+        joint-to-joint ``length`` (m), and ``constant`` ``K`` (kg m^2), detached. ``scales``: ``time``
+        (s) and ``force`` (the normaliser's force scale); valid where gravity on the chain pins its
+        lengths to metres and the inputs fix the mass scale (``StructuredLagrangian.chain_si``)."""
+        with torch.no_grad():
+            p = self.parameters_of(params_norm)
+            scale = scales["time"] ** 2 / scales["force"]
+            out = {"mass": p["mass"] * scale, "along": p["along"], "across": p["across"], "length": p["length"],
+                   "constant": p["const"] @ p["const"].mT * scale}
+        return {k: v.detach() for k, v in out.items()}  # a parameter passed through as it is stays detached too
 
     def parameters_of(self, params_norm: torch.Tensor) -> dict[str, torch.Tensor]:
         """The chain's parameters in normalised units, each ``(B, .)`` or ``(1, .)`` (no scene parameters):
@@ -113,7 +178,7 @@ class RigidChainKinetic(nn.Module):
         phi = q_norm @ self.link_map.to(q_norm.dtype).T  # (B, n)
         return p, C, S, torch.sin(phi), torch.cos(phi)
 
-    def factor(self, q_norm: torch.Tensor, params_norm: torch.Tensor, tangents: bool = True, geometry=None):
+    def factor_at(self, q_norm: torch.Tensor, params_norm: torch.Tensor, tangents: bool = True, geometry=None):
         """``F (B, dof, 2 n + dof)`` and, with ``tangents``, ``dF/dq_k (dof, B, dof, 2 n + dof)``
         (``geometry``: this state's ``geometry(q_norm, params_norm)`` where already computed)."""
         B, dtype = q_norm.shape[0], q_norm.dtype
@@ -151,3 +216,34 @@ class RigidChainKinetic(nn.Module):
             return V, None
         return V, (g * (s * cos + w * sin)) @ self.link_map.to(q_norm.dtype)
 
+
+
+class ChainGravity(PotentialPart):
+    """``chain``: gravity ``g = 9.81 m/s^2`` on the rigid chain's own masses and centres of mass, pointing
+    along the angles' downward vertical (needs the kinetic part ``chain``). It has no parameter of its
+    own and pins the chain's lengths to metres (``V_norm / M_norm = tau^2 V / M``)."""
+
+    name = "chain"
+    needs_angles = True
+
+    def __init__(self, ctx: BuildContext) -> None:
+        super().__init__()
+        chain = ctx.kinetic_parts.get("chain")
+        if chain is None:
+            raise InputError("potential part 'chain' is the gravity of the rigid chain's masses: it needs the "
+                             "kinetic part 'chain'")
+        self._chain = (chain,)  # a reference, not a submodule: the kinetic part owns the chain's parameters
+
+    @property
+    def chain(self) -> RigidChain:
+        return self._chain[0]
+
+    def potential(self, inputs: PartInputs, cond, grad: bool) -> PotentialTerm:
+        geometry = self.chain._geometry(inputs)
+        V, dV = self.chain.gravity(inputs.q_norm, inputs.params_norm, inputs.gravity(inputs.q_norm.dtype), grad,
+                                   geometry)
+        return PotentialTerm(V, dV_dq=dV)
+
+    def reference_potential(self, q_norm, params_norm, phi, gravity):
+        heights = self.chain.positions(q_norm, params_norm)[..., 1]
+        return gravity * (self.chain.parameters_of(params_norm)["mass"] * heights).sum(-1)
