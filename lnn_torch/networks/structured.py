@@ -116,6 +116,11 @@ class StructuredLagrangian(DynamicsModel):
                 check_angles(cls, ctx, "potential")
                 extra = {"residual": True} if name == "harmonic" and "chain" in potential_spec else {}
                 self.potential[name] = cls(ctx, **opts, **extra)
+        # the parts in their roles, as plain tuples (the ModuleDicts own them): iterated at every call
+        self._parts = (*self.kinetic.values(), *self.potential.values())
+        self._kinetic_parts = tuple(self.kinetic.values())
+        self._potential_parts = self._kinetic_parts if self.shared else tuple(self.potential.values())
+        self._num_kinetic = 0 if self.shared else len(self._kinetic_parts)
         for part in self._parts:
             part.build_conditioning(ctx)
         self.chunk_conditioning = ctx.film
@@ -152,15 +157,6 @@ class StructuredLagrangian(DynamicsModel):
         if unused:  # defaults of network parts it does not have
             warnings.warn(f"{what} has no network part: ignored {', '.join(unused)}", UserWarning, stacklevel=4)
         return kinetic_spec, potential_spec
-
-    @property
-    def _parts(self) -> list:
-        """Every part once: the kinetic parts, then the potential parts (the order of construction)."""
-        return [*self.kinetic.values(), *self.potential.values()]
-
-    @property
-    def _potential_parts(self) -> list:
-        return list(self.kinetic.values()) if self.shared else list(self.potential.values())
 
     def part(self, role: str, name: str):
         """The model's ``role`` (``kinetic``/``potential``) part ``name``, or None."""
@@ -220,7 +216,7 @@ class StructuredLagrangian(DynamicsModel):
     def _factor(self, inputs: PartInputs, conds):
         """The mass-matrix factor ``(B, dof, r)`` and its tangents ``(dof, B, dof, r)`` (None without
         ``inputs.tangents``): the kinetic parts' columns side by side."""
-        out = [part.factor(inputs, cond) for part, cond in zip(self.kinetic.values(), conds)]
+        out = [part.factor(inputs, cond) for part, cond in zip(self._kinetic_parts, conds)]
         if len(out) == 1:
             return out[0]
         F = torch.cat([f for f, _ in out], -1)
@@ -229,9 +225,8 @@ class StructuredLagrangian(DynamicsModel):
     def _potential(self, inputs: PartInputs, conds, grad: bool):
         """``V (B,)`` and, with ``grad``, ``dV/dq (B, dof)``: the sum of the potential parts, their
         feature gradients pulled back through the features once."""
-        conds = conds if self.shared else conds[len(self.kinetic):]
         V = g_phi = dV = None
-        for part, cond in zip(self._potential_parts, conds):
+        for part, cond in zip(self._potential_parts, conds[self._num_kinetic:]):
             term = part.potential(inputs, cond, grad)
             V = term.V if V is None else V + term.V
             if term.dV_dphi is not None:
