@@ -1,5 +1,5 @@
 """The ``lnn-torch`` command: a dispatcher over ``generate``, ``import``, ``evaluate``, ``simulate``,
-``identify`` (modules of
+``identify``, ``list`` (modules of
 ``lnn_torch.commands``) and Lightning's ``fit``/``validate``/``test``/``predict``."""
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ COMMANDS = {
     "evaluate": ("evaluate", "report of a checkpoint: errors, rollouts, energy drift, stability, plots"),
     "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
     "identify": ("identify", "the physical parameters of a recorded trajectory, through a trained model"),
+    "list": ("list_registry", "scenes, model variants and parts, shipped models and integrators"),
 }
 
 
@@ -39,11 +40,16 @@ def lightning_main(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "--version":
+        from . import __version__
+
+        print(f"lnn-torch {__version__}")
+        return 0
     if not argv or argv[0] in ("-h", "--help"):
         width = max(map(len, COMMANDS))
         print("usage: lnn-torch {" + ",".join(COMMANDS) + "} ...\n\n"
               + "\n".join(f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items())
-              + "\n\nRun 'lnn-torch COMMAND --help' for a command's options.")
+              + "\n\nRun 'lnn-torch COMMAND --help' for a command's options; 'lnn-torch --version' for the version.")
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     if command not in COMMANDS:

@@ -10,6 +10,16 @@ from pathlib import Path
 from ..systems import SYSTEMS
 
 
+class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults in the help, except where the help already says its default or there is none."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "default" in text or action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return text
+        return super()._get_help_string(action)
+
+
 def _generate_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="lnn-torch generate",
@@ -18,17 +28,18 @@ def _generate_parser() -> argparse.ArgumentParser:
             "trajectory, integrated in float64 with a fixed-step 8th-order Runge-Kutta method. "
             "The default is the reference double-pendulum set: 2000 trajectories x 20 s at dt=0.005 s."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_DefaultsHelp,
     )
     p.add_argument("--scene", default="double_pendulum",
                    help=f"scene: one of {', '.join(sorted(n for n, c in SYSTEMS.items() if c.closed_form))}")
     p.add_argument("--scene-config", default="{}", metavar="JSON",
                    help='sampler ranges of the scene as JSON, e.g. \'{"l1_range": [1.0, 1.5]}\'')
-    p.add_argument("--num-trajectories", "-n", type=int, default=2000)
+    p.add_argument("--num-trajectories", "-n", type=int, default=2000, help="trajectories in all splits")
     p.add_argument("--duration", type=float, default=20.0, help="seconds per trajectory")
     p.add_argument("--dt", type=float, default=0.005, help="sampling interval, s")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--split", type=float, nargs=3, default=(0.8, 0.1, 0.1), metavar=("TRAIN", "VAL", "TEST"))
+    p.add_argument("--seed", type=int, default=0, help="seed of the parameters and initial states")
+    p.add_argument("--split", type=float, nargs=3, default=(0.8, 0.1, 0.1), metavar=("TRAIN", "VAL", "TEST"),
+                   help="fractions of the trajectories (default: 0.8 0.1 0.1)")
     p.add_argument("--integrator", default="rk8", help="fixed-step integrator for the ground truth")
     p.add_argument("--substeps", type=int, default=1, help="integrator steps per sampling interval")
     p.add_argument("--targets", choices=("analytic", "finite_difference"), default="analytic",

@@ -5,8 +5,8 @@ exact trajectory from the same state (``lnn_torch.ground_truth.reference_rollout
 beside it, with the true energy of the model's trajectory, so that the output shows how far the
 model can be trusted.
 
-    lnn-torch simulate --params 1.0 0.6 1.2 1.1 --q0 1.0 -0.5 --qd0 0 0 --duration 10 -o sim.csv
-    lnn-torch simulate --checkpoint lightning_logs/version_0/checkpoints/last.ckpt --params ... --q0 ...
+    lnn-torch simulate pretrained:double_pendulum --params 1.0 0.6 1.2 1.1 --q0 1.0 -0.5 --duration 10 -o sim.csv
+    lnn-torch simulate lightning_logs/version_0/checkpoints/last.ckpt --params ... --q0 ...
 
 An actuated scene's model is driven by inputs: ``--inputs FILE.csv`` (a column per input, named as
 the scene's inputs, e.g. ``tau1,tau2``, and optionally ``t``: the inputs are held from each row's
@@ -32,16 +32,19 @@ def _parser() -> argparse.ArgumentParser:
 
     ap = argparse.ArgumentParser(prog="lnn-torch simulate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    src = ap.add_mutually_exclusive_group()
-    src.add_argument("--pretrained", default=None,
-                     help=f"a shipped model ({', '.join(available()) or 'none'}; default double_pendulum)")
-    src.add_argument("--checkpoint", default=None, help="a .ckpt written by lnn-torch fit")
+    ap.add_argument("checkpoint", nargs="?", default=None, metavar="CHECKPOINT",
+                    help="a .ckpt written by lnn-torch fit, or pretrained:NAME for a shipped model "
+                         f"({', '.join(available()) or 'none'}; default pretrained:double_pendulum)")
+    ap.add_argument("--pretrained", default=None, help=argparse.SUPPRESS)  # deprecated: CHECKPOINT
+    ap.add_argument("--checkpoint", dest="checkpoint_option", default=None, help=argparse.SUPPRESS)  # deprecated
     ap.add_argument("--params", type=float, nargs="+", required=True, help="physical parameters, SI, scene order")
     ap.add_argument("--q0", type=float, nargs="+", required=True, help="initial coordinates (rad or m)")
     ap.add_argument("--qd0", type=float, nargs="+", default=None, help="initial velocities (default 0)")
     ap.add_argument("--duration", type=float, default=10.0, help="seconds")
     ap.add_argument("--dt", type=float, default=0.005, help="output and integration step, s")
-    ap.add_argument("--method", default="rk4", choices=sorted(METHODS))
+    ap.add_argument("--integrator", default=None, choices=sorted(METHODS), help="default rk4")
+    ap.add_argument("--method", default=None, choices=sorted(METHODS), help=argparse.SUPPRESS)  # deprecated
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--output", "-o", default="simulation.csv", help="trajectory file: .csv or .h5")
     ap.add_argument("--plot", default=None, help="plot file (default: the output with .png)")
     ap.add_argument("--no-exact", action="store_true", help="skip the closed-form reference trajectory")
@@ -182,8 +185,30 @@ def plot_trajectory(path: Path, result: dict, system) -> Path:
     return path
 
 
+def model_source(args) -> str:
+    """The model to load: ``CHECKPOINT``, or the deprecated ``--checkpoint`` / ``--pretrained`` (with a
+    note on stderr), or the shipped double pendulum."""
+    import sys
+
+    given = [x for x in (args.checkpoint, args.checkpoint_option, args.pretrained and f"pretrained:{args.pretrained}")
+             if x]
+    if len(given) > 1:
+        raise ValueError("give the model once: CHECKPOINT (a path or pretrained:NAME)")
+    if args.checkpoint_option or args.pretrained:
+        print("lnn-torch simulate: --checkpoint PATH and --pretrained NAME are deprecated; give the model as the "
+              "first argument (PATH or pretrained:NAME)", file=sys.stderr)
+    return given[0] if given else "pretrained:double_pendulum"
+
+
 def main(argv: list[str]) -> int:
+    import sys
+
     args = _parser().parse_args(argv)
+    if args.method is not None:
+        print("lnn-torch simulate: --method is deprecated; use --integrator", file=sys.stderr)
+    integrator = args.integrator or args.method or "rk4"
+    torch.set_num_threads(args.threads)
+    source = model_source(args)
     output = Path(args.output)
     plot = Path(args.plot) if args.plot else output.with_suffix(".png")
     for path in (output, plot):
@@ -191,7 +216,7 @@ def main(argv: list[str]) -> int:
             raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite)")
     from ..checkpoints import load_model
 
-    model = load_model(args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}")
+    model = load_model(source)
     if args.compile:
         model.model.compile_dynamics()
     qd0 = args.qd0 if args.qd0 is not None else [0.0] * model.system.dof
@@ -211,11 +236,11 @@ def main(argv: list[str]) -> int:
                              "or --excitation JSON (e.g. '{\"kind\": \"none\"}' for free motion)")
     elif args.inputs or args.excitation:
         raise ValueError(f"scene '{system.name}' has no inputs: --inputs/--excitation do not apply")
-    result = simulate_model(model, args.params, args.q0, qd0, args.duration, args.dt, args.method,
+    result = simulate_model(model, args.params, args.q0, qd0, args.duration, args.dt, integrator,
                             exact=not args.no_exact, tau=tau)
-    meta = {"model": args.checkpoint or f"pretrained:{args.pretrained or 'double_pendulum'}",
+    meta = {"model": source,
             "variant": model.hparams.variant, "params": args.params, "q0": args.q0, "qd0": qd0,
-            "dt": args.dt, "method": args.method}
+            "dt": args.dt, "method": integrator}
     write_trajectory(output, result, model.system, meta, args.overwrite)
     plot_trajectory(plot, result, model.system)
     drift = result["energy_drift"]
