@@ -3,9 +3,30 @@ for a model shipped with the package (``lnn_torch/pretrained``)."""
 
 from __future__ import annotations
 
+import pickle
+import zipfile
 from pathlib import Path
 
+from .systems.base import InputError
+
 PRETRAINED = "pretrained:"
+
+
+class CheckpointError(InputError):
+    """A file that is not a readable lnn-torch checkpoint (one line naming the file and what it is not)."""
+
+
+def check_checkpoint_file(path: Path) -> Path:
+    """``path`` if it can be an lnn-torch checkpoint (a non-empty PyTorch zip archive), else
+    ``CheckpointError`` naming the file and what it is not."""
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint {path} is a folder, not a checkpoint file")
+    if path.stat().st_size == 0:
+        raise CheckpointError(f"checkpoint {path} is an empty file")
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (not a PyTorch archive: another kind "
+                              "of file, or a truncated one)")
+    return path
 
 
 def _resolve(source: str | Path) -> Path:
@@ -21,7 +42,17 @@ def _resolve(source: str | Path) -> Path:
     path = Path(source)
     if not path.exists():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
-    return path
+    return check_checkpoint_file(path)
+
+
+def _unreadable(path: Path, err: Exception) -> CheckpointError:
+    text = str(err).splitlines()[0][:160] if str(err) else ""
+    return CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint ({type(err).__name__}: {text})")
+
+
+# what reading a damaged or foreign archive raises (torch.load, Lightning, the module's own arguments)
+_READ_ERRORS = (KeyError, RuntimeError, EOFError, pickle.UnpicklingError, TypeError, AttributeError, zipfile.BadZipFile,
+                ModuleNotFoundError)
 
 
 def load_model(source: str | Path, map_location="cpu"):
@@ -29,7 +60,13 @@ def load_model(source: str | Path, map_location="cpu"):
     and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``."""
     from .module import LNNModule
 
-    model = LNNModule.load_from_checkpoint(_resolve(source), map_location=map_location)
+    path = _resolve(source)
+    try:
+        model = LNNModule.load_from_checkpoint(path, map_location=map_location)
+    except InputError:
+        raise
+    except _READ_ERRORS as err:
+        raise _unreadable(path, err) from None
     model.eval()
     return model
 
@@ -38,7 +75,13 @@ def data_hparams(source: str | Path) -> dict:
     """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
     import torch
 
-    ckpt = torch.load(_resolve(source), map_location="cpu", weights_only=False)
+    path = _resolve(source)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except _READ_ERRORS as err:
+        raise _unreadable(path, err) from None
+    if not isinstance(ckpt, dict):
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (it holds a {type(ckpt).__name__})")
     if "datamodule_hyper_parameters" in ckpt:
         return ckpt["datamodule_hyper_parameters"]
     if str(source).startswith(PRETRAINED):  # shipped models keep it in their card

@@ -25,6 +25,10 @@ COMMANDS = {
 
 def lightning_main(argv: list[str]) -> int:
     """``fit``/``validate``/``test``/``predict`` with LightningCLI (YAML configs, ``--help``)."""
+    from .config_files import config_paths, read_config
+
+    for path in config_paths(argv):  # a bad file in one line, before LightningCLI's own parse
+        read_config(path)
     from .lightning_cli import run_cli
 
     run_cli(argv)

@@ -64,3 +64,55 @@ def test_simulate_refuses_two_models(tmp_path, capsys):
     code = main(["simulate", "pretrained:double_pendulum", "--pretrained", "double_pendulum", "--params", "1", "1",
                  "1", "1", "--q0", "0", "0", "-o", str(tmp_path / "s.csv")])
     assert code == 2 and "give the model once" in capsys.readouterr().err
+
+
+BAD_FILES = {"text": b"this is not a checkpoint\n", "empty": b""}
+
+
+def _bad_file(tmp_path, kind: str, suffix: str, good: bytes | None = None) -> str:
+    path = tmp_path / f"{kind}{suffix}"
+    path.write_bytes(good[: len(good) // 3] if kind == "truncated" else BAD_FILES[kind])
+    return str(path)
+
+
+@pytest.mark.parametrize("kind", ["text", "empty", "truncated"])
+@pytest.mark.parametrize("command", ["evaluate", "identify", "simulate"])
+def test_every_command_names_a_bad_checkpoint_in_one_line(command, kind, tmp_path, capsys):
+    from lnn_torch.pretrained import HERE
+
+    ckpt = _bad_file(tmp_path, kind, ".ckpt", (HERE / "double_pendulum.ckpt").read_bytes())
+    extra = {"identify": ["recording.csv"], "simulate": ["--params", "1", "1", "1", "1", "--q0", "0", "0"]}
+    assert main([command, ckpt, *extra.get(command, []), "-o" if command != "identify" else "--output-dir",
+                 str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and ckpt in err, err
+    assert {"text": "not an lnn-torch checkpoint", "empty": "empty file", "truncated": "truncated"}[kind] in err
+
+
+@pytest.mark.parametrize("kind", ["text", "empty", "truncated"])
+def test_a_bad_dataset_is_named_in_one_line(kind, tmp_path, capsys):
+    import h5py
+    import numpy as np
+
+    full = tmp_path / "full.h5"
+    with h5py.File(full, "w") as f:
+        f["x"] = np.zeros(20000)
+    data = _bad_file(tmp_path, kind, ".h5", full.read_bytes())
+    for command in (["evaluate", "pretrained:double_pendulum", "--data", data, "-o", str(tmp_path / "ev")],
+                    ["identify", "pretrained:double_pendulum", data, "--output-dir", str(tmp_path / "id")]):
+        assert main(command) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and data in err, err
+
+
+@pytest.mark.parametrize("text, message", [("model: [\n", "not valid YAML (line 2"), ("", "empty file"),
+                                           ("- 1\n- 2\n", "not a mapping of options")])
+@pytest.mark.parametrize("command", ["fit", "import"])
+def test_a_bad_config_is_named_in_one_line(command, text, message, tmp_path, capsys):
+    config = tmp_path / "config.yaml"
+    config.write_text(text)
+    argv = (["fit", "-c", str(config)] if command == "fit" else
+            ["import", str(tmp_path / "rec.csv"), "--config", str(config), "-o", str(tmp_path / "o.h5")])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(config) in err and message in err, err

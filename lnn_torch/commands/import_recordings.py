@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import glob
 import json
-from pathlib import Path
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -55,16 +54,9 @@ def spec_from_args(args):
 
     fields: dict = {}
     if args.config:
-        path = Path(args.config)
-        if not path.exists():
-            raise InputError(f"import config {path} does not exist")
-        text = path.read_text()
-        if path.suffix in (".yaml", ".yml"):
-            import yaml
+        from ..config_files import read_config
 
-            fields = yaml.safe_load(text) or {}
-        else:
-            fields = json.loads(text)
+        fields = read_config(args.config, "import config")
     flags = {"time": args.time, "coordinates": args.coordinates, "velocities": args.velocities, "inputs": args.inputs,
              "coord_names": args.coord_names, "input_names": args.input_names,
              "angle_mask": None if args.angle_mask is None else [bool(a) for a in args.angle_mask],

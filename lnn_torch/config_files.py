@@ -1,0 +1,45 @@
+"""Reading the YAML (or JSON) configuration files the commands take: one clear line naming the file
+and what is wrong with it (missing, empty, not YAML at a line, not a mapping of options)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .systems.base import InputError
+
+
+def read_config(path: str | Path, what: str = "config") -> dict:
+    """The mapping in the YAML or JSON file ``path`` (``.json`` is read as JSON, anything else as YAML)."""
+    import yaml
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{what} {path} does not exist")
+    if path.is_dir():
+        raise InputError(f"{what} {path} is a folder, not a file")
+    text = path.read_text(errors="replace")
+    if not text.strip():
+        raise InputError(f"{what} {path} is an empty file")
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except json.JSONDecodeError as err:
+        raise InputError(f"{what} {path} is not valid JSON (line {err.lineno}: {err.msg})") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        raise InputError(f"{what} {path} is not valid YAML ({where}{getattr(err, 'problem', None) or err})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{what} {path} is not a mapping of options (it holds a {type(data).__name__})")
+    return data
+
+
+def config_paths(argv: list[str]) -> list[str]:
+    """The files given to LightningCLI's ``-c``/``--config`` in ``argv``."""
+    out = []
+    for i, arg in enumerate(argv):
+        if arg in ("-c", "--config") and i + 1 < len(argv):
+            out.append(argv[i + 1])
+        elif arg.startswith("--config="):
+            out.append(arg.split("=", 1)[1])
+    return out
