@@ -51,8 +51,7 @@ def _unreadable(path: Path, err: Exception) -> CheckpointError:
 
 
 # what reading a damaged or foreign archive raises (torch.load, Lightning, the module's own arguments)
-_READ_ERRORS = (KeyError, RuntimeError, EOFError, pickle.UnpicklingError, TypeError, AttributeError, zipfile.BadZipFile,
-                ModuleNotFoundError)
+_READ_ERRORS = (KeyError, RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ModuleNotFoundError)
 
 
 def load_model(source: str | Path, map_location="cpu"):

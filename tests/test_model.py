@@ -142,9 +142,9 @@ def test_gradcheck_through_structured_solve(shared, rng):
     assert torch.autograd.gradcheck(lambda a, b: model.acceleration_norm(a, b, pn), (qn, qdn))
     # and with respect to network weights (what training differentiates)
     q, qd, params = (x[:3] for x in random_batch(system, rng, 3))
-    names = (("kinetic.shared.net.hidden.1.weight", "kinetic.shared.net.out.weight", "kinetic.shared.film.net.2.weight")
+    names = (("kinetic.shared.net.hidden.1.weight", "kinetic.shared.net.out.weight", "conditioning_nets.kinetic_shared.net.2.weight")
              if shared else ("kinetic.mlp.net.hidden.1.weight", "potential.mlp.net.hidden.0.weight",
-                             "kinetic.mlp.film.net.2.weight"))
+                             "conditioning_nets.kinetic_mlp.net.2.weight"))
     weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
 
     def accel(*ws):
@@ -751,9 +751,13 @@ def test_networks_are_built_in_a_fixed_order(potential):
     kinetic, potential_net = TangentMLP(F, H, 3), TangentMLP(F + P, H, 1, out_bias=False)
     films = FiLM(P, H), FiLM(P, H)
     expected = {"forces": forces_again, "kinetic.mlp.net": kinetic, "potential.mlp.net": potential_net,
-                "kinetic.mlp.film": films[0], "potential.mlp.film": films[1]}
+                "conditioning_nets.kinetic_mlp": films[0], "conditioning_nets.potential_mlp": films[1]}
     modules = dict(model.named_modules())
     for name, net in expected.items():
         for (n, a), (_, b) in zip(modules[name].named_parameters(), net.named_parameters()):
             assert torch.equal(a, b), f"{name}.{n}"
     assert torch.equal(forces.coefficient_net[0].weight, forces_again.coefficient_net[0].weight)
+    # and the parameters come in that order too (gradient clipping sums their norms in this order)
+    order = [p for net in expected.values() for p in net.parameters()]
+    assert [tuple(p.shape) for p in model.parameters()][:len(order)] == [tuple(p.shape) for p in order]
+    assert all(torch.equal(a, b) for a, b in zip(model.parameters(), order))

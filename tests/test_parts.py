@@ -168,8 +168,8 @@ def test_every_registered_kinetic_part_has_its_reference(name, rng):
 def test_a_state_dict_saved_before_parts_loads(rng):
     """Checkpoints written before parts name the networks ``kinetic_net``, ``potential_coef``,
     ``chain``, ``trunk``...: they load into the parts unchanged."""
-    old_names = {"kinetic.mlp.net.": "kinetic_net.", "kinetic.mlp.film.": "kinetic_film.",
-                 "potential.mlp.net.": "potential_net.", "potential.mlp.film.": "potential_film.",
+    old_names = {"kinetic.mlp.net.": "kinetic_net.", "conditioning_nets.kinetic_mlp.": "kinetic_film.",
+                 "potential.mlp.net.": "potential_net.", "conditioning_nets.potential_mlp.": "potential_film.",
                  "potential.harmonic.coef": "potential_coef", "kinetic.chain.": "chain."}
     scene = MeasuredSystem(2, input_names=["a", "b"])
     model = build_model("film_lnn", scene, hidden_dims=(8, 8), kinetic={"chain": {"links": RELATIVE2}, "mlp": {}},

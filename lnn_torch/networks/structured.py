@@ -33,10 +33,10 @@ from .parts import part_options as _part_options
 _PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag_shift", "potential_film")
 
 # state-dict prefixes of the models before parts: loaded into the parts that replaced them
-_OLD_NAMES = (("kinetic_net.", "kinetic.mlp.net."), ("kinetic_film.", "kinetic.mlp.film."),
-              ("potential_net.", "potential.mlp.net."), ("potential_film.", "potential.mlp.film."),
-              ("potential_coef_net.", "potential.harmonic.coef_net."), ("potential_coef", "potential.harmonic.coef"),
-              ("chain.", "kinetic.chain."), ("trunk_film.", "kinetic.shared.film."), ("trunk.", "kinetic.shared.net."))
+_OLD_NAMES = (("kinetic_net.", "kinetic.mlp.net."), ("kinetic_film.", "conditioning_nets.kinetic_mlp."),
+              ("potential_net.", "potential.mlp.net."), ("potential_film.", "conditioning_nets.potential_mlp."),
+              ("potential_coef_net.", "conditioning_nets.potential_harmonic."), ("potential_coef", "potential.harmonic.coef"),
+              ("chain.", "kinetic.chain."), ("trunk_film.", "conditioning_nets.kinetic_shared."), ("trunk.", "kinetic.shared.net."))
 
 
 class StructuredLagrangian(DynamicsModel):
@@ -121,8 +121,13 @@ class StructuredLagrangian(DynamicsModel):
         self._kinetic_parts = tuple(self.kinetic.values())
         self._potential_parts = self._kinetic_parts if self.shared else tuple(self.potential.values())
         self._num_kinetic = 0 if self.shared else len(self._kinetic_parts)
-        for part in self._parts:
-            part.build_conditioning(ctx)
+        self.conditioning_nets = nn.ModuleDict()  # the parts' conditioning networks (FiLM, coefficient networks)
+        for role, parts in (("kinetic", self.kinetic), ("potential", self.potential)):
+            for name, part in parts.items():
+                net = part.build_conditioning(ctx)
+                part.attach_conditioning(net)
+                if net is not None:
+                    self.conditioning_nets[f"{role}_{name}"] = net
         self.chunk_conditioning = ctx.film
         self.register_load_state_dict_pre_hook(_load_old_names)
 

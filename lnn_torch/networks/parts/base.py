@@ -13,10 +13,12 @@ geometry is computed once for its mass matrix and its gravity). A part that cond
 parameters once per rollout or training chunk (FiLM) computes that in ``condition``; the model
 passes the result back at every evaluation.
 
-Construction has two phases, so that a seed gives the initialisation of earlier releases whatever
-parts are combined: ``__init__`` builds each part's own network (kinetic parts first, then potential
-parts), then ``build_conditioning`` builds each part's conditioning network (FiLM, a coefficient
-network), in the same order.
+Construction has two phases, so that a seed gives the initialisation (and the parameter order) of
+earlier releases whatever parts are combined: ``__init__`` builds each part's own network (kinetic
+parts first, then potential parts), then ``build_conditioning`` builds each part's conditioning
+network (FiLM, a coefficient network of the parameters), in the same order. The conditioning is the
+model variant's concern (FiLM for ``film_lnn``, none for ``delan``, which concatenates): the model
+owns these networks (``model.conditioning_nets``), the part uses its own through ``conditioning_net``.
 """
 
 from __future__ import annotations
@@ -91,10 +93,23 @@ class Part(nn.Module):
 
     name = ""  # the registry name
     needs_angles = False  # refused for scenes with non-angle coordinates
-    has_film = False  # conditions through ``condition`` (computed once per rollout or chunk)
+    film_conditioned = False  # its conditioning network is a FiLM (``condition``: once per rollout or chunk)
 
-    def build_conditioning(self, ctx: BuildContext) -> None:
-        """The second phase of construction: the part's conditioning network, if any."""
+    def build_conditioning(self, ctx: BuildContext) -> nn.Module | None:
+        """The second phase of construction: the part's conditioning network (registered by the model
+        under ``conditioning_nets``), or None."""
+        return None
+
+    def attach_conditioning(self, net: nn.Module | None) -> None:
+        self._conditioning_ref = (net,)  # a reference: the model owns the network
+
+    @property
+    def conditioning_net(self) -> nn.Module | None:
+        return getattr(self, "_conditioning_ref", (None,))[0]
+
+    @property
+    def has_film(self) -> bool:
+        return self.film_conditioned and self.conditioning_net is not None
 
     def condition(self, params_norm: torch.Tensor, chunks: int | None = None):
         """What the part derives from the parameters alone (FiLM pairs), or None."""

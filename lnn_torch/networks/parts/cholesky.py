@@ -79,7 +79,6 @@ class CholeskyMLP(KineticPart):
         Fk = ctx.num_features if self.index is None else len(self.index)
         self.net = TangentMLP(Fk if ctx.film else Fk + P, list(self.hidden_dims), dof * (dof + 1) // 2,
                               option(ctx, activation, "activation"))
-        self.film = None
         self.register_buffer("scatter", cholesky_scatter(dof), persistent=False)
         self.register_buffer("diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
         self.residual = bool(residual)
@@ -108,10 +107,17 @@ class CholeskyMLP(KineticPart):
         self.register_buffer("index", torch.tensor(index, dtype=torch.long), persistent=False)
         return invariant
 
-    def build_conditioning(self, ctx: BuildContext) -> None:
+    film_conditioned = True
+
+    @property
+    def film(self):
+        """The FiLM network of this part's MLP (owned by the model), or None."""
+        return self.conditioning_net
+
+    def build_conditioning(self, ctx: BuildContext):
         if ctx.film:
-            self.film = FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-            self.has_film = True
+            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
+        return None
 
     def condition(self, params_norm, chunks=None):
         return film_of(self.film, self.net, params_norm, chunks)

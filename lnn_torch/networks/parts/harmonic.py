@@ -35,20 +35,22 @@ class HarmonicSeries(PotentialPart):
         super().__init__()
         self.film_hidden = option(ctx, film_hidden, "film_hidden")
         self.residual = bool(residual)
-        self.coef = self.coef_net = None
+        self.coef = None
 
-    def build_conditioning(self, ctx: BuildContext) -> None:
+    def build_conditioning(self, ctx: BuildContext):
+        """The coefficients' network of the parameters (owned by the model); without parameters, the
+        coefficients themselves (the part's own constants)."""
         if ctx.num_params:
-            self.coef_net = nn.Sequential(nn.Linear(ctx.num_params, self.film_hidden), nn.Tanh(),
-                                          nn.Linear(self.film_hidden, ctx.num_features))
-        else:
-            self.coef = nn.Parameter(torch.zeros(ctx.num_features))
+            return nn.Sequential(nn.Linear(ctx.num_params, self.film_hidden), nn.Tanh(),
+                                 nn.Linear(self.film_hidden, ctx.num_features))
+        self.coef = nn.Parameter(torch.zeros(ctx.num_features))
+        return None
 
     def coefficients(self, params_norm: torch.Tensor) -> torch.Tensor:
         """The coefficients ``(B, F)`` (or ``(F,)`` without parameters)."""
         if self.coef is not None:
             return HARMONIC_GAIN * self.coef.to(params_norm.dtype)
-        return HARMONIC_GAIN * self.coef_net(params_norm)
+        return HARMONIC_GAIN * self.conditioning_net(params_norm)
 
     def coefficient_parameters(self):
         return [] if self.residual or self.coef is None else [self.coef]

@@ -26,12 +26,18 @@ class PotentialMLP(PotentialPart):
         self.num_features = ctx.num_features
         self.net = TangentMLP(ctx.num_features + ctx.num_params, list(self.hidden_dims), 1,
                               option(ctx, activation, "activation"), out_bias=False)
-        self.film = None
 
-    def build_conditioning(self, ctx: BuildContext) -> None:
+    film_conditioned = True
+
+    @property
+    def film(self):
+        """The FiLM network of this part's MLP (owned by the model), or None."""
+        return self.conditioning_net
+
+    def build_conditioning(self, ctx: BuildContext):
         if ctx.film and self.use_film:
-            self.film = FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-            self.has_film = True
+            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
+        return None
 
     def condition(self, params_norm, chunks=None):
         return film_of(self.film, self.net, params_norm, chunks)

@@ -30,14 +30,20 @@ class SharedMLP(KineticPart, PotentialPart):
         self.diag_shift = float(option(ctx, diag_shift, "diag_shift"))
         self.net = TangentMLP(ctx.num_features + ctx.num_params, list(self.hidden_dims), dof * (dof + 1) // 2 + 1,
                               option(ctx, activation, "activation"))
-        self.film = None
         self.register_buffer("scatter", cholesky_scatter(dof, extra=1), persistent=False)
         self.register_buffer("diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
 
-    def build_conditioning(self, ctx: BuildContext) -> None:
+    film_conditioned = True
+
+    @property
+    def film(self):
+        """The FiLM network of this part's MLP (owned by the model), or None."""
+        return self.conditioning_net
+
+    def build_conditioning(self, ctx: BuildContext):
         if ctx.film:
-            self.film = FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-            self.has_film = True
+            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
+        return None
 
     def condition(self, params_norm, chunks=None):
         return film_of(self.film, self.net, params_norm, chunks)
