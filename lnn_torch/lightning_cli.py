@@ -4,6 +4,7 @@ is off (the Euler-Lagrange solves differentiate with respect to their inputs eve
 
 from __future__ import annotations
 
+import logging
 import sys
 
 from lightning.pytorch.cli import LightningCLI
@@ -48,7 +49,28 @@ CALLBACKS = [
 ]
 
 
+class _DropLightningTips(logging.Filter):
+    """Lightning's advertisements for its cloud services ("Tip: ... try installing litlogger"): nothing a
+    user of this command can act on."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "💡 Tip:" not in record.getMessage()
+
+
+def quiet_third_parties() -> None:
+    """Silence what the user cannot act on, in the package's own commands only: Lightning's tips and
+    its use of a torch pytree API that torch deprecated (warned at every fit)."""
+    import warnings
+
+    logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    if not any(isinstance(f, _DropLightningTips) for f in logger.filters):
+        logger.addFilter(_DropLightningTips())
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)` is deprecated",
+                            module=r"lightning\.pytorch\.utilities\._pytree")
+
+
 def run_cli(argv: list[str]) -> LNNCLI:
+    quiet_third_parties()
     # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
     args = None if argv == sys.argv[1:] else argv
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,

@@ -116,3 +116,29 @@ def test_a_bad_config_is_named_in_one_line(command, text, message, tmp_path, cap
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(config) in err and message in err, err
+
+
+def test_the_commands_silence_lightnings_advertisements_only(caplog):
+    import logging
+
+    from lnn_torch.lightning_cli import quiet_third_parties
+
+    quiet_third_parties()
+    logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    with caplog.at_level(logging.INFO, logger="lightning.pytorch.utilities.rank_zero"):
+        logger.info("💡 Tip: For seamless cloud logging and experiment tracking, try installing litlogger")
+        logger.info("GPU available: False, used: False")
+    assert [r.getMessage() for r in caplog.records] == ["GPU available: False, used: False"]
+
+
+def test_a_system_without_parameters_fits_its_normaliser_without_warnings():
+    import warnings
+
+    import torch
+
+    from lnn_torch.networks import Normalizer
+
+    norm = Normalizer(2, 0, (True, True), (), 0, False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        norm.fit(torch.randn(50, 2), torch.randn(50, 2), torch.randn(50, 2), torch.zeros(5, 0))

@@ -74,7 +74,9 @@ class Normalizer(nn.Module):
         self.coord_scale.copy_(scale)
         self.time_scale.copy_(t_scale)
         self.param_log_mean.copy_(logp.mean(0))
-        self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if len(logp) > 1 else torch.ones(self.num_params))
+        # (no parameters: nothing to reduce, and torch warns about the degrees of freedom of an empty std)
+        self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if self.num_params and len(logp) > 1
+                                 else torch.ones(self.num_params))
         self.accel_rms.copy_((acc * t_scale**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
         if hasattr(self, "force_scale") and input_force is not None:
             rms = (input_force.double().reshape(-1, self.dof) * scale).pow(2).mean().sqrt()
