@@ -22,7 +22,7 @@ from torch import nn
 from ..dynamics import structured_acceleration_from_factor
 from ..systems.base import GRAVITY, InputError
 from ._kernels import one
-from .base import DynamicsModel
+from .base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION, DynamicsModel
 from .layers import FiLM, TangentMLP
 
 
@@ -459,6 +459,8 @@ class StructuredLagrangian(DynamicsModel):
         """Scalar Lagrangian of ONE sample ``(dof,), (dof,), (P,) -> ()`` (for torch.func references)."""
         M, V = self._mass_and_potential(q_norm[None], params_norm[None])
         return 0.5 * qd_norm @ M[0] @ qd_norm - V[0]
+
+    provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION})
 
 
 class DeLaN(StructuredLagrangian):
