@@ -506,15 +506,18 @@ class DynamicsModel(nn.Module):
         return frozenset(caps)
 
     def missing(self, *needed: str) -> str | None:
-        """Why this model cannot give the capabilities ``needed``, or None if it can."""
+        """Why this model cannot give the capabilities ``needed`` (a sentence), or None if it can."""
         lacking = [c for c in needed if c not in self.capabilities]
         if not lacking:
             return None
-        scene_rule = {INVERSE_DYNAMICS: f"needs a scene with inputs ('{self.scene.name}' has none)",
-                      FRICTION: f"needs a scene with friction ('{self.scene.name}' has none)",
-                      STATIC_FRICTION: "needs dissipation 'joint+stiction'"}
-        why = [f"{c} ({scene_rule[c]})" if c in self.provides and c in scene_rule else c for c in lacking]
-        return f"variant '{self.variant}' does not provide " + ", ".join(why)
+        scene = self.scene.name
+        ruled_out = {INVERSE_DYNAMICS: f"scene '{scene}' has no inputs (inverse dynamics needs them)",
+                     FRICTION: f"scene '{scene}' has no friction",
+                     STATIC_FRICTION: "the model has no static friction (dissipation 'joint+stiction')"}
+        absent = [c for c in lacking if c not in self.provides]
+        if absent:
+            return f"variant '{self.variant}' does not provide {', '.join(absent)}"
+        return "; ".join(ruled_out.get(c, c) for c in lacking)
 
     def _require(self, capability: str) -> None:
         reason = self.missing(capability)
