@@ -86,8 +86,9 @@ class SectionResult:
     """What a section gives: its ``values`` (merged into ``evaluate_model``'s JSON-ready result; keys
     starting with ``_`` hold tensors), how it presents itself (``rows`` of the report's main ``| metric
     | value |`` table, Markdown ``blocks`` after it, ``figures``: PNG name -> ``fn(result)`` giving a
-    matplotlib figure or None, drawn only when asked), the scalars ``logs`` that training logs as
-    ``{prefix}/{name}``, and ``skipped``: why it does not apply (then nothing else)."""
+    matplotlib figure or None, drawn only when asked; ``tags``: a figure's TensorBoard tag where it is
+    not the PNG's stem), the scalars ``logs`` that training logs as ``{prefix}/{name}``, and
+    ``skipped``: why it does not apply (then nothing else)."""
 
     values: dict = field(default_factory=dict)
     rows: list[str] = field(default_factory=list)
@@ -95,6 +96,7 @@ class SectionResult:
     figures: dict[str, Callable[[dict], object]] = field(default_factory=dict)
     logs: dict[str, float] = field(default_factory=dict)
     skipped: str | None = None
+    tags: dict[str, str] = field(default_factory=dict)  # PNG name -> the logger's figure tag (default: its stem)
 
     @classmethod
     def of(cls, out) -> "SectionResult":
@@ -311,9 +313,11 @@ def section_logs(result: dict) -> dict[str, float]:
     return {k: v for s in result.get("_sections", {}).values() for k, v in s.logs.items()}
 
 
-def section_figures(result: dict) -> dict[str, Callable[[dict], object]]:
-    """PNG name -> figure builder ``fn(result)`` over the computed sections of ``result``."""
-    return {k: v for s in result.get("_sections", {}).values() for k, v in s.figures.items()}
+def section_figures(result: dict, tags: bool = False) -> dict[str, Callable[[dict], object]]:
+    """PNG name (with ``tags``: the figure's logger tag) -> figure builder ``fn(result)`` over the
+    computed sections of ``result``."""
+    return {(s.tags.get(k, k.removesuffix(".png")) if tags else k): v
+            for s in result.get("_sections", {}).values() for k, v in s.figures.items()}
 
 
 def _closed_form(ctx: EvalContext, what: str) -> SectionResult | None:
@@ -416,7 +420,7 @@ def _energy(ctx: EvalContext) -> SectionResult:
     return SectionResult({key: e, "_arrays": {"drift": drift}},
                          rows=[f"| {label}: mean, max | {e['mean']:.2e}, {e['max']:.2e} |"],
                          figures={png: _figure("drift_figure", drift, r["grid_dt"], system.has_forces)},
-                         logs={log: e["mean"], f"{log}_max": e["max"]})
+                         logs={log: e["mean"], f"{log}_max": e["max"]}, tags={png: "energy"})
 
 
 @section("predictability")

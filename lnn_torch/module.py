@@ -436,13 +436,12 @@ class LNNModule(L.LightningModule):
             return
         import matplotlib.pyplot as plt
 
-        for name, build in section_figures(result).items():
+        for tag, build in section_figures(result, tags=True).items():
             fig = build(result)
             if fig is None:
                 continue
             for lg in loggers:
-                lg.experiment.add_figure(f"{prefix}/{name.removesuffix('.png')}", fig, global_step=self.global_step,
-                                         close=False)
+                lg.experiment.add_figure(f"{prefix}/{tag}", fig, global_step=self.global_step, close=False)
             plt.close(fig)
 
     # ------------------------------------------------------------------ prediction

@@ -524,20 +524,22 @@ class DynamicsModel(nn.Module):
         if reason is not None:
             raise InputError(reason)
 
+    _nan_depth = 0  # how many ``nan_on_singular()`` blocks the model is in
+
     @property
     def raise_on_singular(self) -> bool:
         """Whether undefined accelerations (singular Hessians) raise; False only within ``nan_on_singular()``."""
-        return not self.__dict__.get("_nan_on_singular", 0)
+        return self._nan_depth == 0
 
     @contextlib.contextmanager
     def nan_on_singular(self):
         """Within the block, undefined accelerations (``NAN_ON_SINGULAR`` models: the black-box LNN's
         singular Hessians) are NaN instead of raising ``SingularHessianError`` (nested blocks allowed)."""
-        self.__dict__["_nan_on_singular"] = self.__dict__.get("_nan_on_singular", 0) + 1
+        self._nan_depth += 1
         try:
             yield self
         finally:
-            self.__dict__["_nan_on_singular"] -= 1
+            self._nan_depth -= 1
 
     def _si_inputs(self, *tensors):
         """The tensors in the model's dtype (the networks run in it; the SI accessors return the
