@@ -2,7 +2,15 @@
 
 The LightningModule's validation and test, ``lnn-torch evaluate`` and ``scripts/benchmark.py`` all
 call it. A report is made of *sections*, each one function of an ``EvalContext`` registered in
-``SECTIONS`` (a new metric: one function plus its ``@section`` line):
+``SECTIONS`` by its ``@section(name, needs=...)`` line. A new metric is that one function plus
+that one line, in this file: it returns a ``SectionResult`` (its values, its rows and blocks of the
+report, its figures and the scalars training logs) or ``skip(reason)``, or simply a dict of values
+(reported as rows of their scalars). ``lnn-torch evaluate`` (``commands/evaluate.write_report``),
+the plots (``plots.evaluation_plots``) and the LightningModule's logging loop over what the sections
+present; none of them knows a section by name. A section asks the model only through its declared
+capabilities (``needs``; ``lnn_torch.networks.base``: energy, mass matrix, inverse dynamics,
+friction...) and its SI accessors; one the model or the scene cannot give is skipped with its reason
+(``result["skipped"]``, and the report's last lines), never an error. The sections:
 
 * ``accelerations``: relative L2 acceleration error (total, per coordinate, per-trajectory median
   and 90th percentile) at every ``accel_stride``-th point of every trajectory;
@@ -29,7 +37,8 @@ call it. A report is made of *sections*, each one function of an ``EvalContext``
 
 Models are anything with ``acceleration(q, qd, params, tau=None, check=False)`` and ``rollout(q0,
 qd0, params, dt, num_steps, method, tau=None)`` in SI units (every ``DynamicsModel``;
-``ClosedForm(system)`` for the scene's own dynamics). Rollouts of an actuated scene are driven by the
+``ClosedForm(system)`` for the scene's own dynamics), and ``capabilities`` (a set of the
+``lnn_torch.networks.base`` capability names; an object without it provides none). Rollouts of an actuated scene are driven by the
 recorded inputs, held over each step (zero-order hold). The exact reference is
 ``lnn_torch.ground_truth.reference_rollout``.
 """
@@ -49,20 +58,82 @@ from .ground_truth import reference_rollout
 from .integrators import rollout
 from .metrics import (acceleration_errors, condition_numbers, divergence_time, energy_drift,  # noqa: F401
                       normalized_rmse, power_balance_error, quartiles, relative_l2, scaled_matrix_error)
+from .networks.base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, NAN_ON_SINGULAR, DynamicsModel
 
-SECTIONS: dict[str, Callable[["EvalContext"], dict]] = {}
+SECTIONS: dict[str, Callable[["EvalContext"], "SectionResult | dict"]] = {}
 DEFAULT_SECTIONS = ("accelerations", "rollouts", "energy")
-REPORT_SECTIONS = ("accelerations", "rollouts", "energy", "predictability", "mass_matrix", "torques", "friction",
-                   "free_decay", "horizons", "ood", "stability")
 
 
-def section(name: str):
-    """Register a report section: ``fn(ctx: EvalContext) -> dict`` (merged into the result; ``{}``
-    when it does not apply)."""
+def section(name: str, needs: tuple[str, ...] = (), report: bool = True):
+    """Register a report section: ``fn(ctx: EvalContext) -> SectionResult`` (or ``skip(reason)``, or a
+    plain dict of values, ``{}`` when it does not apply). ``needs``: the model capabilities it asks
+    for (a model without them skips it, the reason stated); ``report``: part of ``lnn-torch
+    evaluate``'s report (``report_sections()``)."""
     def register(fn):
+        fn.needs, fn.report = tuple(needs), bool(report)
         SECTIONS[name] = fn
         return fn
     return register
+
+
+def report_sections() -> tuple[str, ...]:
+    """The sections of ``lnn-torch evaluate``'s report, in their registration order."""
+    return tuple(name for name, fn in SECTIONS.items() if getattr(fn, "report", True))
+
+
+@dataclass
+class SectionResult:
+    """What a section gives: its ``values`` (merged into ``evaluate_model``'s JSON-ready result; keys
+    starting with ``_`` hold tensors), how it presents itself (``rows`` of the report's main ``| metric
+    | value |`` table, Markdown ``blocks`` after it, ``figures``: PNG name -> ``fn(result)`` giving a
+    matplotlib figure or None, drawn only when asked; ``tags``: a figure's TensorBoard tag where it is
+    not the PNG's stem), the scalars ``logs`` that training logs as ``{prefix}/{name}``, and
+    ``skipped``: why it does not apply (then nothing else)."""
+
+    values: dict = field(default_factory=dict)
+    rows: list[str] = field(default_factory=list)
+    blocks: list[str] = field(default_factory=list)
+    figures: dict[str, Callable[[dict], object]] = field(default_factory=dict)
+    logs: dict[str, float] = field(default_factory=dict)
+    skipped: str | None = None
+    tags: dict[str, str] = field(default_factory=dict)  # PNG name -> the logger's figure tag (default: its stem)
+
+    @classmethod
+    def of(cls, out) -> "SectionResult":
+        """A section's return value as a ``SectionResult``: a plain dict is its values, its scalars the
+        report's rows (``{}``: not applicable)."""
+        if isinstance(out, SectionResult):
+            return out
+        if not out:
+            return skip("not applicable here")
+        return cls(values=dict(out), rows=_scalar_rows(out))
+
+
+def skip(reason: str) -> SectionResult:
+    """A section that does not apply, and why (stated in the report)."""
+    return SectionResult(skipped=reason)
+
+
+def _scalar_rows(values: dict) -> list[str]:
+    """``| name | value |`` rows of the scalars of ``values`` (one level of nested dicts)."""
+    rows = []
+    for key, value in values.items():
+        if key.startswith("_"):
+            continue
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for sub, v in items:
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                rows.append(f"| {key if sub is None else f'{key} ({sub})'} | {v:.4g} |")
+    return rows
+
+
+def _figure(name: str, *args, **kwargs):
+    """A figure builder of ``lnn_torch.plots`` (imported only when a figure is drawn)."""
+    def build(result: dict):
+        from . import plots
+
+        return getattr(plots, name)(*args, **kwargs)
+    return build
 
 
 # ---------------------------------------------------------------------------- models
@@ -70,6 +141,7 @@ class ClosedForm:
     """A scene's closed-form dynamics behind the model interface (the ceiling rows of reports)."""
 
     variant = "closed form"
+    capabilities = frozenset()  # accelerations and rollouts only
 
     def __init__(self, system) -> None:
         self.system = system
@@ -81,18 +153,32 @@ class ClosedForm:
         return rollout(self.system.acceleration, q0, qd0, params, dt, num_steps, method, tau=tau)
 
 
+def capabilities_of(model) -> frozenset:
+    """A model's declared capabilities (``DynamicsModel.capabilities``); an object that declares none
+    gives accelerations and rollouts only."""
+    return frozenset(getattr(model, "capabilities", frozenset()))
+
+
+def missing(model, needs) -> str | None:
+    """Why ``model`` cannot give the capabilities ``needs``, or None."""
+    lacking = [c for c in needs if c not in capabilities_of(model)]
+    if not lacking:
+        return None
+    if isinstance(model, DynamicsModel):  # it says what its scene rules out
+        return model.missing(*lacking)
+    return f"variant '{getattr(model, 'variant', type(model).__name__)}' does not provide {', '.join(lacking)}"
+
+
 @contextlib.contextmanager
 def counting_failures(model):
-    """Within the block, a model whose accelerations can be undefined (the black-box LNN's singular
-    Hessians) returns NaN there instead of raising, so that batched evaluations count them."""
-    previous = getattr(model, "raise_on_singular", None)
-    if previous is not None:
-        model.raise_on_singular = False
-    try:
+    """Within the block, a model whose accelerations can be undefined (``NAN_ON_SINGULAR``: the
+    black-box LNN's singular Hessians) returns NaN there instead of raising, so that batched
+    evaluations count them."""
+    if NAN_ON_SINGULAR in capabilities_of(model):
+        with model.nan_on_singular():
+            yield model
+    else:
         yield model
-    finally:
-        if previous is not None:
-            model.raise_on_singular = previous
 
 
 def model_accelerations(model, q, qd, params, tau=None, max_batch: int = 16384) -> torch.Tensor:
@@ -187,9 +273,12 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
         thresholds: coordinate errors (rad or m) that define divergence times.
         accel_stride: accelerations are evaluated at every ``accel_stride``-th point.
         num_rollouts: roll out only the first so many trajectories (default: all).
-        options: section options (``perturbation``, ``stability_seconds``, ``long_horizon_steps``).
+        options: section options (``perturbation``, ``stability_seconds``, ``long_horizon_steps``,
+            ``horizons``, ``start_every``, ``time_limit``).
 
-    Returns a JSON-ready dict; keys starting with ``_`` hold tensors for plots.
+    Returns a JSON-ready dict: the sections' values merged; ``skipped``: ``{section: reason}`` for
+    those that do not apply; keys starting with ``_`` hold tensors for plots and, under
+    ``_sections``, each computed section's ``SectionResult`` (rows, figures, logs) in order.
     """
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -198,90 +287,224 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
                       dict(options))
     out: dict = {"variant": getattr(model, "variant", type(model).__name__), "num_trajectories": len(data),
                  "integrator": integrator, "dt": ctx.grid()[0], "horizon_s": ctx.grid()[3] * ctx.grid()[1] * data.dt}
+    presented: dict[str, SectionResult] = {}
+    skipped: dict[str, str] = {}
     for name in sections:
-        for key, value in SECTIONS[name](ctx).items():
+        fn = SECTIONS[name]
+        reason = missing(model, getattr(fn, "needs", ()))
+        result = skip(reason) if reason is not None else SectionResult.of(fn(ctx))
+        if result.skipped is not None:
+            skipped[name] = result.skipped
+            continue
+        presented[name] = result
+        for key, value in result.values.items():
             if isinstance(value, dict) and isinstance(out.get(key), dict):
                 out[key].update(value)  # sections may add to each other's entries
             else:
                 out[key] = value
+    if skipped:
+        out["skipped"] = skipped
+    out["_sections"] = presented
     return out
+
+
+def section_logs(result: dict) -> dict[str, float]:
+    """The scalars the computed sections of ``result`` (``evaluate_model``) give to training logs."""
+    return {k: v for s in result.get("_sections", {}).values() for k, v in s.logs.items()}
+
+
+def section_figures(result: dict, tags: bool = False) -> dict[str, Callable[[dict], object]]:
+    """PNG name (with ``tags``: the figure's logger tag) -> figure builder ``fn(result)`` over the
+    computed sections of ``result``."""
+    return {(s.tags.get(k, k.removesuffix(".png")) if tags else k): v
+            for s in result.get("_sections", {}).values() for k, v in s.figures.items()}
+
+
+def _closed_form(ctx: EvalContext, what: str) -> SectionResult | None:
+    """``skip`` for a scene without a closed form (measured recordings), which ``what`` needs."""
+    if ctx.system.closed_form:
+        return None
+    return skip(f"scene '{ctx.system.name}' has no closed form (measured recordings): no {what}")
+
+
+def _units(system) -> str:
+    return "rad" if all(system.angle_mask) else "(rad or m)"
+
+
+def _quartile_cell(d: dict, digits: int = 2) -> str:
+    return f"{d['median']:.{digits}f} [{d['q25']:.{digits}f}, {d['q75']:.{digits}f}]"
+
+
+def _finite_rows(*tensors) -> torch.Tensor:
+    """Rows ``(N,)`` where every given ``(N, ...)`` tensor (None ignored) is finite: the valid points of
+    recordings padded with NaN."""
+    ok = None
+    for x in tensors:
+        if x is not None:
+            f = torch.isfinite(x).reshape(x.shape[0], -1).all(-1)
+            ok = f if ok is None else ok & f
+    return ok
 
 
 # ---------------------------------------------------------------------------- sections
 @section("accelerations")
-def _accelerations(ctx: EvalContext) -> dict:
+def _accelerations(ctx: EvalContext) -> SectionResult:
     data = ctx.data
     if data.qdd is None:
-        return {}
+        return skip("the data have no accelerations (neither recorded nor estimated: set data.targets)")
     sub = slice(0, None, ctx.accel_stride)
     start = time.perf_counter()
     pred = model_accelerations(ctx.model, data.q[:, sub], data.qd[:, sub], data.params,
                                None if data.tau is None else data.tau[:, sub])
     seconds = time.perf_counter() - start
-    return {"acc_rel_err": acceleration_errors(pred, data.qdd[:, sub], ctx.system.coord_names),
-            "acceleration_eval_seconds": seconds}
+    acc = acceleration_errors(pred, data.qdd[:, sub], ctx.system.coord_names)
+    logs = {"acc_rel_err": acc["total"], **{f"acc_rel_err_{n}": acc[n] for n in ctx.system.coord_names},
+            "acc_rel_err_traj_median": acc.get("per_trajectory_median", float("nan")),
+            "acc_non_finite": acc["non_finite_fraction"]}
+    return SectionResult({"acc_rel_err": acc, "acceleration_eval_seconds": seconds},
+                         rows=[f"| acceleration rel. L2 error ({k}) | {v:.4f} |" for k, v in acc.items()], logs=logs)
 
 
 @section("rollouts")
-def _rollouts(ctx: EvalContext) -> dict:
+def _rollouts(ctx: EvalContext) -> SectionResult:
     r = ctx.rollouts()
+    system = ctx.system
     finite = torch.isfinite(r["q"]).all(-1).all(-1) & torch.isfinite(r["qd"]).all(-1).all(-1)
     out = {f"divergence_time@{thr:g}": {"model": quartiles(divergence_time(r["q"], r["q_true"], r["grid_dt"], thr,
-                                                                           ctx.system.angle_mask))}
+                                                                           system.angle_mask))}
            for thr in ctx.thresholds}
     out["rollout_non_finite_fraction"] = float(1 - finite.double().mean())
     out["rollout_seconds"] = r["seconds"]
     out["_arrays"] = {"q_true": r["q_true"], "q_model": r["q"], "qd_model": r["qd"], "params": r["params"],
                       "dt": r["grid_dt"]}
-    return out
+    rows = [f"| time to {thr:g} {_units(system)} error, model: median [q25, q75] (s) | "
+            f"{_quartile_cell(out[f'divergence_time@{thr:g}']['model'])} |" for thr in ctx.thresholds]
+    rows.append(f"| non-finite rollouts | {out['rollout_non_finite_fraction']:.3f} |")
+    arrays = out["_arrays"]
+
+    def error_growth(result):
+        from .plots import error_growth_figure
+
+        exact = result["_arrays"].get("q_exact")
+        return error_growth_figure(arrays["q_true"], arrays["q_model"], exact, arrays["dt"], system.angle_mask,
+                                   result.get("perturbation", 1e-6))
+
+    figures = {"trajectory.png": _figure("trajectory_figure", arrays["q_true"][0], arrays["q_model"][0], arrays["dt"],
+                                         system.coord_names),
+               "error_growth.png": error_growth}
+    logs = {"rollout_non_finite": out["rollout_non_finite_fraction"],
+            "divergence_time": out[f"divergence_time@{ctx.thresholds[0]:g}"]["model"]["median"]}
+    return SectionResult(out, rows=rows, figures=figures, logs=logs)
 
 
 @section("energy")
-def _energy(ctx: EvalContext) -> dict:
+def _energy(ctx: EvalContext) -> SectionResult:
     """The true-energy drift of the rollouts; with forces, their power-balance error."""
-    if not ctx.system.closed_form:
-        return {}
-    r = ctx.rollouts()
-    if ctx.system.has_forces:
-        drift = power_balance_error(ctx.system, r["q"], r["qd"], r["params"], r["tau"], r["grid_dt"])
-        key = "power_balance_error"
+    unavailable = _closed_form(ctx, "true energy")
+    if unavailable:
+        return unavailable
+    r, system = ctx.rollouts(), ctx.system
+    if system.has_forces:
+        drift = power_balance_error(system, r["q"], r["qd"], r["params"], r["tau"], r["grid_dt"])
+        key, log = "power_balance_error", "power_balance"
+        label = "power-balance error \\|E(t) - E(0) - W(t)\\| / (V_max - V_min)"
     else:
-        drift, key = energy_drift(ctx.system, r["q"], r["qd"], r["params"]), "energy_drift"
+        drift, key, log = energy_drift(system, r["q"], r["qd"], r["params"]), "energy_drift", "energy_drift"
+        label = "true-energy drift / (V_max - V_min)"
     finite = torch.isfinite(drift).all(1)
     nan = float("nan")
-    return {key: {"mean": float(drift[finite].mean()) if finite.any() else nan,
-                  "max": float(drift[finite].max()) if finite.any() else nan,
-                  "non_finite_fraction": float(1 - finite.double().mean())},
-            "_arrays": {"drift": drift}}
+    e = {"mean": float(drift[finite].mean()) if finite.any() else nan,
+         "max": float(drift[finite].max()) if finite.any() else nan,
+         "non_finite_fraction": float(1 - finite.double().mean())}
+    png = "power_balance.png" if system.has_forces else "energy_drift.png"
+    return SectionResult({key: e, "_arrays": {"drift": drift}},
+                         rows=[f"| {label}: mean, max | {e['mean']:.2e}, {e['max']:.2e} |"],
+                         figures={png: _figure("drift_figure", drift, r["grid_dt"], system.has_forces)},
+                         logs={log: e["mean"], f"{log}_max": e["max"]}, tags={png: "energy"})
 
 
-@section("torques")
-def _torques(ctx: EvalContext) -> dict:
+@section("predictability")
+def _predictability(ctx: EvalContext) -> SectionResult:
+    unavailable = _closed_form(ctx, "exact reference to perturb")
+    if unavailable:
+        return unavailable
+    r = ctx.rollouts()
+    perturbation = ctx.options.get("perturbation", 1e-6)
+    steps = r["q_true"].shape[1] - 1
+    q_x, _ = reference_rollout(ctx.system, r["q_true"][:, 0] + perturbation, r["qd_true"][:, 0], r["params"],
+                               r["grid_dt"], steps, tau=r["tau"])
+    out = {f"divergence_time@{thr:g}": {"exact_perturbed": quartiles(
+        divergence_time(q_x, r["q_true"], r["grid_dt"], thr, ctx.system.angle_mask))} for thr in ctx.thresholds}
+    out["perturbation"] = perturbation
+    out["_arrays"] = {"q_exact": q_x}
+    rows = [f"| time to {thr:g} {_units(ctx.system)} error, exact system started {perturbation:g} off: median "
+            f"[q25, q75] (s) | {_quartile_cell(out[f'divergence_time@{thr:g}']['exact_perturbed'])} |"
+            for thr in ctx.thresholds]
+    return SectionResult(out, rows=rows)
+
+
+@section("mass_matrix", needs=(MASS_MATRIX,))
+def _mass_matrix(ctx: EvalContext) -> SectionResult:
+    """Relative Frobenius error of the learned M (SI velocities, ``mass_matrix_si``) after the best
+    scale per trajectory, and the condition number of the M the model's solve sees (``mass_matrix``,
+    normalised units)."""
+    model, system, data = ctx.model, ctx.system, ctx.data
+    unavailable = _closed_form(ctx, "true mass matrix")
+    if unavailable:
+        return unavailable
+    if not system.quadratic_kinetic:
+        return skip(f"scene '{system.name}' has no mass matrix (its kinetic energy is not quadratic)")
+    q = data.q[:, :: ctx.accel_stride]
+    B, T, dof = q.shape
+    qf = q.reshape(-1, dof)
+    params = data.params[:, None, :].expand(-1, T, -1).flatten(0, 1)
+    with torch.no_grad():
+        M_model = model.mass_matrix_si(qf, params).reshape(B, T, dof, dof)
+        M_n = model.mass_matrix(qf.to(model.dtype), params.to(model.dtype)).double()  # normalised units
+    err = scaled_matrix_error(system.mass_matrix(qf, params).reshape(B, T, dof, dof), M_model)
+    cond = condition_numbers(M_n)
+    m = {"rel_frobenius_median": float(err.median()), "rel_frobenius_max": float(err.max()),
+         "cond_median": float(cond.median()), "cond_max": float(cond.max())}
+    return SectionResult({"mass_matrix": m}, rows=[
+        f"| mass-matrix rel. Frobenius error (best scale per system): median, max | "
+        f"{m['rel_frobenius_median']:.4f}, {m['rel_frobenius_max']:.4f} |",
+        f"| cond(M) of the learned mass matrix: median, max | {m['cond_median']:.1f}, {m['cond_max']:.1f} |"])
+
+
+@section("torques", needs=(INVERSE_DYNAMICS,))
+def _torques(ctx: EvalContext) -> SectionResult:
     """Inverse dynamics: the inputs the model needs for the data's accelerations against the
-    recorded inputs, normalised RMSE per input (structured models of actuated scenes)."""
+    recorded inputs, normalised RMSE per input (at the valid points of recordings)."""
     data, model = ctx.data, ctx.model
-    if data.tau is None or data.qdd is None or not hasattr(model, "inverse_dynamics"):
-        return {}
+    if data.tau is None or data.qdd is None:
+        return skip("the data have no " + ("inputs" if data.tau is None else "accelerations"))
     sub = slice(0, None, ctx.accel_stride)
     B, T, dof = data.q[:, sub].shape
     flat = lambda x: x[:, sub].reshape(B * T, -1)  # noqa: E731
+    q, qd, qdd, tau = flat(data.q), flat(data.qd), flat(data.qdd), flat(data.tau)
     params = data.params[:, None].expand(-1, T, -1).flatten(0, 1)
+    ok = _finite_rows(q, qd, qdd, tau)
+    if not ok.all():  # recordings padded with NaN
+        q, qd, qdd, tau, params = (x[ok] for x in (q, qd, qdd, tau, params))
     with torch.no_grad():
-        pred = model.inverse_dynamics(flat(data.q), flat(data.qd), flat(data.qdd), params)
-    err = normalized_rmse(pred, flat(data.tau))
-    names = getattr(ctx.system, "input_names", ()) or [f"u{i}" for i in range(err.numel())]
-    return {"torque_nrmse": {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err)}}}
+        pred = model.inverse_dynamics(q, qd, qdd, params)
+    err = normalized_rmse(pred, tau)
+    names = list(getattr(ctx.system, "input_names", ()) or [f"u{i}" for i in range(err.numel())])
+    t = {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err)}}
+    row = ("| inverse-dynamics torque error, normalised RMSE: mean (" + ", ".join(k for k in t if k != "mean")
+           + f") | {t['mean']:.4f} (" + ", ".join(f"{v:.4f}" for k, v in t.items() if k != "mean") + ") |")
+    return SectionResult({"torque_nrmse": t}, rows=[row])
 
 
-@section("friction")
-def _friction(ctx: EvalContext) -> dict:
+@section("friction", needs=(FRICTION,))
+def _friction(ctx: EvalContext) -> SectionResult:
     """Learned against true joint friction, per trajectory's parameters and joint, over the joint
     rates of the data: the relative L2 error of the friction-torque curve (where the true friction is
-    not negligible) and the coefficients. Needs a model with ``forces`` and a scene with friction."""
+    not negligible) and the coefficients."""
     system, model, data = ctx.system, ctx.model, ctx.data
-    forces = getattr(model, "forces", None)
-    if not system.has_friction or forces is None or not forces.friction or not system.closed_form:
-        return {}
+    unavailable = _closed_form(ctx, "true friction")
+    if unavailable:
+        return unavailable
     D = system.joint_map()
     rates = data.qd.reshape(-1, system.dof) @ D.T
     v_max = float(torch.quantile(rates.abs().double(), 0.99, dim=0).max())
@@ -289,9 +512,8 @@ def _friction(ctx: EvalContext) -> dict:
     params = data.params[:, None].expand(-1, grid.shape[1], -1)
     true = system.friction_torque(grid, params)  # (B, 201, n_j)
     with torch.no_grad():
-        p_n = model.normalizer.params(data.params.to(model.dtype))
-        learned = forces.friction_torque(grid.to(model.dtype), p_n[:, None].expand(-1, grid.shape[1], -1)).double()
-        b, c = (x.double() for x in forces.coefficients(p_n))
+        learned = model.friction_torque_si(grid, params)
+        b, c = model.friction_coefficients_si(data.params)
     scale = true.abs().amax(1)  # (B, n_j)
     err = (learned - true).norm(dim=1) / true.norm(dim=1).clamp_min(1e-30)  # (B, n_j)
     significant = scale > 0.1 * scale.max()
@@ -303,19 +525,23 @@ def _friction(ctx: EvalContext) -> dict:
         tb, tc = true_coef(data.params)
         out["viscous_abs_err_median"] = float((b - tb).abs().median())
         out["coulomb_abs_err_median"] = float((c - tc).abs().median())
-    return {"friction": out, "_friction_arrays": {"rates": grid[0, :, 0], "true": true, "learned": learned}}
+    arrays = {"rates": grid[0, :, 0], "true": true, "learned": learned}
+    return SectionResult({"friction": out, "_friction_arrays": arrays}, rows=[
+        f"| friction-torque curve rel. L2 error, median [p90] over trajectories and joints | "
+        f"{out['curve_rel_err_median']:.4f} [{out['curve_rel_err_p90']:.4f}] |"],
+        figures={"friction.png": _figure("friction_figure", arrays)})
 
 
-@section("free_decay")
-def _free_decay(ctx: EvalContext) -> dict:
-    """From rest at the trajectories' initial angles, inputs off: the model's own energy (in J,
-    through its force scale) against the true energy along the true trajectory. A model whose
-    dissipation is right loses the same energy: reports the relative error of the energy lost
-    and the divergence time (structured models of scenes with friction)."""
+@section("free_decay", needs=(ENERGY, FRICTION))
+def _free_decay(ctx: EvalContext) -> SectionResult:
+    """From rest at the trajectories' initial angles, inputs off: the model's own energy
+    (``energy_si``: in J where inputs fix its scale) against the true energy along the true
+    trajectory. A model whose dissipation is right loses the same energy: reports the relative error
+    of the energy lost and the divergence time."""
     system, model, data = ctx.system, ctx.model, ctx.data
-    if (not system.has_friction or not system.closed_form or not hasattr(model, "energy_norm")
-            or getattr(model, "forces", None) is None):
-        return {}
+    unavailable = _closed_form(ctx, "true energy")
+    if unavailable:
+        return unavailable
     rollouts = ctx.rollouts()
     n = rollouts["q_true"].shape[1] - 1
     dt = rollouts["grid_dt"]
@@ -325,68 +551,77 @@ def _free_decay(ctx: EvalContext) -> dict:
     qt, qdt = reference_rollout(system, q0, torch.zeros_like(q0), params, dt, n, tau=zeros)
     qm, qdm = model_rollout(model, q0, torch.zeros_like(q0), params, dt, n, ctx.integrator, tau=zeros)
     E_true = system.energy(qt, qdt, params[:, None].expand(-1, n + 1, -1))
+    B = len(q0)
     with torch.no_grad():
-        B = len(q0)
-        q_n, qd_n, p_n = model.normalize(qm.reshape(-1, system.dof).to(model.dtype),
-                                         qdm.reshape(-1, system.dof).to(model.dtype),
-                                         params[:, None].expand(-1, n + 1, -1).reshape(B * (n + 1), -1).to(model.dtype))
-        H = model.energy_norm(q_n, qd_n, p_n)[0].reshape(B, n + 1).double()
-    E_model = H / float(model.normalizer.force_scale) if system.num_inputs else H  # in J where inputs fix the scale
+        E_model = model.energy_si(qm.reshape(-1, system.dof), qdm.reshape(-1, system.dof),
+                                  params[:, None].expand(-1, n + 1, -1).reshape(B * (n + 1), -1)).reshape(B, n + 1)
     lost_true = E_true[:, 0] - E_true[:, -1]
     lost_model = E_model[:, 0] - E_model[:, -1]
     rel = (lost_model - lost_true).abs() / lost_true.abs().clamp_min(1e-30)
     div = divergence_time(qm, qt, dt, ctx.thresholds[0], system.angle_mask)
-    return {"free_decay": {"energy_lost_rel_err_median": float(rel.median()), "seconds": n * dt,
-                           f"divergence_time@{ctx.thresholds[0]:g}_median": float(div.median())},
-            "_decay_arrays": {"E_true": E_true - E_true[:, :1], "E_model": E_model - E_model[:, :1], "dt": dt}}
+    d = {"energy_lost_rel_err_median": float(rel.median()), "seconds": n * dt,
+         f"divergence_time@{ctx.thresholds[0]:g}_median": float(div.median())}
+    arrays = {"E_true": E_true - E_true[:, :1], "E_model": E_model - E_model[:, :1], "dt": dt}
+    return SectionResult({"free_decay": d, "_decay_arrays": arrays}, rows=[
+        f"| free decay over {d['seconds']:g} s, inputs off: energy lost, rel. error (median) | "
+        f"{d['energy_lost_rel_err_median']:.4f} |"], figures={"free_decay.png": _figure("decay_figure", arrays)})
 
 
-@section("predictability")
-def _predictability(ctx: EvalContext) -> dict:
-    if not ctx.system.closed_form:
-        return {}
-    r = ctx.rollouts()
-    perturbation = ctx.options.get("perturbation", 1e-6)
-    steps = r["q_true"].shape[1] - 1
-    q_x, _ = reference_rollout(ctx.system, r["q_true"][:, 0] + perturbation, r["qd_true"][:, 0], r["params"],
-                               r["grid_dt"], steps, tau=r["tau"])
-    out = {f"divergence_time@{thr:g}": {"exact_perturbed": quartiles(
-        divergence_time(q_x, r["q_true"], r["grid_dt"], thr, ctx.system.angle_mask))} for thr in ctx.thresholds}
-    out["perturbation"] = perturbation
-    out["_arrays"] = {"q_exact": q_x}
-    return out
+@section("horizons")
+def _horizons(ctx: EvalContext) -> SectionResult:
+    """Open-loop rollouts from many start points (every ``start_every`` s of each trajectory, with the
+    data's velocity there), driven by the recorded inputs, over ``time_limit`` s (default: the longest
+    of ``horizons``): the coordinate error after each horizon (median and 90th percentile over start
+    points) and the time until it first exceeds each threshold (quartiles; censored at ``time_limit``)."""
+    from .metrics import coordinate_error
 
-
-@section("mass_matrix")
-def _mass_matrix(ctx: EvalContext) -> dict:
-    """Relative Frobenius error of the learned M after the best scale per trajectory, and cond(M).
-
-    The learned M lives in normalised velocities ``qd_n = qd * tau / scale``: it equals
-    ``D M_n D`` (``D = diag(tau / scale)``) in SI units."""
-    model, system, data = ctx.model, ctx.system, ctx.data
-    if not hasattr(model, "mass_matrix_norm") or not system.quadratic_kinetic or not system.closed_form:
-        return {}
-    q = data.q[:, :: ctx.accel_stride]
-    B, T, dof = q.shape
-    qf = q.reshape(-1, dof)
-    params = data.params[:, None, :].expand(-1, T, -1).flatten(0, 1)
-    with torch.no_grad():
-        M_n = model.mass_matrix(qf.to(model.dtype), params.to(model.dtype)).double()
-    norm = model.normalizer
-    D = norm.time_scale.double() / norm.coord_scale.double()
-    M_model = (D[:, None] * M_n * D[None, :]).reshape(B, T, dof, dof)
-    err = scaled_matrix_error(system.mass_matrix(qf, params).reshape(B, T, dof, dof), M_model)
-    cond = condition_numbers(M_n)
-    return {"mass_matrix": {"rel_frobenius_median": float(err.median()), "rel_frobenius_max": float(err.max()),
-                            "cond_median": float(cond.median()), "cond_max": float(cond.max())}}
+    data, model = ctx.data, ctx.model
+    horizons = tuple(ctx.options.get("horizons", (0.1, 0.25, 0.5, 1.0)))
+    every = float(ctx.options.get("start_every", 0.5))
+    dt = data.dt
+    n = int(round(max(max(horizons), float(ctx.options.get("time_limit", 0))) / dt))
+    step = max(1, int(round(every / dt)))
+    lengths = [data.num_points] * len(data) if data.lengths is None else [int(x) for x in data.lengths]
+    starts = [(j, s) for j, length in enumerate(lengths) for s in range(0, length - n, step)]
+    if not starts:
+        return skip(f"no trajectory is longer than the longest horizon, {n * dt:g} s")
+    js = torch.tensor([j for j, _ in starts])
+    ss = torch.tensor([s for _, s in starts])
+    window = ss[:, None] + torch.arange(n + 1)  # (S, n + 1)
+    q_true = data.q[js[:, None], window]
+    tau = None if data.tau is None else data.tau[js[:, None], window[:, :-1]]
+    start = time.perf_counter()
+    q, _ = model_rollout(model, q_true[:, 0], data.qd[js, ss], data.params[js], dt, n, ctx.integrator, tau)
+    seconds = time.perf_counter() - start
+    err = coordinate_error(q, q_true, ctx.system.angle_mask)  # (S, n + 1)
+    out = {"num_starts": len(starts), "start_every_s": every, "horizon_s": n * dt, "rollout_seconds": seconds}
+    for h in horizons:
+        e = err[:, int(round(h / dt))]
+        e = torch.where(torch.isfinite(e), e, torch.full_like(e, float("inf")))
+        out[f"error@{h:g}s"] = {"median": float(e.median()), "p90": float(torch.quantile(e.double(), 0.9))}
+    for thr in ctx.thresholds:
+        out[f"time_to@{thr:g}"] = quartiles(divergence_time(q, q_true, dt, thr, ctx.system.angle_mask))
+    hs = [f"error@{h:g}s" for h in horizons]
+    block = ["", f"Open-loop from {out['num_starts']} start points (every {every:g} s of each trajectory), driven by "
+                 "the recorded inputs:", "",
+             "| | " + " | ".join(k.replace("error@", "after ") for k in hs) + " |", "|---" * (len(hs) + 1) + "|",
+             "| coordinate error, median | " + " | ".join(f"{out[k]['median']:.4f}" for k in hs) + " |",
+             "| coordinate error, 90th percentile | " + " | ".join(f"{out[k]['p90']:.4f}" for k in hs) + " |"]
+    for thr in ctx.thresholds:
+        d = out[f"time_to@{thr:g}"]
+        block.append(f"\nTime until the error exceeds {thr:g}: median {d['median']:.3f} s "
+                     f"[{d['q25']:.3f}, {d['q75']:.3f}] (censored at {out['horizon_s']:g} s).")
+    logs = {"divergence_time": out[f"time_to@{ctx.thresholds[0]:g}"]["median"],
+            "error_at_horizon": out[hs[-1]]["median"]}
+    return SectionResult({"horizons": out}, blocks=block, logs=logs)
 
 
 @section("ood")
-def _ood(ctx: EvalContext) -> dict:
+def _ood(ctx: EvalContext) -> SectionResult:
     system = ctx.system
     cases = system.ood_cases()
     if not cases:
-        return {}
+        return skip(f"scene '{system.name}' defines no out-of-distribution cases")
     f64 = lambda key: torch.tensor([c[key] for c in cases], dtype=torch.float64)  # noqa: E731
     params, q0, qd0 = f64("params"), f64("q0"), f64("qd0")
     dt, _, _, _ = ctx.grid()
@@ -404,60 +639,40 @@ def _ood(ctx: EvalContext) -> dict:
              "divergence_time@0.1": float(divergence_time(qm[i:i + 1], qt[i:i + 1], dt, 0.1, system.angle_mask)[0]),
              "energy_drift_mean": float(drift[i].mean()), "energy_drift_max": float(drift[i].max())}
             for i, c in enumerate(cases)]
-    return {"ood": rows, "_ood_arrays": {"q_true": qt, "q_model": qm, "params": params, "dt": dt}}
+    block = ["", "Out-of-distribution cases (the scene's own):", "",
+             f"| ({', '.join(system.param_names)}) | [q0, qd0] | acc. rel. L2 | time to 0.1 error (s) | "
+             "energy drift mean / max |", "|---|---|---|---|---|"]
+    block += [f"| {tuple(c['params'])} | {c['state0']} | {c['acc_rel_err']:.4f} | {c['divergence_time@0.1']:.2f} | "
+              f"{c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |" for c in rows]
+    arrays = {"q_true": qt, "q_model": qm, "params": params, "dt": dt}
+    return SectionResult({"ood": rows, "_ood_arrays": arrays}, blocks=block, figures={
+        "frames_ood_case1.png": _figure("frames_figure", system, qt[0], qm[0], params[0], dt)})
 
 
 @section("stability")
-def _stability(ctx: EvalContext) -> dict:
-    from .stability import HardCase, hard_cases, run_hard_cases
+def _stability(ctx: EvalContext) -> SectionResult:
+    from .stability import HardCase, hard_cases, run_hard_cases, stability_markdown
 
     seconds = ctx.options.get("stability_seconds", 5.0)
     long_steps = ctx.options.get("long_horizon_steps", 100_000)
-    if seconds <= 0 or not ctx.system.closed_form:
-        return {}
+    if seconds <= 0:
+        return skip("stability_seconds is 0")
+    unavailable = _closed_form(ctx, "true energy or parameter ranges for hard cases")
+    if unavailable:
+        return unavailable
     dt = ctx.grid()[0]
     cases = hard_cases(ctx.system, num=8, dt=dt, num_steps=int(round(seconds / dt)))
     if long_steps:
         nominal = cases[0]
         cases.append(HardCase(f"long horizon: {long_steps:.0e} {ctx.integrator} steps", nominal.q0[:2],
                               nominal.qd0[:2], nominal.params[:2], dt=dt, num_steps=long_steps))
+    with_m = MASS_MATRIX in capabilities_of(ctx.model)  # the condition number of its mass matrix
     rows = run_hard_cases(functools.partial(model_rollout, ctx.model), ctx.system, cases,
-                          model=ctx.model if hasattr(ctx.model, "mass_matrix_norm") else None, method=ctx.integrator)
-    return {"stability": rows}
+                          model=ctx.model if with_m else None, method=ctx.integrator)
+    variant = getattr(ctx.model, "variant", type(ctx.model).__name__)
+    block = ["", f"Stability on hard cases ({ctx.integrator}, dt = {dt:g} s; `lnn_torch.stability`):", "",
+             stability_markdown({variant: rows})]
+    return SectionResult({"stability": rows}, blocks=block)
 
 
-@section("horizons")
-def _horizons(ctx: EvalContext) -> dict:
-    """Open-loop rollouts from many start points (every ``start_every`` s of each trajectory, with the
-    data's velocity there), driven by the recorded inputs, over ``time_limit`` s (default: the longest
-    of ``horizons``): the coordinate error after each horizon (median and 90th percentile over start
-    points) and the time until it first exceeds each threshold (quartiles; censored at ``time_limit``)."""
-    from .metrics import coordinate_error
-
-    data, model = ctx.data, ctx.model
-    horizons = tuple(ctx.options.get("horizons", (0.1, 0.25, 0.5, 1.0)))
-    every = float(ctx.options.get("start_every", 0.5))
-    dt = data.dt
-    n = int(round(max(max(horizons), float(ctx.options.get("time_limit", 0))) / dt))
-    step = max(1, int(round(every / dt)))
-    lengths = [data.num_points] * len(data) if data.lengths is None else [int(x) for x in data.lengths]
-    starts = [(j, s) for j, length in enumerate(lengths) for s in range(0, length - n, step)]
-    if not starts:
-        return {}
-    js = torch.tensor([j for j, _ in starts])
-    ss = torch.tensor([s for _, s in starts])
-    window = ss[:, None] + torch.arange(n + 1)  # (S, n + 1)
-    q_true = data.q[js[:, None], window]
-    tau = None if data.tau is None else data.tau[js[:, None], window[:, :-1]]
-    start = time.perf_counter()
-    q, _ = model_rollout(model, q_true[:, 0], data.qd[js, ss], data.params[js], dt, n, ctx.integrator, tau)
-    seconds = time.perf_counter() - start
-    err = coordinate_error(q, q_true, ctx.system.angle_mask)  # (S, n + 1)
-    out = {"num_starts": len(starts), "start_every_s": every, "horizon_s": n * dt, "rollout_seconds": seconds}
-    for h in horizons:
-        e = err[:, int(round(h / dt))]
-        e = torch.where(torch.isfinite(e), e, torch.full_like(e, float("inf")))
-        out[f"error@{h:g}s"] = {"median": float(e.median()), "p90": float(torch.quantile(e.double(), 0.9))}
-    for thr in ctx.thresholds:
-        out[f"time_to@{thr:g}"] = quartiles(divergence_time(q, q_true, dt, thr, ctx.system.angle_mask))
-    return {"horizons": out}
+REPORT_SECTIONS = report_sections()  # accelerations ... stability, in the order above

@@ -20,9 +20,10 @@ import math
 import lightning as L
 import torch
 
-from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
+from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
 from .losses import acceleration_loss, energy_variance
 from .networks import build_model
+from .networks.base import INVERSE_DYNAMICS, STATIC_FRICTION
 from .networks import model_options as model_options_of
 from .perf import adamw, compile_fn, compile_pays_training, configure_cpu
 from .systems import get_system
@@ -116,10 +117,10 @@ class LNNModule(L.LightningModule):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
-        if torque_weight > 0 and not (hasattr(self.model, "inverse_dynamics_norm") and self.system.num_inputs):
+        if torque_weight > 0 and INVERSE_DYNAMICS not in self.model.capabilities:
             raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
                              f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
-        if (energy_weight > 0 or torque_weight > 0) and getattr(self.model.forces, "stiction", False):
+        if (energy_weight > 0 or torque_weight > 0) and STATIC_FRICTION in self.model.capabilities:
             raise ValueError("energy_weight and torque_weight need the model's force at each state, which static "
                              "friction's holding torque is not (dissipation 'joint+stiction'): set them to 0")
         self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)
@@ -398,42 +399,27 @@ class LNNModule(L.LightningModule):
     # ------------------------------------------------------------------ evaluation
     def _evaluate(self, batch: dict, prefix: str) -> None:
         """``evaluate_model`` on a whole split (the DataModule's one evaluation item), logged as
-        ``{prefix}/...``; every rank evaluates the same data (identical results)."""
+        ``{prefix}/...``: the scalars its sections present (``SectionResult.logs``) and, every
+        ``figure_every_n_epochs`` validation epochs, their figures. Every rank evaluates the same
+        data (identical results)."""
         data = batch["trajectories"]
         n = self.hparams.val_rollouts if prefix == "val" else self.hparams.get("test_rollouts", -1)
         thr = self.hparams.val_threshold
-        log = lambda name, value, **kw: self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, **kw)  # noqa: E731
         if not self.system.closed_form:  # measured recordings: open-loop horizons from many start points
             result = evaluate_model(self.model, self.system, data, sections=("accelerations", "horizons"),
                                     thresholds=(thr,), accel_stride=int(batch["accel_stride"]),
                                     horizons=(0.1, 0.5, self.hparams.val_rollout_seconds))
-            self._log_accelerations(log, result["acc_rel_err"])
-            if "horizons" in result:
-                log("divergence_time", result["horizons"][f"time_to@{thr:g}"]["median"])
-                log("error_at_horizon", result["horizons"][f"error@{self.hparams.val_rollout_seconds:g}s"]["median"])
-            return
-        sections = DEFAULT_SECTIONS if n != 0 else ("accelerations",)
-        result = evaluate_model(self.model, self.system, data, sections=sections, horizon=self.hparams.val_rollout_seconds,
-                                thresholds=(thr,), accel_stride=int(batch["accel_stride"]),
-                                num_rollouts=n if n > 0 else None)
-        self._log_accelerations(log, result["acc_rel_err"])
-        if n == 0:
-            return
-        energy = "power_balance_error" if self.system.has_forces else "energy_drift"
-        log(energy.replace("_error", ""), result[energy]["mean"])
-        log(f"{energy.replace('_error', '')}_max", result[energy]["max"])
-        log("rollout_non_finite", result["rollout_non_finite_fraction"])
-        log("divergence_time", result[f"divergence_time@{thr:g}"]["model"]["median"])
+        else:
+            result = evaluate_model(self.model, self.system, data,
+                                    sections=DEFAULT_SECTIONS if n != 0 else ("accelerations",),
+                                    horizon=self.hparams.val_rollout_seconds, thresholds=(thr,),
+                                    accel_stride=int(batch["accel_stride"]), num_rollouts=n if n > 0 else None)
+        for name, value in section_logs(result).items():
+            self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, prog_bar=name == "acc_rel_err")
         every = self.hparams.figure_every_n_epochs
-        if prefix == "val" and every and self.current_epoch % every == 0 and self.trainer.is_global_zero:
-            self._log_figures(result["_arrays"])
-
-    def _log_accelerations(self, log, acc: dict) -> None:
-        log("acc_rel_err", acc["total"], prog_bar=True)
-        for name in self.system.coord_names:
-            log(f"acc_rel_err_{name}", acc[name])
-        log("acc_rel_err_traj_median", acc.get("per_trajectory_median", float("nan")))
-        log("acc_non_finite", acc["non_finite_fraction"])
+        if (prefix == "val" and self.system.closed_form and n != 0 and every and self.current_epoch % every == 0
+                and self.trainer.is_global_zero):
+            self._log_figures(result, prefix)
 
     def validation_step(self, batch, batch_idx):
         self._evaluate(batch, "val")
@@ -441,20 +427,22 @@ class LNNModule(L.LightningModule):
     def test_step(self, batch, batch_idx):
         self._evaluate(batch, "test")
 
-    def _log_figures(self, arrays: dict) -> None:
+    def _log_figures(self, result: dict, prefix: str = "val") -> None:
+        """Every figure the evaluated sections present, as ``{prefix}/{name}`` in TensorBoard."""
         from lightning.pytorch.loggers import TensorBoardLogger
 
         loggers = [lg for lg in self.loggers if isinstance(lg, TensorBoardLogger)]
         if not loggers:
             return
-        from .plots import energy_figure, trajectory_figure
+        import matplotlib.pyplot as plt
 
-        fig1 = trajectory_figure(arrays["q_true"][0].cpu(), arrays["q_model"][0].cpu(), arrays["dt"],
-                                 self.system.coord_names)
-        fig2 = energy_figure(arrays["drift"].cpu(), arrays["dt"])
-        for lg in loggers:
-            lg.experiment.add_figure("val/trajectory", fig1, global_step=self.global_step)
-            lg.experiment.add_figure("val/energy", fig2, global_step=self.global_step)
+        for tag, build in section_figures(result, tags=True).items():
+            fig = build(result)
+            if fig is None:
+                continue
+            for lg in loggers:
+                lg.experiment.add_figure(f"{prefix}/{tag}", fig, global_step=self.global_step, close=False)
+            plt.close(fig)
 
     # ------------------------------------------------------------------ prediction
     def predict_step(self, batch, batch_idx):

@@ -1,4 +1,5 @@
-"""Matplotlib figures (headless): trajectories and true energy over time."""
+"""Matplotlib figures (headless): the figures the evaluation sections present (trajectories, energy,
+error growth, friction, free decay, frames)."""
 
 from __future__ import annotations
 
@@ -71,78 +72,85 @@ def _solid_and_dashed(ax, x, true, model, curves: int = 6) -> None:
         ax.plot(x, model[b], "--", lw=1.2, color=line.get_color())
 
 
-def evaluation_plots(result: dict, output_dir, system) -> list:
-    """Trajectories, energy drift, error growth against the predictability limit, and a frame strip
-    of the first out-of-distribution case (scenes that define ``positions``). Returns the PNG paths."""
-    from pathlib import Path
+def drift_figure(drift: torch.Tensor, dt: float, forces: bool):
+    """Median and max over rollouts ``(B, T)`` of the true-energy drift (power-balance error with forces)."""
+    t = torch.arange(drift.shape[1]) * dt
+    fig, ax = plt.subplots(figsize=(7, 2.8))
+    ax.plot(t, drift.median(0).values, label="median")
+    ax.plot(t, drift.amax(0), label="max")
+    ax.set_yscale("log")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("|E(t)-E(0)-W(t)| / (Vmax-Vmin)" if forces else "|E(t)-E(0)| / (Vmax-Vmin)")
+    ax.legend()
+    fig.tight_layout()
+    return fig
 
+
+def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturbation: float = 1e-6):
+    """Median coordinate error over rollouts ``(B, T, dof)`` against time, with the exact system
+    started ``perturbation`` off (``q_exact``, or None) for the predictability limit."""
     from .metrics import coordinate_error
 
-    output_dir = Path(output_dir)
-    arr = result["_arrays"]
-    dt = arr["dt"]
-    paths = []
-
-    def save(fig, name):
-        if fig is None:
-            return
-        paths.append(output_dir / name)
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-
-    save(trajectory_figure(arr["q_true"][0], arr["q_model"][0], dt, system.coord_names), "trajectory.png")
-    t = torch.arange(arr["q_true"].shape[1]) * dt
-    if "drift" in arr:
-        fig, ax = plt.subplots(figsize=(7, 2.8))
-        ax.plot(t, arr["drift"].median(0).values, label="median")
-        ax.plot(t, arr["drift"].amax(0), label="max")
-        ax.set_yscale("log")
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("|E(t)-E(0)-W(t)| / (Vmax-Vmin)" if system.has_forces else "|E(t)-E(0)| / (Vmax-Vmin)")
-        ax.legend()
-        fig.tight_layout()
-        save(fig, "power_balance.png" if system.has_forces else "energy_drift.png")
+    t = torch.arange(q_true.shape[1]) * dt
 
     def err(q):
-        return coordinate_error(q, arr["q_true"], system.angle_mask).median(0).values.clamp_min(1e-16)
+        return coordinate_error(q, q_true, angle_mask).median(0).values.clamp_min(1e-16)
 
     fig, ax = plt.subplots(figsize=(7, 2.8))
-    ax.plot(t, err(arr["q_model"]), label="model")
-    if "q_exact" in arr:
-        ax.plot(t, err(arr["q_exact"]), label=f"exact system, {result.get('perturbation', 1e-6):g} off")
+    ax.plot(t, err(q_model), label="model")
+    if q_exact is not None:
+        ax.plot(t, err(q_exact), label=f"exact system, {perturbation:g} off")
     ax.axhline(0.1, color="k", lw=0.8, ls=":")
     ax.set_yscale("log")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("median max |coordinate error|")
     ax.legend()
     fig.tight_layout()
-    save(fig, "error_growth.png")
+    return fig
 
-    if "_friction_arrays" in result:
-        fa = result["_friction_arrays"]
-        n_j = fa["true"].shape[-1]
-        fig, axes = plt.subplots(1, n_j, figsize=(4.2 * n_j, 3.2), squeeze=False)
-        for j, ax in enumerate(axes[0]):
-            _solid_and_dashed(ax, fa["rates"], fa["true"][..., j], fa["learned"][..., j])
-            ax.set_xlabel(f"joint {j + 1} rate [rad/s]")
-            ax.set_ylabel("friction torque [N m]")
-            ax.set_title("true (solid) and learned (dashed)", fontsize=9)
-        fig.tight_layout()
-        save(fig, "friction.png")
 
-    if "_decay_arrays" in result:
-        da = result["_decay_arrays"]
-        t_d = torch.arange(da["E_true"].shape[1]) * da["dt"]
-        fig, ax = plt.subplots(figsize=(7, 2.8))
-        _solid_and_dashed(ax, t_d, da["E_true"], da["E_model"])
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("E(t) - E(0) [J]")
-        ax.set_title("free decay, inputs off: true energy (solid), the model's own (dashed)", fontsize=9)
-        fig.tight_layout()
-        save(fig, "free_decay.png")
+def friction_figure(fa: dict):
+    """True (solid) and learned (dashed) friction torque against each joint's rate: ``fa`` holds
+    ``rates (R,)``, ``true`` and ``learned`` ``(B, R, n_j)``."""
+    n_j = fa["true"].shape[-1]
+    fig, axes = plt.subplots(1, n_j, figsize=(4.2 * n_j, 3.2), squeeze=False)
+    for j, ax in enumerate(axes[0]):
+        _solid_and_dashed(ax, fa["rates"], fa["true"][..., j], fa["learned"][..., j])
+        ax.set_xlabel(f"joint {j + 1} rate [rad/s]")
+        ax.set_ylabel("friction torque [N m]")
+        ax.set_title("true (solid) and learned (dashed)", fontsize=9)
+    fig.tight_layout()
+    return fig
 
-    if "_ood_arrays" in result:
-        ood = result["_ood_arrays"]
-        save(frames_figure(system, ood["q_true"][0], ood["q_model"][0], ood["params"][0], ood["dt"]),
-             "frames_ood_case1.png")
+
+def decay_figure(da: dict):
+    """Free decay: the true energy (solid) and the model's own (dashed), ``E_true``, ``E_model (B, T)``."""
+    t_d = torch.arange(da["E_true"].shape[1]) * da["dt"]
+    fig, ax = plt.subplots(figsize=(7, 2.8))
+    _solid_and_dashed(ax, t_d, da["E_true"], da["E_model"])
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("E(t) - E(0) [J]")
+    ax.set_title("free decay, inputs off: true energy (solid), the model's own (dashed)", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def evaluation_plots(result: dict, output_dir, system=None) -> list:
+    """Every figure the computed sections of ``result`` (``lnn_torch.evaluation.evaluate_model``)
+    present, saved as PNG in ``output_dir`` (a section's figure may be None: not drawn for this
+    scene). Returns the PNG paths. ``system`` is not needed (the sections know their scene); kept
+    for callers."""
+    from pathlib import Path
+
+    from .evaluation import section_figures
+
+    output_dir = Path(output_dir)
+    paths = []
+    for name, build in section_figures(result).items():
+        fig = build(result)
+        if fig is None:
+            continue
+        paths.append(output_dir / name)
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
     return paths

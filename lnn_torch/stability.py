@@ -75,7 +75,10 @@ def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps
 
 def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
     """Largest condition number of the learned mass matrix over rollout states (structured models)."""
-    if not hasattr(model, "mass_matrix_norm"):
+    from .evaluation import capabilities_of
+    from .networks.base import MASS_MATRIX
+
+    if MASS_MATRIX not in capabilities_of(model):
         return None
     B, T, dof = q.shape
     finite = torch.isfinite(q).all(-1).all(-1)

@@ -15,9 +15,14 @@ Reports (JSON, Markdown and PNG plots in ``--output-dir``) every section of
 * mass-matrix error against the scene's M (relative Frobenius after the best scale per system) and
   the condition number of the learned M (structured variants);
 * the scene's out-of-distribution cases;
+* open-loop horizons from many start points, driven by the recorded inputs;
 * a stability table on the scene's hard cases (``lnn_torch.stability``): non-finite fraction, max
   true-energy drift and the condition number of the learned mass matrix, including a long horizon
   of 1e5 RK4 steps.
+
+A section the model or the scene cannot give (no mass matrix, no energy of its own, no closed form
+of a measured system...) is listed at the end of the report with the reason. The report is what the
+sections of ``lnn_torch.evaluation`` present: a new section appears here without an edit.
 
 The checkpoint may be ``pretrained:<name>`` for a shipped model. A missing data file is generated
 from the dataset specification the checkpoint records.
@@ -30,80 +35,27 @@ import json
 from pathlib import Path
 
 
-def write_report(result: dict, output_dir: Path, system) -> list[Path]:
-    """metrics.json, report.md and PNG plots."""
+def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
+    """metrics.json, report.md and PNG plots: the header, then what each computed section presents
+    (its rows of the main table, its own blocks, its figures) in order, then the skipped sections
+    and why. ``system`` is not needed (kept for callers)."""
     from ..plots import evaluation_plots
 
     output_dir.mkdir(parents=True, exist_ok=True)
     clean = {k: v for k, v in result.items() if not k.startswith("_")}
     (output_dir / "metrics.json").write_text(json.dumps(clean, indent=2))
-    pngs = evaluation_plots(result, output_dir, system)
+    pngs = evaluation_plots(result, output_dir)
+    sections = result.get("_sections", {}).values()
     lines = [f"# Evaluation: {clean['variant']} on {clean.get('data', '?')} ({clean.get('split', '?')} split, "
              f"{clean['num_trajectories']} trajectories)", "",
              f"Rollouts: {clean['integrator']}, dt = {clean['dt']:g} s, horizon {clean['horizon_s']:g} s.", "",
              "| metric | value |", "|---|---|"]
-    for k, v in clean.get("acc_rel_err", {}).items():
-        lines.append(f"| acceleration rel. L2 error ({k}) | {v:.4f} |")
-    units = "rad" if all(system.angle_mask) else "(rad or m)"
-    for key in sorted(k for k in clean if k.startswith("divergence_time@")):
-        d, thr = clean[key], key.split("@")[1]
-        lines.append(f"| time to {thr} {units} error, model: median [q25, q75] (s) | {d['model']['median']:.2f} "
-                     f"[{d['model']['q25']:.2f}, {d['model']['q75']:.2f}] |")
-        if "exact_perturbed" in d:
-            e = d["exact_perturbed"]
-            lines.append(f"| same, exact system started {clean.get('perturbation', 1e-6):g} off (s) | "
-                         f"{e['median']:.2f} [{e['q25']:.2f}, {e['q75']:.2f}] |")
-    if "energy_drift" in clean:
-        e = clean["energy_drift"]
-        lines.append(f"| true-energy drift / (V_max - V_min): mean, max | {e['mean']:.2e}, {e['max']:.2e} |")
-    if "power_balance_error" in clean:
-        e = clean["power_balance_error"]
-        lines.append(f"| power-balance error \\|E(t) - E(0) - W(t)\\| / (V_max - V_min): mean, max | "
-                     f"{e['mean']:.2e}, {e['max']:.2e} |")
-    if "torque_nrmse" in clean:
-        t = clean["torque_nrmse"]
-        lines.append("| inverse-dynamics torque error, normalised RMSE: mean (" + ", ".join(k for k in t if k != "mean")
-                     + f") | {t['mean']:.4f} (" + ", ".join(f"{v:.4f}" for k, v in t.items() if k != "mean") + ") |")
-    if "friction" in clean:
-        f = clean["friction"]
-        lines.append(f"| friction-torque curve rel. L2 error, median [p90] over trajectories and joints | "
-                     f"{f['curve_rel_err_median']:.4f} [{f['curve_rel_err_p90']:.4f}] |")
-    if "free_decay" in clean:
-        d = clean["free_decay"]
-        lines.append(f"| free decay over {d['seconds']:g} s, inputs off: energy lost, rel. error (median) | "
-                     f"{d['energy_lost_rel_err_median']:.4f} |")
-    if "rollout_non_finite_fraction" in clean:
-        lines.append(f"| non-finite rollouts | {clean['rollout_non_finite_fraction']:.3f} |")
-    if "mass_matrix" in clean:
-        m = clean["mass_matrix"]
-        lines.append(f"| mass-matrix rel. Frobenius error (best scale per system): median, max | "
-                     f"{m['rel_frobenius_median']:.4f}, {m['rel_frobenius_max']:.4f} |")
-        lines.append(f"| cond(M) of the learned mass matrix: median, max | {m['cond_median']:.1f}, {m['cond_max']:.1f} |")
-    if "horizons" in clean:
-        h = clean["horizons"]
-        hs = sorted(k for k in h if k.startswith("error@"))
-        lines += ["", f"Open-loop from {h['num_starts']} start points (every {h['start_every_s']:g} s of each "
-                      f"trajectory), driven by the recorded inputs:", "",
-                  "| | " + " | ".join(k.replace("error@", "after ") for k in hs) + " |", "|---" * (len(hs) + 1) + "|",
-                  "| coordinate error, median | " + " | ".join(f"{h[k]['median']:.4f}" for k in hs) + " |",
-                  "| coordinate error, 90th percentile | " + " | ".join(f"{h[k]['p90']:.4f}" for k in hs) + " |"]
-        for k in sorted(k for k in h if k.startswith("time_to@")):
-            d = h[k]
-            lines.append(f"\nTime until the error exceeds {k.split('@')[1]}: median {d['median']:.3f} s "
-                         f"[{d['q25']:.3f}, {d['q75']:.3f}] (censored at {h['horizon_s']:g} s).")
-    if "ood" in clean:
-        names = ", ".join(system.param_names)
-        lines += ["", "Out-of-distribution cases (the scene's own):", "",
-                  f"| ({names}) | [q0, qd0] | acc. rel. L2 | time to 0.1 error (s) | energy drift mean / max |",
-                  "|---|---|---|---|---|"]
-        for c in clean["ood"]:
-            lines.append(f"| {tuple(c['params'])} | {c['state0']} | {c['acc_rel_err']:.4f} | "
-                         f"{c['divergence_time@0.1']:.2f} | {c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |")
-    if "stability" in clean:
-        from ..stability import stability_markdown
-
-        lines += ["", f"Stability on hard cases ({clean['integrator']}, dt = {clean['dt']:g} s; `lnn_torch.stability`):", "",
-                  stability_markdown({clean["variant"]: clean["stability"]})]
+    for s in sections:
+        lines += s.rows
+    for s in sections:
+        lines += s.blocks
+    if clean.get("skipped"):
+        lines += ["", "Skipped sections:", ""] + [f"* {name}: {why}" for name, why in clean["skipped"].items()]
     lines += ["", "Plots: " + ", ".join(p.name for p in pngs)]
     (output_dir / "report.md").write_text("\n".join(lines) + "\n")
     return [output_dir / "metrics.json", output_dir / "report.md", *pngs]
@@ -131,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     from ..checkpoints import PRETRAINED, data_hparams, load_model
     from ..data import DatasetSpec, TrajectoryDataModule, generate_dataset, read_dataset
-    from ..evaluation import REPORT_SECTIONS, evaluate_model
+    from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu
 
     args = _parser().parse_args(argv)
@@ -155,7 +107,7 @@ def main(argv: list[str]) -> int:
     dm = TrajectoryDataModule(path=str(data), spec=None if f.measured else dict(f.spec),
                               targets=saved.get("targets", "file"))
     result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
-                            sections=REPORT_SECTIONS, integrator=args.integrator, dt=args.dt, horizon=args.horizon,
+                            sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}
     if args.output_dir:

@@ -7,6 +7,7 @@ returns SI units. Shapes: ``q, qd (B, dof)``, ``params (B, P)`` -> ``(B, dof)``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from dataclasses import dataclass
@@ -19,6 +20,18 @@ from ..dynamics import SingularHessianError
 from ..perf import apply_cpu_defaults, compile_fn, compile_pays
 from ..systems.base import InputError
 from .normalization import Normalizer
+
+
+# ---------------------------------------------------------------------------- capabilities
+# What a model can give beyond accelerations and rollouts. A class declares them in ``provides``;
+# ``DynamicsModel.capabilities`` keeps those its scene allows (evaluation asks only this).
+ENERGY = "energy"  # its own energy H = T + V: ``energy_si(q, qd, params)``
+MASS_MATRIX = "mass_matrix"  # ``mass_matrix_si(q, params)`` (SI) and ``mass_matrix(q, params)`` (normalised)
+INVERSE_DYNAMICS = "inverse_dynamics"  # ``inverse_dynamics(q, qd, qdd, params)``: needs a scene with inputs
+FRICTION = "friction"  # learned joint friction: ``friction_torque_si``, ``friction_coefficients_si``; needs friction
+STATIC_FRICTION = "static_friction"  # holding torques at rest (``dissipation: joint+stiction``)
+NAN_ON_SINGULAR = "nan_on_singular"  # accelerations can be undefined; NaN there within ``nan_on_singular()``
+CAPABILITIES = (ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, NAN_ON_SINGULAR)
 
 
 def wrap_angle(q: torch.Tensor) -> torch.Tensor:
@@ -89,6 +102,9 @@ class DynamicsModel(nn.Module):
     # static friction needs accelerations affine in the generalised force through a positive definite
     # mass matrix (the joints' response D M^-1 D^T to a torque)
     static_friction = True
+    # what the class can give beyond accelerations and rollouts (the constants above); the instance's
+    # ``capabilities`` keeps those its scene allows
+    provides: frozenset[str] = frozenset()
 
     def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
         super().__init__()
@@ -303,7 +319,7 @@ class DynamicsModel(nn.Module):
         out = {"target": self.normalizer.accel_to_norm(qdd), "rms": self.normalizer.accel_rms.to(q.dtype)}
         tau_n = None if tau is None else tau / self.normalizer.input_rms.to(tau.dtype)
         if torque:
-            if not hasattr(self, "inverse_dynamics_norm") or tau is None:
+            if INVERSE_DYNAMICS not in self.capabilities or tau is None:
                 raise InputError(f"a torque loss needs a structured model of an actuated scene with inputs in the "
                                  f"data (variant '{self.variant}', {self.scene.num_inputs} inputs)")
             Btau = self.inverse_dynamics_norm(q_n, qd_n, out["target"], p_n, chunks)
@@ -471,5 +487,100 @@ class DynamicsModel(nn.Module):
         a learned input matrix, a potential's or a rigid chain's constants): training exempts them
         from weight decay, which would pull a mass or a length towards zero."""
         return [] if self.forces is None else self.forces.coefficient_parameters()
+
+    # ------------------------------------------------------------------ capabilities and SI accessors
+    @property
+    def capabilities(self) -> frozenset[str]:
+        """What this model gives beyond accelerations and rollouts: the class's ``provides`` less what
+        its scene rules out (inverse dynamics needs inputs; friction and static friction need the
+        scene's friction, learned by the model's ``LearnedForces``)."""
+        caps = set(self.provides)
+        forces = self.forces
+        if forces is None or not forces.num_inputs:
+            caps.discard(INVERSE_DYNAMICS)
+        if forces is None or not forces.friction:
+            caps.discard(FRICTION)
+        if forces is None or not forces.stiction:
+            caps.discard(STATIC_FRICTION)
+        return frozenset(caps)
+
+    def missing(self, *needed: str) -> str | None:
+        """Why this model cannot give the capabilities ``needed`` (a sentence), or None if it can."""
+        lacking = [c for c in needed if c not in self.capabilities]
+        if not lacking:
+            return None
+        scene = self.scene.name
+        ruled_out = {INVERSE_DYNAMICS: f"scene '{scene}' has no inputs (inverse dynamics needs them)",
+                     FRICTION: f"scene '{scene}' has no friction",
+                     STATIC_FRICTION: "the model has no static friction (dissipation 'joint+stiction')"}
+        absent = [c for c in lacking if c not in self.provides]
+        if absent:
+            return f"variant '{self.variant}' does not provide {', '.join(absent)}"
+        return "; ".join(ruled_out.get(c, c) for c in lacking)
+
+    def _require(self, capability: str) -> None:
+        reason = self.missing(capability)
+        if reason is not None:
+            raise InputError(reason)
+
+    _nan_depth = 0  # how many ``nan_on_singular()`` blocks the model is in
+
+    @property
+    def raise_on_singular(self) -> bool:
+        """Whether undefined accelerations (singular Hessians) raise; False only within ``nan_on_singular()``."""
+        return self._nan_depth == 0
+
+    @contextlib.contextmanager
+    def nan_on_singular(self):
+        """Within the block, undefined accelerations (``NAN_ON_SINGULAR`` models: the black-box LNN's
+        singular Hessians) are NaN instead of raising ``SingularHessianError`` (nested blocks allowed)."""
+        self._nan_depth += 1
+        try:
+            yield self
+        finally:
+            self._nan_depth -= 1
+
+    def _si_inputs(self, *tensors):
+        """The tensors in the model's dtype (the networks run in it; the SI accessors return the
+        dtype they were given)."""
+        return tuple(x.to(self.dtype) for x in tensors)
+
+    def _joules(self, value: torch.Tensor) -> torch.Tensor:
+        """An energy-like quantity of the normalised Lagrangian in J where the scene's inputs fix the
+        Lagrangian's scale (``L_SI = L_norm / force_scale``); without inputs the scale is free (``cL``
+        has the same motion) and it stays in the model's own units."""
+        return value / float(self.normalizer.force_scale) if self.scene.num_inputs else value
+
+    def energy_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """The model's own energy ``H = T + V`` at SI states ``(B, dof), (B, dof), (B, P) -> (B,)`` (``q``'s
+        dtype): in J for a scene with inputs, else in the model's units (see ``_joules``). ``ENERGY``."""
+        self._require(ENERGY)
+        q_n, qd_n, p_n = self.normalize(*self._si_inputs(q, qd, params))
+        return self._joules(self.energy_norm(q_n, qd_n, p_n)[0].to(q.dtype))
+
+    def mass_matrix_si(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """The learned mass matrix ``(B, dof, dof)`` of ``energy_si``'s kinetic energy, SI velocities
+        (``D M_norm D``, ``D = diag(time_scale / coord_scale)``; in J s^2 per unit^2 for a scene with
+        inputs, else up to the Lagrangian's free scale). ``MASS_MATRIX``."""
+        self._require(MASS_MATRIX)
+        q_n, _, p_n = self.normalize(*self._si_inputs(q, q, params))
+        M_n = self.mass_matrix_norm(q_n, p_n).to(q.dtype)
+        norm = self.normalizer
+        D = norm.time_scale.to(q.dtype) / norm.coord_scale.to(q.dtype)
+        return self._joules(D[:, None] * M_n * D[None, :])
+
+    def friction_torque_si(self, rates: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """The learned joint friction torque (N m) at joint rates ``rates (..., n_j)`` (the scene's
+        ``joint_map @ qd``) for parameters ``params (..., P)``; ``rates``' dtype. ``FRICTION``."""
+        self._require(FRICTION)
+        r, p = self._si_inputs(rates, params)
+        return self.forces.friction_torque(r, self.normalizer.params(p)).to(rates.dtype)
+
+    def friction_coefficients_si(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The learned viscous (N m s/rad) and Coulomb (N m) coefficients per joint ``(B, n_j)`` each,
+        in ``params``' dtype. ``FRICTION``."""
+        self._require(FRICTION)
+        b, c = self.forces.coefficients(self.normalizer.params(params.to(self.dtype)))
+        return b.to(params.dtype), c.to(params.dtype)
 
     forward = acceleration

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 from ..dynamics import generic_acceleration
-from .base import DynamicsModel
+from .base import ENERGY, FRICTION, NAN_ON_SINGULAR, DynamicsModel
 from .layers import TangentMLP
 
 
@@ -29,7 +29,6 @@ class BlackBoxLagrangian(DynamicsModel):
         if lnn_init:
             self.net.lnn_init()
         self.hessian_reg = float(hessian_reg)
-        self.raise_on_singular = True
 
     def lagrangian_norm(self, q_norm, qd_norm, params_norm):
         phi, _ = self.features(q_norm[None])
@@ -41,7 +40,7 @@ class BlackBoxLagrangian(DynamicsModel):
         Singular-Hessian policy: the velocity Hessian of an arbitrary network can be indefinite, and
         singular somewhere (an untrained one always is, somewhere along a rollout). With
         ``hessian_reg == 0`` (default) such states raise ``SingularHessianError`` (in ``acceleration``
-        and rollouts alike) while ``raise_on_singular`` is True, and give NaN otherwise (training
+        and rollouts alike), and give NaN within ``nan_on_singular()`` (training
         skips those steps; evaluations count those trajectories as non-finite). ``hessian_reg > 0``
         solves the Levenberg-regularised system ``H + hessian_reg (mean|diag H| + 1) I`` instead.
         """
@@ -50,11 +49,8 @@ class BlackBoxLagrangian(DynamicsModel):
 
     def training_terms(self, *args, **kwargs) -> dict:
         """As ``DynamicsModel.training_terms``; singular Hessians give NaN there (the step is skipped)."""
-        previous, self.raise_on_singular = self.raise_on_singular, False
-        try:
+        with self.nan_on_singular():
             return super().training_terms(*args, **kwargs)
-        finally:
-            self.raise_on_singular = previous
 
     def energy_norm(self, q_norm, qd_norm, params_norm):
         L_fn = torch.func.vmap(self.lagrangian_norm)
@@ -63,3 +59,5 @@ class BlackBoxLagrangian(DynamicsModel):
         T = 0.5 * (p * qd_norm).sum(-1)
         H = 2 * T - L
         return H, T, T - L
+
+    provides = frozenset({ENERGY, FRICTION, NAN_ON_SINGULAR})  # no mass matrix: its velocity Hessian may be indefinite

@@ -26,3 +26,5 @@ class DirectMLP(DynamicsModel):
         phi, _ = self.features(q_norm)
         x = [phi, qd_norm, params_norm] + ([] if tau_norm is None else [tau_norm])
         return self.net(torch.cat(x, -1))[0]
+
+    provides = frozenset()  # accelerations only: no energy, no forces of its own

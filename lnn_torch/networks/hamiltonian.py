@@ -6,7 +6,7 @@ import torch
 
 from .. import integrators
 from ..systems.base import InputError
-from .base import DynamicsModel
+from .base import FRICTION, DynamicsModel
 from .layers import TangentMLP
 
 
@@ -164,3 +164,6 @@ class HamiltonianNN(DynamicsModel):
         else:
             qds_n = ms_n
         return self.normalizer.state_to_phys(qs_n, qds_n)
+
+    # learned friction through its port; no energy of (q, qd) (its H is a function of (q, p)), no mass matrix
+    provides = frozenset({FRICTION})

@@ -25,7 +25,7 @@ from torch import nn
 
 from ..dynamics import structured_acceleration_from_factor
 from ..systems.base import GRAVITY, InputError
-from .base import DynamicsModel
+from .base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION, DynamicsModel
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 
@@ -79,6 +79,7 @@ class StructuredLagrangian(DynamicsModel):
     """
 
     conditioning = ""  # "film" or "concat": fixed by the concrete variants
+    provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION})
 
     def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
                  learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links) -> None:
