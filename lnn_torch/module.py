@@ -21,7 +21,7 @@ import lightning as L
 import torch
 
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
-from .losses import acceleration_loss, energy_variance
+from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .networks import model_options as model_options_of
 from .perf import adamw, compile_fn, compile_pays_training, configure_cpu
@@ -276,26 +276,17 @@ class LNNModule(L.LightningModule):
         from .evaluation import counting_failures
 
         q, qd = batch["q"], batch["qd"]
-        C, L, _ = q.shape
-        if L < 2:
+        if q.shape[1] < 2:
             raise ValueError("trajectory matching needs chunks of at least 2 points (data.chunk_len >= 2)")
         tau = batch["tau"][:, :-1] if "tau" in batch else None
-        dt = self.data_dt or 1.0
-        with counting_failures(self.model):
-            qs, qds = self.model.rollout(q[:, 0], qd[:, 0], batch["params"][:, 0], dt, L - 1,
-                                         self.hparams.trajectory_integrator, tau=tau)
         norm = self.model.normalizer
-        span = (L - 1) * dt / float(norm.time_scale)  # the window in normalised time
-        scale = norm.coord_scale.to(q.dtype)
-        err = (qs[:, 1:] - q[:, 1:]) / scale / (0.5 * span**2)
-        loss = torch.nn.functional.huber_loss(err, torch.zeros_like(err), delta=self.hparams.huber_delta)
-        parts = {"trajectory": loss}
-        if self.hparams.trajectory_velocity_weight > 0:
-            err_v = (qds[:, 1:] - qd[:, 1:]) * (float(norm.time_scale) / scale) / span
-            parts["trajectory_velocity"] = torch.nn.functional.huber_loss(err_v, torch.zeros_like(err_v),
-                                                                          delta=self.hparams.huber_delta)
-            loss = loss + self.hparams.trajectory_velocity_weight * parts["trajectory_velocity"]
-        return loss, parts
+        velocity_weight = self.hparams.trajectory_velocity_weight
+        with counting_failures(self.model):  # residuals in normalised coordinates and time
+            err, err_v = shooting_residuals(self.model, q[:, 0], qd[:, 0], batch["params"][:, 0], self.data_dt or 1.0,
+                                            q, self.hparams.trajectory_integrator, tau=tau,
+                                            qd_windows=qd if velocity_weight > 0 else None,
+                                            scale=norm.coord_scale.to(q.dtype), time_scale=float(norm.time_scale))
+        return trajectory_loss(err, err_v, huber_delta=self.hparams.huber_delta, velocity_weight=velocity_weight)
 
     def _training_loss(self, batch, pass_fn):
         """``(loss, parts)``: the total loss and its logged parts (``huber``, ``energy_var``, ``torque``,
@@ -309,22 +300,10 @@ class LNNModule(L.LightningModule):
         params = batch["params"]
         shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
         out = pass_fn(*flat, tau, C if shared else None)
-        huber = acceleration_loss(out["pred"], out["target"], out["rms"], self.hparams.huber_delta)
-        loss, parts = huber, {"huber": huber}
-        if "H" in out:
-            H, T, V = (out[k].reshape(C, L) for k in ("H", "T", "V"))
-            if "power" in out:  # power balance: H minus the work of the model's own forces (trapezoid)
-                dt_norm = (self.data_dt or 1.0) / float(self.model.normalizer.time_scale)
-                power = out["power"].reshape(C, L)
-                step = 0.5 * dt_norm * (power[:, 1:] + power[:, :-1])
-                H = H - torch.cat([torch.zeros_like(H[:, :1]), step.cumsum(1)], 1)
-            parts["energy_var"] = energy_variance(H, T, V)
-            loss = loss + self.hparams.energy_weight * parts["energy_var"]
-        if "tau_pred" in out:
-            parts["torque"] = acceleration_loss(out["tau_pred"], out["tau_target"], torch.ones_like(out["tau_target"][0]),
-                                                self.hparams.huber_delta)
-            loss = loss + self.hparams.torque_weight * parts["torque"]
-        return loss, parts
+        # the power balance integrates the forces' power over the data's step, in normalised time
+        dt_norm = (self.data_dt or 1.0) / float(self.model.normalizer.time_scale) if "power" in out else 1.0
+        return training_loss(out, C, L, huber_delta=self.hparams.huber_delta, energy_weight=self.hparams.energy_weight,
+                             torque_weight=self.hparams.get("torque_weight", 0), dt=dt_norm)
 
     def _compile_failed(self, err: Exception) -> None:
         import warnings
