@@ -24,7 +24,7 @@ from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
 from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .networks import model_options as model_options_of
-from .perf import adamw, compile_fn, compile_pays_training, configure_cpu
+from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
 
 # options that older checkpoints record with these values for every variant; a variant that does not
@@ -266,7 +266,7 @@ class LNNModule(L.LightningModule):
         if self._compiled is False or not self._compile_training():
             return self._training_pass
         if self._compiled is None:
-            self._compiled = compile_fn(self._training_pass, self.device)
+            self._compiled = CompiledFallback(self._training_pass, self.device, on_failure=self._compile_failed)
         return self._compiled
 
     def _trajectory_loss(self, batch) -> tuple[torch.Tensor, dict]:
@@ -306,21 +306,15 @@ class LNNModule(L.LightningModule):
                              torque_weight=self.hparams.get("torque_weight", 0), dt=dt_norm)
 
     def _compile_failed(self, err: Exception) -> None:
-        import warnings
-
-        warnings.warn(f"torch.compile failed ({type(err).__name__}: {str(err).splitlines()[0][:200]}); "
-                      "continuing training eagerly", RuntimeWarning)
+        """The compiled training pass failed (compiling it, a compiled call or its backward): warn once
+        and train eagerly from now on."""
+        warn_compile_failure("training pass", err, "continuing training eagerly", stacklevel=1)
         self._compiled = False
 
     def training_step(self, batch, batch_idx):
         self._last_batch = batch
-        try:
-            loss, parts = self._training_loss(batch, self._pass_fn())
-        except Exception as err:  # a compilation failure: fall back to the eager pass
-            if not self._compiled:
-                raise
-            self._compile_failed(err)
-            loss, parts = self._training_loss(batch, self._training_pass)
+        # a compilation failure of the pass falls back to the eager pass inside it (CompiledFallback)
+        loss, parts = self._training_loss(batch, self._pass_fn())
         if self._writes_logs():
             for name, value in parts.items():
                 self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
