@@ -21,21 +21,12 @@ import lightning as L
 import torch
 
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations
+from .checkpoints import old_default_widths, record_widths, without_old_checkpoint_defaults
 from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .networks import model_options as model_options_of
 from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
-
-# options that older checkpoints record with these values for every variant; a variant that does not
-# take one of them ignores it there (any other value of an option a variant does not take is an error)
-_UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps": 1e-4, "lnn_init": False,
-                             "hnn_coordinates": "canonical"}
-
-
-# film_lnn's default widths before the cost-accuracy front moved them to (64, 64): a checkpoint that
-# recorded no widths (hidden_dims None, saved before every checkpoint recorded its widths) has these
-_OLD_DEFAULT_WIDTHS = {"film_lnn": [128, 128]}
 
 
 class LNNModule(L.LightningModule):
@@ -107,9 +98,7 @@ class LNNModule(L.LightningModule):
         options = dict(hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
                        potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
                        hnn_coordinates=hnn_coordinates, **(model_options or {}))
-        known = model_options_of(variant)
-        options = {k: v for k, v in options.items()
-                   if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
+        options = without_old_checkpoint_defaults(options, model_options_of(variant))
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
@@ -134,15 +123,13 @@ class LNNModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """Record the model's widths even where they were left to the variant's default, so that a
         later change of the default cannot change what a checkpoint loads as."""
-        hp = checkpoint.get("hyper_parameters")
-        if hp is not None and hp.get("hidden_dims") is None and hasattr(self.model, "hidden_dims"):
-            hp["hidden_dims"] = list(self.model.hidden_dims)
+        record_widths(checkpoint, self.model)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """A checkpoint without recorded widths predates ``on_save_checkpoint``: it was trained with the
         variant's old default widths, which the model is rebuilt with before its weights load."""
-        old = _OLD_DEFAULT_WIDTHS.get(self.hparams.variant)
-        if self.hparams.get("hidden_dims") is None and old is not None:
+        old = old_default_widths(self.hparams)
+        if old is not None:
             self.hparams.hidden_dims = list(old)
             self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
 
