@@ -8,6 +8,9 @@ predict (structured models of actuated scenes). With ``loss="trajectory"`` (traj
 data without accelerations) the acceleration term is replaced by short differentiable rollouts of
 each chunk from its first state, driven by its inputs, compared with its positions (multiple
 shooting: every chunk is one shooting window; none crosses a trajectory's end).
+The losses are pure functions of the model's training terms (``lnn_torch.losses.training_loss``,
+``trajectory_loss``, ``shooting_residuals``); the compiled training pass runs through
+``lnn_torch.perf.CompiledFallback``; the shims for older checkpoints are in ``lnn_torch.checkpoints``.
 A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
 Validation and test call ``lnn_torch.evaluation.evaluate_model`` (relative L2 acceleration error,
 rollouts of some trajectories with their true-energy drift and divergence time) and log its result.
