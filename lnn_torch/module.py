@@ -321,7 +321,7 @@ class LNNModule(L.LightningModule):
         except Exception as err:  # the compiled backward failed: redo this step eagerly
             if not self._compiled or self._last_batch is None:
                 raise
-            self._compile_failed(err)
+            self._compiled.fail(err)  # warned once (_compile_failed); eager from now on
             self.zero_grad(set_to_none=True)
             loss, _ = self._training_loss(self._last_batch, self._training_pass)
             if not torch.isfinite(loss):
