@@ -1,5 +1,6 @@
 """One loader for trained models: a checkpoint path written by ``lnn-torch fit`` or ``pretrained:<name>``
-for a model shipped with the package (``lnn_torch/pretrained``)."""
+for a model shipped with the package (``lnn_torch/pretrained``); and the shims that let ``LNNModule``
+load checkpoints of earlier versions."""
 
 from __future__ import annotations
 
@@ -10,6 +11,45 @@ from pathlib import Path
 from .systems.base import InputError
 
 PRETRAINED = "pretrained:"
+
+# ---------------------------------------------------------------------------- old checkpoints
+# What ``LNNModule`` needs to load checkpoints saved by earlier versions with the weights they were
+# trained with.
+
+# options that older checkpoints record with these values for every variant; a variant that does not
+# take one of them ignores it there (any other value of an option a variant does not take is an error)
+_UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps": 1e-4, "lnn_init": False,
+                             "hnn_coordinates": "canonical"}
+
+
+# film_lnn's default widths before the cost-accuracy front moved them to (64, 64): a checkpoint that
+# recorded no widths (hidden_dims None, saved before every checkpoint recorded its widths) has these
+_OLD_DEFAULT_WIDTHS = {"film_lnn": [128, 128]}
+
+
+def without_old_checkpoint_defaults(options: dict, known) -> dict:
+    """``options`` of a model less those a variant (taking the options ``known``) does not take and
+    that hold the value every older checkpoint recorded for them (``_UNSET_IN_OLD_CHECKPOINTS``); any
+    other option stays, to be accepted or refused by the variant."""
+    return {k: v for k, v in options.items()
+            if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
+
+
+def record_widths(checkpoint: dict, model) -> None:
+    """Write ``model``'s widths into the ``checkpoint``'s hyper-parameters where they were left to the
+    variant's default (``hidden_dims`` None), so that a later change of the default cannot change
+    what the checkpoint loads as."""
+    hp = checkpoint.get("hyper_parameters")
+    if hp is not None and hp.get("hidden_dims") is None and hasattr(model, "hidden_dims"):
+        hp["hidden_dims"] = list(model.hidden_dims)
+
+
+def old_default_widths(hparams) -> list | None:
+    """The widths a checkpoint with these hyper-parameters was trained with where it recorded none
+    (saved before ``record_widths``): its variant's old default (``_OLD_DEFAULT_WIDTHS``); None where
+    it recorded its widths or its variant's default never changed."""
+    old = _OLD_DEFAULT_WIDTHS.get(hparams["variant"])
+    return old if hparams.get("hidden_dims") is None else None
 
 
 class CheckpointError(InputError):

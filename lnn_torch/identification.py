@@ -5,11 +5,12 @@ best explain an observed trajectory, by gradient-based optimisation through the 
 
 * ``acceleration``: the model's accelerations at the observed states against the observed (or
   estimated, ``lnn_torch.data.derivatives``) accelerations, each coordinate divided by its rms;
-* ``trajectory``: short differentiable rollouts (multiple shooting: windows of ``window`` s, each
-  from its own start state, which is fitted too, beginning at the observed position and estimated
-  velocity; driven by the observed inputs) against the observed positions, divided by the window's
-  ``(k dt)^2 / 2`` (acceleration units): no derivative estimates in the objective, so position noise
-  enters once instead of amplified by ``1/dt^2``;
+* ``trajectory``: short differentiable rollouts (multiple shooting, ``lnn_torch.losses.shooting_residuals``
+  as in training: windows of ``window`` s, each from its own start state, which is fitted too,
+  beginning at the observed position and estimated velocity; driven by the observed inputs) against
+  the observed positions, divided by the window's ``(k dt)^2 / 2`` (acceleration units): no
+  derivative estimates in the objective, so position noise enters once instead of amplified by
+  ``1/dt^2``;
 * ``both``: multi-start on the acceleration fit, then the trajectory fit from the best start.
 
 The acceleration fit (default) is the fast one: about 200 observed points suffice for a handful of
@@ -41,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .losses import shooting_residuals
 from .systems.base import InputError
 
 
@@ -223,7 +225,6 @@ class _Objectives:
         self.q_windows = q[:, window_idx]  # (N, W, k + 1, dof)
         self.q0, self.qd0 = q[:, starts], qd[:, starts]  # (N, W, dof)
         self.tau_windows = None if tau is None else tau[:, window_idx[:, :-1]]
-        self.position_scale = 0.5 * (k * dt) ** 2
         self.W, self.dof = len(starts), q.shape[2]
         self.num_states = self.W * 2 * self.dof  # the trajectory fit's free window start states
         n = self.q.shape[1]
@@ -258,9 +259,9 @@ class _Objectives:
         if states is not None:
             offset = states.reshape(N * S * W, 2, self.dof)
             q0, qd0 = q0 + STATE_SCALE[0] * offset[:, 0], qd0 + STATE_SCALE[1] * offset[:, 1]
-        qs, _ = self.model.rollout(q0, qd0, pp, self.dt, self.k, self.integrator, tau=tau)
-        err = (qs.reshape(N, S, W, self.k + 1, -1) - self.q_windows[:, None]) / self.position_scale
-        return err[:, :, :, 1:].reshape(N, S, -1)
+        windows = self.q_windows[:, None].expand(N, S, *self.q_windows.shape[1:]).reshape(N * S * W, self.k + 1, -1)
+        err, _ = shooting_residuals(self.model, q0, qd0, pp, self.dt, windows, self.integrator, tau=tau)
+        return err.reshape(N, S, -1)
 
     def loss(self, kind: str, params: torch.Tensor, states: torch.Tensor | None = None, reduce: bool = True):
         per = 0.5 * self.residuals(kind, params, states).pow(2).mean(-1)  # (N, S)

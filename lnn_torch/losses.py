@@ -1,4 +1,12 @@
-"""Training losses (pure functions)."""
+"""Training losses (pure functions): the LightningModule (``lnn_torch.module``) and identification
+(``lnn_torch.identification``) assemble their objectives from these.
+
+* ``training_loss``: the acceleration objective from a model's ``training_terms`` (Huber on
+  accelerations, the energy-conservation / power-balance term, the inverse-dynamics torque term);
+* ``trajectory_loss``: trajectory matching from multiple-shooting residuals;
+* ``shooting_residuals``: multiple shooting (each window rolled out from its own start state and
+  compared with the data), the one used by training and by identification.
+"""
 
 from __future__ import annotations
 
@@ -27,3 +35,95 @@ def energy_variance(H: torch.Tensor, T: torch.Tensor, V: torch.Tensor) -> torch.
     spread = T.var(dim=-1, unbiased=False) + V.var(dim=-1, unbiased=False)
     tiny = 1e-6 * T.abs().mean(-1).pow(2) + 1e-12
     return (var_h / (spread + tiny)).mean()
+
+
+def power_balance(H: torch.Tensor, power: torch.Tensor, dt: float) -> torch.Tensor:
+    """``H - W``: the Hamiltonian ``H (C, L)`` along each chunk minus the work ``W`` done on it by the
+    model's own forces since the chunk's first point, from their power ``(C, L)`` (trapezoid rule at
+    step ``dt``). Constant along a chunk for exact dynamics with generalised forces."""
+    step = 0.5 * dt * (power[:, 1:] + power[:, :-1])
+    return H - torch.cat([torch.zeros_like(H[:, :1]), step.cumsum(1)], 1)
+
+
+def torque_loss(tau_pred: torch.Tensor, tau_target: torch.Tensor, delta: float = 1.0) -> torch.Tensor:
+    """Huber loss on the inputs (motor torques) the model's inverse dynamics predict, both already
+    divided by the inputs' rms."""
+    return acceleration_loss(tau_pred, tau_target, torch.ones_like(tau_target[0]), delta)
+
+
+def training_loss(terms: dict, chunks: int, length: int, *, huber_delta: float = 1.0, energy_weight: float = 0.0,
+                  torque_weight: float = 0.0, dt: float = 1.0) -> tuple[torch.Tensor, dict]:
+    """``(loss, parts)``: the acceleration objective and its named parts from a model's training terms
+    (``DynamicsModel.training_terms``) on ``chunks`` contiguous chunks of ``length`` points each (rows
+    in chunk order).
+
+    * ``huber``: ``acceleration_loss`` of ``terms["pred"]`` against ``terms["target"]`` (rms ``terms["rms"]``);
+    * ``energy_var`` (where the terms hold ``H, T, V``): ``energy_variance`` per chunk, of ``H`` or,
+      with the forces' ``power``, of the power balance ``H - W`` (``power_balance`` at the data's step
+      ``dt`` in normalised time), weighted by ``energy_weight``;
+    * ``torque`` (where the terms hold ``tau_pred``): ``torque_loss``, weighted by ``torque_weight``.
+    """
+    huber = acceleration_loss(terms["pred"], terms["target"], terms["rms"], huber_delta)
+    loss, parts = huber, {"huber": huber}
+    if "H" in terms:
+        H, T, V = (terms[k].reshape(chunks, length) for k in ("H", "T", "V"))
+        if "power" in terms:
+            H = power_balance(H, terms["power"].reshape(chunks, length), dt)
+        parts["energy_var"] = energy_variance(H, T, V)
+        loss = loss + energy_weight * parts["energy_var"]
+    if "tau_pred" in terms:
+        parts["torque"] = torque_loss(terms["tau_pred"], terms["tau_target"], huber_delta)
+        loss = loss + torque_weight * parts["torque"]
+    return loss, parts
+
+
+def shooting_residual(q_rollout: torch.Tensor, q_data: torch.Tensor, span: float,
+                      scale: torch.Tensor | None = None) -> torch.Tensor:
+    """Position residuals of multiple shooting: ``(..., k + 1, dof)`` rolled-out and observed positions
+    of windows of ``k`` steps (each window's first point its start) give ``(..., k, dof)``, the error at
+    every point after the start, divided by ``scale`` (coordinates; None: as given) and by
+    ``span^2 / 2`` with ``span`` the window's duration (``k dt``): acceleration units, so the window's
+    length does not weight it."""
+    err = q_rollout[..., 1:, :] - q_data[..., 1:, :]
+    if scale is not None:
+        err = err / scale
+    return err / (0.5 * span**2)
+
+
+def shooting_velocity_residual(qd_rollout: torch.Tensor, qd_data: torch.Tensor, span: float,
+                               scale: torch.Tensor | None = None, time_scale: float = 1.0) -> torch.Tensor:
+    """Velocity residuals of multiple shooting (shapes as ``shooting_residual``): the error after each
+    window's start in units of ``scale / time_scale`` (``scale`` None: 1), divided by ``span``."""
+    factor = time_scale if scale is None else time_scale / scale
+    return (qd_rollout[..., 1:, :] - qd_data[..., 1:, :]) * factor / span
+
+
+def shooting_residuals(model, q0: torch.Tensor, qd0: torch.Tensor, params: torch.Tensor, dt: float,
+                       q_windows: torch.Tensor, integrator: str = "rk4", tau: torch.Tensor | None = None,
+                       qd_windows: torch.Tensor | None = None, scale: torch.Tensor | None = None,
+                       time_scale: float = 1.0) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Multiple shooting: each of ``B`` windows of ``k + 1`` points, ``q_windows (B, k + 1, dof)``, rolled
+    out ``k`` steps of ``dt`` (s) from its start state ``q0, qd0 (B, dof)`` with ``model.rollout``
+    (parameters ``params (B, P)``, inputs ``tau (B, k, n_u)`` held over each step) and compared with
+    it. Returns the position residuals ``(B, k, dof)`` (``shooting_residual``, divided by ``scale`` and
+    by the window's duration in units of ``time_scale`` s) and, where ``qd_windows`` is given, the
+    velocity residuals (``shooting_velocity_residual``; else None)."""
+    k = q_windows.shape[-2] - 1
+    qs, qds = model.rollout(q0, qd0, params, dt, k, integrator, tau=tau)
+    span = k * dt / time_scale  # the window in the residuals' time unit
+    err = shooting_residual(qs, q_windows, span, scale)
+    err_v = None if qd_windows is None else shooting_velocity_residual(qds, qd_windows, span, scale, time_scale)
+    return err, err_v
+
+
+def trajectory_loss(err: torch.Tensor, err_v: torch.Tensor | None = None, *, huber_delta: float = 1.0,
+                    velocity_weight: float = 0.0) -> tuple[torch.Tensor, dict]:
+    """``(loss, parts)`` of trajectory matching: Huber on the position residuals of multiple shooting
+    (``trajectory``) plus ``velocity_weight`` x Huber on the velocity residuals
+    (``trajectory_velocity``, where ``velocity_weight > 0``)."""
+    loss = F.huber_loss(err, torch.zeros_like(err), delta=huber_delta)
+    parts = {"trajectory": loss}
+    if velocity_weight > 0:
+        parts["trajectory_velocity"] = F.huber_loss(err_v, torch.zeros_like(err_v), delta=huber_delta)
+        loss = loss + velocity_weight * parts["trajectory_velocity"]
+    return loss, parts

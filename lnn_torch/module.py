@@ -8,6 +8,9 @@ predict (structured models of actuated scenes). With ``loss="trajectory"`` (traj
 data without accelerations) the acceleration term is replaced by short differentiable rollouts of
 each chunk from its first state, driven by its inputs, compared with its positions (multiple
 shooting: every chunk is one shooting window; none crosses a trajectory's end).
+The losses are pure functions of the model's training terms (``lnn_torch.losses.training_loss``,
+``trajectory_loss``, ``shooting_residuals``); the compiled training pass runs through
+``lnn_torch.perf.CompiledFallback``; the shims for older checkpoints are in ``lnn_torch.checkpoints``.
 A non-finite loss or gradient skips the optimiser step (counted in ``train/skipped_steps``).
 Validation and test call ``lnn_torch.evaluation.evaluate_model`` (relative L2 acceleration error,
 rollouts of some trajectories with their true-energy drift and divergence time) and log its result.
@@ -20,23 +23,14 @@ import math
 import lightning as L
 import torch
 
+from .checkpoints import old_default_widths, record_widths, without_old_checkpoint_defaults
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
-from .losses import acceleration_loss, energy_variance
+from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .networks.base import INVERSE_DYNAMICS, STATIC_FRICTION
 from .networks import model_options as model_options_of
-from .perf import adamw, compile_fn, compile_pays_training, configure_cpu
+from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
-
-# options that older checkpoints record with these values for every variant; a variant that does not
-# take one of them ignores it there (any other value of an option a variant does not take is an error)
-_UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps": 1e-4, "lnn_init": False,
-                             "hnn_coordinates": "canonical"}
-
-
-# film_lnn's default widths before the cost-accuracy front moved them to (64, 64): a checkpoint that
-# recorded no widths (hidden_dims None, saved before every checkpoint recorded its widths) has these
-_OLD_DEFAULT_WIDTHS = {"film_lnn": [128, 128]}
 
 
 class LNNModule(L.LightningModule):
@@ -108,9 +102,7 @@ class LNNModule(L.LightningModule):
         options = dict(hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
                        potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
                        hnn_coordinates=hnn_coordinates, **(model_options or {}))
-        known = model_options_of(variant)
-        options = {k: v for k, v in options.items()
-                   if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
+        options = without_old_checkpoint_defaults(options, model_options_of(variant))
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
@@ -135,15 +127,13 @@ class LNNModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """Record the model's widths even where they were left to the variant's default, so that a
         later change of the default cannot change what a checkpoint loads as."""
-        hp = checkpoint.get("hyper_parameters")
-        if hp is not None and hp.get("hidden_dims") is None and hasattr(self.model, "hidden_dims"):
-            hp["hidden_dims"] = list(self.model.hidden_dims)
+        record_widths(checkpoint, self.model)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """A checkpoint without recorded widths predates ``on_save_checkpoint``: it was trained with the
         variant's old default widths, which the model is rebuilt with before its weights load."""
-        old = _OLD_DEFAULT_WIDTHS.get(self.hparams.variant)
-        if self.hparams.get("hidden_dims") is None and old is not None:
+        old = old_default_widths(self.hparams)
+        if old is not None:
             self.hparams.hidden_dims = list(old)
             self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
 
@@ -267,7 +257,7 @@ class LNNModule(L.LightningModule):
         if self._compiled is False or not self._compile_training():
             return self._training_pass
         if self._compiled is None:
-            self._compiled = compile_fn(self._training_pass, self.device)
+            self._compiled = CompiledFallback(self._training_pass, self.device, on_failure=self._compile_failed)
         return self._compiled
 
     def _trajectory_loss(self, batch) -> tuple[torch.Tensor, dict]:
@@ -277,26 +267,17 @@ class LNNModule(L.LightningModule):
         from .evaluation import counting_failures
 
         q, qd = batch["q"], batch["qd"]
-        C, L, _ = q.shape
-        if L < 2:
+        if q.shape[1] < 2:
             raise ValueError("trajectory matching needs chunks of at least 2 points (data.chunk_len >= 2)")
         tau = batch["tau"][:, :-1] if "tau" in batch else None
-        dt = self.data_dt or 1.0
-        with counting_failures(self.model):
-            qs, qds = self.model.rollout(q[:, 0], qd[:, 0], batch["params"][:, 0], dt, L - 1,
-                                         self.hparams.trajectory_integrator, tau=tau)
         norm = self.model.normalizer
-        span = (L - 1) * dt / float(norm.time_scale)  # the window in normalised time
-        scale = norm.coord_scale.to(q.dtype)
-        err = (qs[:, 1:] - q[:, 1:]) / scale / (0.5 * span**2)
-        loss = torch.nn.functional.huber_loss(err, torch.zeros_like(err), delta=self.hparams.huber_delta)
-        parts = {"trajectory": loss}
-        if self.hparams.trajectory_velocity_weight > 0:
-            err_v = (qds[:, 1:] - qd[:, 1:]) * (float(norm.time_scale) / scale) / span
-            parts["trajectory_velocity"] = torch.nn.functional.huber_loss(err_v, torch.zeros_like(err_v),
-                                                                          delta=self.hparams.huber_delta)
-            loss = loss + self.hparams.trajectory_velocity_weight * parts["trajectory_velocity"]
-        return loss, parts
+        velocity_weight = self.hparams.trajectory_velocity_weight
+        with counting_failures(self.model):  # residuals in normalised coordinates and time
+            err, err_v = shooting_residuals(self.model, q[:, 0], qd[:, 0], batch["params"][:, 0], self.data_dt or 1.0,
+                                            q, self.hparams.trajectory_integrator, tau=tau,
+                                            qd_windows=qd if velocity_weight > 0 else None,
+                                            scale=norm.coord_scale.to(q.dtype), time_scale=float(norm.time_scale))
+        return trajectory_loss(err, err_v, huber_delta=self.hparams.huber_delta, velocity_weight=velocity_weight)
 
     def _training_loss(self, batch, pass_fn):
         """``(loss, parts)``: the total loss and its logged parts (``huber``, ``energy_var``, ``torque``,
@@ -310,39 +291,21 @@ class LNNModule(L.LightningModule):
         params = batch["params"]
         shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
         out = pass_fn(*flat, tau, C if shared else None)
-        huber = acceleration_loss(out["pred"], out["target"], out["rms"], self.hparams.huber_delta)
-        loss, parts = huber, {"huber": huber}
-        if "H" in out:
-            H, T, V = (out[k].reshape(C, L) for k in ("H", "T", "V"))
-            if "power" in out:  # power balance: H minus the work of the model's own forces (trapezoid)
-                dt_norm = (self.data_dt or 1.0) / float(self.model.normalizer.time_scale)
-                power = out["power"].reshape(C, L)
-                step = 0.5 * dt_norm * (power[:, 1:] + power[:, :-1])
-                H = H - torch.cat([torch.zeros_like(H[:, :1]), step.cumsum(1)], 1)
-            parts["energy_var"] = energy_variance(H, T, V)
-            loss = loss + self.hparams.energy_weight * parts["energy_var"]
-        if "tau_pred" in out:
-            parts["torque"] = acceleration_loss(out["tau_pred"], out["tau_target"], torch.ones_like(out["tau_target"][0]),
-                                                self.hparams.huber_delta)
-            loss = loss + self.hparams.torque_weight * parts["torque"]
-        return loss, parts
+        # the power balance integrates the forces' power over the data's step, in normalised time
+        dt_norm = (self.data_dt or 1.0) / float(self.model.normalizer.time_scale) if "power" in out else 1.0
+        return training_loss(out, C, L, huber_delta=self.hparams.huber_delta, energy_weight=self.hparams.energy_weight,
+                             torque_weight=self.hparams.get("torque_weight", 0), dt=dt_norm)
 
     def _compile_failed(self, err: Exception) -> None:
-        import warnings
-
-        warnings.warn(f"torch.compile failed ({type(err).__name__}: {str(err).splitlines()[0][:200]}); "
-                      "continuing training eagerly", RuntimeWarning)
+        """The compiled training pass failed (compiling it, a compiled call or its backward): warn once
+        and train eagerly from now on."""
+        warn_compile_failure("training pass", err, "continuing training eagerly", stacklevel=1)
         self._compiled = False
 
     def training_step(self, batch, batch_idx):
         self._last_batch = batch
-        try:
-            loss, parts = self._training_loss(batch, self._pass_fn())
-        except Exception as err:  # a compilation failure: fall back to the eager pass
-            if not self._compiled:
-                raise
-            self._compile_failed(err)
-            loss, parts = self._training_loss(batch, self._training_pass)
+        # a compilation failure of the pass falls back to the eager pass inside it (CompiledFallback)
+        loss, parts = self._training_loss(batch, self._pass_fn())
         if self._writes_logs():
             for name, value in parts.items():
                 self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
@@ -359,7 +322,7 @@ class LNNModule(L.LightningModule):
         except Exception as err:  # the compiled backward failed: redo this step eagerly
             if not self._compiled or self._last_batch is None:
                 raise
-            self._compile_failed(err)
+            self._compiled.fail(err)  # warned once (_compile_failed); eager from now on
             self.zero_grad(set_to_none=True)
             loss, _ = self._training_loss(self._last_batch, self._training_pass)
             if not torch.isfinite(loss):

@@ -139,6 +139,54 @@ def compile_fn(fn, device: torch.device | str = "cpu"):
     return torch.compile(fn, dynamic=False, options=options)
 
 
+def warn_compile_failure(what: str, err: Exception, then: str = "continuing eagerly", stacklevel: int = 2) -> None:
+    """The warning of a failed compilation or compiled call: ``compiled {what} failed (Error: its first
+    line); {then}``."""
+    first = str(err).splitlines()[0][:200] if str(err) else ""
+    warnings.warn(f"compiled {what} failed ({type(err).__name__}: {first}); {then}", RuntimeWarning,
+                  stacklevel=stacklevel + 1)
+
+
+class CompiledFallback:
+    """``fn`` through ``compile_fn`` with the eager fallback: the library's one compile-with-fallback
+    (the model's compiled dynamics, ``DynamicsModel.compile_dynamics``, and the compiled training pass,
+    ``LNNModule(compile=...)``).
+
+    ``fn`` is compiled on the first call (``compiler(fn, device)``, default ``compile_fn``). If compiling
+    or a compiled call raises anything but ``passthrough`` (the caller's own errors, not compilation
+    failures), ``on_failure(err)`` is called once (its owner warns, ``warn_compile_failure``, and
+    continues eagerly) and this call and every later one run ``fn`` eagerly; with ``eager=False`` they
+    return None instead, for a caller that redoes more than this one call eagerly.
+    """
+
+    def __init__(self, fn, device: torch.device | str = "cpu", on_failure=None, passthrough: tuple = (),
+                 eager: bool = True, compiler=None) -> None:
+        self.fn, self.device, self.on_failure = fn, device, on_failure
+        self.passthrough, self.eager = tuple(passthrough), eager
+        self.compiler = compiler or compile_fn
+        self.compiled = None  # built on the first call
+        self.failed = False
+
+    def __call__(self, *args):
+        if not self.failed:
+            try:
+                if self.compiled is None:
+                    self.compiled = self.compiler(self.fn, self.device)
+                return self.compiled(*args)
+            except self.passthrough:
+                raise
+            except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
+                self.fail(err)
+        return self.fn(*args) if self.eager else None
+
+    def fail(self, err: Exception) -> None:
+        """Run eagerly from now on; ``on_failure(err)`` the first time."""
+        if not self.failed:
+            self.failed, self.compiled = True, None
+            if self.on_failure is not None:
+                self.on_failure(err)
+
+
 def adamw(parameters, **kwargs) -> torch.optim.AdamW:
     """AdamW with the fused kernel where torch has one for the device (CPU and GPU), else the loop.
     The fused kernel is faster than the per-parameter loop for these small networks."""

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import warnings
 from dataclasses import dataclass
 
 import torch
@@ -17,7 +16,7 @@ from torch import nn
 
 from .. import integrators
 from ..dynamics import SingularHessianError
-from ..perf import apply_cpu_defaults, compile_fn, compile_pays
+from ..perf import CompiledFallback, apply_cpu_defaults, compile_fn, compile_pays, warn_compile_failure
 from ..systems.base import InputError
 from .normalization import Normalizer
 
@@ -376,19 +375,16 @@ class DynamicsModel(nn.Module):
         """``rollout`` through the compiled ``_rollout_step`` (compiled once per batch shape, dtype, grad
         mode, method and step); None after a compilation failure (warned once; the caller continues
         eagerly)."""
-        compiled = self._compiled_fn(self._rollout_step, q0.device)
+        compiled = self._compiled_fn(self._rollout_step, q0.device, "rollout", eager=False)
         name, params_norm, cond = self.rollout_conditioning(params)
         qs, qds, q, qd = [q0], [qd0], q0, qd0
-        try:
-            for i in range(num_steps):
-                q, qd = compiled(name, method, float(dt), q, qd, params_norm, cond, None if tau is None else tau[:, i])
-                qs.append(q)
-                qds.append(qd)
-        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
-            raise
-        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
-            self._compile_failed("rollout", err)
-            return None
+        for i in range(num_steps):
+            out = compiled(name, method, float(dt), q, qd, params_norm, cond, None if tau is None else tau[:, i])
+            if out is None:  # failed (warned): the whole rollout is redone eagerly
+                return None
+            q, qd = out
+            qs.append(q)
+            qds.append(qd)
         return torch.stack(qs, dim=1), torch.stack(qds, dim=1)
 
     def acceleration_fn(self, params: torch.Tensor):
@@ -448,28 +444,24 @@ class DynamicsModel(nn.Module):
         compiled rollout step it is part of that step's program."""
         if self._compile is not True or torch.compiler.is_compiling():
             return fn(*args)
-        try:
-            return self._compiled_fn(fn, args[0].device)(*args)
-        except (InputError, SingularHessianError):  # the model's own answers, not compilation failures
-            raise
-        except Exception as err:  # noqa: BLE001 - any failure of the compiler or compiled code
-            self._compile_failed("accelerations", err)
-            return fn(*args)
+        return self._compiled_fn(fn, args[0].device, "accelerations")(*args)
 
-    def _compiled_fn(self, fn, device):
-        """``fn`` compiled (``perf.compile_fn``), built on first use and kept by its name."""
+    def _compiled_fn(self, fn, device, what: str, eager: bool = True) -> CompiledFallback:
+        """``fn`` compiled with the eager fallback (``perf.CompiledFallback`` over ``perf.compile_fn``),
+        built on first use and kept by its name; the model's own errors (``InputError``, a singular
+        Hessian) pass through, any other failure is ``_compile_failed``."""
         if self._compiled is None:
             self._compiled = {}
         compiled = self._compiled.get(fn.__name__)
         if compiled is None:
-            compiled = self._compiled[fn.__name__] = compile_fn(fn, device)
+            compiled = self._compiled[fn.__name__] = CompiledFallback(
+                fn, device, on_failure=lambda err: self._compile_failed(what, err),
+                passthrough=(InputError, SingularHessianError), eager=eager, compiler=compile_fn)
         return compiled
 
     def _compile_failed(self, what: str, err: Exception) -> None:
         """Warn once that compiled ``what`` failed and continue eagerly from now on."""
-        warnings.warn(f"compiled {what} failed ({type(err).__name__}: "
-                      f"{str(err).splitlines()[0][:200] if str(err) else ''}); continuing eagerly",
-                      RuntimeWarning, stacklevel=4)
+        warn_compile_failure(what, err, "continuing eagerly", stacklevel=7)
         self._compile, self._compiled = "failed", {}
 
     def __getstate__(self):
