@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .pretrained import HERE, available, info
+
 PRETRAINED = "pretrained:"
 
 
 def _resolve(source: str | Path) -> Path:
     source = str(source)
     if source.startswith(PRETRAINED):
-        from .pretrained import HERE, available
-
         name = source[len(PRETRAINED):]
         path = HERE / f"{name}.ckpt"
         if not path.exists():
@@ -34,6 +34,15 @@ def load_model(source: str | Path, map_location="cpu"):
     return model
 
 
+def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
+    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
+
+    >>> model = load_pretrained("double_pendulum")
+    >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
+    """
+    return load_model(f"{PRETRAINED}{name}", map_location)
+
+
 def data_hparams(source: str | Path) -> dict:
     """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
     import torch
@@ -42,7 +51,5 @@ def data_hparams(source: str | Path) -> dict:
     if "datamodule_hyper_parameters" in ckpt:
         return ckpt["datamodule_hyper_parameters"]
     if str(source).startswith(PRETRAINED):  # shipped models keep it in their card
-        from .pretrained import info
-
         return info(str(source)[len(PRETRAINED):]).get("datamodule_hyper_parameters", {})
     return {}

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .systems.base import InputError
+from .errors import InputError
 
 
 @dataclass

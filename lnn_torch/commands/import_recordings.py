@@ -18,6 +18,8 @@ import glob
 import json
 from pathlib import Path
 
+from ..errors import InputError
+
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lnn-torch import", description=__doc__,
@@ -51,7 +53,6 @@ def _parser() -> argparse.ArgumentParser:
 
 def spec_from_args(args):
     from ..data.importer import ImportSpec
-    from ..systems.base import InputError
 
     fields: dict = {}
     if args.config:

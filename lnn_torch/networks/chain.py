@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..systems.base import InputError
+from ..errors import InputError
 
 _SOFTPLUS_THIRD = math.log(math.expm1(0.3))
 

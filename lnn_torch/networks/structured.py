@@ -20,7 +20,8 @@ import torch
 from torch import nn
 
 from ..dynamics import structured_acceleration_from_factor
-from ..systems.base import GRAVITY, InputError
+from ..errors import InputError
+from ..systems.base import GRAVITY
 from ._kernels import one
 from .base import DynamicsModel
 from .layers import FiLM, TangentMLP
