@@ -8,7 +8,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
+from lnn_torch.data import DatasetSpec, generate_dataset  # noqa: E402
 from lnn_torch.systems import SYSTEMS, get_system  # noqa: E402
+
+from .helpers import SPEC, dop853_reference, random_batch, random_inputs  # noqa: E402, F401  (tests import them from here too)
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
 
@@ -36,35 +39,9 @@ def rng():
     return np.random.default_rng(1234)
 
 
-def random_batch(system, rng, n, dtype=torch.float64):
-    """Random parameters and states of a scene as torch tensors."""
-    params = torch.tensor(system.sample_params(rng, n), dtype=dtype)
-    q, qd = system.sample_state(rng, n)
-    # widen the state distribution beyond the sampler's so that every term of the dynamics matters
-    q = torch.tensor(q * 2.0, dtype=dtype)
-    qd = torch.tensor(qd * 5.0, dtype=dtype)
-    if system.speed_limit is not None:  # stay inside the valid states (|qd| < c)
-        qd = torch.tensor(rng.uniform(-0.97, 0.97, qd.shape), dtype=dtype) * system.speed_limit
-    return q, qd, params
-
-
-def random_inputs(system, rng, n, dtype=torch.float64):
-    """Random inputs ``(n, num_inputs)`` of an actuated scene (about +-1 N m), None for an unactuated one."""
-    if not system.num_inputs:
-        return None
-    return torch.tensor(rng.uniform(-1.0, 1.0, (n, system.num_inputs)), dtype=dtype)
-
-
-def dop853_reference(system, q0, qd0, params, t_eval) -> np.ndarray:
-    """One trajectory by scipy's DOP853 at rtol = atol = 1e-12: ``(len(t_eval), 2 dof)`` of (q, qd)."""
-    from scipy.integrate import solve_ivp
-
-    dof = system.dof
-    p = torch.as_tensor(params, dtype=torch.float64)
-
-    def f(t, y):
-        yt = torch.from_numpy(y)
-        return np.concatenate([y[dof:], system.acceleration(yt[:dof], yt[dof:], p).numpy()])
-
-    y0 = np.concatenate([np.asarray(q0), np.asarray(qd0)])
-    return solve_ivp(f, (0, t_eval[-1]), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval).y.T
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A small double-pendulum dataset (``helpers.SPEC``) for the training, data, CLI and compile tests."""
+    path = tmp_path_factory.mktemp("data") / "dp.h5"
+    generate_dataset(DatasetSpec(**SPEC), path)
+    return path

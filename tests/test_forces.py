@@ -17,6 +17,7 @@ from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
 
 from .conftest import random_batch, random_inputs
+from .helpers import perturbed
 
 ADP = get_system("actuated_double_pendulum")
 
@@ -34,14 +35,6 @@ def fitted(model, system, rng, n=64):
     model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
                           "params_points": params, "tau": tau})
     return q, qd, params, tau
-
-
-def perturbed(model, scale=0.3, seed=0):
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(scale * torch.randn(p.shape, generator=gen, dtype=p.dtype))
-    return model
 
 
 # ---------------------------------------------------------------------------- scenes
