@@ -1,5 +1,7 @@
-"""Networks and Euler-Lagrange solves: fast structured path vs torch.func references, SPD mass
-matrices, batch independence, gradcheck, shapes and error messages."""
+"""The networks (``lnn_torch.networks``: structured FiLM/DeLaN, black-box LNN, MLP; layers, registry):
+fast structured path vs torch.func references, SPD mass matrices, batch independence, gradcheck,
+shapes and error messages. The solves themselves: test_dynamics.py; the HNN: test_hamiltonian.py;
+compilation: test_compile.py."""
 
 
 import pytest

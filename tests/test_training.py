@@ -1,4 +1,6 @@
-"""Training and use: DataModule chunks and splits, LNNModule, TensorBoard tags, checkpoints, CLI."""
+"""Training (``LNNModule`` under Lightning): logged values, TensorBoard tags, checkpoints, skipped
+non-finite steps, DDP, learning what an HNN on (q, qd) cannot. The data: test_datamodule.py; the
+command line and configs: test_cli.py; compiled training: test_compile.py."""
 
 import glob
 from pathlib import Path
