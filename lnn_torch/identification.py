@@ -84,9 +84,6 @@ class _Space:
     def params(self, x):
         return torch.where(self.log, x.exp(), x)
 
-    def to_x(self, params):
-        return torch.where(self.log, params.clamp_min(1e-300).log(), params)
-
 
 def default_bounds(model, system, width: float = 3.0):
     """The box of the model's training distribution: its normaliser's mean +- ``width`` std (in the
