@@ -36,6 +36,7 @@ def test_every_shipped_config_instantiates(config, tmp_path):
     assert cli.trainer.validate_loop.inference_mode is False and cli.trainer.predict_loop.inference_mode is False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
 def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
     """fast_dev_run of each config on a tiny dataset of its own scene (generated on the fly; the
@@ -52,6 +53,7 @@ def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_cli_fit_test_predict(dataset, tmp_path):
     common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
               "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
@@ -82,6 +84,7 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
 
 
+@pytest.mark.slow
 def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
     """--trainer.default_root_dir DIR moves the default TensorBoard run and the checkpoints to DIR
     (the logger's save_dir is no longer fixed to the working directory)."""
@@ -100,6 +103,7 @@ def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
     assert glob.glob(str(tmp_path / "mine" / "lightning_logs" / "version_0" / "events.*"))
 
 
+@pytest.mark.slow
 def test_a_measured_config_without_its_imported_file_says_to_import_it(tmp_path):
     """Fitting the real-pendulum config before importing its recordings names the missing file and the
     import command (it used to fall back to generating a simulated double pendulum and then refuse the

@@ -241,6 +241,7 @@ def test_gradcheck_through_the_forced_structured_solve(rng):
     assert torch.autograd.gradcheck(accel, weights)
 
 
+@pytest.mark.slow
 def test_learned_model_obeys_its_own_power_balance(rng):
     """Along its own rollout (inputs held), a structured model's energy changes by the work of its own
     generalised force: H(t) - H(0) = int qd . Q dt (trapezoid on a fine grid; measured 2e-6 relative)."""
@@ -294,6 +295,7 @@ def test_bad_inputs_are_refused_clearly(rng):
         model.acceleration(q, qd, params, tau * float("nan"))
 
 
+@pytest.mark.slow
 def test_power_balance_error_of_the_exact_rollout_is_small_and_of_a_wrong_model_large(rng):
     spec = DatasetSpec(scene="actuated_double_pendulum", num_trajectories=4, duration=2.0, seed=6)
     arrays = generate_arrays(spec)

@@ -163,6 +163,7 @@ def test_a_measured_system_has_no_parameters_and_no_closed_form():
 
 
 # ---------------------------------------------------------------------------- derivative estimates
+@pytest.mark.slow
 @pytest.mark.parametrize("method, settings, tol_qd, tol_qdd", [  # bounds: 3x the measured worst case
     ("finite_difference", {}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
     ("butterworth", {"cutoff": 25.0}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
@@ -233,6 +234,7 @@ def test_shooting_windows_never_cross_a_recording_end(recordings):
 
 
 # ---------------------------------------------------------------------------- end to end from the CLI
+@pytest.mark.slow
 def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     """Import, fit (a parameter-free measured system, acceleration targets from Savitzky-Golay, and
     trajectory matching with the grey-box rigid chain), evaluate (the chain's checkpoint) with horizons

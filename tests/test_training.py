@@ -7,6 +7,7 @@ from pathlib import Path
 
 import lightning as L
 import numpy as np
+import pytest
 import torch
 
 from lnn_torch import LNNModule
@@ -114,6 +115,7 @@ def test_non_finite_loss_skips_the_step(dataset, tmp_path):
             torch.testing.assert_close(v, before[k], msg=k)
 
 
+@pytest.mark.slow
 def test_ddp_two_cpu_processes(dataset, tmp_path):
     """Lightning's own DDP strategy: two CPU processes, one writer of logs and checkpoints."""
     common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
@@ -164,6 +166,7 @@ def test_training_conditions_once_per_chunk(dataset):
     torch.testing.assert_close(loss_shared, loss_rows, rtol=1e-5, atol=0)
 
 
+@pytest.mark.slow
 def test_lnn_learns_the_relativistic_particle_where_an_hnn_on_q_qd_fails(tmp_path):
     """The LNN paper's point: with (q, qd) inputs an HNN cannot represent the relativistic particle
     (qdd depends on qd, but a Hamiltonian flow in (q, qd) with qdot = qd cannot), while the LNN
