@@ -1,4 +1,5 @@
 import os
+import shutil
 
 # commands the tests run in subprocesses (lnn-torch fit, import, ...) use one thread too: two test
 # workers on two cores, each running a two-thread command, would oversubscribe the machine
@@ -12,6 +13,7 @@ from lnn_torch.data import DatasetSpec, generate_dataset  # noqa: E402
 from lnn_torch.systems import SYSTEMS, get_system  # noqa: E402
 
 from .helpers import SPEC, dop853_reference, random_batch, random_inputs  # noqa: E402, F401  (tests import them from here too)
+from .helpers import session_file  # noqa: E402
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
 
@@ -42,6 +44,7 @@ def rng():
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     """A small double-pendulum dataset (``helpers.SPEC``) for the training, data, CLI and compile tests."""
+    shared = session_file(tmp_path_factory, "dp.h5", lambda p: generate_dataset(DatasetSpec(**SPEC), p))
     path = tmp_path_factory.mktemp("data") / "dp.h5"
-    generate_dataset(DatasetSpec(**SPEC), path)
+    shutil.copyfile(shared, path)  # each module its own copy, generated once per session
     return path

@@ -1,5 +1,6 @@
 """Helpers shared by several test modules (fixtures live in ``conftest.py``)."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -7,6 +8,7 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from filelock import FileLock
 
 from lnn_torch.data.datamodule import TrajectoryDataModule
 from lnn_torch.dynamics import generic_acceleration
@@ -98,3 +100,29 @@ def quiet_trainer(tmp_path, **kw):
 def run_cli(*args, cwd):
     return subprocess.run([sys.executable, "-m", "lnn_torch.cli", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=600)
+
+
+def session_file(tmp_path_factory, name: str, write) -> Path:
+    """The file ``name``, written by ``write(path)`` once per test session and shared by the pytest-xdist
+    workers (which otherwise each build their own): the first to ask writes it under a lock beside it,
+    the others wait and read it. Shared data only: a test that changes a file works on a copy."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the session's folder, above the workers' own
+    path = root / name
+    with FileLock(f"{path}.lock"):
+        if not path.exists():
+            part = path.with_name(f"part-{name}")
+            write(part)
+            os.replace(part, path)
+    return path
+
+
+def session_arrays(tmp_path_factory, name: str, make) -> dict:
+    """The arrays of ``make()`` (a dict of numpy arrays), computed once per test session (``session_file``)."""
+    def write(path):
+        with open(path, "wb") as fh:
+            np.savez(fh, **make())
+
+    with np.load(session_file(tmp_path_factory, f"{name}.npz", write)) as z:
+        return {k: z[k] for k in z.files}

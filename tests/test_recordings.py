@@ -16,6 +16,8 @@ from lnn_torch.data import derivatives
 from lnn_torch.data.importer import ImportSpec, import_recordings
 from lnn_torch.systems import InputError, get_system
 
+from .helpers import session_arrays
+
 ADP = get_system("actuated_double_pendulum")
 
 
@@ -38,8 +40,8 @@ def recordings(tmp_path_factory):
     root = tmp_path_factory.mktemp("rec")
     # 2 RK8 substeps per 1 ms sample: a finer step than the scene's default (8 per 5 ms sample), a quarter of
     # the default's cost at this sampling rate; the generator's power-balance check still applies
-    arrays = generate_arrays(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=3, duration=2.0, dt=0.001,
-                                         seed=8, substeps=2))
+    arrays = session_arrays(tmp_path_factory, "arm_recordings", lambda: generate_arrays(DatasetSpec(
+        scene="actuated_double_pendulum", num_trajectories=3, duration=2.0, dt=0.001, seed=8, substeps=2)))
     rng = np.random.default_rng(0)
     files, truth = [], []
     for i in range(3):
