@@ -1,11 +1,14 @@
 """The training data (``lnn_torch.data.datamodule``): chunks, seeded and rank-aware sampling, fixed
-evaluation sets, normalisation statistics, and the dataset file a spec names."""
+evaluation sets, normalisation statistics, the dataset file a spec names, and the ``Trajectories``
+container."""
+
+import math
 
 import numpy as np
 import pytest
 import torch
 
-from lnn_torch.data import read_dataset
+from lnn_torch.data import Trajectories, read_dataset
 
 from .helpers import SPEC, make_dm
 
@@ -85,3 +88,13 @@ def test_distributed_chunk_sampling_is_rank_aware(dataset):
     batches = [[dm.train_set[i]["q"] for i in r] for r in ranks]
     for b0 in batches[0]:
         assert all(not torch.equal(b0, b1) for b1 in batches[1])
+
+
+def test_trajectories_container_checks_its_shapes():
+    q = torch.zeros(2, 5, 2)
+    with pytest.raises(ValueError, match="shapes differ"):
+        Trajectories(q, torch.zeros(2, 4, 2), torch.ones(2, 4), 0.01)
+    with pytest.raises(ValueError, match="params must be"):
+        Trajectories(q, q, torch.ones(3, 4), 0.01)
+    t = Trajectories(q, q, torch.ones(2, 4), 0.01, index=torch.tensor([3, 7]))
+    assert len(t.head(1)) == 1 and t.to(torch.float32).index.dtype == torch.long and math.isclose(t.dt, 0.01)
