@@ -27,6 +27,12 @@ QUADRATIC = [(n, kw) for n, kw in SCENES if get_system(n, **kw).quadratic_kineti
 QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES) if (n, kw) in QUADRATIC]
 
 
+def pytest_collection_modifyitems(config, items):
+    """The slow tests first (a stable sort, the same in every xdist worker): with two workers, a
+    one-minute test handed out last would keep one worker busy while the other idles at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture(autouse=True)
 def one_torch_thread():
     """Commands run in-process (``main([...])``) set their own thread count; restore one thread after
