@@ -24,7 +24,7 @@ def __getattr__(name):
 
         return build_model
     if name == "load_pretrained":
-        from .pretrained import load_pretrained
+        from .checkpoints import load_pretrained
 
         return load_pretrained
     if name == "load_model":

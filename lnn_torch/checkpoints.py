@@ -8,7 +8,8 @@ import pickle
 import zipfile
 from pathlib import Path
 
-from .systems.base import InputError
+from .errors import CheckpointError, InputError
+from .pretrained import HERE, available, info
 
 PRETRAINED = "pretrained:"
 
@@ -52,10 +53,6 @@ def old_default_widths(hparams) -> list | None:
     return old if hparams.get("hidden_dims") is None else None
 
 
-class CheckpointError(InputError):
-    """A file that is not a readable lnn-torch checkpoint (one line naming the file and what it is not)."""
-
-
 def check_checkpoint_file(path: Path) -> Path:
     """``path`` if it can be an lnn-torch checkpoint (a non-empty PyTorch zip archive), else
     ``CheckpointError`` naming the file and what it is not."""
@@ -72,8 +69,6 @@ def check_checkpoint_file(path: Path) -> Path:
 def _resolve(source: str | Path) -> Path:
     source = str(source)
     if source.startswith(PRETRAINED):
-        from .pretrained import HERE, available
-
         name = source[len(PRETRAINED):]
         path = HERE / f"{name}.ckpt"
         if not path.exists():
@@ -110,6 +105,15 @@ def load_model(source: str | Path, map_location="cpu"):
     return model
 
 
+def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
+    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
+
+    >>> model = load_pretrained("double_pendulum")
+    >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
+    """
+    return load_model(f"{PRETRAINED}{name}", map_location)
+
+
 def data_hparams(source: str | Path) -> dict:
     """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
     import torch
@@ -124,7 +128,5 @@ def data_hparams(source: str | Path) -> dict:
     if "datamodule_hyper_parameters" in ckpt:
         return ckpt["datamodule_hyper_parameters"]
     if str(source).startswith(PRETRAINED):  # shipped models keep it in their card
-        from .pretrained import info
-
         return info(str(source)[len(PRETRAINED):]).get("datamodule_hyper_parameters", {})
     return {}

@@ -22,11 +22,9 @@ from typing import Callable
 import torch
 from torch.func import hessian, jacrev, vmap
 
+from .errors import SingularHessianError  # also importable from here
+
 LagrangianFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
-
-
-class SingularHessianError(RuntimeError):
-    """The velocity Hessian d2L/dqd2 of a Lagrangian is singular: accelerations are undefined."""
 
 
 def _flatten(q, qd, params):

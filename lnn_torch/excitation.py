@@ -20,14 +20,14 @@ import math
 
 import numpy as np
 
+from .errors import InputError
+
 KINDS = ("multisine", "steps", "chirp", "none")
 DEFAULTS = {"band": [0.1, 2.0], "num_sines": 6, "hold": [0.2, 1.0]}
 
 
 def validate(excitation: dict, num_inputs: int) -> dict:
     """The excitation with defaults filled in; ``ValueError`` naming what is wrong."""
-    from .systems.base import InputError
-
     if not excitation:
         return {"kind": "none"}
     ex = {**DEFAULTS, **excitation}

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import torch
 
+from .errors import InputError
+
 
 def joint_friction(rates: torch.Tensor, viscous: torch.Tensor, coulomb: torch.Tensor,
                    coulomb_velocity: float) -> torch.Tensor:
@@ -101,8 +103,6 @@ def power(qd: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
 def check_inputs(tau, num_inputs: int, batch_shape, name: str = "tau") -> None:
     """Raise ``InputError`` for inputs given to an unactuated system, missing for an actuated one, or
     of the wrong shape (``batch_shape + (num_inputs,)``)."""
-    from .systems.base import InputError
-
     if num_inputs == 0:
         if tau is not None:
             raise InputError(f"{name} given, but the system has no inputs (it is not actuated)")

@@ -14,12 +14,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .forces import input_force, power
+from .errors import GenerationError  # also importable from here and lnn_torch.data
+from .forces import check_inputs, input_force, power
 from .integrators import rollout, rollout_adaptive, rollout_first_order
-
-
-class GenerationError(RuntimeError):
-    """Ground truth could not be integrated to the requested accuracy."""
 
 
 def power_balance_residual(system, q, qd, params, work) -> torch.Tensor:
@@ -62,8 +59,6 @@ def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, i
     dissipation since t = 0). Raises ``GenerationError`` naming the trajectories (``indices``,
     default 0..N-1) that still fail the check after the tightest adaptive pass.
     """
-    from .forces import check_inputs
-
     check_inputs(tau, system.num_inputs, (len(params), num_steps))
     dof = system.dof
     if system.has_forces:

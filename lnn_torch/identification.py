@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .errors import InputError
 from .losses import shooting_residuals
-from .systems.base import InputError
 
 
 @dataclass
@@ -85,9 +85,6 @@ class _Space:
 
     def params(self, x):
         return torch.where(self.log, x.exp(), x)
-
-    def to_x(self, params):
-        return torch.where(self.log, params.clamp_min(1e-300).log(), params)
 
 
 def default_bounds(model, system, width: float = 3.0):

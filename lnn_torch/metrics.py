@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import torch
 
+from .forces import input_force, power
+
 
 def relative_l2(pred: torch.Tensor, true: torch.Tensor, dim=None) -> torch.Tensor:
     """``||pred - true|| / ||true||`` over all entries (``dim=None``) or along ``dim``."""
@@ -74,8 +76,6 @@ def work_along(system, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor, 
     ``dt``, since ``t = 0``: ``(B, T)`` in J. Inputs ``tau (B, T - 1, n_u)`` are held over each
     interval, so their work ``tau_k . B^T (q_{k+1} - q_k)`` is exact; the dissipated work is the
     trapezoidal rule of ``qd . Q_diss``."""
-    from .forces import input_force, power
-
     T = q.shape[1]
     p = params[:, None, :].expand(-1, T, -1)
     diss = power(qd, system.dissipative_force(q, qd, p))  # (B, T)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .errors import InputError
 from .metrics import condition_numbers, energy_drift
-from .systems.base import InputError
 
 
 @dataclass

@@ -154,7 +154,6 @@ class OriginalModel:
         self._dyn = dyn
         with jax.enable_x64(self.x64):
             ns = {k: jnp.asarray(v) for k, v in self.norm_stats.items()}
-        self._ns = ns
 
         def _accel(dyn, q, qd, p):
             model = eqx.combine(dyn, static)
@@ -295,30 +294,3 @@ def param_count() -> int:
         model = _new_model(o)
     leaves = o.jax.tree_util.tree_leaves(o.eqx.filter(model, o.eqx.is_array))
     return int(sum(leaf.size for leaf in leaves))
-
-
-# ----------------------------------------------------------------------------------------------
-# Our own reference helpers (not from the original)
-# ----------------------------------------------------------------------------------------------
-def closed_form_accel(q, qd, params, g=9.81):
-    """Exact double-pendulum accelerations (absolute angles from the downward vertical, point
-    masses). numpy, float64. params = (m1, m2, l1, l2), (N,4) or (4,). The original's own
-    generator uses g = 9.806."""
-    q = np.asarray(q, np.float64)
-    qd = np.asarray(qd, np.float64)
-    p = np.broadcast_to(np.asarray(params, np.float64), (q.shape[0], 4))
-    m1, m2, l1, l2 = p.T
-    t1, t2 = q.T
-    w1, w2 = qd.T
-    d = t1 - t2
-    den = 2 * m1 + m2 - m2 * np.cos(2 * d)
-    a1 = (-g * (2 * m1 + m2) * np.sin(t1) - m2 * g * np.sin(t1 - 2 * t2)
-          - 2 * np.sin(d) * m2 * (w2 ** 2 * l2 + w1 ** 2 * l1 * np.cos(d))) / (l1 * den)
-    a2 = 2 * np.sin(d) * (w1 ** 2 * l1 * (m1 + m2) + g * (m1 + m2) * np.cos(t1)
-                          + w2 ** 2 * l2 * m2 * np.cos(d)) / (l2 * den)
-    return np.stack([a1, a2], axis=1)
-
-
-def rel_l2(pred, true) -> float:
-    pred, true = np.asarray(pred, np.float64), np.asarray(true, np.float64)
-    return float(np.linalg.norm(pred - true) / np.linalg.norm(true))

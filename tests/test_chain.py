@@ -12,7 +12,7 @@ from lnn_torch.systems import InputError, get_system
 from lnn_torch.systems.measured import MeasuredSystem
 
 from .conftest import random_batch
-from .test_model import assert_fast_path_is_the_references
+from .helpers import assert_fast_path_is_the_references
 
 ABSOLUTE2, RELATIVE2 = [[1, 0], [0, 1]], [[1, 0], [1, 1]]
 

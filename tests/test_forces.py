@@ -17,6 +17,7 @@ from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
 
 from .conftest import random_batch, random_inputs
+from .helpers import perturbed
 
 ADP = get_system("actuated_double_pendulum")
 
@@ -34,14 +35,6 @@ def fitted(model, system, rng, n=64):
     model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
                           "params_points": params, "tau": tau})
     return q, qd, params, tau
-
-
-def perturbed(model, scale=0.3, seed=0):
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(scale * torch.randn(p.shape, generator=gen, dtype=p.dtype))
-    return model
 
 
 # ---------------------------------------------------------------------------- scenes
@@ -248,6 +241,7 @@ def test_gradcheck_through_the_forced_structured_solve(rng):
     assert torch.autograd.gradcheck(accel, weights)
 
 
+@pytest.mark.slow
 def test_learned_model_obeys_its_own_power_balance(rng):
     """Along its own rollout (inputs held), a structured model's energy changes by the work of its own
     generalised force: H(t) - H(0) = int qd . Q dt (trapezoid on a fine grid; measured 2e-6 relative)."""
@@ -301,6 +295,7 @@ def test_bad_inputs_are_refused_clearly(rng):
         model.acceleration(q, qd, params, tau * float("nan"))
 
 
+@pytest.mark.slow
 def test_power_balance_error_of_the_exact_rollout_is_small_and_of_a_wrong_model_large(rng):
     spec = DatasetSpec(scene="actuated_double_pendulum", num_trajectories=4, duration=2.0, seed=6)
     arrays = generate_arrays(spec)

@@ -23,6 +23,7 @@ def small_spec(**kw):
     return DatasetSpec(**base)
 
 
+@pytest.mark.slow
 def test_matches_dop853_and_conserves_energy():
     spec = DatasetSpec(num_trajectories=4, duration=20.0, seed=3)
     arrays = generate_arrays(spec)

@@ -57,6 +57,7 @@ def test_closed_form_recovers_the_parameters_to_1e_6_and_reports_the_mass_scale(
     assert a == pytest.approx(b, abs=1e-2) and abs(a) == pytest.approx(math.sqrt(0.5), abs=1e-2)
 
 
+@pytest.mark.slow
 def test_trajectory_fit_of_the_closed_form_recovers_the_parameters():
     """Rollouts (RK4 at the sampling step) against the exact trajectory: the fit's bias is the
     integrator's error alone."""
@@ -92,6 +93,7 @@ def test_batched_identification_equals_one_at_a_time():
     assert not both[1].at_bound
 
 
+@pytest.mark.slow
 def test_learned_model_identifies_noisy_observations_within_the_stated_uncertainty():
     """The shipped model, 1e-3 rad position noise (derivatives from a smoothing spline), the
     acceleration fit: each identifiable quantity within 3 stated standard deviations of the truth

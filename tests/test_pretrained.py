@@ -71,6 +71,7 @@ def test_simulate_hdf5(tmp_path):
         assert json.loads(f.attrs["meta"])["variant"] == "film_lnn"
 
 
+@pytest.mark.slow
 def test_evaluate_report_of_the_shipped_model(tmp_path):
     """``lnn-torch evaluate`` on a small dataset: JSON, Markdown and plots with every section."""
     from lnn_torch.data import DatasetSpec, generate_dataset

@@ -16,6 +16,8 @@ from lnn_torch.data import derivatives
 from lnn_torch.data.importer import ImportSpec, import_recordings
 from lnn_torch.systems import InputError, get_system
 
+from .helpers import session_arrays
+
 ADP = get_system("actuated_double_pendulum")
 
 
@@ -38,8 +40,8 @@ def recordings(tmp_path_factory):
     root = tmp_path_factory.mktemp("rec")
     # 2 RK8 substeps per 1 ms sample: a finer step than the scene's default (8 per 5 ms sample), a quarter of
     # the default's cost at this sampling rate; the generator's power-balance check still applies
-    arrays = generate_arrays(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=3, duration=2.0, dt=0.001,
-                                         seed=8, substeps=2))
+    arrays = session_arrays(tmp_path_factory, "arm_recordings", lambda: generate_arrays(DatasetSpec(
+        scene="actuated_double_pendulum", num_trajectories=3, duration=2.0, dt=0.001, seed=8, substeps=2)))
     rng = np.random.default_rng(0)
     files, truth = [], []
     for i in range(3):
@@ -163,6 +165,7 @@ def test_a_measured_system_has_no_parameters_and_no_closed_form():
 
 
 # ---------------------------------------------------------------------------- derivative estimates
+@pytest.mark.slow
 @pytest.mark.parametrize("method, settings, tol_qd, tol_qdd", [  # bounds: 3x the measured worst case
     ("finite_difference", {}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
     ("butterworth", {"cutoff": 25.0}, 1.2e-4, 1e-3),  # measured 4.1e-5, 3.4e-4
@@ -233,6 +236,7 @@ def test_shooting_windows_never_cross_a_recording_end(recordings):
 
 
 # ---------------------------------------------------------------------------- end to end from the CLI
+@pytest.mark.slow
 def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     """Import, fit (a parameter-free measured system, acceleration targets from Savitzky-Golay, and
     trajectory matching with the grey-box rigid chain), evaluate (the chain's checkpoint) with horizons

@@ -63,6 +63,7 @@ def test_every_variant_stays_finite_on_every_hard_case(variant):
             assert math.isfinite(row["max_cond"]), row
 
 
+@pytest.mark.slow
 def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
     """The untrained black-box LNN has an indefinite velocity Hessian (eigenvalues of both signs), so
     some states are singular. Policy: finite accelerations or a clear SingularHessianError, never
@@ -86,6 +87,7 @@ def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
     assert model.raise_on_singular  # restored after the block
 
 
+@pytest.mark.slow
 def test_ground_truth_generator_on_every_hard_case():
     """The generator's integration (fixed-step RK8, then adaptive DOP853 for trajectories that drift)
     stays finite and conserves energy to its tolerance on every hard case (2 s each). A fixed step
@@ -119,6 +121,7 @@ def test_generator_refines_hard_trajectories_to_dop853_accuracy():
         assert np.abs(ours - ref).max() < 1e-8, i
 
 
+@pytest.mark.slow
 def test_generator_fails_clearly_when_it_cannot_reach_its_tolerance():
     spec = DatasetSpec(scene="double_pendulum", num_trajectories=3, duration=2.0, seed=11, energy_tol=1e-16,
                        adaptive_tol=1e-6, scene_config={"theta_range": [3.0, 3.2], "omega_range": [-10.0, 10.0]})
@@ -241,6 +244,7 @@ def test_rollouts_never_wrap_the_state():
 
 
 # ---------------------------------------------------------------------------- long horizons
+@pytest.mark.slow
 def test_ground_truth_long_horizon_1e5_rk4_steps():
     """1e5 RK4 steps (500 s at dt = 0.005 s) of the closed form: finite, energy bounded.
     Measured max drift ~2e-7 of V_max - V_min (RK4 is not symplectic; drift grows linearly).
@@ -262,6 +266,7 @@ def test_ground_truth_long_horizon_1e5_rk4_steps():
     assert ((DP.energy(q, qd, params) - E0).abs() / DP.energy_scale(params)).max() < 1e-4
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_models_long_horizon(variant):
     """Untrained models over long RK4 horizons stay finite (1e4 steps; 1e3 for the black-box LNN, whose

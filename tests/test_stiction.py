@@ -14,7 +14,7 @@ from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
 from lnn_torch.systems.measured import MeasuredSystem
 
-from .test_forces import perturbed
+from .helpers import perturbed
 
 ARM = MeasuredSystem(2, input_names=("tau1", "tau2"), friction=True, angle_combinations=[[1, 1]],
                      coulomb_velocity=0.02)

@@ -1,6 +1,8 @@
-"""Scenes against independent references: the generic Euler-Lagrange solve, limits, normal modes."""
+"""Scenes against independent references: the generic Euler-Lagrange solve, limits, normal modes; and the
+cases and drawings each scene owns (no scene named in the generic modules)."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -11,6 +13,7 @@ from lnn_torch.integrators import rollout
 from lnn_torch.systems import GRAVITY, InputError, get_system
 
 from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch, random_inputs
+from .helpers import ROOT
 
 
 @pytest.mark.parametrize("name, config", SCENES, ids=SCENE_IDS)
@@ -215,3 +218,41 @@ def test_relativistic_particle_rejects_superluminal_states():
         system.check_inputs(q, qd, torch.full((3, 1), 0.1, dtype=torch.float64))
     with pytest.raises(InputError, match="inside"):
         get_system("relativistic_particle", v_range=(-1.0, 0.5))
+
+
+# ---------------------------------------------------------------------------- scenes own their cases
+def test_generic_modules_name_no_scene():
+    """Evaluation, stability and plots take cases, drawings and time steps from the scene and the
+    data: no scene names, and no fixed dof or time step in them."""
+    for module in ("evaluation.py", "stability.py", "plots.py", "metrics.py", "commands/evaluate.py"):
+        text = (ROOT / "lnn_torch" / module).read_text()
+        for name in ("double_pendulum", "chain_pendulum", "mass_spring", "relativistic", "OOD_CASES",
+                     "reshape(-1, 2)", "m2/m1"):
+            assert name not in text, (module, name)
+        assert not re.search(r"\bdt = 0\.005\b", text), module
+
+
+def test_scenes_own_their_cases():
+    dp, chain = get_system("double_pendulum"), get_system("chain_pendulum", num_links=4)
+    assert len(dp.ood_cases()) == 4 and chain.ood_cases() == []
+    assert set(dp.hard_parameter_cases()) == {"m2/m1 = 1e-3", "m2/m1 = 1e3", "l2/l1 = 0.1", "l2/l1 = 10"}
+    from lnn_torch.stability import hard_cases
+
+    names = {c.name for c in hard_cases(chain, num=2)}
+    assert "parameters x10" in names and not any("m2/m1" in n for n in names)
+    assert get_system("mass_spring").positions(torch.zeros(1, 1), torch.ones(1, 2)) is None
+
+
+def test_chain_pendulum_is_drawn_with_all_its_links():
+    from lnn_torch.plots import frames_figure
+
+    chain = get_system("chain_pendulum", num_links=4)
+    rng = np.random.default_rng(0)
+    params = torch.tensor(chain.sample_params(rng, 1))[0]
+    q = torch.tensor(rng.uniform(-1, 1, (10, 4)))
+    fig = frames_figure(chain, q, q + 0.1, params, 0.01, num_frames=3)
+    lines = fig.axes[0].get_lines()
+    assert len(lines) == 2 and all(len(line.get_xdata()) == 5 for line in lines)  # origin + 4 bodies
+    xy = chain.positions(q[:1], params[None])[0]
+    np.testing.assert_allclose(lines[0].get_xdata()[1:], xy[:, 0].numpy())
+    assert frames_figure(get_system("mass_spring"), q[:, :1], q[:, :1], torch.ones(2), 0.01) is None

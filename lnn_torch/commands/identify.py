@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import InputError
+
 
 @dataclass
 class Observation:
@@ -75,8 +77,6 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
                      duration: float | None = None, use: str = "q+qd", time: str = "t", coordinates=None,
                      velocities=None, inputs=None) -> Observation:
     """One trajectory of a dataset file or a CSV recording, cut to ``[start, start + duration]``."""
-    from ..systems.base import InputError
-
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")

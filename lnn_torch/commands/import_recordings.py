@@ -17,6 +17,8 @@ import argparse
 import glob
 import json
 
+from ..errors import InputError
+
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lnn-torch import", description=__doc__,
@@ -50,7 +52,6 @@ def _parser() -> argparse.ArgumentParser:
 
 def spec_from_args(args):
     from ..data.importer import ImportSpec
-    from ..systems.base import InputError
 
     fields: dict = {}
     if args.config:

@@ -1,8 +1,8 @@
 """Datasets: specification, generation, the HDF5 schema and (with Lightning) the DataModule."""
 
-from ..ground_truth import GenerationError
+from ..errors import DatasetFileError, GenerationError
 from .generate import generate_arrays, generate_dataset, sample_initial_conditions, simulate, split_indices
-from .hdf5 import DatasetFileError, TrajectoryFile, read_dataset
+from .hdf5 import TrajectoryFile, read_dataset
 from .spec import DatasetSpec
 from .trajectories import Trajectories
 

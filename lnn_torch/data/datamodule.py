@@ -358,6 +358,3 @@ class TrajectoryDataModule(L.LightningDataModule):
         if self.targets is None and not self._open().measured:
             return self._open().trajectories(split, num_trajectories)
         return self.source(split, torch.float64, smooth_inputs).trajectories(self.dt, num_trajectories)
-
-    def spec_dict(self) -> dict:
-        return asdict(self.spec)

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
+
 METHODS = ("finite_difference", "butterworth", "savgol", "spline")
 DEFAULTS = {"finite_difference": {}, "butterworth": {"cutoff": 10.0, "order": 4},
             "savgol": {"window": 31, "polyorder": 3}, "spline": {"lam": None}}
@@ -26,8 +28,6 @@ DEFAULTS = {"finite_difference": {}, "butterworth": {"cutoff": 10.0, "order": 4}
 
 def settings(targets: dict | str | None) -> dict | None:
     """The derivative settings with defaults filled in (None: use the file's accelerations)."""
-    from ..systems.base import InputError
-
     if targets in (None, "file", {}):
         return None
     if isinstance(targets, str):
@@ -65,8 +65,6 @@ def _smooth(x: np.ndarray, dt: float, s: dict, deriv: int) -> np.ndarray:
 
         nyquist = 0.5 / dt
         if not 0 < s["cutoff"] < nyquist:
-            from ..systems.base import InputError
-
             raise InputError(f"butterworth cutoff must lie in (0, {nyquist:g}) Hz (the Nyquist frequency), got {s['cutoff']}")
         b, a = butter(int(s["order"]), s["cutoff"] / nyquist)
         y = filtfilt(b, a, x, axis=0, padlen=min(3 * max(len(a), len(b)), len(x) - 1))

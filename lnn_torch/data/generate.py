@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..excitation import sample
 from ..ground_truth import integrate_ground_truth, power_balance_residual
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
@@ -28,8 +29,6 @@ def sample_initial_conditions(spec: DatasetSpec, indices=None, inputs: bool = Fa
     """Parameters and initial states of the given trajectories (default: all), float64 arrays; with
     ``inputs``, also each trajectory's input signal ``(N, num_points, n_u)`` (``lnn_torch.excitation``;
     drawn after the state from the same generator, so parameters and states do not depend on it)."""
-    from ..excitation import sample
-
     system = spec.build_system()
     indices = range(spec.num_trajectories) if indices is None else indices
     t = np.arange(spec.num_points) * spec.dt

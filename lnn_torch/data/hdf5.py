@@ -37,6 +37,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+
+from ..errors import DatasetFileError  # also importable from here and lnn_torch.data
+from .trajectories import Trajectories
 
 FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
@@ -44,10 +48,6 @@ ARRAYS = ("t", "q", "qd", "params")  # every file
 SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
 OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths")
 SPLITS = ("train", "val", "test")
-
-
-class DatasetFileError(ValueError):
-    """A dataset file is missing, not HDF5, incomplete or malformed."""
 
 
 def _h5py():
@@ -143,10 +143,6 @@ class TrajectoryFile:
 
     def trajectories(self, split: str | None = "test", max_trajectories: int | None = None):
         """The trajectories of a split (``None``: all), in file order, as float64 ``Trajectories``."""
-        import torch
-
-        from .trajectories import Trajectories
-
         if split is not None and split not in self.splits:
             raise DatasetFileError(f"{self.path} has no split '{split}' (splits: {', '.join(self.splits)})")
         idx = np.arange(self.num_trajectories) if split is None else np.sort(self.splits[split])

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..systems.base import InputError
+from ..errors import InputError
+from ..systems import get_system
 from .hdf5 import check_writable, write_dataset
 
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
@@ -94,8 +95,6 @@ class ImportSpec:
 
     def system(self):
         """The ``MeasuredSystem`` these recordings declare."""
-        from ..systems import get_system
-
         dof = len(self.coordinates)
         n_u = len(self.inputs or [])
         return get_system("measured", dof=dof, angle_mask=self.angle_mask, coord_names=self.coord_names,

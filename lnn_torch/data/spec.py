@@ -6,7 +6,10 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 
-from ..systems import InputError, System, get_system
+from ..errors import InputError
+from ..excitation import validate as validate_excitation
+from ..integrators import METHODS
+from ..systems import System, get_system
 
 
 @dataclass
@@ -95,18 +98,14 @@ class DatasetSpec:
                 raise InputError(f"{name} must be positive, got {value}")
         if self.targets not in ("analytic", "finite_difference"):
             raise InputError(f"targets must be 'analytic' or 'finite_difference', got '{self.targets}'")
-        from ..integrators import METHODS
-
         if self.integrator not in METHODS:
             raise InputError(f"unknown integrator '{self.integrator}'; known: {', '.join(METHODS)}")
         self.input_signal()  # a malformed excitation, or one for a scene without inputs, raises InputError
 
     def input_signal(self) -> dict:
         """The excitation of the inputs (the scene's default when the spec names none), validated."""
-        from ..excitation import validate
-
         system = self.build_system()
-        return validate(self.excitation or system.default_excitation(), system.num_inputs)
+        return validate_excitation(self.excitation or system.default_excitation(), system.num_inputs)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)

@@ -15,9 +15,8 @@ import torch
 from torch import nn
 
 from .. import integrators
-from ..dynamics import SingularHessianError
+from ..errors import InputError, SingularHessianError
 from ..perf import CompiledFallback, apply_cpu_defaults, compile_fn, compile_pays, warn_compile_failure
-from ..systems.base import InputError
 from .normalization import Normalizer
 
 

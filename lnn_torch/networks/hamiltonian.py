@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from .. import integrators
-from ..systems.base import InputError
+from ..errors import InputError
 from .base import FRICTION, DynamicsModel
 from .layers import TangentMLP
 

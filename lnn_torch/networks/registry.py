@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import inspect
 
-from ..systems.base import InputError
+from ..errors import InputError
 from .base import DynamicsModel
 from .blackbox import BlackBoxLagrangian
 from .direct import DirectMLP

@@ -24,7 +24,8 @@ import torch
 from torch import nn
 
 from ..dynamics import structured_acceleration_from_factor
-from ..systems.base import GRAVITY, InputError
+from ..errors import InputError
+from ..systems.base import GRAVITY
 from .base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION, DynamicsModel
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options

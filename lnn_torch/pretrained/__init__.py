@@ -1,4 +1,6 @@
-"""Trained models shipped inside the package: ``lnn_torch.load_pretrained(name)``.
+"""Trained models shipped inside the package: where they lie and what their cards say. The loader is
+``lnn_torch.load_pretrained(name)`` (``lnn_torch.checkpoints``, which reads this package; this package
+imports nothing of ``lnn_torch``).
 
 Each model is a slim Lightning checkpoint (weights, normalisation buffers and hyper-parameters; no
 optimizer state) written by ``scripts/export_pretrained.py``, with a JSON file beside it recording
@@ -24,14 +26,3 @@ def info(name: str) -> dict:
     if not path.exists():
         raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
     return json.loads(path.read_text())
-
-
-def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
-    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
-
-    >>> model = load_pretrained("double_pendulum")
-    >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
-    """
-    from ..checkpoints import load_model
-
-    return load_model(f"pretrained:{name}", map_location)

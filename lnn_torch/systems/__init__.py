@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
 from .actuated_double_pendulum import ActuatedDoublePendulum
-from .base import GRAVITY, InputError, Range, System
+from .base import GRAVITY, Range, System
 from .chain_pendulum import ChainPendulum
 from .double_pendulum import DoublePendulum
 from .mass_spring import MassSpring

@@ -39,7 +39,9 @@ import math
 import numpy as np
 import torch
 
-from .base import GRAVITY, InputError, System, as_range
+from ..errors import InputError
+from ..forces import joint_friction
+from .base import GRAVITY, System, as_range
 
 PARAM_NAMES = ("m1", "m2", "l1", "r1", "r2", "I1", "I2", "b1", "b2", "c1", "c2")
 
@@ -136,8 +138,6 @@ class ActuatedDoublePendulum(System):
         return params[..., 7:9], params[..., 9:11]
 
     def friction_torque(self, rates, params):
-        from ..forces import joint_friction
-
         return joint_friction(rates, *self.friction_coefficients(params), self.coulomb_velocity)
 
     # ------------------------------------------------------------------ physics

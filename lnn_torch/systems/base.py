@@ -21,11 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..errors import InputError  # also importable from here, where it was first defined
+from ..forces import check_inputs, dissipative_force, identity_or_none, input_force
+
 GRAVITY = 9.81  # m/s^2, the one gravity constant of the project
-
-
-class InputError(ValueError):
-    """Raised for malformed physical input (shapes, NaN, non-positive parameters)."""
 
 
 @dataclass(frozen=True)
@@ -149,8 +148,6 @@ class System(abc.ABC):
 
     def dissipative_force(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """``Q_diss = -D^T f(D qd)``, ``(*batch, dof)`` (zeros without friction)."""
-        from ..forces import dissipative_force
-
         if not self.has_friction:
             return torch.zeros_like(qd)
         return dissipative_force(qd, self._force_maps()[1], lambda r: self.friction_torque(r, params))
@@ -158,8 +155,6 @@ class System(abc.ABC):
     def _force_maps(self):
         """``(B, D)`` with None for identities, computed once (``lnn_torch.forces``)."""
         if getattr(self, "_maps", None) is None:
-            from ..forces import identity_or_none
-
             B = self.input_matrix()
             self._maps = (None if B is None else identity_or_none(B), identity_or_none(self.joint_map()))
         return self._maps
@@ -167,8 +162,6 @@ class System(abc.ABC):
     def generalized_force(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
                           tau: torch.Tensor | None = None) -> torch.Tensor:
         """``Q = B tau + Q_diss``, ``(*batch, dof)`` in N m (or N)."""
-        from ..forces import check_inputs, input_force
-
         check_inputs(tau, self.num_inputs, q.shape[:-1])
         Q = self.dissipative_force(q, qd, params)
         return Q if tau is None else Q + input_force(tau, self._force_maps()[0])
@@ -341,8 +334,6 @@ class System(abc.ABC):
                 f"{self.name}: batch shapes differ: q {tuple(q.shape)} vs params {tuple(params.shape)}"
             )
         if inputs == "check":
-            from ..forces import check_inputs
-
             check_inputs(tau, self.num_inputs, q.shape[:-1])
             if tau is not None and not torch.isfinite(tau).all():
                 raise InputError(f"{self.name}: tau contains NaN or Inf")

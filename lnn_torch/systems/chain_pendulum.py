@@ -27,7 +27,8 @@ import math
 import numpy as np
 import torch
 
-from .base import GRAVITY, InputError, System, as_range
+from ..errors import InputError
+from .base import GRAVITY, System, as_range
 
 
 class ChainPendulum(System):

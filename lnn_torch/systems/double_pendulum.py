@@ -29,7 +29,8 @@ import math
 import numpy as np
 import torch
 
-from .base import GRAVITY, InputError, System, as_range
+from ..errors import InputError
+from .base import GRAVITY, System, as_range
 
 CONVENTIONS = (
     "q=(theta1, theta2): absolute angles from the downward vertical, counter-clockwise positive, rad; "

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .base import InputError, System, as_range
+from ..errors import InputError
+from .base import System, as_range
 
 
 class MassSpring(System):

@@ -20,7 +20,8 @@ import math
 
 import torch
 
-from .base import InputError, System
+from ..errors import InputError
+from .base import System
 
 
 class MeasuredSystem(System):

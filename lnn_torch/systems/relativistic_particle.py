@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import torch
 
-from .base import InputError, System, as_range
+from ..errors import InputError
+from .base import System, as_range
 
 
 class RelativisticParticle(System):

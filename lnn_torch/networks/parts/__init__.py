@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warnings
 
-from ...systems.base import InputError
+from ...errors import InputError
 from .base import (BuildContext, KineticPart, Part, PartInputs, PotentialPart, PotentialTerm, check_angles,
                    part_options)
 from .chain import ChainGravity, RigidChain

@@ -30,7 +30,7 @@ from typing import Callable
 import torch
 from torch import nn
 
-from ...systems.base import InputError
+from ...errors import InputError
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ...systems.base import InputError
+from ...errors import InputError
 from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm, option
 
 _SOFTPLUS_THIRD = math.log(math.expm1(0.3))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ...systems.base import InputError
+from ...errors import InputError
 from .. import reference
 from .._kernels import one
 from ..layers import FiLM, TangentMLP

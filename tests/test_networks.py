@@ -1,45 +1,19 @@
-"""Networks and Euler-Lagrange solves: fast structured path vs torch.func references, SPD mass
-matrices, batch independence, gradcheck, shapes and error messages."""
+"""The networks (``lnn_torch.networks``: structured FiLM/DeLaN, black-box LNN, MLP; layers, registry):
+fast structured path vs torch.func references, SPD mass matrices, batch independence, gradcheck,
+shapes and error messages. The solves themselves: test_dynamics.py; the HNN: test_hamiltonian.py;
+compilation: test_compile.py."""
 
 
 import pytest
 import torch
 
-from lnn_torch.dynamics import SingularHessianError, generic_acceleration
+from lnn_torch.dynamics import generic_acceleration
 from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, build_model, reference
 from lnn_torch.networks.layers import ACTIVATIONS, TangentMLP
 from lnn_torch.systems import InputError, get_system
 
 from .conftest import QUADRATIC, QUADRATIC_IDS, SCENE_IDS, SCENES, random_batch, random_inputs
-
-
-def perturbed(model, scale=0.05, seed=0):
-    """Random, non-identity FiLM and weights so that every path of the model matters."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(scale * torch.randn(p.shape, generator=gen, dtype=p.dtype))
-    return model
-
-
-def normalized_batch(model, system, rng, n=64):
-    q, qd, params = random_batch(system, rng, n)
-    return model.normalize(q, qd, params)
-
-
-def assert_fast_path_is_the_references(model, system, qn, qdn, pn) -> None:
-    """A structured model's fast accelerations equal, to 1e-10 (float64), the readable model's by the
-    generic Hessian solve and by torch.func jvp/vjp + LAPACK Cholesky, under the same generalised
-    force (random inputs for a scene with inputs)."""
-    tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
-    force = model.force_norm(qn, qdn, pn, tau_n)
-    assert (force is None) == (not system.has_forces)
-    fast = model.acceleration_norm(qn, qdn, pn, tau_n)
-    generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
-    structured = reference.structured_model_acceleration(model, qn, qdn, pn, force)
-    scale = generic.abs().max()
-    assert (fast - generic).abs().max() <= 1e-10 * scale
-    assert (fast - structured).abs().max() <= 1e-10 * scale
+from .helpers import assert_fast_path_is_the_references, normalized_batch, perturbed
 
 
 @pytest.mark.parametrize("scene, config", QUADRATIC, ids=QUADRATIC_IDS)
@@ -249,37 +223,6 @@ def test_unknown_variant():
         build_model("hnnn", get_system("pendulum"))
 
 
-def test_generic_solve_reports_singular_hessian():
-    def lagrangian(q, qd, params):  # depends on qd1 + qd2 only: d2L/dqd2 has rank 1
-        return 0.5 * (qd[0] + qd[1]) ** 2 - q[0] ** 2
-
-    q = torch.randn(5, 2, dtype=torch.float64)
-    qd = torch.randn(5, 2, dtype=torch.float64)
-    params = torch.ones(5, 1, dtype=torch.float64)
-    with pytest.raises(SingularHessianError, match="singular for 5 of 5"):
-        generic_acceleration(lagrangian, q, qd, params)
-    regularised = generic_acceleration(lagrangian, q, qd, params, hessian_reg=1e-3)
-    assert torch.isfinite(regularised).all()
-    with pytest.warns(DeprecationWarning, match="renamed hessian_reg"):  # the former name still works
-        torch.testing.assert_close(generic_acceleration(lagrangian, q, qd, params, damping=1e-3), regularised)
-
-
-def test_generic_solve_double_backward():
-    """The generic solve is differentiable (training the black-box LNN needs the double backward)."""
-    k = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
-
-    def lagrangian(q, qd, params):
-        return 0.5 * params[0] * qd @ qd - 0.5 * k * q @ q
-
-    q = torch.randn(3, 2, dtype=torch.float64)
-    qd = torch.randn(3, 2, dtype=torch.float64)
-    params = torch.full((3, 1), 0.5, dtype=torch.float64)
-    a = generic_acceleration(lagrangian, q, qd, params)
-    torch.testing.assert_close(a, -k.detach() / 0.5 * q)
-    (g,) = torch.autograd.grad(a.sum(), k)
-    torch.testing.assert_close(g, -(q / 0.5).sum())
-
-
 def test_lnn_init_scheme():
     """sigma = c / sqrt(n) with c = 2.2 (first), 0.58 i (hidden i), n (output); pooled over 20
     seeded draws so that the output layer's 100 weights become 2000 samples (std error ~1.6 %)."""
@@ -334,66 +277,6 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
     assert qs.shape == (3, 5, system.dof) and torch.isfinite(qs).all() and torch.isfinite(qds).all()
 
 
-def _hnn(coordinates, scene="double_pendulum", rng=None):
-    system = get_system(scene)
-    model = perturbed(build_model("hnn", system, hidden_dims=(16, 16), hnn_coordinates=coordinates).double(), 0.2)
-    q, qd, params = random_batch(system, rng, 32)
-    model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params), "params": params,
-                          "params_points": params})
-    return system, model, (q, qd, params)
-
-
-@pytest.mark.parametrize("coordinates", ["canonical", "velocity"])
-def test_hnn_vector_field_is_the_symplectic_gradient(coordinates, rng):
-    system, model, (q, qd, params) = _hnn(coordinates, rng=rng)
-    q_n, _, p_n = model.normalize(q, qd, params)
-    m_n = model.momentum_norm(q, qd, params).clone().requires_grad_(True)
-    q_n = q_n.clone().requires_grad_(True)
-    H, _, _ = model.hamiltonian_and_grads(q_n, m_n, p_n)
-    dH_dq, dH_dm = torch.autograd.grad(H.sum(), (q_n, m_n))
-    qdot, mdot = model.vector_field_norm(q_n, m_n, p_n)
-    torch.testing.assert_close(qdot, dH_dm, rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(mdot, -dH_dq, rtol=1e-12, atol=1e-12)
-    if coordinates == "velocity":  # qdd = -dH/dq at m = qd
-        a = model.acceleration(q, qd, params)
-        torch.testing.assert_close(model.normalizer.accel_to_norm(a), -dH_dq, rtol=1e-12, atol=1e-12)
-
-
-def test_hnn_canonical_acceleration_is_the_flows_by_finite_differences(rng):
-    """qdd of the canonical HNN = d/dt of its velocity dH/dp along its own flow (central differences)."""
-    system, model, (q, qd, params) = _hnn("canonical", rng=rng)
-    q, qd, params = q[:4], qd[:4], params[:4]
-    a = model.acceleration(q, qd, params)
-    h = 1e-4
-    _, qds = model.rollout(q, qd, params, h, 2, method="rk8")  # the model's velocity dH/dp at t = 0, h, 2h
-    v0, v1, v2 = qds[:, 0], qds[:, 1], qds[:, 2]
-    fd = (-3 * v0 + 4 * v1 - v2) / (2 * h)  # second-order one-sided difference, error ~ h^2
-    assert (a - fd).abs().max() < 1e-5 * a.abs().max()
-
-
-def test_hnn_rollout_conserves_its_own_hamiltonian(rng):
-    system, model, (q, qd, params) = _hnn("canonical", rng=rng)
-    qs, _ = model.rollout(q[:4], qd[:4], params[:4], 0.002, 500, method="rk8")
-    # recover the momenta along the flow from the stored q and the integrator state: re-run the flow in (q, m)
-    q_n, _, p_n = model.normalize(q[:4], qd[:4], params[:4])
-    m_n = model.momentum_norm(q[:4], qd[:4], params[:4])
-    from lnn_torch.integrators import rollout_first_order
-
-    tau = float(model.normalizer.time_scale)
-    y = rollout_first_order(lambda z, p: torch.cat(model.vector_field_norm(z[:, :2], z[:, 2:], p), -1),
-                            torch.cat([q_n, m_n], -1), p_n, 0.002 / tau, 500, "rk8")
-    H = torch.stack([model.hamiltonian_and_grads(y[:, t, :2], y[:, t, 2:], p_n)[0] for t in range(y.shape[1])], 1)
-    assert (H - H[:, :1]).abs().max() < 1e-9 * H.abs().max()
-    torch.testing.assert_close(model.normalizer.state_to_phys(y[..., :2], y[..., :2])[0], qs)
-
-
-def test_canonical_hnn_needs_the_scene_momentum_map():
-    info = SceneInfo("double_pendulum", 2, (True, True), 4)
-    with pytest.raises(InputError, match="momentum map"):
-        build_model("hnn", info)
-    build_model("hnn", info, hnn_coordinates="velocity")
-
-
 @pytest.mark.parametrize("activation", ACTIVATIONS)
 @pytest.mark.parametrize("with_film", [False, True])
 @pytest.mark.parametrize("B", [5, 9])
@@ -433,31 +316,6 @@ def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
     (ref_grad,) = torch.autograd.grad(ref.sum(), xr)
     torch.testing.assert_close(value, ref.detach(), rtol=0, atol=1e-12)
     torch.testing.assert_close(grad, ref_grad[:, :4], rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 7])
-def test_spd_solve_equals_linalg_solve(dof):
-    """The Cholesky solve (unrolled up to SMALL_SPD, LAPACK beyond) equals torch.linalg.solve on
-    random and ill-conditioned (cond ~1e8) SPD systems in float64; non-SPD input gives NaN."""
-    from lnn_torch.dynamics import spd_solve
-
-    gen = torch.Generator().manual_seed(dof)
-    A = torch.randn(64, dof, dof, generator=gen, dtype=torch.float64)
-    Q = torch.linalg.qr(A)[0]
-    eig = torch.logspace(-8, 0, dof, dtype=torch.float64) if dof > 1 else torch.ones(1, dtype=torch.float64)
-    for M in (A @ A.mT + 0.1 * torch.eye(dof, dtype=torch.float64), Q @ torch.diag_embed(eig.expand(64, -1)) @ Q.mT):
-        rhs = torch.randn(64, dof, generator=gen, dtype=torch.float64)
-        ref = torch.linalg.solve(M, rhs)
-        x = spd_solve(M, rhs)
-        residual = (M @ x[..., None])[..., 0] - rhs
-        assert residual.abs().max() <= 1e-13 * M.abs().max() * x.abs().max()  # backward stable
-        assert (x - ref).abs().max() <= 1e-12 * torch.linalg.cond(M).max() * ref.abs().max()
-    bad = -torch.eye(dof, dtype=torch.float64).expand(3, -1, -1)
-    assert torch.isnan(spd_solve(bad, torch.ones(3, dof, dtype=torch.float64))).all(-1).any()
-    M = (A @ A.mT + torch.eye(dof, dtype=torch.float64))[:2].requires_grad_(True)
-    rhs = torch.randn(2, dof, dtype=torch.float64, requires_grad=True)
-    sym = lambda m, r: spd_solve(0.5 * (m + m.mT), r)  # noqa: E731  (the solve reads the lower triangle)
-    assert torch.autograd.gradcheck(sym, (M, rhs))
 
 
 @pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}, {"shared": True}])
@@ -506,120 +364,6 @@ def test_every_variant_takes_the_chunk_structure(variant, rng):
     assert a.keys() == b.keys()
     for key in a:
         torch.testing.assert_close(b[key], a[key], rtol=1e-12, atol=1e-12)
-
-
-def test_compiled_dynamics_equal_eager(rng):
-    """compile_dynamics(): accelerations and a rollout through torch.compile (C++ wrapper) equal the
-    eager ones, at batch sizes 1 and 5, under no_grad and with autograd; the compiled code is
-    dropped by copies."""
-    import copy
-
-    system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16)))
-    q, qd, params = (x.float() for x in random_batch(system, rng, 5))
-    eager_accel = model.acceleration(q, qd, params)
-    eager_q, eager_qd = model.rollout(q, qd, params, 0.01, 3)
-    model.compile_dynamics()
-    with torch.no_grad():
-        torch.testing.assert_close(model.acceleration(q[:1], qd[:1], params[:1]), eager_accel[:1], rtol=1e-5, atol=1e-5)
-        q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
-    torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
-    assert model._compile is True and set(model._compiled) == {"acceleration_norm", "_rollout_step"}
-    assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
-    # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
-    from lnn_torch.perf import RECOMPILE_LIMIT
-
-    assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT >= 32
-    model.compile_dynamics(False)
-    torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
-
-
-def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
-    """A failing compiled call warns once and the model continues eagerly with the eager result;
-    the model's own errors (singular Hessian) pass through and are not taken for a compile failure."""
-    import lnn_torch.networks.base as models
-
-    def broken(fn, device):
-        def run(*args):
-            raise RuntimeError("inductor: C++ compile failed")
-        return run
-
-    monkeypatch.setattr(models, "compile_fn", broken)
-    system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
-    q, qd, params = random_batch(system, rng, 4)
-    expected = model.acceleration(q, qd, params)
-    model.compile_dynamics()
-    with pytest.warns(RuntimeWarning, match="C\\+\\+ compile failed.*continuing eagerly"):
-        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
-    assert model._compile == "failed"
-    import warnings
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
-
-    def singular(fn, device):
-        def run(*args):
-            raise SingularHessianError("the velocity Hessian d2L/dqd2 is singular")
-        return run
-
-    monkeypatch.setattr(models, "compile_fn", singular)
-    model.compile_dynamics()
-    with pytest.raises(SingularHessianError):
-        model.acceleration(q, qd, params)
-    assert model._compile is True
-
-
-def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never(monkeypatch, rng):
-    """The default compilation mode ("auto") compiles the integrator step of a rollout whose work reaches
-    perf.AUTO_COMPILE_CALLS acceleration calls (RK4: 4 a step), and nothing else: not a shorter rollout,
-    not a direct acceleration call, not after compile_dynamics(False) or with LNN_TORCH_COMPILE=0. A
-    compilation failure warns once and the rollout continues eagerly with the eager result."""
-    import lnn_torch.networks.base as models
-    import lnn_torch.perf as perf
-
-    compiled = []
-
-    def recording(fn, device):
-        def run(*args):
-            compiled.append(fn.__name__)
-            return fn(*args)
-        return run
-
-    monkeypatch.setattr(models, "compile_fn", recording)
-    monkeypatch.setattr(perf, "AUTO_COMPILE_CALLS", 40)
-    system = get_system("double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
-    q, qd, params = random_batch(system, rng, 3)
-    assert model._compile == "auto"
-    short = model.rollout(q, qd, params, 0.01, 9)  # 36 calls
-    model.acceleration(q, qd, params)
-    assert compiled == []
-    long = model.rollout(q, qd, params, 0.01, 10)  # 40 calls: one compiled step function, called 10 times
-    assert compiled == ["_rollout_step"] * 10
-    torch.testing.assert_close(long[0][:, :10], short[0], rtol=0, atol=0)  # the step path = the eager path
-    compiled.clear()
-    model.acceleration(q, qd, params)  # after the rollout: eager again
-    monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
-    model.rollout(q, qd, params, 0.01, 10)
-    monkeypatch.delenv("LNN_TORCH_COMPILE")
-    model.compile_dynamics(False)
-    model.rollout(q, qd, params, 0.01, 10)
-    assert compiled == []
-    with pytest.raises(ValueError, match="compile_dynamics takes"):
-        model.compile_dynamics("sometimes")
-
-    def broken(fn, device):
-        def run(*args):
-            raise RuntimeError("inductor: C++ compile failed")
-        return run
-
-    monkeypatch.setattr(models, "compile_fn", broken)
-    model.compile_dynamics("auto")
-    with pytest.warns(RuntimeWarning, match="compiled rollout failed.*continuing eagerly"):
-        torch.testing.assert_close(model.rollout(q, qd, params, 0.01, 10), long, rtol=0, atol=0)
-    assert model._compile == "failed"
 
 
 @pytest.mark.parametrize("variant, kw", [("film_lnn", {}), ("film_lnn", {"potential_film": False}), ("delan", {}),

@@ -1,0 +1,119 @@
+"""The command line and the shipped configs (``lnn_torch.cli``, ``lnn_torch.lightning_cli``): every
+config instantiates and fits, fit/test/predict, the default root directory, a missing measured file."""
+
+import glob
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch import LNNModule
+from lnn_torch.data.datamodule import TrajectoryDataModule
+
+from .helpers import ROOT, run_cli
+
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
+def test_every_shipped_config_instantiates(config, tmp_path):
+    from lnn_torch.data.datamodule import TrajectoryDataModule as DM
+    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
+
+    args = ["-c", str(config)]
+    importer = ROOT / "configs" / "import" / config.name
+    if importer.exists():  # a config of measured data: its scene comes from the imported file
+        data = tmp_path / "d.h5"
+        recordings = sorted((ROOT / "lnn_torch" / "datasets" / config.stem / "recordings").glob("*.csv.gz"))
+        out = run_cli("import", *map(str, recordings), "--config", str(importer), "-o", str(data), cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-3000:]
+        args.append(f"--data.path={data}")
+    cli = LNNCLI(LNNModule, DM, args=args, run=False, trainer_defaults=TRAINER_DEFAULTS)
+    assert isinstance(cli.model, LNNModule) and isinstance(cli.datamodule, DM)
+    assert cli.trainer.validate_loop.inference_mode is False and cli.trainer.predict_loop.inference_mode is False
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
+def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
+    """fast_dev_run of each config on a tiny dataset of its own scene (generated on the fly; the
+    shipped recordings imported with their import config for a config of measured data)."""
+    data = tmp_path / "d.h5"
+    importer = ROOT / "configs" / "import" / config.name
+    if importer.exists():
+        recordings = sorted((ROOT / "lnn_torch" / "datasets" / config.stem / "recordings").glob("*.csv.gz"))
+        out = run_cli("import", *map(str, recordings), "--config", str(importer), "-o", str(data), cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-3000:]
+    out = run_cli("fit", "-c", str(config), f"--data.path={data}", "--data.spec.num_trajectories=10",
+               "--data.spec.duration=0.5", "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.1",
+               "--trainer.fast_dev_run=true", "--trainer.enable_progress_bar=false", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+
+
+@pytest.mark.slow
+def test_cli_fit_test_predict(dataset, tmp_path):
+    common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+              "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+              "--model.hidden_dims=[16,16]", "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false"]
+    out = run_cli("fit", *common, "--trainer.fast_dev_run=true", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    out = run_cli("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3",
+               "--trainer.check_val_every_n_epoch=1", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    ckpts = sorted(glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "*.ckpt")))
+    assert ckpts
+    # last.ckpt holds the final weights (Lightning's save_last would follow only improvements)
+    last = torch.load(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt", weights_only=False)
+    assert last["global_step"] == 3
+    # the end-of-fit summary: where the run and the checkpoint are, and the validation error
+    assert "TensorBoard run: lightning_logs/version_0" in out.stdout and "last.ckpt" in out.stdout
+    assert re.search(r"validation: acc\. rel\. L2 error [0-9.]+ % pooled, [0-9.]+ % per-trajectory median", out.stdout)
+    out = run_cli("test", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "test/acc_rel_err" in out.stdout
+    written = glob.glob(str(tmp_path / "lightning_logs" / "*" / "test_metrics.json"))
+    assert written and "test/acc_rel_err" in json.loads(Path(written[0]).read_text())
+    out = run_cli("predict", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    files = glob.glob(str(tmp_path / "lightning_logs" / "*" / "predictions.npz"))
+    assert files
+    pred = np.load(files[0])
+    assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
+
+
+@pytest.mark.slow
+def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
+    """--trainer.default_root_dir DIR moves the default TensorBoard run and the checkpoints to DIR
+    (the logger's save_dir is no longer fixed to the working directory)."""
+    common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+              "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+              "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2", "--trainer.enable_progress_bar=false",
+              "--trainer.max_epochs=1", "--data.steps_per_epoch=2", f"--trainer.default_root_dir={tmp_path / 'runs'}"]
+    out = run_cli("fit", *common, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "events.*"))
+    assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"))
+    assert not (tmp_path / "lightning_logs").exists()
+    # an explicit save_dir still wins
+    out = run_cli("fit", *common, f"--trainer.logger.init_args.save_dir={tmp_path / 'mine'}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert glob.glob(str(tmp_path / "mine" / "lightning_logs" / "version_0" / "events.*"))
+
+
+@pytest.mark.slow
+def test_a_measured_config_without_its_imported_file_says_to_import_it(tmp_path):
+    """Fitting the real-pendulum config before importing its recordings names the missing file and the
+    import command (it used to fall back to generating a simulated double pendulum and then refuse the
+    torque loss with an unrelated message); a spec'd dataset still generates."""
+    out = run_cli("fit", "-c", str(ROOT / "configs" / "real_double_pendulum.yaml"),
+               f"--data.path={tmp_path / 'absent.h5'}", "--trainer.fast_dev_run=true", cwd=tmp_path)
+    assert out.returncode != 0
+    assert "absent.h5 not found" in out.stderr and "lnn-torch import" in out.stderr, out.stderr[-2000:]
+    assert not (tmp_path / "absent.h5").exists()
+    with pytest.raises(FileNotFoundError, match="import them first"):
+        TrajectoryDataModule(path=str(tmp_path / "absent.h5"), targets="savgol")
+    assert TrajectoryDataModule(path=str(tmp_path / "sim.h5"), spec=dict(num_trajectories=4, duration=0.2),
+                                targets="savgol").model_scene()[0] == "double_pendulum"

@@ -1,0 +1,221 @@
+"""Compilation (``torch.compile`` through ``lnn_torch.perf.compile_fn``): compiled dynamics and training
+equal eager, when they compile by default, and the eager fallback when compilation fails."""
+
+import pytest
+import torch
+
+from lnn_torch import LNNModule
+from lnn_torch.dynamics import SingularHessianError
+from lnn_torch.networks import build_model
+from lnn_torch.perf import compile_fn
+from lnn_torch.systems import get_system
+
+from .conftest import random_batch
+from .helpers import make_dm, perturbed, quiet_trainer
+
+
+@pytest.mark.slow
+def test_compiled_dynamics_equal_eager(rng):
+    """compile_dynamics(): accelerations and a rollout through torch.compile (C++ wrapper) equal the
+    eager ones, at batch sizes 1 and 5, under no_grad and with autograd; the compiled code is
+    dropped by copies."""
+    import copy
+
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16)))
+    q, qd, params = (x.float() for x in random_batch(system, rng, 5))
+    eager_accel = model.acceleration(q, qd, params)
+    eager_q, eager_qd = model.rollout(q, qd, params, 0.01, 3)
+    model.compile_dynamics()
+    with torch.no_grad():
+        torch.testing.assert_close(model.acceleration(q[:1], qd[:1], params[:1]), eager_accel[:1], rtol=1e-5, atol=1e-5)
+        q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
+    torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
+    assert model._compile is True and set(model._compiled) == {"acceleration_norm", "_rollout_step"}
+    assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
+    # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
+    from lnn_torch.perf import RECOMPILE_LIMIT
+
+    assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT >= 32
+    model.compile_dynamics(False)
+    torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
+
+
+def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
+    """A failing compiled call warns once and the model continues eagerly with the eager result;
+    the model's own errors (singular Hessian) pass through and are not taken for a compile failure."""
+    import lnn_torch.networks.base as models
+
+    def broken(fn, device):
+        def run(*args):
+            raise RuntimeError("inductor: C++ compile failed")
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", broken)
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
+    q, qd, params = random_batch(system, rng, 4)
+    expected = model.acceleration(q, qd, params)
+    model.compile_dynamics()
+    with pytest.warns(RuntimeWarning, match="C\\+\\+ compile failed.*continuing eagerly"):
+        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
+    assert model._compile == "failed"
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
+
+    def singular(fn, device):
+        def run(*args):
+            raise SingularHessianError("the velocity Hessian d2L/dqd2 is singular")
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", singular)
+    model.compile_dynamics()
+    with pytest.raises(SingularHessianError):
+        model.acceleration(q, qd, params)
+    assert model._compile is True
+
+
+def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never(monkeypatch, rng):
+    """The default compilation mode ("auto") compiles the integrator step of a rollout whose work reaches
+    perf.AUTO_COMPILE_CALLS acceleration calls (RK4: 4 a step), and nothing else: not a shorter rollout,
+    not a direct acceleration call, not after compile_dynamics(False) or with LNN_TORCH_COMPILE=0. A
+    compilation failure warns once and the rollout continues eagerly with the eager result."""
+    import lnn_torch.networks.base as models
+    import lnn_torch.perf as perf
+
+    compiled = []
+
+    def recording(fn, device):
+        def run(*args):
+            compiled.append(fn.__name__)
+            return fn(*args)
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", recording)
+    monkeypatch.setattr(perf, "AUTO_COMPILE_CALLS", 40)
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(8,)).double())
+    q, qd, params = random_batch(system, rng, 3)
+    assert model._compile == "auto"
+    short = model.rollout(q, qd, params, 0.01, 9)  # 36 calls
+    model.acceleration(q, qd, params)
+    assert compiled == []
+    long = model.rollout(q, qd, params, 0.01, 10)  # 40 calls: one compiled step function, called 10 times
+    assert compiled == ["_rollout_step"] * 10
+    torch.testing.assert_close(long[0][:, :10], short[0], rtol=0, atol=0)  # the step path = the eager path
+    compiled.clear()
+    model.acceleration(q, qd, params)  # after the rollout: eager again
+    monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
+    model.rollout(q, qd, params, 0.01, 10)
+    monkeypatch.delenv("LNN_TORCH_COMPILE")
+    model.compile_dynamics(False)
+    model.rollout(q, qd, params, 0.01, 10)
+    assert compiled == []
+    with pytest.raises(ValueError, match="compile_dynamics takes"):
+        model.compile_dynamics("sometimes")
+
+    def broken(fn, device):
+        def run(*args):
+            raise RuntimeError("inductor: C++ compile failed")
+        return run
+
+    monkeypatch.setattr(models, "compile_fn", broken)
+    model.compile_dynamics("auto")
+    with pytest.warns(RuntimeWarning, match="compiled rollout failed.*continuing eagerly"):
+        torch.testing.assert_close(model.rollout(q, qd, params, 0.01, 10), long, rtol=0, atol=0)
+    assert model._compile == "failed"
+
+
+@pytest.mark.slow
+def test_compiled_training_matches_eager(dataset, tmp_path):
+    """compile=True: on one training batch (the supported size: chunks_per_batch x chunk_len, 4 x 16
+    here; evaluation stays eager) the compiled pass gives the eager loss and gradients; and a short
+    fit runs compiled without falling back. The pass is compiled as training compiles it
+    (``perf.compile_fn``: static shapes, inductor's C++ wrapper), which also compiles it in about half
+    the time of plain ``torch.compile``'s Python wrapper."""
+    dm = make_dm(dataset)
+    dm.setup("fit")
+    batch = {k: v.double() for k, v in dm.train_set[0].items()}  # float64: an equality, not a float32 race
+    model = LNNModule(val_rollouts=0, hidden_dims=[16, 16], energy_weight=0.1)
+    model.model.fit_normalizer(dm.normalization_data())
+    model = model.double()
+    results = []
+    for pass_fn in (model._training_pass, compile_fn(model._training_pass)):
+        model.zero_grad()
+        loss, _ = model._training_loss(batch, pass_fn)
+        loss.backward()
+        results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
+    (l0, g0), (l1, g1) = results
+    torch.testing.assert_close(l1, l0, rtol=1e-12, atol=0)
+    for a, b in zip(g0, g1):
+        # only the summation order differs between the two graphs (in float32 that alone reached
+        # 1e-6 of the largest entry, and 5x relative on near-zero entries)
+        torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-12 * max(float(a.abs().max()), 1e-3))
+    model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[16, 16])
+    trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False)
+    trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
+    assert model._compiled not in (None, False) and trainer.global_step == 3
+
+
+def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset, tmp_path, monkeypatch):
+    """compile="auto" (the default): a run planned for fewer than AUTO_COMPILE_TRAIN_STEPS steps
+    trains eagerly; one planned for at least that many compiles its pass; LNN_TORCH_COMPILE=0 and
+    compile=False never compile."""
+    from lnn_torch import perf
+
+    built = []
+
+    def recording_compile(fn, **kw):
+        built.append(fn)
+        return fn  # the eager pass under a recorded "compilation": the decision is what is tested
+
+    monkeypatch.setattr(torch, "compile", recording_compile)
+    monkeypatch.setattr(perf, "AUTO_COMPILE_TRAIN_STEPS", 4)
+
+    def fit(steps, **kw):
+        model = LNNModule(val_rollouts=0, hidden_dims=[8], **kw)
+        trainer = quiet_trainer(tmp_path, max_steps=steps, limit_val_batches=0, logger=False,
+                                enable_checkpointing=False)
+        trainer.fit(model, make_dm(dataset, steps_per_epoch=steps))
+        return model
+
+    assert LNNModule(hidden_dims=[8]).hparams.compile == "auto"
+    assert fit(3)._compiled is None and not built  # 3 < 4 planned steps: eager
+    assert fit(4)._compiled is not None and len(built) == 1  # 4 planned steps: compiled
+    assert fit(6, compile=False)._compiled is None and len(built) == 1
+    monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
+    assert fit(6)._compiled is None and len(built) == 1
+    with pytest.raises(ValueError, match="compile must be true, false or 'auto'"):
+        LNNModule(compile="sometimes")
+
+
+@pytest.mark.parametrize("where", ["forward", "backward"])
+def test_compile_failure_falls_back_to_eager(where, dataset, tmp_path, monkeypatch):
+    class Boom(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, x):
+            return x.clone()
+
+        @staticmethod
+        def backward(ctx, g):
+            raise RuntimeError("compiled backward failed")
+
+    def fake_compile(fn, **kw):
+        def compiled(*args):
+            if where == "forward":
+                raise RuntimeError("compilation failed")
+            out = fn(*args)
+            return {**out, "pred": Boom.apply(out["pred"])}
+
+        return compiled
+
+    monkeypatch.setattr(torch, "compile", fake_compile)
+    model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[8])
+    trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False)
+    with pytest.warns(RuntimeWarning, match="continuing training eagerly"):
+        trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
+    assert model._compiled is False and trainer.global_step == 3
+    assert all(torch.isfinite(p).all() for p in model.parameters())

@@ -1,0 +1,63 @@
+"""The Euler-Lagrange solves of ``lnn_torch.dynamics``: the generic Hessian solve (singular Hessians,
+double backward) and the SPD solve."""
+
+import pytest
+import torch
+
+from lnn_torch.dynamics import SingularHessianError, generic_acceleration
+
+
+def test_generic_solve_reports_singular_hessian():
+    def lagrangian(q, qd, params):  # depends on qd1 + qd2 only: d2L/dqd2 has rank 1
+        return 0.5 * (qd[0] + qd[1]) ** 2 - q[0] ** 2
+
+    q = torch.randn(5, 2, dtype=torch.float64)
+    qd = torch.randn(5, 2, dtype=torch.float64)
+    params = torch.ones(5, 1, dtype=torch.float64)
+    with pytest.raises(SingularHessianError, match="singular for 5 of 5"):
+        generic_acceleration(lagrangian, q, qd, params)
+    regularised = generic_acceleration(lagrangian, q, qd, params, hessian_reg=1e-3)
+    assert torch.isfinite(regularised).all()
+    with pytest.warns(DeprecationWarning, match="renamed hessian_reg"):  # the former name still works
+        torch.testing.assert_close(generic_acceleration(lagrangian, q, qd, params, damping=1e-3), regularised)
+
+
+def test_generic_solve_double_backward():
+    """The generic solve is differentiable (training the black-box LNN needs the double backward)."""
+    k = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
+
+    def lagrangian(q, qd, params):
+        return 0.5 * params[0] * qd @ qd - 0.5 * k * q @ q
+
+    q = torch.randn(3, 2, dtype=torch.float64)
+    qd = torch.randn(3, 2, dtype=torch.float64)
+    params = torch.full((3, 1), 0.5, dtype=torch.float64)
+    a = generic_acceleration(lagrangian, q, qd, params)
+    torch.testing.assert_close(a, -k.detach() / 0.5 * q)
+    (g,) = torch.autograd.grad(a.sum(), k)
+    torch.testing.assert_close(g, -(q / 0.5).sum())
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 7])
+def test_spd_solve_equals_linalg_solve(dof):
+    """The Cholesky solve (unrolled up to SMALL_SPD, LAPACK beyond) equals torch.linalg.solve on
+    random and ill-conditioned (cond ~1e8) SPD systems in float64; non-SPD input gives NaN."""
+    from lnn_torch.dynamics import spd_solve
+
+    gen = torch.Generator().manual_seed(dof)
+    A = torch.randn(64, dof, dof, generator=gen, dtype=torch.float64)
+    Q = torch.linalg.qr(A)[0]
+    eig = torch.logspace(-8, 0, dof, dtype=torch.float64) if dof > 1 else torch.ones(1, dtype=torch.float64)
+    for M in (A @ A.mT + 0.1 * torch.eye(dof, dtype=torch.float64), Q @ torch.diag_embed(eig.expand(64, -1)) @ Q.mT):
+        rhs = torch.randn(64, dof, generator=gen, dtype=torch.float64)
+        ref = torch.linalg.solve(M, rhs)
+        x = spd_solve(M, rhs)
+        residual = (M @ x[..., None])[..., 0] - rhs
+        assert residual.abs().max() <= 1e-13 * M.abs().max() * x.abs().max()  # backward stable
+        assert (x - ref).abs().max() <= 1e-12 * torch.linalg.cond(M).max() * ref.abs().max()
+    bad = -torch.eye(dof, dtype=torch.float64).expand(3, -1, -1)
+    assert torch.isnan(spd_solve(bad, torch.ones(3, dof, dtype=torch.float64))).all(-1).any()
+    M = (A @ A.mT + torch.eye(dof, dtype=torch.float64))[:2].requires_grad_(True)
+    rhs = torch.randn(2, dof, dtype=torch.float64, requires_grad=True)
+    sym = lambda m, r: spd_solve(0.5 * (m + m.mT), r)  # noqa: E731  (the solve reads the lower triangle)
+    assert torch.autograd.gradcheck(sym, (M, rhs))
