@@ -27,10 +27,31 @@ from .checkpoints import old_default_widths, record_widths, without_old_checkpoi
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
 from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
-from .networks.base import INVERSE_DYNAMICS, STATIC_FRICTION
+from .errors import InputError
+from .networks.base import ENERGY, INVERSE_DYNAMICS
+from .networks.registry import model_class
 from .networks import model_options as model_options_of
 from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
+
+
+def refuse_conflicts(variant: str, system, options: dict, energy_weight: float = 0.0, torque_weight: float = 0.0) -> None:
+    """Every option and loss term that ``variant`` cannot use on ``system``, in ONE ``InputError`` (a user
+    switching variants sees the whole list at once, not one refusal per attempt)."""
+    cls = model_class(variant)
+    known = model_options_of(variant)
+    problems = [f"option {k!r} (not an option of {variant})" for k in sorted(options)
+                if options[k] is not None and k not in known]
+    if torque_weight > 0 and not (INVERSE_DYNAMICS in cls.provides and system.num_inputs):
+        problems.append(f"torque_weight {torque_weight:g} (needs inverse dynamics: film_lnn or delan on a scene with "
+                        f"inputs; scene '{system.name}' has {system.num_inputs})")
+    if energy_weight > 0 and ENERGY not in cls.provides:
+        problems.append(f"energy_weight {energy_weight:g} (variant {variant} has no energy of its own)")
+    if (energy_weight > 0 or torque_weight > 0) and options.get("dissipation") == "joint+stiction":
+        problems.append("energy_weight/torque_weight with dissipation 'joint+stiction' (static friction's holding "
+                        "torque is not a force of the state)")
+    if problems:
+        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}. Its options: {', '.join(known)}")
 
 
 class LNNModule(L.LightningModule):
@@ -103,18 +124,13 @@ class LNNModule(L.LightningModule):
                        potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
                        hnn_coordinates=hnn_coordinates, **(model_options or {}))
         options = without_old_checkpoint_defaults(options, model_options_of(variant))
+        refuse_conflicts(variant, self.system, options, energy_weight=energy_weight, torque_weight=torque_weight)
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
-        if torque_weight > 0 and INVERSE_DYNAMICS not in self.model.capabilities:
-            raise ValueError(f"torque_weight > 0 needs a structured model (film_lnn, delan) of a scene with inputs; "
-                             f"got variant '{variant}' on scene '{scene}' ({self.system.num_inputs} inputs)")
-        if (energy_weight > 0 or torque_weight > 0) and STATIC_FRICTION in self.model.capabilities:
-            raise ValueError("energy_weight and torque_weight need the model's force at each state, which static "
-                             "friction's holding torque is not (dissipation 'joint+stiction'): set them to 0")
         self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)
         self.register_buffer("normalizer_fitted", torch.tensor(False))
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))

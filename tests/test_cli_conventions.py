@@ -142,3 +142,17 @@ def test_a_system_without_parameters_fits_its_normaliser_without_warnings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         norm.fit(torch.randn(50, 2), torch.randn(50, 2), torch.randn(50, 2), torch.zeros(5, 0))
+
+
+def test_a_variant_lists_every_option_and_loss_term_it_cannot_use_at_once():
+    """Switching the actuated scene's config to ``hnn``: its FiLM width and the torque term are refused
+    in one message (they were refused one at a time)."""
+    from lnn_torch import LNNModule
+    from lnn_torch.errors import InputError
+
+    with pytest.raises(InputError, match=r"variant 'hnn' cannot use: option 'film_hidden' .*; torque_weight 1 "):
+        LNNModule(scene="actuated_double_pendulum", variant="hnn", hidden_dims=[8], torque_weight=1.0,
+                  model_options={"film_hidden": 64})
+    with pytest.raises(InputError, match=r"energy_weight 0.1 \(variant mlp has no energy"):
+        LNNModule(variant="mlp", hidden_dims=[8], energy_weight=0.1)
+

@@ -343,7 +343,7 @@ def test_training_with_inputs_logs_power_balance_and_the_torque_term(actuated_ch
     assert "val/energy_drift" not in metrics
     assert all(math.isfinite(v) for v in metrics.values())
     assert model.model.forces is not None and model.data_dt == pytest.approx(0.005)
-    with pytest.raises(ValueError, match="torque_weight > 0 needs a structured model"):
+    with pytest.raises(ValueError, match=r"torque_weight 0.1 \(needs inverse dynamics"):
         type(model)(scene="actuated_double_pendulum", variant="mlp", torque_weight=0.1, hidden_dims=[8])
 
 

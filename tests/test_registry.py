@@ -25,7 +25,7 @@ def test_registry_maps_every_variant_and_each_class_declares_its_defaults():
 def test_module_refuses_an_option_its_variant_does_not_take_but_loads_old_checkpoints():
     from lnn_torch import LNNModule
 
-    with pytest.raises(InputError, match="takes no option 'hnn_coordinates'"):
+    with pytest.raises(InputError, match=r"cannot use: option 'hnn_coordinates' \(not an option of mlp\)"):
         LNNModule(variant="mlp", hnn_coordinates="velocity", hidden_dims=[8])
     # older checkpoints record every option with its old default for every variant: still loads
     old = dict(variant="mlp", hidden_dims=[8], film_mode="neuron", potential_film=True, eps=1e-4, lnn_init=False,
