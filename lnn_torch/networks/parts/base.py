@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from ...errors import InputError
+from ..layers import FiLM
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,27 @@ class PotentialPart(Part):
                             gravity: torch.Tensor) -> torch.Tensor:
         """``V_i (B,)`` by the plain formulas."""
         raise NotImplementedError
+
+
+class FiLMConditioned:
+    """Abstract mixin of the parts whose MLP ``self.net`` (widths ``hidden_dims``) a FiLM network of the
+    parameters modulates (``film_lnn``; ``use_film`` False or concatenated conditioning: none)."""
+
+    film_conditioned = True
+    use_film = True
+
+    @property
+    def film(self):
+        """The FiLM network of this part's MLP (owned by the model), or None."""
+        return self.conditioning_net
+
+    def build_conditioning(self, ctx: BuildContext):
+        if ctx.film and self.use_film:
+            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
+        return None
+
+    def condition(self, params_norm, chunks=None):
+        return film_of(self.film, self.net, params_norm, chunks)
 
 
 def film_of(film_net, net, params_norm: torch.Tensor, chunks: int | None):

@@ -14,8 +14,8 @@ import torch.nn.functional as F
 from ...errors import InputError
 from .. import reference
 from .._kernels import one
-from ..layers import FiLM, TangentMLP
-from .base import BuildContext, KineticPart, PartInputs, film_of, option
+from ..layers import TangentMLP
+from .base import BuildContext, FiLMConditioned, KineticPart, PartInputs, option
 
 
 def cholesky_scatter(dof: int, extra: int = 0) -> torch.Tensor:
@@ -56,7 +56,7 @@ def reference_chol(entries: torch.Tensor, dof: int, shift: float) -> torch.Tenso
     return flat.view(*entries.shape[:-1], dof, dof)
 
 
-class CholeskyMLP(KineticPart):
+class CholeskyMLP(FiLMConditioned, KineticPart):
     """``mlp``: ``chol (B, dof, dof)`` from a ``TangentMLP`` of the features.
 
     Options (None: the model's default): ``hidden_dims``, ``activation``, ``film_mode``,
@@ -106,21 +106,6 @@ class CholeskyMLP(KineticPart):
             raise InputError(f"mass_invariant {invariant} leaves the kinetic network no feature to read")
         self.register_buffer("index", torch.tensor(index, dtype=torch.long), persistent=False)
         return invariant
-
-    film_conditioned = True
-
-    @property
-    def film(self):
-        """The FiLM network of this part's MLP (owned by the model), or None."""
-        return self.conditioning_net
-
-    def build_conditioning(self, ctx: BuildContext):
-        if ctx.film:
-            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-        return None
-
-    def condition(self, params_norm, chunks=None):
-        return film_of(self.film, self.net, params_norm, chunks)
 
     def coefficient_parameters(self):
         # a residual's output bias: decay towards 0 would grow a diagonal that starts at softplus(-4)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import torch
 
 from .. import reference
-from ..layers import FiLM, TangentMLP
-from .base import BuildContext, PartInputs, PotentialPart, PotentialTerm, film_of, option
+from ..layers import TangentMLP
+from .base import BuildContext, FiLMConditioned, PartInputs, PotentialPart, PotentialTerm, option
 
 
-class PotentialMLP(PotentialPart):
+class PotentialMLP(FiLMConditioned, PotentialPart):
     """``mlp``: ``V (B,)`` from a ``TangentMLP`` of ``[phi, params]`` (no output bias: an energy is
     defined up to a constant). Options (None: the model's default): ``hidden_dims``, ``activation``,
     ``film_mode``, ``film_hidden``, ``potential_film`` (FiLM on this network too)."""
@@ -26,21 +26,6 @@ class PotentialMLP(PotentialPart):
         self.num_features = ctx.num_features
         self.net = TangentMLP(ctx.num_features + ctx.num_params, list(self.hidden_dims), 1,
                               option(ctx, activation, "activation"), out_bias=False)
-
-    film_conditioned = True
-
-    @property
-    def film(self):
-        """The FiLM network of this part's MLP (owned by the model), or None."""
-        return self.conditioning_net
-
-    def build_conditioning(self, ctx: BuildContext):
-        if ctx.film and self.use_film:
-            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-        return None
-
-    def condition(self, params_norm, chunks=None):
-        return film_of(self.film, self.net, params_norm, chunks)
 
     def potential(self, inputs: PartInputs, cond, grad: bool) -> PotentialTerm:
         x = torch.cat([inputs.phi, inputs.params_norm], -1)

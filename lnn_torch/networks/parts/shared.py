@@ -9,12 +9,12 @@ import torch
 from torch import nn
 
 from .. import reference
-from ..layers import FiLM, TangentMLP
-from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm, film_of, option
+from ..layers import TangentMLP
+from .base import BuildContext, FiLMConditioned, KineticPart, PartInputs, PotentialPart, PotentialTerm, option
 from .cholesky import chol_from, cholesky_scatter, reference_chol
 
 
-class SharedMLP(KineticPart, PotentialPart):
+class SharedMLP(FiLMConditioned, KineticPart, PotentialPart):
     """``shared``: the kinetic and the potential part in one network (outputs ``[Cholesky entries | V]``).
     Options (None: the model's default): ``hidden_dims``, ``activation``, ``film_mode``,
     ``film_hidden``, ``diag_shift``."""
@@ -32,21 +32,6 @@ class SharedMLP(KineticPart, PotentialPart):
                               option(ctx, activation, "activation"))
         self.register_buffer("scatter", cholesky_scatter(dof, extra=1), persistent=False)
         self.register_buffer("diag", torch.eye(dof, dtype=torch.bool).flatten(), persistent=False)
-
-    film_conditioned = True
-
-    @property
-    def film(self):
-        """The FiLM network of this part's MLP (owned by the model), or None."""
-        return self.conditioning_net
-
-    def build_conditioning(self, ctx: BuildContext):
-        if ctx.film:
-            return FiLM(ctx.num_params, list(self.hidden_dims), self.film_mode, self.film_hidden)
-        return None
-
-    def condition(self, params_norm, chunks=None):
-        return film_of(self.film, self.net, params_norm, chunks)
 
     def _outputs(self, inputs: PartInputs, cond):
         """``(chol, dchol, V, dV/dq)`` from one pass, once per evaluation."""
