@@ -22,6 +22,7 @@ import math
 
 import lightning as L
 import torch
+from torch.utils.tensorboard.summary import hparams as hparams_summary
 
 from .checkpoints import old_default_widths, record_widths, without_old_checkpoint_defaults
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
@@ -33,6 +34,18 @@ from .networks.registry import model_class
 from .networks import model_options as model_options_of
 from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
+
+
+def _plain_hparams(hparams: dict, prefix: str = "") -> dict:
+    """Hyper-parameters as TensorBoard's HParams plugin takes them: nested dicts flattened to ``a/b``,
+    values other than numbers, strings and booleans as their text."""
+    out = {}
+    for key, value in hparams.items():
+        if isinstance(value, dict):
+            out.update(_plain_hparams(value, f"{prefix}{key}/"))
+        else:
+            out[prefix + key] = value if isinstance(value, (bool, int, float, str)) else str(value)
+    return out
 
 
 def refuse_conflicts(variant: str, system, options: dict, energy_weight: float = 0.0, torque_weight: float = 0.0) -> None:
@@ -94,7 +107,8 @@ class LNNModule(L.LightningModule):
         val_rollout_seconds: the horizon of validation and test rollouts (s).
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
         val_threshold: coordinate error (rad or m) that defines the divergence time.
-        figure_every_n_epochs: log trajectory/energy figures this often (0: never).
+        figure_every_n_epochs: log the evaluation's figures at every n-th validation (1, the default:
+            every one; the last validation of a run always; 0: never).
         compile: run the training pass through ``torch.compile`` (``lnn_torch.perf.compile_fn``):
             ``"auto"`` (default) when the run is planned for at least
             ``lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS`` optimiser steps (the measured break-even of the
@@ -116,7 +130,7 @@ class LNNModule(L.LightningModule):
                  torque_weight: float = 0.0, loss: str = "acceleration", trajectory_integrator: str = "rk4",
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
-                 val_threshold: float = 0.1, figure_every_n_epochs: int = 5, compile: bool | str = "auto") -> None:
+                 val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto") -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -210,10 +224,15 @@ class LNNModule(L.LightningModule):
 
         for logger in self.loggers:
             if isinstance(logger, TensorBoardLogger):
-                # hyper-parameters with the metric keys, so the HParams tab shows real metrics
+                # hyper-parameters with the metric keys, so the HParams tab shows the real metrics; the
+                # keys are declared in the HParams summary only (Lightning's log_hyperparams(params,
+                # metrics) would also write each key as a NaN scalar at step 0)
+                logger.log_hyperparams(dict(self.hparams))
                 energy = "val/power_balance" if self.system.has_forces else "val/energy_drift"
-                logger.log_hyperparams(dict(self.hparams), {"val/acc_rel_err": math.nan, energy: math.nan,
-                                                            "val/divergence_time": math.nan})
+                metrics = {"val/acc_rel_err": math.nan, energy: math.nan, "val/divergence_time": math.nan}
+                writer = logger.experiment._get_file_writer()
+                for summary in hparams_summary(_plain_hparams(dict(self.hparams)), metrics):
+                    writer.add_summary(summary)
 
     def on_train_epoch_start(self) -> None:
         dm = getattr(self.trainer, "datamodule", None)
@@ -323,8 +342,9 @@ class LNNModule(L.LightningModule):
         # a compilation failure of the pass falls back to the eager pass inside it (CompiledFallback)
         loss, parts = self._training_loss(batch, self._pass_fn())
         if self._writes_logs():
-            for name, value in parts.items():
-                self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
+            if len(parts) > 1:  # one curve per term; a loss of one term is train/loss itself
+                for name, value in parts.items():
+                    self.log(f"train/{name}", value.detach(), on_step=True, on_epoch=False)
             self.log("train/loss", loss.detach(), on_step=True, on_epoch=False, prog_bar=True)
         self._skip_this_step = not bool(torch.isfinite(loss))
         if self._skip_this_step:
@@ -395,10 +415,19 @@ class LNNModule(L.LightningModule):
                                     accel_stride=int(batch["accel_stride"]), num_rollouts=n if n > 0 else None)
         for name, value in section_logs(result).items():
             self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, prog_bar=name == "acc_rel_err")
-        every = self.hparams.figure_every_n_epochs
-        if (prefix == "val" and self.system.closed_form and n != 0 and every and self.current_epoch % every == 0
-                and self.trainer.is_global_zero):
+        if prefix == "val" and self.system.closed_form and n != 0 and self._figures_now():
             self._log_figures(result, prefix)
+
+    def _figures_now(self) -> bool:
+        """Whether this validation logs figures: every ``figure_every_n_epochs``-th one and the run's
+        last (not the sanity check before training, nor on other ranks than the first)."""
+        every, trainer = self.hparams.figure_every_n_epochs, self.trainer
+        if not every or trainer.sanity_checking or not trainer.is_global_zero:
+            return False
+        self._validations = getattr(self, "_validations", 0) + 1
+        last = ((trainer.max_epochs not in (None, -1) and self.current_epoch + 1 >= trainer.max_epochs)
+                or (trainer.max_steps not in (None, -1) and self.global_step >= trainer.max_steps))
+        return self._validations % every == 0 or last
 
     def validation_step(self, batch, batch_idx):
         self._evaluate(batch, "val")
@@ -415,12 +444,14 @@ class LNNModule(L.LightningModule):
             return
         import matplotlib.pyplot as plt
 
+        # the step Lightning logs this validation's scalars at: the last training step's index
+        step = max(self.global_step - 1, 0)
         for tag, build in section_figures(result, tags=True).items():
             fig = build(result)
             if fig is None:
                 continue
             for lg in loggers:
-                lg.experiment.add_figure(f"{prefix}/{tag}", fig, global_step=self.global_step, close=False)
+                lg.experiment.add_figure(f"{prefix}/{tag}", fig, global_step=step, close=False)
             plt.close(fig)
 
     # ------------------------------------------------------------------ prediction

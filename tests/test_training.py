@@ -50,6 +50,24 @@ def test_per_step_values_are_logged_on_the_written_steps_with_that_steps_values(
     assert len(set(seen)) == 12  # the learning rate differs at every step: the test can tell steps apart
 
 
+def test_a_single_term_loss_logs_one_curve_and_figures_come_at_the_last_validation(dataset, tmp_path):
+    """Without the energy term the loss is the Huber term alone: one curve (train/loss), not two equal
+    ones; with figures every 2nd validation of 3, the last validation logs them too."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    model = LNNModule(val_rollouts=1, val_rollout_seconds=0.2, hidden_dims=[8, 8], figure_every_n_epochs=2,
+                      compile=False)
+    trainer = quiet_trainer(tmp_path, max_epochs=3, limit_train_batches=2, log_every_n_steps=1)
+    trainer.fit(model, make_dm(dataset))
+    events = glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "events.*"))
+    acc = EventAccumulator(str(Path(events[0]).parent), size_guidance={"images": 0, "scalars": 0})
+    acc.Reload()
+    assert "train/loss" in acc.Tags()["scalars"] and "train/huber" not in acc.Tags()["scalars"]
+    val_steps = [e.step for e in acc.Scalars("val/acc_rel_err")]
+    assert len(val_steps) == 3
+    assert [e.step for e in acc.Images("val/trajectory")] == [val_steps[1], val_steps[2]]
+
+
 def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -65,6 +83,9 @@ def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
                 "train/skipped_steps"):
         assert tag in tags, tag
     assert {"val/trajectory", "val/energy"} <= set(acc.Tags()["images"])
+    # figures at every validation, the last one included, at the step of its scalars
+    val_steps = [e.step for e in acc.Scalars("val/acc_rel_err")]
+    assert len(val_steps) == 2 and [e.step for e in acc.Images("val/trajectory")] == val_steps
     assert "hp_metric" not in tags
     # the HParams plugin data (hyper-parameters logged with the metric keys)
     plugin = acc.PluginTagToContent("hparams")
