@@ -50,11 +50,15 @@ CALLBACKS = [
 
 
 class _DropLightningTips(logging.Filter):
-    """Lightning's advertisements for its cloud services ("Tip: ... try installing litlogger"): nothing a
-    user of this command can act on."""
+    """Lightning's advertisements for its cloud services ("Tip: ... try installing litlogger") and its
+    note at every checkpoint written ("`weights_only` was not set"): nothing a user of this command can
+    act on."""
+
+    NOISE = ("💡 Tip:", "`weights_only` was not set")
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return "💡 Tip:" not in record.getMessage()
+        message = record.getMessage()
+        return not any(text in message for text in self.NOISE)
 
 
 def quiet_third_parties() -> None:
@@ -62,9 +66,10 @@ def quiet_third_parties() -> None:
     its use of a torch pytree API that torch deprecated (warned at every fit)."""
     import warnings
 
-    logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")
-    if not any(isinstance(f, _DropLightningTips) for f in logger.filters):
-        logger.addFilter(_DropLightningTips())
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.trainer.connectors.checkpoint_connector"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _DropLightningTips) for f in logger.filters):
+            logger.addFilter(_DropLightningTips())
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)` is deprecated",
                             module=r"lightning\.pytorch\.utilities\._pytree")
 

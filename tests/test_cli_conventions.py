@@ -128,6 +128,9 @@ def test_the_commands_silence_lightnings_advertisements_only(caplog):
     with caplog.at_level(logging.INFO, logger="lightning.pytorch.utilities.rank_zero"):
         logger.info("💡 Tip: For seamless cloud logging and experiment tracking, try installing litlogger")
         logger.info("GPU available: False, used: False")
+    saving = logging.getLogger("lightning.pytorch.trainer.connectors.checkpoint_connector")
+    with caplog.at_level(logging.INFO, logger=saving.name):
+        saving.info("`weights_only` was not set, defaulting to `False`.")
     assert [r.getMessage() for r in caplog.records] == ["GPU available: False, used: False"]
 
 
