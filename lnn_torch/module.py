@@ -231,6 +231,8 @@ class LNNModule(L.LightningModule):
                 energy = "val/power_balance" if self.system.has_forces else "val/energy_drift"
                 metrics = {"val/acc_rel_err": math.nan, energy: math.nan, "val/divergence_time": math.nan}
                 writer = logger.experiment._get_file_writer()
+                if writer is None:  # the logger's stand-in on ranks other than the first writes nothing
+                    continue
                 for summary in hparams_summary(_plain_hparams(dict(self.hparams)), metrics):
                     writer.add_summary(summary)
 
