@@ -30,7 +30,7 @@ from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .errors import InputError
 from .networks.base import ENERGY, INVERSE_DYNAMICS
-from .networks.registry import model_class
+from .networks.registry import model_class, unknown_options
 from .networks import model_options as model_options_of
 from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
 from .systems import get_system
@@ -52,9 +52,7 @@ def refuse_conflicts(variant: str, system, options: dict, energy_weight: float =
     """Every option and loss term that ``variant`` cannot use on ``system``, in ONE ``InputError`` (a user
     switching variants sees the whole list at once, not one refusal per attempt)."""
     cls = model_class(variant)
-    known = model_options_of(variant)
-    problems = [f"option {k!r} (not an option of {variant})" for k in sorted(options)
-                if options[k] is not None and k not in known]
+    problems = [f"option {k!r} (not an option of {variant})" for k in unknown_options(variant, options)]
     if torque_weight > 0 and not (INVERSE_DYNAMICS in cls.provides and system.num_inputs):
         problems.append(f"torque_weight {torque_weight:g} (needs inverse dynamics: film_lnn or delan on a scene with "
                         f"inputs; scene '{system.name}' has {system.num_inputs})")
@@ -64,7 +62,8 @@ def refuse_conflicts(variant: str, system, options: dict, energy_weight: float =
         problems.append("energy_weight/torque_weight with dissipation 'joint+stiction' (static friction's holding "
                         "torque is not a force of the state)")
     if problems:
-        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}. Its options: {', '.join(known)}")
+        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}. "
+                         f"Its options: {', '.join(model_options_of(variant))}")
 
 
 class LNNModule(L.LightningModule):

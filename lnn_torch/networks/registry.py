@@ -32,6 +32,12 @@ def model_options(variant: str) -> dict:
     return {p.name: p.default for p in params}
 
 
+def unknown_options(variant: str, options: dict) -> list[str]:
+    """The options given (not None) that ``variant`` does not take, sorted."""
+    known = model_options(variant)
+    return sorted(k for k, v in options.items() if v is not None and k not in known)
+
+
 def build_model(variant: str, scene, **options) -> DynamicsModel:
     """Build a model variant for a scene (a ``System``, its ``describe()`` dict or a ``SceneInfo``;
     the canonical ``hnn`` needs a ``System`` for its momentum map).
@@ -39,12 +45,11 @@ def build_model(variant: str, scene, **options) -> DynamicsModel:
     ``options``: the variant's own options (``model_options(variant)``); ``None`` means the
     variant's default. An option the variant does not take is an error, not silently ignored.
     """
-    known = model_options(variant)
     options = {k: v for k, v in options.items() if v is not None}
-    unknown = sorted(set(options) - set(known))
+    unknown = unknown_options(variant, options)
     if unknown:
         raise InputError(f"model variant '{variant}' takes no option {', '.join(map(repr, unknown))}; "
-                         f"its options: {', '.join(known)}")
+                         f"its options: {', '.join(model_options(variant))}")
     if "hidden_dims" in options:
         options["hidden_dims"] = tuple(options["hidden_dims"])
     return model_class(variant)(scene, **options)

@@ -94,7 +94,7 @@ class StructuredLagrangian(DynamicsModel):
                      potential_film=potential_film, film_hidden=film_hidden, diag_shift=diag_shift,
                      mass_invariant=mass_invariant, links=links)
         self.hidden_dims = tuple(hidden_dims)
-        self.eps, self.diag_shift = float(eps), float(diag_shift)
+        self.eps = float(eps)
         self.shared = bool(shared)
         ctx = BuildContext(self.scene.name, self.scene.dof, self.scene.num_params, self.num_features,
                            self.all_angles, self.scene.angle_mask, self.conditioning,
@@ -140,8 +140,8 @@ class StructuredLagrangian(DynamicsModel):
         changed = {k for k, v in given.items() if k in defaults and _differs(v, defaults[k])}
         if self.shared:
             kinetic_spec, potential_spec = {"shared": {}}, {}
-            conflicts = [f"kinetic {kinetic!r}" for _ in [0] if kinetic != "mlp"]
-            conflicts += [f"potential {potential!r}" for _ in [0] if potential != "mlp"]
+            conflicts = [f"{role} {spec!r}" for role, spec in (("kinetic", kinetic), ("potential", potential))
+                         if spec != "mlp"]
             conflicts += [k for k in ("mass_invariant", "links", "potential_film") if k in changed]
             if conflicts:
                 raise InputError(f"shared (one network for both energies) cannot be combined with "

@@ -121,8 +121,8 @@ class Part(nn.Module):
         return []
 
     def si_report(self, scales: dict, params_norm: torch.Tensor) -> dict | None:
-        """The part's identified quantities in SI units, where it has any (``scales``: the model's
-        ``time``, ``force`` and ``inputs`` flags, see ``StructuredLagrangian.si_report``)."""
+        """The part's identified quantities in SI units, where it has any (``scales``: the normaliser's
+        ``time`` and ``force`` scales; ``StructuredLagrangian.chain_si`` says when they apply)."""
         return None
 
 

@@ -75,7 +75,7 @@ class CholeskyMLP(FiLMConditioned, KineticPart):
         self.hidden_dims = tuple(option(ctx, hidden_dims, "hidden_dims"))
         self.film_mode, self.film_hidden = option(ctx, film_mode, "film_mode"), option(ctx, film_hidden, "film_hidden")
         self.diag_shift = float(option(ctx, diag_shift, "diag_shift"))
-        self.mass_invariant = self._feature_index(ctx, mass_invariant)
+        self._feature_index(ctx, mass_invariant)
         Fk = ctx.num_features if self.index is None else len(self.index)
         self.net = TangentMLP(Fk if ctx.film else Fk + P, list(self.hidden_dims), dof * (dof + 1) // 2,
                               option(ctx, activation, "activation"))
@@ -88,12 +88,12 @@ class CholeskyMLP(FiLMConditioned, KineticPart):
                 self.net.out.bias.zero_()
                 self.net.out.bias[:dof] = -4.0
 
-    def _feature_index(self, ctx: BuildContext, invariant):
+    def _feature_index(self, ctx: BuildContext, invariant) -> None:
         """Registers ``index``: the features the network reads when the mass matrix does not depend on
         the coordinates ``invariant`` (None: all features)."""
         if invariant is None:
             self.index = None
-            return None
+            return
         invariant = sorted({int(i) for i in invariant})
         if any(not 0 <= i < ctx.dof for i in invariant):
             raise InputError(f"mass_invariant must list coordinate indices in [0, {ctx.dof}), got {invariant}")
@@ -105,7 +105,6 @@ class CholeskyMLP(FiLMConditioned, KineticPart):
         if not index:
             raise InputError(f"mass_invariant {invariant} leaves the kinetic network no feature to read")
         self.register_buffer("index", torch.tensor(index, dtype=torch.long), persistent=False)
-        return invariant
 
     def coefficient_parameters(self):
         # a residual's output bias: decay towards 0 would grow a diagonal that starts at softplus(-4)
