@@ -285,7 +285,8 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
         raise ValueError(f"unknown evaluation sections {unknown}; known: {', '.join(SECTIONS)}")
     ctx = EvalContext(model, system, data, integrator, dt, horizon, tuple(thresholds), accel_stride, num_rollouts,
                       dict(options))
-    out: dict = {"variant": getattr(model, "variant", type(model).__name__), "num_trajectories": len(data),
+    out: dict = {"variant": getattr(model, "variant", type(model).__name__), "scene": system.name,
+                 "num_trajectories": len(data),
                  "integrator": integrator, "dt": ctx.grid()[0], "horizon_s": ctx.grid()[3] * ctx.grid()[1] * data.dt}
     presented: dict[str, SectionResult] = {}
     skipped: dict[str, str] = {}
@@ -313,10 +314,22 @@ def section_logs(result: dict) -> dict[str, float]:
     return {k: v for s in result.get("_sections", {}).values() for k, v in s.logs.items()}
 
 
-def section_figures(result: dict, tags: bool = False) -> dict[str, Callable[[dict], object]]:
+def section_figures(result: dict, tags: bool = False, case: str | None = None) -> dict[str, Callable[[dict], object]]:
     """PNG name (with ``tags``: the figure's logger tag) -> figure builder ``fn(result)`` over the
-    computed sections of ``result``."""
-    return {(s.tags.get(k, k.removesuffix(".png")) if tags else k): v
+    computed sections of ``result``. Each figure is titled with the model, the scene and ``case``
+    (e.g. "test split"); its own axes say what it shows."""
+    title = f"{result.get('variant', 'model')} on {result.get('scene', '?')}" + (f", {case}" if case else "")
+
+    def titled(build):
+        def draw(res: dict):
+            fig = build(res)
+            if fig is not None:
+                fig.suptitle(title, fontsize=10)
+                fig.tight_layout()
+            return fig
+        return draw
+
+    return {(s.tags.get(k, k.removesuffix(".png")) if tags else k): titled(v)
             for s in result.get("_sections", {}).values() for k, v in s.figures.items()}
 
 
@@ -331,8 +344,28 @@ def _units(system) -> str:
     return "rad" if all(system.angle_mask) else "(rad or m)"
 
 
-def _quartile_cell(d: dict, digits: int = 2) -> str:
-    return f"{d['median']:.{digits}f} [{d['q25']:.{digits}f}, {d['q75']:.{digits}f}]"
+def _pct(x: float) -> str:
+    """A fraction as a percentage, three significant digits (``0.0007`` -> ``0.07 %``)."""
+    return "n/a" if x != x else f"{100 * x:.3g} %"
+
+
+def _time(t: float, cap: float) -> str:
+    """A divergence time in s; one at the horizon ``cap`` (the error never exceeded the threshold)
+    reads ``≥ cap``."""
+    return f"≥ {cap:g}" if t >= cap - 1e-9 else f"{t:.2f}"
+
+
+def _quartile_cell(d: dict, cap: float) -> str:
+    """``median [q25, q75]`` of divergence times; ``≥ cap (never exceeded)`` where all three are at
+    the horizon."""
+    if d["q25"] >= cap - 1e-9:
+        return f"≥ {cap:g} (never exceeded)"
+    return f"{_time(d['median'], cap)} [{_time(d['q25'], cap)}, {_time(d['q75'], cap)}]"
+
+
+def _inputs_note(system) -> str:
+    """", driven by the recorded inputs" for a scene with inputs, else nothing."""
+    return ", driven by the recorded inputs" if getattr(system, "num_inputs", 0) else ""
 
 
 def _finite_rows(*tensors) -> torch.Tensor:
@@ -347,6 +380,10 @@ def _finite_rows(*tensors) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------------------- sections
+_ACC_LABELS = {"per_trajectory_median": "per-trajectory median", "per_trajectory_p90": "per-trajectory p90",
+               "non_finite_fraction": "non-finite points"}
+
+
 @section("accelerations")
 def _accelerations(ctx: EvalContext) -> SectionResult:
     data = ctx.data
@@ -362,7 +399,8 @@ def _accelerations(ctx: EvalContext) -> SectionResult:
             "acc_rel_err_traj_median": acc.get("per_trajectory_median", float("nan")),
             "acc_non_finite": acc["non_finite_fraction"]}
     return SectionResult({"acc_rel_err": acc, "acceleration_eval_seconds": seconds},
-                         rows=[f"| acceleration rel. L2 error ({k}) | {v:.4f} |" for k, v in acc.items()], logs=logs)
+                         rows=[f"| acceleration rel. L2 error ({_ACC_LABELS.get(k, k)}) | {_pct(v)} |"
+                               for k, v in acc.items()], logs=logs)
 
 
 @section("rollouts")
@@ -377,9 +415,10 @@ def _rollouts(ctx: EvalContext) -> SectionResult:
     out["rollout_seconds"] = r["seconds"]
     out["_arrays"] = {"q_true": r["q_true"], "q_model": r["q"], "qd_model": r["qd"], "params": r["params"],
                       "dt": r["grid_dt"]}
-    rows = [f"| time to {thr:g} {_units(system)} error, model: median [q25, q75] (s) | "
-            f"{_quartile_cell(out[f'divergence_time@{thr:g}']['model'])} |" for thr in ctx.thresholds]
-    rows.append(f"| non-finite rollouts | {out['rollout_non_finite_fraction']:.3f} |")
+    cap = (r["q"].shape[1] - 1) * r["grid_dt"]
+    rows = [f"| time to {thr:g} {_units(system)} error, model{_inputs_note(system)}: median [q25, q75] (s) | "
+            f"{_quartile_cell(out[f'divergence_time@{thr:g}']['model'], cap)} |" for thr in ctx.thresholds]
+    rows.append(f"| non-finite rollouts | {_pct(out['rollout_non_finite_fraction'])} |")
     arrays = out["_arrays"]
 
     def error_growth(result):
@@ -387,10 +426,10 @@ def _rollouts(ctx: EvalContext) -> SectionResult:
 
         exact = result["_arrays"].get("q_exact")
         return error_growth_figure(arrays["q_true"], arrays["q_model"], exact, arrays["dt"], system.angle_mask,
-                                   result.get("perturbation", 1e-6))
+                                   result.get("perturbation", 1e-6), _units(system).strip("()"))
 
     figures = {"trajectory.png": _figure("trajectory_figure", arrays["q_true"][0], arrays["q_model"][0], arrays["dt"],
-                                         system.coord_names),
+                                         system.coord_names, system.coord_units),
                "error_growth.png": error_growth}
     logs = {"rollout_non_finite": out["rollout_non_finite_fraction"],
             "divergence_time": out[f"divergence_time@{ctx.thresholds[0]:g}"]["model"]["median"]}
@@ -437,8 +476,9 @@ def _predictability(ctx: EvalContext) -> SectionResult:
         divergence_time(q_x, r["q_true"], r["grid_dt"], thr, ctx.system.angle_mask))} for thr in ctx.thresholds}
     out["perturbation"] = perturbation
     out["_arrays"] = {"q_exact": q_x}
+    cap = (q_x.shape[1] - 1) * r["grid_dt"]
     rows = [f"| time to {thr:g} {_units(ctx.system)} error, exact system started {perturbation:g} off: median "
-            f"[q25, q75] (s) | {_quartile_cell(out[f'divergence_time@{thr:g}']['exact_perturbed'])} |"
+            f"[q25, q75] (s) | {_quartile_cell(out[f'divergence_time@{thr:g}']['exact_perturbed'], cap)} |"
             for thr in ctx.thresholds]
     return SectionResult(out, rows=rows)
 
@@ -467,7 +507,7 @@ def _mass_matrix(ctx: EvalContext) -> SectionResult:
          "cond_median": float(cond.median()), "cond_max": float(cond.max())}
     return SectionResult({"mass_matrix": m}, rows=[
         f"| mass-matrix rel. Frobenius error (best scale per system): median, max | "
-        f"{m['rel_frobenius_median']:.4f}, {m['rel_frobenius_max']:.4f} |",
+        f"{_pct(m['rel_frobenius_median'])}, {_pct(m['rel_frobenius_max'])} |",
         f"| cond(M) of the learned mass matrix: median, max | {m['cond_median']:.1f}, {m['cond_max']:.1f} |"])
 
 
@@ -492,7 +532,7 @@ def _torques(ctx: EvalContext) -> SectionResult:
     names = list(getattr(ctx.system, "input_names", ()) or [f"u{i}" for i in range(err.numel())])
     t = {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err)}}
     row = ("| inverse-dynamics torque error, normalised RMSE: mean (" + ", ".join(k for k in t if k != "mean")
-           + f") | {t['mean']:.4f} (" + ", ".join(f"{v:.4f}" for k, v in t.items() if k != "mean") + ") |")
+           + f") | {_pct(t['mean'])} (" + ", ".join(_pct(v) for k, v in t.items() if k != "mean") + ") |")
     return SectionResult({"torque_nrmse": t}, rows=[row])
 
 
@@ -528,7 +568,7 @@ def _friction(ctx: EvalContext) -> SectionResult:
     arrays = {"rates": grid[0, :, 0], "true": true, "learned": learned}
     return SectionResult({"friction": out, "_friction_arrays": arrays}, rows=[
         f"| friction-torque curve rel. L2 error, median [p90] over trajectories and joints | "
-        f"{out['curve_rel_err_median']:.4f} [{out['curve_rel_err_p90']:.4f}] |"],
+        f"{_pct(out['curve_rel_err_median'])} [{_pct(out['curve_rel_err_p90'])}] |"],
         figures={"friction.png": _figure("friction_figure", arrays)})
 
 
@@ -564,7 +604,7 @@ def _free_decay(ctx: EvalContext) -> SectionResult:
     arrays = {"E_true": E_true - E_true[:, :1], "E_model": E_model - E_model[:, :1], "dt": dt}
     return SectionResult({"free_decay": d, "_decay_arrays": arrays}, rows=[
         f"| free decay over {d['seconds']:g} s, inputs off: energy lost, rel. error (median) | "
-        f"{d['energy_lost_rel_err_median']:.4f} |"], figures={"free_decay.png": _figure("decay_figure", arrays)})
+        f"{_pct(d['energy_lost_rel_err_median'])} |"], figures={"free_decay.png": _figure("decay_figure", arrays)})
 
 
 @section("horizons")
@@ -602,15 +642,17 @@ def _horizons(ctx: EvalContext) -> SectionResult:
     for thr in ctx.thresholds:
         out[f"time_to@{thr:g}"] = quartiles(divergence_time(q, q_true, dt, thr, ctx.system.angle_mask))
     hs = [f"error@{h:g}s" for h in horizons]
-    block = ["", f"Open-loop from {out['num_starts']} start points (every {every:g} s of each trajectory), driven by "
-                 "the recorded inputs:", "",
+    units = _units(ctx.system)
+    block = ["", f"Open-loop from {out['num_starts']} start points (every {every:g} s of each trajectory)"
+                 f"{_inputs_note(ctx.system)}:", "",
              "| | " + " | ".join(k.replace("error@", "after ") for k in hs) + " |", "|---" * (len(hs) + 1) + "|",
-             "| coordinate error, median | " + " | ".join(f"{out[k]['median']:.4f}" for k in hs) + " |",
-             "| coordinate error, 90th percentile | " + " | ".join(f"{out[k]['p90']:.4f}" for k in hs) + " |"]
-    for thr in ctx.thresholds:
-        d = out[f"time_to@{thr:g}"]
-        block.append(f"\nTime until the error exceeds {thr:g}: median {d['median']:.3f} s "
-                     f"[{d['q25']:.3f}, {d['q75']:.3f}] (censored at {out['horizon_s']:g} s).")
+             f"| coordinate error ({units}), median | " + " | ".join(f"{out[k]['median']:.2g}" for k in hs) + " |",
+             f"| coordinate error ({units}), 90th percentile | " + " | ".join(f"{out[k]['p90']:.2g}" for k in hs)
+             + " |", ""]
+    block.append(f"Time (s) until the error exceeds a threshold within {out['horizon_s']:g} s of each start point, "
+                 "median [q25, q75]: " + "; ".join(
+                     f"{thr:g} {units}: {_quartile_cell(out[f'time_to@{thr:g}'], out['horizon_s'])}"
+                     for thr in ctx.thresholds) + ".")
     logs = {"divergence_time": out[f"time_to@{ctx.thresholds[0]:g}"]["median"],
             "error_at_horizon": out[hs[-1]]["median"]}
     return SectionResult({"horizons": out}, blocks=block, logs=logs)
@@ -640,13 +682,17 @@ def _ood(ctx: EvalContext) -> SectionResult:
              "energy_drift_mean": float(drift[i].mean()), "energy_drift_max": float(drift[i].max())}
             for i, c in enumerate(cases)]
     block = ["", "Out-of-distribution cases (the scene's own):", "",
-             f"| ({', '.join(system.param_names)}) | [q0, qd0] | acc. rel. L2 | time to 0.1 error (s) | "
-             "energy drift mean / max |", "|---|---|---|---|---|"]
-    block += [f"| {tuple(c['params'])} | {c['state0']} | {c['acc_rel_err']:.4f} | {c['divergence_time@0.1']:.2f} | "
+             f"| ({', '.join(system.param_names)}) | [q0, qd0] | acc. rel. L2 | time to 0.1 {_units(system)} error (s) | "
+             f"{'power-balance error' if system.has_forces else 'energy drift'} mean / max |", "|---|---|---|---|---|"]
+    cap = n * dt
+    block += [f"| {tuple(c['params'])} | {c['state0']} | {_pct(c['acc_rel_err'])} | "
+              f"{_time(c['divergence_time@0.1'], cap)} | "
               f"{c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |" for c in rows]
     arrays = {"q_true": qt, "q_model": qm, "params": params, "dt": dt}
     return SectionResult({"ood": rows, "_ood_arrays": arrays}, blocks=block, figures={
-        "frames_ood_case1.png": _figure("frames_figure", system, qt[0], qm[0], params[0], dt)})
+        "frames_ood_case1.png": _figure("frames_figure", system, qt[0], qm[0], params[0], dt,
+                                        title=f"out-of-distribution case 1: ({', '.join(system.param_names)}) = "
+                                              f"{tuple(cases[0]['params'])}, true (solid) and model (dashed)")})
 
 
 @section("stability")

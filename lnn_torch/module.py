@@ -447,7 +447,7 @@ class LNNModule(L.LightningModule):
 
         # the step Lightning logs this validation's scalars at: the last training step's index
         step = max(self.global_step - 1, 0)
-        for tag, build in section_figures(result, tags=True).items():
+        for tag, build in section_figures(result, tags=True, case=f"{prefix} split, step {step}").items():
             fig = build(result)
             if fig is None:
                 continue

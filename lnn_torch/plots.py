@@ -10,34 +10,24 @@ import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
 
-def trajectory_figure(q_true: torch.Tensor, q_pred: torch.Tensor, dt: float, names):
-    """Predicted vs true coordinates of one trajectory: ``(T, dof)`` each."""
+def trajectory_figure(q_true: torch.Tensor, q_pred: torch.Tensor, dt: float, names, units=None):
+    """Predicted vs true coordinates of one trajectory: ``(T, dof)`` each; ``units`` per coordinate."""
     t = torch.arange(q_true.shape[0]) * dt
+    units = units or [""] * len(names)
     fig, axes = plt.subplots(q_true.shape[1], 1, figsize=(7, 2.2 * q_true.shape[1]), sharex=True, squeeze=False)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(t, q_true[:, i], "k-", lw=1.5, label="true")
         ax.plot(t, q_pred[: len(t), i], "C1--", lw=1.2, label="model")
-        ax.set_ylabel(names[i])
+        ax.set_ylabel(f"{names[i]} [{units[i]}]" if units[i] else names[i])
     axes[0, 0].legend(loc="upper right")
+    axes[0, 0].set_title("the first trajectory: model rollout from its true initial state", fontsize=9)
     axes[-1, 0].set_xlabel("t [s]")
     fig.tight_layout()
     return fig
 
 
-def energy_figure(drift: torch.Tensor, dt: float):
-    """True-energy drift of rollouts ``(B, T)`` relative to V_max - V_min (``lnn_torch.metrics.energy_drift``)."""
-    t = torch.arange(drift.shape[1]) * dt
-    fig, ax = plt.subplots(figsize=(7, 2.5))
-    for b in range(drift.shape[0]):
-        ax.plot(t, drift[b])
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("|E(t) - E(0)| / (V_max - V_min)")
-    fig.tight_layout()
-    return fig
-
-
 def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: torch.Tensor, dt: float,
-                  num_frames: int = 6):
+                  num_frames: int = 6, title: str | None = None):
     """Snapshots of one trajectory, true against model: ``q (T, dof)``, ``params (P,)``. The bodies
     (``System.positions``, any number of links) are drawn as a chain from the origin. None for a
     scene that is not drawn."""
@@ -61,6 +51,8 @@ def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: t
         ax.set_xticks([])
         ax.set_yticks([])
     axes[0].legend(fontsize=7, loc="upper left")
+    if title:
+        fig.supxlabel(title, fontsize=9)
     fig.tight_layout()
     return fig
 
@@ -78,6 +70,8 @@ def drift_figure(drift: torch.Tensor, dt: float, forces: bool):
     fig, ax = plt.subplots(figsize=(7, 2.8))
     ax.plot(t, drift.median(0).values, label="median")
     ax.plot(t, drift.amax(0), label="max")
+    ax.set_title(f"{'power-balance error' if forces else 'true-energy drift'} of {drift.shape[0]} model rollouts",
+                 fontsize=9)
     ax.set_yscale("log")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("|E(t)-E(0)-W(t)| / (Vmax-Vmin)" if forces else "|E(t)-E(0)| / (Vmax-Vmin)")
@@ -86,7 +80,8 @@ def drift_figure(drift: torch.Tensor, dt: float, forces: bool):
     return fig
 
 
-def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturbation: float = 1e-6):
+def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturbation: float = 1e-6,
+                        unit: str = "rad"):
     """Median coordinate error over rollouts ``(B, T, dof)`` against time, with the exact system
     started ``perturbation`` off (``q_exact``, or None) for the predictability limit."""
     from .metrics import coordinate_error
@@ -100,10 +95,11 @@ def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturb
     ax.plot(t, err(q_model), label="model")
     if q_exact is not None:
         ax.plot(t, err(q_exact), label=f"exact system, {perturbation:g} off")
-    ax.axhline(0.1, color="k", lw=0.8, ls=":")
+    ax.axhline(0.1, color="k", lw=0.8, ls=":", label=f"0.1 {unit}")
     ax.set_yscale("log")
+    ax.set_title(f"error growth, median over {q_true.shape[0]} rollouts", fontsize=9)
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("median max |coordinate error|")
+    ax.set_ylabel(f"max |coordinate error| [{unit}]")
     ax.legend()
     fig.tight_layout()
     return fig
@@ -146,7 +142,8 @@ def evaluation_plots(result: dict, output_dir, system=None) -> list:
 
     output_dir = Path(output_dir)
     paths = []
-    for name, build in section_figures(result).items():
+    split = result.get("split")
+    for name, build in section_figures(result, case=f"{split} split" if split else None).items():
         fig = build(result)
         if fig is None:
             continue

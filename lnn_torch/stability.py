@@ -131,7 +131,7 @@ def _by_case(results: dict[str, list[dict]]):
 
 def stability_markdown(results: dict[str, list[dict]]) -> str:
     """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M)."""
-    lines = ["| case | model | non-finite fraction | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
+    lines = ["| case | model | non-finite rollouts | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
     for case, row_of in _by_case(results):
         for name, r in row_of.items():
             if "error" in r:
@@ -139,7 +139,8 @@ def stability_markdown(results: dict[str, list[dict]]) -> str:
                 continue
             cond = r.get("max_cond")
             cond_s = "-" if cond is None else f"{cond:.3g}"
-            lines.append(f"| {case} | {name} | {r['non_finite_fraction']:.2f} | {r['max_energy_drift']:.2e} | {cond_s} |")
+            lines.append(f"| {case} | {name} | {100 * r['non_finite_fraction']:.3g} % | {r['max_energy_drift']:.2e} "
+                         f"| {cond_s} |")
     return "\n".join(lines)
 
 

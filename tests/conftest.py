@@ -4,6 +4,11 @@ import shutil
 # commands the tests run in subprocesses (lnn-torch fit, import, ...) use one thread too: two test
 # workers on two cores, each running a two-thread command, would oversubscribe the machine
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# what commands cache (``lnn_torch.data.cache``: evaluation splits) goes to a folder of this test
+# session, never the user's cache
+import tempfile  # noqa: E402
+
+os.environ["LNN_TORCH_CACHE"] = tempfile.mkdtemp(prefix="lnn_torch_test_cache_")
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

@@ -90,6 +90,21 @@ def test_write_read_round_trip(tmp_path):
     assert [len(ds.splits[s]) for s in ("train", "val", "test")] == [8, 1, 1]
 
 
+@pytest.mark.parametrize("scene", ["double_pendulum", "actuated_double_pendulum"])
+def test_a_file_of_one_split_holds_the_full_files_trajectories_of_it(scene, tmp_path):
+    """``splits=("test",)``: only those trajectories are integrated, bit-identical to the full file's."""
+    spec = small_spec(scene=scene, num_trajectories=30, duration=0.5)
+    full = read_dataset(generate_dataset(spec, tmp_path / "full.h5"))
+    part = read_dataset(generate_dataset(spec, tmp_path / "test.h5", splits=("test",)))
+    assert part.num_trajectories == len(full.splits["test"]) == 3
+    assert len(part.splits["train"]) == len(part.splits["val"]) == 0 and part.attrs["subset"] == '["test"]'
+    a, b = full.trajectories("test"), part.trajectories("test")
+    for key in ("q", "qd", "qdd", "params", "index") + (("tau",) if scene != "double_pendulum" else ()):
+        assert torch.equal(getattr(a, key), getattr(b, key)), key
+    with pytest.raises(InputError, match="unknown split"):
+        generate_dataset(spec, tmp_path / "x.h5", splits=("tset",))
+
+
 def test_refuses_to_overwrite_and_is_atomic(tmp_path, monkeypatch):
     spec = small_spec(num_trajectories=2, duration=0.5)
     path = generate_dataset(spec, tmp_path / "d.h5")

@@ -91,5 +91,32 @@ def test_evaluate_report_of_the_shipped_model(tmp_path):
     assert math.isfinite(metrics["mass_matrix"]["cond_max"])
     report = (out / "report.md").read_text()
     assert "Out-of-distribution" in report and "Stability" in report
+    # the README's units, capped times marked, no inputs mentioned for a scene without them
+    assert f"| acceleration rel. L2 error (total) | {100 * metrics['acc_rel_err']['total']:.3g} % |" in report
+    assert "(never exceeded)" in report and "inputs" not in report.split("Skipped sections")[0]
     for png in ("trajectory.png", "energy_drift.png", "error_growth.png", "frames_ood_case1.png"):
         assert (out / png).stat().st_size > 1000, png
+
+
+@pytest.mark.slow
+def test_evaluate_a_shipped_model_generates_its_test_split_alone_into_the_cache(tmp_path, monkeypatch, capsys):
+    """No dataset file in the working directory: the 200 test trajectories of the specification the
+    checkpoint records, generated once into the cache folder, the same as in the full file."""
+    from lnn_torch.checkpoints import data_hparams
+    from lnn_torch.data import DatasetSpec, read_dataset, split_indices
+    from lnn_torch.data.cache import split_path
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("LNN_TORCH_CACHE", str(tmp_path / "cache"))
+    args = ["evaluate", "pretrained:double_pendulum", "--max-trajectories", "2", "--horizon", "0.2",
+            "--stability-seconds", "0", "--threads", "1"]
+    assert main(args) == 0
+    spec = DatasetSpec(**data_hparams("pretrained:double_pendulum")["spec"])
+    cached = split_path(spec, "test")
+    out = capsys.readouterr().out
+    assert f"into the cache: {cached}" in out and "evaluation/double_pendulum/report.md" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "evaluation"]
+    f = read_dataset(cached)
+    assert f.num_trajectories == 200 and len(f.splits["train"]) == 0
+    assert (f.read("trajectory_index") == split_indices(spec)["test"]).all()
+    assert main(args) == 0 and "into the cache" not in capsys.readouterr().out  # read from there afterwards

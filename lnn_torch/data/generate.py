@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..errors import InputError
 from ..excitation import sample
 from ..ground_truth import integrate_ground_truth, power_balance_residual
 from .hdf5 import check_writable, write_dataset
@@ -104,19 +105,36 @@ def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> 
 
 
 def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = False, progress: bool = False,
-                     num_threads: int | None = None) -> Path:
+                     num_threads: int | None = None, splits: tuple[str, ...] | None = None) -> Path:
     """Generate ``spec`` and write it to ``path`` (atomically). Refuses to overwrite unless asked.
+
+    ``splits``: generate only the trajectories of these splits (e.g. ``("test",)`` to evaluate a
+    model); the file then holds those trajectories alone, its other splits are empty and the array
+    ``trajectory_index`` gives each trajectory's index in the full specification (the same
+    trajectories as in the full file: each depends on ``(seed, index)`` only).
 
     Returns the path written.
     """
     spec.validate()
     path = check_writable(path, overwrite)
+    split_idx = split_indices(spec)
+    indices = None
+    if splits is not None:
+        unknown = sorted(set(splits) - set(split_idx))
+        if unknown:
+            raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from {', '.join(split_idx)}")
+        indices = np.sort(np.concatenate([split_idx[s] for s in splits]))
+        if len(indices) == 0:
+            raise InputError(f"the specification's {'/'.join(splits)} split is empty (split = {list(spec.split)})")
+        position = {int(j): k for k, j in enumerate(indices)}
+        split_idx = {s: (np.array([position[int(j)] for j in idx], dtype=np.int64) if s in splits
+                         else np.zeros(0, dtype=np.int64)) for s, idx in split_idx.items()}
     old_threads = torch.get_num_threads()
     if num_threads:
         torch.set_num_threads(num_threads)
     try:
         start = time.perf_counter()
-        arrays = generate_arrays(spec, progress=progress)
+        arrays = generate_arrays(spec, indices, progress=progress)
         elapsed = time.perf_counter() - start
     finally:
         torch.set_num_threads(old_threads)
@@ -161,7 +179,10 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "generation_seconds": elapsed,
     }
-    return write_dataset(path, arrays, split_indices(spec), attrs, overwrite=overwrite)
+    if indices is not None:
+        arrays["trajectory_index"] = indices
+        attrs["subset"] = json.dumps(list(splits))
+    return write_dataset(path, arrays, split_idx, attrs, overwrite=overwrite)
 
 
 simulate = generate_arrays  # the former name (``lnn_torch.data.simulate``)

@@ -16,6 +16,7 @@ name               shape            meaning
 ``work``           ``(N, T, 2)``    work of the inputs and of dissipation since t = 0, J (scenes with forces)
 ``lengths``        ``(N,)``         points of each trajectory; the rest is NaN padding (imported recordings)
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
+``trajectory_index`` ``(N,)``       each trajectory's index in the full specification (files of some splits only)
 =================  ===============  =====================================================
 
 Root attributes: ``format``, ``format_version``, ``scene``, ``scene_json`` (the scene's full
@@ -23,7 +24,8 @@ description: dof, angle mask, names, units, sampler configuration), ``convention
 (JSON), ``gravity``, ``param_names``, ``spec`` (the ``DatasetSpec`` as JSON), ``seed``,
 ``integrator``, ``substeps``, ``tolerances`` (JSON: the accuracy check, energy drift or power
 balance, and its measured maximum), ``targets``, ``inputs`` (JSON, actuated scenes: names, units,
-input matrix, excitation, hold), ``package_version``, ``created``, ``complete``. Files written before
+input matrix, excitation, hold), ``package_version``, ``created``, ``complete`` and, in a file of some splits only, ``subset``
+(JSON list of the splits it holds). Files written before
 ``tau`` existed read as unactuated. Imported recordings (``lnn-torch import``; attribute
 ``measured``) have no ``qdd`` and no ``energy`` (nothing is known but the measurements), a scene
 ``measured`` without parameters, ``lengths``, ``recordings`` and ``provenance``.
@@ -46,7 +48,7 @@ FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "params")  # every file
 SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
-OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths")
+OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index")
 SPLITS = ("train", "val", "test")
 
 
@@ -151,8 +153,9 @@ class TrajectoryFile:
         idx = idx[:max_trajectories] if max_trajectories else idx
         with self.open() as f:
             arrays = {k: torch.from_numpy(f[k][idx]) for k in ("q", "qd", "qdd", "params", "tau", "lengths") if k in f}
+            index = f["trajectory_index"][idx] if "trajectory_index" in f else idx
         return Trajectories(arrays["q"], arrays["qd"], arrays["params"], self.dt, arrays.get("qdd"),
-                            torch.from_numpy(idx), arrays.get("tau"), arrays.get("lengths"))
+                            torch.from_numpy(index), arrays.get("tau"), arrays.get("lengths"))
 
     @property
     def measured(self) -> bool:
