@@ -13,6 +13,10 @@ from .pretrained import HERE, available, info
 
 PRETRAINED = "pretrained:"
 
+# The layout of what ``LNNModule`` saves (``stamp``): raised when a change makes older code unable to
+# read new checkpoints, so that such code refuses them in one line instead of failing inside.
+CHECKPOINT_FORMAT = 1
+
 # ---------------------------------------------------------------------------- old checkpoints
 # What ``LNNModule`` needs to load checkpoints saved by earlier versions with the weights they were
 # trained with.
@@ -51,6 +55,43 @@ def old_default_widths(hparams) -> list | None:
     it recorded its widths or its variant's default never changed."""
     old = _OLD_DEFAULT_WIDTHS.get(hparams["variant"])
     return old if hparams.get("hidden_dims") is None else None
+
+
+def stamp(checkpoint: dict) -> None:
+    """Record the package version and checkpoint format that wrote ``checkpoint``."""
+    from . import __version__
+
+    checkpoint["lnn_torch"] = {"version": __version__, "format": CHECKPOINT_FORMAT}
+
+
+def check_stamp(checkpoint: dict, path: Path) -> None:
+    """``CheckpointError`` where ``checkpoint`` is not a model of this package or was written in a
+    newer format than this version reads (checkpoints from before the stamp pass)."""
+    from . import __version__
+
+    if not isinstance(checkpoint, dict):
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (it holds a "
+                              f"{type(checkpoint).__name__})")
+    written = checkpoint.get("lnn_torch", {})
+    if int(written.get("format", 0)) > CHECKPOINT_FORMAT:
+        raise CheckpointError(f"checkpoint {path} was written by a newer version of lnn-torch "
+                              f"({written.get('version', '?')}; this is {__version__}): upgrade lnn-torch to read it")
+    if "variant" not in checkpoint.get("hyper_parameters", {}) or "state_dict" not in checkpoint:
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (no model variant or weights: a "
+                              "checkpoint of another program?)")
+
+
+def read_checkpoint(source: str | Path) -> dict:
+    """The checked contents of a checkpoint path or ``pretrained:<name>`` (``torch.load``)."""
+    import torch
+
+    path = _resolve(source)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except _READ_ERRORS as err:
+        raise _unreadable(path, err) from None
+    check_stamp(ckpt, path)
+    return ckpt
 
 
 def check_checkpoint_file(path: Path) -> Path:
@@ -95,6 +136,7 @@ def load_model(source: str | Path, map_location="cpu"):
     from .module import LNNModule
 
     path = _resolve(source)
+    read_checkpoint(path)
     try:
         model = LNNModule.load_from_checkpoint(path, map_location=map_location)
     except InputError:
@@ -116,15 +158,7 @@ def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
 
 def data_hparams(source: str | Path) -> dict:
     """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
-    import torch
-
-    path = _resolve(source)
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except _READ_ERRORS as err:
-        raise _unreadable(path, err) from None
-    if not isinstance(ckpt, dict):
-        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (it holds a {type(ckpt).__name__})")
+    ckpt = read_checkpoint(source)
     if "datamodule_hyper_parameters" in ckpt:
         return ckpt["datamodule_hyper_parameters"]
     if str(source).startswith(PRETRAINED):  # shipped models keep it in their card

@@ -24,7 +24,7 @@ import lightning as L
 import torch
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 
-from .checkpoints import old_default_widths, record_widths, without_old_checkpoint_defaults
+from .checkpoints import old_default_widths, record_widths, stamp, without_old_checkpoint_defaults
 from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
 from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
@@ -155,8 +155,10 @@ class LNNModule(L.LightningModule):
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """Record the model's widths even where they were left to the variant's default, so that a
-        later change of the default cannot change what a checkpoint loads as."""
+        later change of the default cannot change what a checkpoint loads as; and the package version
+        and checkpoint format that wrote it (``checkpoints.stamp``)."""
         record_widths(checkpoint, self.model)
+        stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """A checkpoint without recorded widths predates ``on_save_checkpoint``: it was trained with the

@@ -71,11 +71,20 @@ BAD_FILES = {"text": b"this is not a checkpoint\n", "empty": b""}
 
 def _bad_file(tmp_path, kind: str, suffix: str, good: bytes | None = None) -> str:
     path = tmp_path / f"{kind}{suffix}"
-    path.write_bytes(good[: len(good) // 3] if kind == "truncated" else BAD_FILES[kind])
+    if kind in ("newer", "foreign"):  # a checkpoint from a future format, a PyTorch archive of another program
+        import io
+
+        import torch
+
+        ckpt = torch.load(io.BytesIO(good), weights_only=False)
+        ckpt = {**ckpt, "lnn_torch": {"version": "9.0", "format": 99}} if kind == "newer" else {"weights": [1.0]}
+        torch.save(ckpt, path)
+    else:
+        path.write_bytes(good[: len(good) // 3] if kind == "truncated" else BAD_FILES[kind])
     return str(path)
 
 
-@pytest.mark.parametrize("kind", ["text", "empty", "truncated"])
+@pytest.mark.parametrize("kind", ["text", "empty", "truncated", "newer", "foreign"])
 @pytest.mark.parametrize("command", ["evaluate", "identify", "simulate"])
 def test_every_command_names_a_bad_checkpoint_in_one_line(command, kind, tmp_path, capsys):
     from lnn_torch.pretrained import HERE
@@ -86,7 +95,8 @@ def test_every_command_names_a_bad_checkpoint_in_one_line(command, kind, tmp_pat
                  str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and ckpt in err, err
-    assert {"text": "not an lnn-torch checkpoint", "empty": "empty file", "truncated": "truncated"}[kind] in err
+    assert {"text": "not an lnn-torch checkpoint", "empty": "empty file", "truncated": "truncated",
+            "newer": "written by a newer version of lnn-torch (9.0", "foreign": "not an lnn-torch checkpoint"}[kind] in err
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "truncated"])

@@ -244,6 +244,10 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
     ckpt = torch.load(tmp_path / "new.ckpt", weights_only=False)
     assert ckpt["hyper_parameters"]["hidden_dims"] == [64, 64]
     assert LNNModule.load_from_checkpoint(tmp_path / "new.ckpt").model.hidden_dims == (64, 64)
+    from lnn_torch import __version__
+    from lnn_torch.checkpoints import CHECKPOINT_FORMAT
+
+    assert ckpt["lnn_torch"] == {"version": __version__, "format": CHECKPOINT_FORMAT}  # what a newer-version check reads
 
     old = LNNModule(hidden_dims=[128, 128], val_rollouts=0)
     trainer = quiet_trainer(tmp_path, max_epochs=1, logger=False, enable_checkpointing=False, limit_val_batches=0)
