@@ -67,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
             return lightning_main(argv)
         return importlib.import_module(f"lnn_torch.commands.{COMMANDS[command][0]}").main(rest)
     except (ValueError, OSError, RuntimeError, KeyError) as err:  # InputError, DatasetFileError, FileExistsError, ...
+        while err.__cause__ is not None and "Call to compute_fn of link" in str(err):  # jsonargparse's wrapper
+            err = err.__cause__
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"lnn-torch {command}: error: {message}", file=sys.stderr)
         return 2

@@ -109,10 +109,45 @@ def test_a_bad_dataset_is_named_in_one_line(kind, tmp_path, capsys):
         f["x"] = np.zeros(20000)
     data = _bad_file(tmp_path, kind, ".h5", full.read_bytes())
     for command in (["evaluate", "pretrained:double_pendulum", "--data", data, "-o", str(tmp_path / "ev")],
-                    ["identify", "pretrained:double_pendulum", data, "--output-dir", str(tmp_path / "id")]):
+                    ["identify", "pretrained:double_pendulum", data, "--output-dir", str(tmp_path / "id")],
+                    ["fit", "--data.path", data, "--trainer.max_steps", "1", "--trainer.default_root_dir",
+                     str(tmp_path / "runs")]):
         assert main(command) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith(f"lnn-torch {command[0]}: error:") and data in err, err
+        assert {"text": "not an HDF5 file", "empty": "an empty file", "truncated": "cannot read"}[kind] in err, err
+
+
+@pytest.mark.parametrize("kind", ["text", "empty", "truncated"])
+def test_a_bad_recording_is_named_in_one_line(kind, tmp_path, capsys):
+    """identify's observation CSV and import's raw recording: a text file, an empty one and one cut
+    mid-line are each named in one line."""
+    import numpy as np
+
+    import gzip
+    from pathlib import Path
+
+    import lnn_torch
+
+    shipped = Path(lnn_torch.__file__).parent / "datasets" / "real_double_pendulum" / "recordings"
+    config = Path(__file__).parents[1] / "configs" / "import" / "real_double_pendulum.yaml"
+    t = np.arange(300) * 0.01
+    observed = "t,theta1,theta2\n" + "".join(f"{a:.3f},{np.sin(a):.6f},{np.cos(a):.6f}\n" for a in t)
+    recording = gzip.decompress(sorted(shipped.glob("*.csv.gz"))[0].read_bytes())[:20000]
+    for command, good in ((["identify", "pretrained:double_pendulum"], observed.encode()),
+                          (["import"], recording)):
+        path = _bad_file(tmp_path, kind, ".csv", good)
+        extra = (["--output-dir", str(tmp_path / "id")] if command[0] == "identify" else
+                 ["--config", str(config), "-o", str(tmp_path / "r.h5")])
+        assert main([*command, path, *extra]) == 2
         err = capsys.readouterr().err.strip()
-        assert len(err.splitlines()) == 1 and data in err, err
+        assert len(err.splitlines()) == 1 and path in err, err
+        assert {"text": "no column", "empty": "the file is empty", "truncated": "line "}[kind] in err, err
+    if kind == "truncated":  # a compressed recording cut short
+        gz = tmp_path / "cut.csv.gz"
+        gz.write_bytes(gzip.compress(recording)[:3000])
+        assert main(["import", str(gz), "--config", str(config), "-o", str(tmp_path / "r.h5")]) == 2
+        assert f"{gz}: truncated" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("text, message", [("model: [\n", "not valid YAML (line 2"), ("", "empty file"),

@@ -169,6 +169,8 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
     path = Path(path)
     if not path.exists():
         raise DatasetFileError(f"dataset file {path} does not exist")
+    if path.is_file() and path.stat().st_size == 0:
+        raise DatasetFileError(f"dataset file {path} is an empty file")
     if not h5py.is_hdf5(path):
         raise DatasetFileError(f"{path} is not an HDF5 file")
     try:

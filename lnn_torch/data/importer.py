@@ -111,6 +111,17 @@ def _read_csv(path: Path, columns: list[str]) -> np.ndarray:
     import gzip
 
     opener = gzip.open if path.suffix == ".gz" else open
+    try:
+        return _parse_csv(path, opener, columns)
+    except EOFError:
+        raise InputError(f"{path}: truncated (the compressed file ends early)") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file (undecodable bytes)") from None
+    except OSError as err:  # gzip.BadGzipFile, ...
+        raise InputError(f"{path}: cannot read it ({err})") from None
+
+
+def _parse_csv(path: Path, opener, columns: list[str]) -> np.ndarray:
     with opener(path, "rt", newline="") as fh:
         reader = csv.reader(fh)
         try:
