@@ -18,6 +18,11 @@ class InputError(ValueError):
     """Raised for malformed physical input (shapes, NaN, non-positive parameters)."""
 
 
+class UntrustedParameterWarning(UserWarning):
+    """Parameters given to a model lie beyond its trusted range (``Normalizer.TRUST`` standard
+    deviations of its training parameters): the model conditions on the nearest trusted values."""
+
+
 class SingularHessianError(RuntimeError):
     """The velocity Hessian d2L/dqd2 of a Lagrangian is singular: accelerations are undefined."""
 

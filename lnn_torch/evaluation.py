@@ -685,7 +685,7 @@ def _ood(ctx: EvalContext) -> SectionResult:
              f"| ({', '.join(system.param_names)}) | [q0, qd0] | acc. rel. L2 | time to 0.1 {_units(system)} error (s) | "
              f"{'power-balance error' if system.has_forces else 'energy drift'} mean / max |", "|---|---|---|---|---|"]
     cap = n * dt
-    block += [f"| {tuple(c['params'])} | {c['state0']} | {_pct(c['acc_rel_err'])} | "
+    block += [f"| ({', '.join(f'{v:.4g}' for v in c['params'])}) | {c['state0']} | {_pct(c['acc_rel_err'])} | "
               f"{_time(c['divergence_time@0.1'], cap)} | "
               f"{c['energy_drift_mean']:.2e} / {c['energy_drift_max']:.2e} |" for c in rows]
     arrays = {"q_true": qt, "q_model": qm, "params": params, "dt": dt}

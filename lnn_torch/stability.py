@@ -17,12 +17,13 @@ closed form) out on each and reports, per case:
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from .errors import InputError
+from .errors import InputError, UntrustedParameterWarning
 from .metrics import condition_numbers, energy_drift
 
 
@@ -50,8 +51,9 @@ def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps
 
     for name, values in system.hard_parameter_cases().items():
         with_params(name, values)
-    cases.append(HardCase("parameters x10", q0, qd0, base_p * 10))
-    cases.append(HardCase("parameters x0.1", q0, qd0, base_p * 0.1))
+    for k in (10, 0.1):
+        scaled, label = system.scaled_params(base_p, k)
+        cases.append(HardCase(label, q0, qd0, scaled))
     if system.speed_limit is None:
         if angles.any():
             inverted = torch.where(angles, math.pi + f64(rng.uniform(-0.1, 0.1, q0.shape)), q0)
@@ -104,7 +106,14 @@ def run_hard_cases(rollout_fn, system, cases: list[HardCase], model=None, method
         inputs = {} if not system.num_inputs else {
             "tau": torch.zeros(case.q0.shape[0], case.num_steps, system.num_inputs, dtype=case.q0.dtype)}
         try:
-            q, qd = rollout_fn(case.q0, case.qd0, case.params, case.dt, case.num_steps, method, **inputs)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", UntrustedParameterWarning)
+                q, qd = rollout_fn(case.q0, case.qd0, case.params, case.dt, case.num_steps, method, **inputs)
+            for w in caught:
+                if issubclass(w.category, UntrustedParameterWarning):
+                    row["untrusted_parameters"] = str(w.message)
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         except InputError as err:
             row["error"] = str(err)
             rows.append(row)
@@ -132,6 +141,7 @@ def _by_case(results: dict[str, list[dict]]):
 def stability_markdown(results: dict[str, list[dict]]) -> str:
     """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M)."""
     lines = ["| case | model | non-finite rollouts | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
+    clamped = False
     for case, row_of in _by_case(results):
         for name, r in row_of.items():
             if "error" in r:
@@ -139,8 +149,15 @@ def stability_markdown(results: dict[str, list[dict]]) -> str:
                 continue
             cond = r.get("max_cond")
             cond_s = "-" if cond is None else f"{cond:.3g}"
-            lines.append(f"| {case} | {name} | {100 * r['non_finite_fraction']:.3g} % | {r['max_energy_drift']:.2e} "
-                         f"| {cond_s} |")
+            mark = " *" if "untrusted_parameters" in r else ""
+            clamped |= bool(mark)
+            lines.append(f"| {case}{mark} | {name} | {100 * r['non_finite_fraction']:.3g} % | "
+                         f"{r['max_energy_drift']:.2e} | {cond_s} |")
+    if clamped:
+        from .networks.normalization import Normalizer
+
+        lines += ["", f"\\* parameters beyond the model's trusted range ({Normalizer.TRUST:g} standard deviations of "
+                      "its training parameters): the model is conditioned on the nearest trusted values."]
     return "\n".join(lines)
 
 

@@ -372,3 +372,42 @@ def test_rollouts_under_no_grad_build_no_autograd_graph(variant):
     assert seen and not any(seen) and not q.requires_grad
     q, _ = module.rollout(q0, qd0, params, 0.01, 2)
     assert q.requires_grad
+
+
+# ---------------------------------------------------------------------------- far outside the training range
+@pytest.mark.parametrize("scene", sorted(n for n, cls in __import__("lnn_torch.systems", fromlist=["SYSTEMS"])
+                                         .SYSTEMS.items() if cls.closed_form))
+def test_every_hard_case_is_a_physical_system_of_its_scene(scene):
+    """A hard case the scene itself refuses would test nothing (every actuated parameter times 10 put
+    the inertias below m r^2: the TRUE mass matrix was indefinite, and every model rollout non-finite)."""
+    system = get_system(scene)
+    for case in hard_cases(system, num=4, num_steps=10):
+        system.check_params(case.params)
+        if system.quadratic_kinetic:
+            M = system.mass_matrix(case.q0, case.params)
+            assert (torch.linalg.eigvalsh(M)[..., 0] > 0).all(), (scene, case.name)
+
+
+def test_parameters_beyond_the_trusted_range_condition_on_its_bound_with_a_warning_naming_them():
+    """Normalised parameters are clamped to ``Normalizer.TRUST`` standard deviations: beyond it the
+    accelerations equal those at the bound (finite, not a runaway extrapolation) and the model names
+    the parameter, its value and the trusted range; inside it nothing changes and nothing warns."""
+    import warnings
+
+    from lnn_torch.errors import UntrustedParameterWarning
+
+    model = fresh_model("film_lnn")
+    low, high = model.normalizer.trusted_range()
+    q, qd = torch.tensor([[0.3, -0.2]], dtype=torch.float64), torch.tensor([[0.5, 0.1]], dtype=torch.float64)
+    inside = torch.tensor([[1.0, 0.8, 1.2, 1.1]], dtype=torch.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.acceleration(q, qd, inside)
+    far, bound = inside.clone(), inside.clone()
+    far[0, 2], bound[0, 2] = 50 * float(high[2]), float(high[2])
+    with pytest.warns(UntrustedParameterWarning, match=r"l1 = [\d.]+ m \(trusted [\d.]+ to [\d.]+\)"):
+        a_far = model.acceleration(q, qd, far)
+    with torch.no_grad():
+        assert torch.allclose(model.normalizer.params(far), model.normalizer.params(bound), atol=1e-12)
+    # the conditioning equals the bound's; the physical length still enters the normalised state
+    assert torch.isfinite(a_far).all()

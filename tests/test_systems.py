@@ -256,3 +256,12 @@ def test_chain_pendulum_is_drawn_with_all_its_links():
     xy = chain.positions(q[:1], params[None])[0]
     np.testing.assert_allclose(lines[0].get_xdata()[1:], xy[:, 0].numpy())
     assert frames_figure(get_system("mass_spring"), q[:, :1], q[:, :1], torch.ones(2), 0.01) is None
+
+
+def test_the_actuated_scene_refuses_a_link_lighter_in_inertia_than_its_point_mass():
+    system = get_system("actuated_double_pendulum")
+    p = torch.tensor(system.sample_params(np.random.default_rng(0), 3))
+    system.check_params(p)
+    p[1, 6] = 0.9 * p[1, 1] * p[1, 4] ** 2  # I2 below m2 r2^2
+    with pytest.raises(InputError, match=r"I2 = [\d.e-]+ kg m\^2 is below m2 r2\^2"):
+        system.check_params(p)

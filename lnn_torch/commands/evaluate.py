@@ -28,8 +28,9 @@ The checkpoint may be ``pretrained:<name>`` for a shipped model. ``--data`` defa
 checkpoint was trained on; where that is not there (a shipped model), the requested split alone is
 generated from the specification the checkpoint records into the user's cache
 (``$LNN_TORCH_CACHE``, default ``~/.cache/lnn_torch``) and read from there afterwards.
-``lnn-torch evaluate pretrained:double_pendulum --threads 1`` takes about 1.5 minutes (the first time
-6 s more, generating the 200 test trajectories) and writes its report to ``evaluation/double_pendulum``.
+For the shipped model, ``lnn-torch evaluate pretrained:NAME --threads 1`` takes about 1.5 minutes
+(the first time 6 s more, generating its 200 test trajectories) and writes its report to
+``evaluation/NAME``.
 """
 
 from __future__ import annotations

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 from .. import integrators
-from ..errors import InputError, SingularHessianError
+from ..errors import InputError, SingularHessianError, UntrustedParameterWarning
 from ..perf import CompiledFallback, apply_cpu_defaults, compile_fn, compile_pays, warn_compile_failure
 from .normalization import Normalizer
 
@@ -59,6 +60,8 @@ class SceneInfo:
     # further angles (rows: coefficients over the coordinates) whose sin/cos are features, e.g. the
     # absolute angle q1 + q2 of a link in a chain measured in joint angles
     angle_combinations: tuple[tuple[float, ...], ...] | None = None
+    param_names: tuple[str, ...] = ()  # for messages; empty: params[i]
+    param_units: tuple[str, ...] = ()
 
     @property
     def num_inputs(self) -> int:
@@ -83,7 +86,8 @@ class SceneInfo:
                    bool(d.get("quadratic_kinetic", True)), tuple(d.get("param_kinds", ())),
                    as_tuple(d.get("input_matrix")), d.get("friction") is not None,
                    as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)),
-                   as_tuple(d.get("angle_combinations")))
+                   as_tuple(d.get("angle_combinations")), tuple(d.get("param_names", ())),
+                   tuple(d.get("param_units", ())))
 
 
 class DynamicsModel(nn.Module):
@@ -282,6 +286,12 @@ class DynamicsModel(nn.Module):
                 if not torch.isfinite(x).all():
                     raise InputError(f"{name} contains NaN or Inf")
         check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params")
+        normalizer = getattr(self, "normalizer", None)
+        if normalizer is not None and P:
+            note = normalizer.untrusted(params, self.scene.param_names or [f"params[{i}]" for i in range(P)],
+                                        self.scene.param_units or [""] * P)
+            if note:
+                warnings.warn(note, UntrustedParameterWarning, stacklevel=3)
 
     def normalize(self, q, qd, params):
         q_norm, qd_norm = self.normalizer.state(q, qd)

@@ -8,7 +8,11 @@ Coordinates: angles stay raw (they enter networks as sin/cos); a linear coordina
 This is a point transformation plus a time rescaling, so a Lagrangian in normalised variables is an
 exact Lagrangian of the physical dynamics (z-scoring each velocity and acceleration separately, as
 the reference design does, is not). Positive parameters enter as z-scored logarithms (they span
-ratios); parameters that may be zero (friction coefficients) are z-scored as they are.
+ratios); parameters that may be zero (friction coefficients) are z-scored as they are. The
+conditioning networks see them clamped to ``TRUST`` standard deviations (uniformly sampled training
+parameters span about 1.7): far beyond what it was trained on a model is conditioned on the nearest
+trusted values instead of extrapolating its FiLM networks without bound (``untrusted`` names them;
+the models warn with ``UntrustedParameterWarning``).
 ``accel_rms`` (per coordinate, normalised units) only weights the loss.
 
 Generalised forces (scenes with inputs or friction): a force ``Q`` (N m per coordinate) enters the
@@ -27,6 +31,8 @@ from torch import nn
 
 
 class Normalizer(nn.Module):
+    TRUST = 8.0  # |z| of a parameter beyond which the conditioning networks see the bound
+
     def __init__(self, dof: int, num_params: int, angle_mask, param_kinds=None, num_inputs: int = 0,
                  forces: bool = False) -> None:
         super().__init__()
@@ -91,7 +97,33 @@ class Normalizer(nn.Module):
         return q_norm, qd_norm
 
     def params(self, params):
-        return (self._transform(params) - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
+        """Normalised parameters, clamped to ``TRUST`` standard deviations."""
+        z = (self._transform(params) - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
+        return z.clamp(-self.TRUST, self.TRUST)
+
+    def trusted_range(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(low, high)`` ``(P,)``: the SI parameters the conditioning networks see unclamped."""
+        bound = torch.full_like(self.param_log_mean, self.TRUST)
+        return self.params_to_phys(-bound), self.params_to_phys(bound)
+
+    @torch.no_grad()
+    def untrusted(self, params: torch.Tensor, names, units) -> str | None:
+        """A sentence naming the parameters of ``params (B, P)`` beyond the trusted range (the first
+        offending value of each) and the bounds the model conditions on; None when all are inside."""
+        if not self.num_params:
+            return None
+        z = (self._transform(params.double()) - self.param_log_mean.double()) / self.param_log_std.double()
+        out = (z.abs() > self.TRUST).any(0)
+        if not out.any():
+            return None
+        low, high = self.trusted_range()
+        low = torch.where(self.param_log.to(low.device), low, low.clamp_min(0))  # linear ones are >= 0
+        parts = []
+        for i in out.nonzero().flatten().tolist():
+            value = float(params[(z[:, i].abs() > self.TRUST).nonzero()[0, 0], i])
+            parts.append(f"{names[i]} = {value:.4g} {units[i]} (trusted {float(low[i]):.3g} to {float(high[i]):.3g})")
+        return (f"parameters beyond the model's trusted range ({self.TRUST:g} standard deviations of its training "
+                f"parameters): {', '.join(parts)}; the model is conditioned on the nearest trusted values")
 
     def accel_to_norm(self, qdd):
         return qdd * (self.time_scale.to(qdd.dtype) ** 2 / self.coord_scale.to(qdd.dtype))

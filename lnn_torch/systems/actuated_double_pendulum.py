@@ -100,6 +100,27 @@ class ActuatedDoublePendulum(System):
                 **{k: pair(getattr(self, k)) for k in ("m_range", "l1_range", "l2_range", "com_ratio", "inertia_excess",
                                                        "viscous_range", "coulomb_range", "theta_range", "omega_range")}}
 
+    def check_params(self, params: torch.Tensor) -> None:
+        """Also refuses a link whose inertia about its joint is below ``m r^2`` (the parallel-axis
+        bound: no rigid body has it, and the mass matrix need not be positive definite)."""
+        super().check_params(params)
+        m, r, inertia = params[..., 0:2], params[..., 3:5], params[..., 5:7]
+        short = inertia < m * r**2 * (1 - 1e-9)
+        if short.any():
+            i = int(short.reshape(-1, 2).any(0).nonzero()[0])
+            row = short[..., i].reshape(-1).nonzero()[0, 0]
+            I_, m_, r_ = (x[..., i].reshape(-1)[row] for x in (inertia, m, r))
+            raise InputError(f"{self.name}: I{i + 1} = {float(I_):.4g} kg m^2 is below m{i + 1} r{i + 1}^2 = "
+                             f"{float(m_ * r_**2):.4g} kg m^2: a link's inertia about its joint is at least m r^2")
+
+    def scaled_params(self, params: torch.Tensor, k: float) -> tuple[torch.Tensor, str]:
+        """The similar arm ``k`` times larger under the same gravity (masses and lengths times ``k``,
+        time times ``sqrt(k)``): inertias times ``k^3``, Coulomb torques ``k^2``, viscous
+        coefficients ``k^2.5``. (Every parameter times ``k`` is not a rigid arm: its inertias fall
+        below ``m r^2``.)"""
+        f = [k, k, k, k, k, k**3, k**3, k**2.5, k**2.5, k**2, k**2]
+        return params * torch.tensor(f, dtype=params.dtype), f"similar arm x{k:g} (inertias x{k**3:g})"
+
     # ------------------------------------------------------------------ samplers
     def sample_params(self, rng: np.random.Generator, n: int) -> np.ndarray:
         m1, m2 = self.m_range.sample(rng, n), self.m_range.sample(rng, n)

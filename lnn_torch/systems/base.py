@@ -282,6 +282,12 @@ class System(abc.ABC):
         addition to the generic ones every scene gets (parameters x10 and x0.1); default none."""
         return {}
 
+    def scaled_params(self, params: torch.Tensor, k: float) -> tuple[torch.Tensor, str]:
+        """The parameters of this scene ``k`` times larger, and a label, for the stability cases:
+        every parameter times ``k`` (a valid system wherever the parameters are independent; a scene
+        whose parameters constrain each other gives its similar system instead)."""
+        return params * k, f"parameters x{k:g}"
+
     def identifiable_quantities(self) -> dict:
         """Named log-linear combinations of the parameters that identification reports beside each
         parameter, ``{name: {param: coefficient}}`` (e.g. a mass ratio); default none."""
