@@ -4,7 +4,8 @@ Each setting is a name and LightningCLI overrides on top of a base config. Every
 ``--minutes`` (``trainer.max_time``; the cosine learning-rate schedule ends with the budget), then
 ``test`` reports the relative L2 acceleration error on the test split and RK4 rollouts of
 ``--rollouts`` test trajectories (dt = the data's, ``--rollout-seconds`` long): median time to a
-0.1 rad error and mean true-energy drift. Prints a Markdown table (and writes it to ``--output``).
+0.1 rad error and mean true-energy drift. Prints a Markdown table (and, with ``-o/--output FILE``,
+writes it and the rows as JSON to that one Markdown file).
 
     # how to batch the points: chunk length x chunks per batch
     python scripts/ablate.py --minutes 4 \\
@@ -22,6 +23,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,21 +55,25 @@ def run(name: str, overrides: list[str], args) -> dict:
     return row
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", default=str(ROOT / "configs" / "quickstart.yaml"))
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--config", default=str(ROOT / "configs" / "quickstart.yaml"), help="the base config")
     ap.add_argument("--setting", nargs="+", action="append", required=True, metavar=("NAME", "OVERRIDE"),
                     help="a name and LightningCLI overrides (key=value); repeat for each setting")
     ap.add_argument("--minutes", type=float, default=4.0, help="wall-clock training budget per setting")
     ap.add_argument("--steps", type=int, default=None, help="a step budget instead of --minutes")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--rollouts", type=int, default=10)
-    ap.add_argument("--rollout-seconds", type=float, default=10.0)
-    ap.add_argument("--val-every", type=int, default=1000, help="validation interval in epochs (default: none)")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--log-name", default="ablate")
-    ap.add_argument("--output", default=None, help="also write the table (Markdown) and rows (JSON) here")
-    args = ap.parse_args()
+    ap.add_argument("--seed", type=int, default=0, help="seed_everything, unless a setting sets it")
+    ap.add_argument("--rollouts", type=int, default=10, help="test trajectories rolled out")
+    ap.add_argument("--rollout-seconds", type=float, default=10.0, help="rollout horizon, s")
+    ap.add_argument("--val-every", type=int, default=1000, help="validation interval in epochs")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
+    ap.add_argument("--log-name", default="ablate", help="TensorBoard run name under lightning_logs/")
+    add_output_file(ap, None, "also write the table and the rows (JSON) to this one Markdown file")
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     torch.set_num_threads(args.threads)
     rows = [run(s[0], s[1:], args) for s in args.setting]
     budget = f"{args.steps} steps" if args.steps else f"{args.minutes:g} min"
@@ -84,6 +90,7 @@ def main() -> None:
     if args.output:
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)
         Path(args.output).write_text(table + "\n\n```json\n" + json.dumps(rows, indent=1) + "\n```\n")
+    wrote([args.output] if args.output else [], [r["log_dir"] for r in rows if r["log_dir"]])  # + the training runs
 
 
 if __name__ == "__main__":

@@ -15,8 +15,9 @@ row of both speed and accuracy. Timings run on one thread after warm-up (medians
     python scripts/benchmark.py --scene relativistic_particle --minutes 2
     python scripts/benchmark.py --report          # merge into results/benchmark/README.md and summary.md
 
-Writes ``results/benchmark/<scene>.json``, ``<scene>.md``, ``<scene>_curves.png`` and
-``<scene>_pareto.png`` (and, for the double pendulum, the stability table of every variant).
+Writes ``<scene>.json``, ``<scene>.md``, ``<scene>_curves.png`` and ``<scene>_pareto.png`` (and, for
+the double pendulum, the stability table of every variant) to ``--output-dir`` (default
+``results/benchmark``); the training runs' TensorBoard logs go to ``lightning_logs/benchmark_<scene>``.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from _cli import HelpFormatter, add_output_dir, wrote
 from lnn_torch.perf import median_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -128,7 +130,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     trainer.fit(model, dm)
     model.eval()
     return model, dm, {"train_seconds": time.perf_counter() - start, "steps": trainer.global_step,
-                       "skipped_steps": int(model.skipped_steps), "curve": curve.points}
+                       "skipped_steps": int(model.skipped_steps), "curve": curve.points}, trainer.log_dir
 
 
 # ---------------------------------------------------------------------------- evaluation
@@ -245,7 +247,7 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plots(result: dict, out: Path) -> None:
+def plots(result: dict, out: Path) -> list[Path]:
     from lnn_torch.plots import plt
 
     scene = result["scene"]
@@ -280,6 +282,7 @@ def plots(result: dict, out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / f"{scene}_pareto.png", dpi=110)
     plt.close(fig)
+    return [out / f"{scene}_curves.png", out / f"{scene}_pareto.png"]
 
 
 def summary(result: dict, integrator: str = "rk4", dt: float = 0.005) -> str:
@@ -318,7 +321,7 @@ def report(out: Path) -> None:
                       stability_pivot(result["stability"]), ""]
     (out / "README.md").write_text("\n".join(parts))
     (out / "summary.md").write_text("\n".join(short))
-    print(f"wrote {out / 'README.md'} and {out / 'summary.md'}")
+    wrote(out / "README.md", out / "summary.md")
 
 
 # ---------------------------------------------------------------------------- main
@@ -327,20 +330,21 @@ THREADS = 2
 
 def main() -> None:
     global THREADS
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", choices=sorted(SCENES), default="double_pendulum")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--scene", choices=sorted(SCENES), default="double_pendulum", help="the scene to benchmark")
     ap.add_argument("--minutes", type=float, default=None, help="training budget per variant (default: per scene)")
     ap.add_argument("--variants", nargs="*", default=None, help="row names to run (default: all applicable)")
     ap.add_argument("--energy-weight", type=float, default=None, help="default: LNNModule's default")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the initialisation and the chunk sampling")
     ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
     ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
-    ap.add_argument("--stability-seconds", type=float, default=2.0)
-    ap.add_argument("--output", default=str(OUT))
-    ap.add_argument("--report", action="store_true", help="only merge existing results into README.md")
+    ap.add_argument("--stability-seconds", type=float, default=2.0, help="rollout length of the hard cases, s")
+    add_output_dir(ap, str(OUT), "the folder of the results (and of the merged report)")
+    ap.add_argument("--report", action="store_true",
+                    help="only merge the folder's existing results into its README.md and summary.md")
     args = ap.parse_args()
-    out = Path(args.output)
+    out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     if args.report:
         report(out)
@@ -370,10 +374,12 @@ def main() -> None:
                                                                     ("chunks_per_batch", args.chunks_per_batch))),
               "rows": [], "training": {}, "stability": {}, "stability_seconds": args.stability_seconds}
     test = None
+    written = [] if (ROOT / cfg["path"]).exists() else [ROOT / cfg["path"]]  # the dataset, generated when missing
     for name, overrides in rows_spec:
         print(f"[{args.scene}] training {name} for {args.minutes:g} min", flush=True)
-        module, dm, info = train(name, overrides, args.scene, cfg, args)
+        module, dm, info, log_dir = train(name, overrides, args.scene, cfg, args)
         result["training"][name] = info
+        written.append(log_dir)
         if test is None:
             test = test_data(dm)
             result["num_test"] = len(test)
@@ -394,8 +400,9 @@ def main() -> None:
                                **result["stability"]}
     (out / f"{args.scene}.json").write_text(json.dumps(result, indent=1))
     (out / f"{args.scene}.md").write_text(markdown(result))
-    plots(result, out)
+    pngs = plots(result, out)
     print(markdown(result))
+    wrote(out / f"{args.scene}.json", out / f"{args.scene}.md", pngs, written)
 
 
 if __name__ == "__main__":

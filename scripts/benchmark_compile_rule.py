@@ -28,6 +28,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from _cli import HelpFormatter, wrote
+
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = (1, 20, 64, 512)
 
@@ -135,7 +137,7 @@ def rollout_rows() -> list[dict]:
 def main() -> None:
     import argparse
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--only", choices=("rollouts", "training"), help="measure one part, keep the other's last result")
     ap.add_argument("--report", action="store_true", help="only write the report from the last measurements")
     args = ap.parse_args()
@@ -185,6 +187,7 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     (ROOT / "results" / "compile_rule.md").write_text(text)
     print(text)
+    wrote(store, ROOT / "results" / "compile_rule.md")
 
 
 if __name__ == "__main__":

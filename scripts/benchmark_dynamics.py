@@ -28,6 +28,7 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from _cli import HelpFormatter  # noqa: E402
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # noqa: E402
 from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
 
@@ -150,12 +151,12 @@ def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conserv
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=30)
-    ap.add_argument("--quick", action="store_true")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--repeats", type=int, default=30, help="timed calls per median")
+    ap.add_argument("--quick", action="store_true", help="7 repeats, batches 1 and 512, no torch.compile rows")
     ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
-    ap.add_argument("--variants", nargs="*", default=["film_lnn", "delan", "lnn", "mlp"])
+    ap.add_argument("--variants", nargs="*", default=["film_lnn", "delan", "lnn", "mlp"], help="model variants")
     ap.add_argument("--per-row-params", action="store_true",
                     help="training step on a chunk whose points all have different parameters")
     args = ap.parse_args()

@@ -10,7 +10,7 @@ on one thread. Variants, run alternately (``--repeats`` processes each):
 * ``configure_cpu``: the same after an explicit ``lnn_torch.perf.configure_cpu()``;
 * ``LNN_TORCH_CPU_TUNING=0``: the plain path with the library's own CPU settings switched off.
 
-    python scripts/benchmark_first_call.py                # writes results/first_call.md
+    python scripts/benchmark_first_call.py                # writes results/first_call.md (-o FILE: elsewhere)
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+from _cli import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,11 +65,16 @@ VARIANTS = {"plain": ({}, "plain"), "configure_cpu": ({}, "configure_cpu"),
             "LNN_TORCH_CPU_TUNING=0": ({"LNN_TORCH_CPU_TUNING": "0"}, "plain")}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--repeats", type=int, default=7, help="fresh processes per variant")
-    ap.add_argument("--out", default=str(ROOT / "results" / "first_call.md"))
-    args = ap.parse_args()
+    add_output_file(ap, str(ROOT / "results" / "first_call.md"), "the Markdown file of the table (one file)",
+                    old=("--out",))
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     runs = {name: [] for name in VARIANTS}
     for _ in range(args.repeats):
         for name, (env, arg) in VARIANTS.items():
@@ -84,8 +91,9 @@ def main() -> None:
         cells = [f"{statistics.median(r[k] for r in rs):.3g}" for k in keys]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     text = "\n".join(lines) + "\n"
-    Path(args.out).write_text(text)
+    Path(args.output).write_text(text)
     print(text)
+    wrote(args.output)
 
 
 if __name__ == "__main__":

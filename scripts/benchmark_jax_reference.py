@@ -79,6 +79,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from _cli import HelpFormatter  # noqa: E402
 from lnn_torch.perf import configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import GRAVITY, get_system  # noqa: E402
 
@@ -467,12 +468,13 @@ def run_checks() -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=30)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--repeats", type=int, default=30, help="timed calls per median")
     ap.add_argument("--quick", action="store_true", help="7 repeats, batches 1 and 512 only")
     ap.add_argument("--check", action="store_true", help="run the correctness checks instead of the timings")
     ap.add_argument("--interleaved", type=int, nargs="?", const=300, default=0, metavar="ROUNDS",
-                    help="JAX reference and lnn_torch film_lnn timed in turn in this process (default 300 rounds)")
+                    help="JAX reference and lnn_torch film_lnn timed in turn in this process, ROUNDS rounds (300 "
+                         "when ROUNDS is left out; not by default)")
     args = ap.parse_args()
     configure_cpu(1)  # as benchmark_dynamics.py: flush denormals, allocator, one torch thread
     if args.check:

@@ -21,16 +21,17 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")  # no compile worker
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from _cli import HelpFormatter  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.perf import compile_fn, configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rounds", type=int, default=12)
-    ap.add_argument("--repeats", type=int, default=30)
-    ap.add_argument("--batch", type=int, default=512)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--rounds", type=int, default=12, help="rounds, each timing every candidate in turn")
+    ap.add_argument("--repeats", type=int, default=30, help="timed calls per median")
+    ap.add_argument("--batch", type=int, default=512, help="states per call")
     args = ap.parse_args()
     configure_cpu(1)
     system = get_system("double_pendulum")

@@ -46,6 +46,8 @@ import statistics  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from _cli import HelpFormatter, wrote  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "cost_accuracy"
 CKPT = ROOT / "data" / "front"
@@ -112,6 +114,7 @@ def train(args) -> None:
     done = json.loads(path.read_text()) if path.exists() else {}
     torch.set_num_threads(args.threads)
     names = args.points or [*POINTS, *LONGER]
+    had_data, written = DATA.exists(), []  # the dataset is generated when missing
     for name in names:
         if name in done and not args.again:
             print(f"{name}: trained already (--again to redo)")
@@ -128,6 +131,7 @@ def train(args) -> None:
         trainer.fit(module, dm)
         seconds = time.perf_counter() - start
         trainer.save_checkpoint(str(CKPT / f"{slug(name)}.ckpt"))
+        written.append(CKPT / f"{slug(name)}.ckpt")
         module.eval()
         row = {"options": POINTS[base], "network": base, "steps": trainer.global_step, "train_seconds": seconds,
                "train_threads": args.threads, "parameters": sum(p.numel() for p in module.model.parameters()),
@@ -136,6 +140,7 @@ def train(args) -> None:
         path.write_text(json.dumps(done, indent=1))
         print(f"{name}: {row['acc_rel_err']:.4f} acc. rel. L2, divergence median {row['divergence_median_s']:.2f} s, "
               f"{seconds:.0f} s training", flush=True)
+    wrote([path] if written else [], written, [] if had_data or not DATA.exists() else [DATA])
 
 
 # ---------------------------------------------------------------------------- timing
@@ -338,6 +343,7 @@ def time_all(args) -> None:
     (OUT / "time.json").write_text(json.dumps({"header": header, "rows": rows}, indent=1))
     for row in rows:
         print(row, flush=True)
+    wrote(OUT / "time.json")
 
 
 # ---------------------------------------------------------------------------- report
@@ -415,6 +421,7 @@ def report(args) -> None:
     fig.tight_layout()
     fig.savefig(OUT / "front.png", dpi=110)
     print("\n".join(lines))
+    wrote(OUT / "README.md", OUT / "summary.md", OUT / "front.png")
 
 
 # the README's short table: point -> its label there
@@ -451,16 +458,17 @@ def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("step", choices=("train", "time", "report"))
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("step", choices=("train", "time", "report"),
+                    help="train the points, time them, or write the report from train.json and time.json")
     ap.add_argument("--points", nargs="*", help=f"points to train or time (default: all): {', '.join(POINTS)}")
     ap.add_argument("--steps", type=int, default=6000, help="training steps per point")
     ap.add_argument("--threads", type=int, default=2, help="training threads")
     ap.add_argument("--again", action="store_true", help="retrain points already trained")
-    ap.add_argument("--rounds", type=int, default=20)
-    ap.add_argument("--calls", type=int, default=9)
-    ap.add_argument("--no-original", action="store_true")
-    ap.add_argument("--no-compile", action="store_true")
+    ap.add_argument("--rounds", type=int, default=20, help="time: rounds, each timing every candidate in turn")
+    ap.add_argument("--calls", type=int, default=9, help="time: timed calls per candidate and round")
+    ap.add_argument("--no-original", action="store_true", help="time: lnn_torch points only, without the original")
+    ap.add_argument("--no-compile", action="store_true", help="time: no compiled candidates")
     ap.add_argument("--untrained", action="store_true",
                     help="time: build a point's network freshly initialised where its checkpoint is absent (costs do "
                          "not depend on the weights' values; accuracies come from train.json)")

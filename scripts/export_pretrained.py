@@ -15,18 +15,19 @@ import json
 from pathlib import Path
 
 import torch
+from _cli import HelpFormatter, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint")
-    ap.add_argument("--name", default="double_pendulum")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("checkpoint", help="the .ckpt to export")
+    ap.add_argument("--name", default="double_pendulum", help="writes lnn_torch/pretrained/NAME.ckpt and NAME.json")
     ap.add_argument("--command", required=True, help="the command that trained the checkpoint")
     ap.add_argument("--metrics", default=None, help="a JSON file of measured test metrics to record")
     ap.add_argument("--note", default="", help="free text for the model card (training time, machine)")
-    ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing shipped model of that name")
     args = ap.parse_args()
     out = ROOT / "lnn_torch" / "pretrained" / f"{args.name}.ckpt"
     if out.exists() and not args.overwrite:
@@ -42,7 +43,8 @@ def main() -> None:
     if args.metrics:
         card["test_metrics"] = json.loads(Path(args.metrics).read_text())
     (out.with_suffix(".json")).write_text(json.dumps(card, indent=2, default=str) + "\n")
-    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB) and {out.with_suffix('.json')}")
+    print(f"{out.name}: {out.stat().st_size / 1024:.0f} KiB")
+    wrote(out, out.with_suffix(".json"))
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _cli import HelpFormatter, add_output_dir, wrote
 
 QUANTITIES = ("l1", "l2", "m2/m1")
 
@@ -73,18 +74,18 @@ def run_case(model, system, tr, seconds: float, noise: float, args, rng) -> dict
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkpoint", default="pretrained:double_pendulum")
-    ap.add_argument("--data", default="data/identification_study.h5")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--checkpoint", default="pretrained:double_pendulum", help="the model: a .ckpt or pretrained:NAME")
+    ap.add_argument("--data", default="data/identification_study.h5", help="the dataset (generated when missing)")
     ap.add_argument("--trajectories", type=int, default=200, help="at the headline length (2 s)")
     ap.add_argument("--sweep-trajectories", type=int, default=30, help="at the other lengths")
-    ap.add_argument("--lengths", type=float, nargs="+", default=[0.5, 1.0, 2.0, 5.0])
-    ap.add_argument("--noise", type=float, nargs="+", default=[0.0, 1e-3])
-    ap.add_argument("--method", default="acceleration")
-    ap.add_argument("--starts", type=int, default=4)
-    ap.add_argument("--steps", type=int, default=150)
-    ap.add_argument("--batch", type=int, default=20)
-    ap.add_argument("--output-dir", "-o", default="results/identification")
+    ap.add_argument("--lengths", type=float, nargs="+", default=[0.5, 1.0, 2.0, 5.0], help="observation lengths, s")
+    ap.add_argument("--noise", type=float, nargs="+", default=[0.0, 1e-3], help="position noise levels, rad")
+    ap.add_argument("--method", default="acceleration", help="acceleration, trajectory or both (as lnn-torch identify)")
+    ap.add_argument("--starts", type=int, default=4, help="random starts per trajectory")
+    ap.add_argument("--steps", type=int, default=150, help="Adam steps per fit (then L-BFGS)")
+    ap.add_argument("--batch", type=int, default=20, help="trajectories identified together")
+    add_output_dir(ap, "results/identification", "the folder of study.json, study.md and study.png", old=())
     ap.add_argument("--combine", nargs="+", default=None, metavar="DIR",
                     help="only write the table and plot of the cases in these output folders (runs split by noise)")
     args = ap.parse_args()
@@ -98,12 +99,14 @@ def main() -> None:
         write_table(cases, out / "study.md", args)
         plot(cases, out / "study.png")
         print((out / "study.md").read_text())
+        wrote(out / "study.json", out / "study.md", out / "study.png")
         return
 
     from lnn_torch.checkpoints import load_model
     from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
 
-    if not Path(args.data).exists():
+    generated = [] if Path(args.data).exists() else [args.data]
+    if generated:
         generate_dataset(DatasetSpec(scene="double_pendulum", num_trajectories=max(args.trajectories, 2) * 2,
                                      duration=5.0, seed=2026, split=[0.25, 0.25, 0.5]), args.data)
     module = load_model(args.checkpoint)
@@ -124,7 +127,7 @@ def main() -> None:
                                                         "cases": cases}, indent=1))
     write_table(cases, out / "study.md", args)
     plot(cases, out / "study.png")
-    print(f"wrote {out / 'study.json'}, {out / 'study.md'}, {out / 'study.png'}")
+    wrote(out / "study.json", out / "study.md", out / "study.png", generated)
 
 
 def write_table(cases, path: Path, args) -> None:

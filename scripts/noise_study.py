@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _cli import HelpFormatter, add_output_dir, wrote
 
 SCENE = "actuated_double_pendulum"
 ENCODER = 2 * np.pi / 4096  # a 12-bit encoder's step, rad
@@ -62,11 +63,13 @@ def settings_at(mode: dict, dt: float) -> dict:
     return derivatives.settings(mode)
 
 
-def part_targets(args, out: Path) -> list[dict]:
+def part_targets(args, out: Path) -> list[Path]:
+    """Part 1; the paths it wrote."""
     from lnn_torch.data import DatasetSpec, derivatives, generate_dataset, read_dataset
 
     path = Path(args.work) / "targets_1khz.h5"
-    if not path.exists():
+    generated = [] if path.exists() else [path]
+    if generated:
         generate_dataset(DatasetSpec(scene=SCENE, num_trajectories=args.target_trajectories, duration=4.0, dt=0.001,
                                      seed=11, split=[0.5, 0.25, 0.25]), path)
     tr = read_dataset(path).trajectories(None)
@@ -99,7 +102,7 @@ def part_targets(args, out: Path) -> list[dict]:
             lines.append(f"| {rate:g} Hz | {sigma:g} | " + " | ".join(cells) + " |")
     (out / "targets.md").write_text("\n".join(lines) + "\n")
     plot_targets(rows, args, out / "targets.png")
-    return rows
+    return [out / "targets.json", out / "targets.md", out / "targets.png", *generated]
 
 
 def plot_targets(rows, args, path: Path) -> None:
@@ -123,7 +126,8 @@ def plot_targets(rows, args, path: Path) -> None:
     plt.close(fig)
 
 
-def part_training(args, out: Path) -> list[dict]:
+def part_training(args, out: Path) -> list[Path]:
+    """Part 2; the paths it wrote."""
     import lightning as L
 
     from lnn_torch import LNNModule, TrajectoryDataModule
@@ -133,10 +137,11 @@ def part_training(args, out: Path) -> list[dict]:
 
     dt = 1.0 / args.rate
     clean = Path(args.work) / f"train_{args.rate:g}hz.h5"
+    noisy = Path(args.work) / f"train_{args.rate:g}hz_sigma{args.sigma:g}.h5"
+    generated = [p for p in (clean, noisy) if not p.exists()]
     if not clean.exists():
         generate_dataset(DatasetSpec(scene=SCENE, num_trajectories=args.train_trajectories, duration=4.0, dt=dt,
                                      seed=12), clean)
-    noisy = Path(args.work) / f"train_{args.rate:g}hz_sigma{args.sigma:g}.h5"
     if not noisy.exists():
         shutil.copy(clean, noisy)
         h5py = _h5py()
@@ -197,37 +202,41 @@ def part_training(args, out: Path) -> list[dict]:
         lines.append(f"| {r['mode']} | {r['batch']} | {100 * r['acc_rel_err']:.2f} % | {r['time_to_0.1_median']:.2f} | "
                      f"{r['train_seconds']:.0f} |")
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    return rows
+    return [out / f"{name}.json", out / f"{name}.md", *generated]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rates", type=float, nargs="+", default=[100, 250, 500, 1000])
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[0, 1e-4, 1e-3, 1e-2])
-    ap.add_argument("--target-trajectories", type=int, default=20)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--rates", type=float, nargs="+", default=[100, 250, 500, 1000], help="part 1: sampling rates, Hz")
+    ap.add_argument("--sigmas", type=float, nargs="+", default=[0, 1e-4, 1e-3, 1e-2],
+                    help="part 1: position noise levels, rad")
+    ap.add_argument("--target-trajectories", type=int, default=20, help="part 1: synthetic recordings")
     ap.add_argument("--train", action="store_true", help="also part 2 (training, minutes per mode)")
-    ap.add_argument("--rate", type=float, default=500.0)
-    ap.add_argument("--sigma", type=float, default=1e-3)
-    ap.add_argument("--steps", type=int, default=10000)
+    ap.add_argument("--rate", type=float, default=500.0, help="part 2: sampling rate, Hz")
+    ap.add_argument("--sigma", type=float, default=1e-3, help="part 2: position noise, rad")
+    ap.add_argument("--steps", type=int, default=10000, help="part 2: training steps per mode")
     ap.add_argument("--chunk-len", type=int, default=1, help="points per chunk of the acceleration-target runs")
-    ap.add_argument("--chunks-per-batch", type=int, default=512)
+    ap.add_argument("--chunks-per-batch", type=int, default=512,
+                    help="chunks per batch of the acceleration-target runs")
     ap.add_argument("--modes", nargs="+", help="only these training rows (names as in the table)")
     ap.add_argument("--training-name", default="training", help="part 2 writes NAME.json and NAME.md")
-    ap.add_argument("--train-trajectories", type=int, default=100)
-    ap.add_argument("--test-trajectories", type=int, default=10)
-    ap.add_argument("--horizon", type=float, default=4.0)
+    ap.add_argument("--train-trajectories", type=int, default=100, help="part 2: training recordings")
+    ap.add_argument("--test-trajectories", type=int, default=10, help="part 2: clean held-out trajectories")
+    ap.add_argument("--horizon", type=float, default=4.0, help="part 2: rollout horizon, s")
     ap.add_argument("--work", default="data/noise_study", help="where the generated datasets go")
-    ap.add_argument("--skip-targets", action="store_true")
-    ap.add_argument("--output-dir", "-o", default="results/noise_study")
+    ap.add_argument("--skip-targets", action="store_true", help="skip part 1")
+    add_output_dir(ap, "results/noise_study", "the folder of the tables and the plot", old=())
     args = ap.parse_args()
     torch.set_num_threads(1)
     Path(args.work).mkdir(parents=True, exist_ok=True)
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
+    written = []
     if not args.skip_targets:
-        part_targets(args, out)
+        written += part_targets(args, out)
     if args.train:
-        part_training(args, out)
+        written += part_training(args, out)
+    wrote(written)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,8 @@ the angle error after 0.1, 0.25, 0.5 and 1 s and the median time until it first 
         --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
     lnn-torch fit -c configs/real_double_pendulum.yaml
     python scripts/real_pendulum.py lightning_logs/version_0/checkpoints/last.ckpt
+
+Writes ``metrics.json``, ``report.md`` and ``error_vs_horizon.png`` to ``--output-dir``.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import math
 from pathlib import Path
 
 import torch
+from _cli import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
@@ -31,13 +34,14 @@ LAB = "lab's identified model"
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("checkpoint", help="a .ckpt trained on the imported recordings")
     ap.add_argument("--data", default=None, help="default: the checkpoint's data path")
-    ap.add_argument("--split", default="test")
-    ap.add_argument("--start-every", type=float, default=0.25)
-    ap.add_argument("--time-limit", type=float, default=4.0)
-    ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum"))
+    ap.add_argument("--split", default="test", help="the recordings to judge on: train, val or test")
+    ap.add_argument("--start-every", type=float, default=0.25, help="seconds between the rollouts' starts")
+    ap.add_argument("--time-limit", type=float, default=4.0, help="rollout length, s (time to 0.1 rad censored there)")
+    add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum"),
+                   "the folder of metrics.json, report.md and error_vs_horizon.png")
     ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
@@ -69,7 +73,7 @@ def main() -> None:
                               for rec, f, e in zip(held_out, filtered, recorded)}
         results[name] = r
     structure = compare_structure(module.model, lab, data, held_out)
-    out = Path(args.output)
+    out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"checkpoint": args.checkpoint, "held_out": held_out, "targets": saved.get("targets"),
             "start_every_s": args.start_every, "time_limit_s": args.time_limit, "note": args.note}
@@ -114,6 +118,7 @@ def main() -> None:
     (out / "report.md").write_text(table)
     print(table)
     plot(results, horizons, out)
+    wrote(out / "metrics.json", out / "report.md", out / "error_vs_horizon.png")
 
 
 def compare_structure(model, lab, data, names) -> dict:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from _cli import HelpFormatter, add_output_dir, wrote
 from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison script
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,25 +82,32 @@ def squared_errors(model, data) -> tuple[float, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", default=str(ROOT / "data" / "real_double_pendulum.h5"))
-    ap.add_argument("--config", default=str(ROOT / "configs" / "real_double_pendulum.yaml"))
-    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), help="names of SETTINGS to compare")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--data", default=str(ROOT / "data" / "real_double_pendulum.h5"), help="the imported recordings")
+    ap.add_argument("--config", default=str(ROOT / "configs" / "real_double_pendulum.yaml"),
+                    help="the training config every fit starts from")
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS),
+                    help="names of SETTINGS to compare (default: all)")
     ap.add_argument("--define", nargs=2, action="append", default=[], metavar=("NAME", "JSON"),
                     help="one more setting (model options, or {\"model_options\": ..., \"args\": [...]}), compared "
                          "as NAME; repeatable")
     ap.add_argument("--folds", nargs="+", default=None, help="hold out only these recordings (a quick look; "
                     "the pooled criterion needs them all)")
     ap.add_argument("--work", default=str(ROOT / "data" / "real_cv"), help="fold files and training runs")
-    ap.add_argument("--output", default=str(ROOT / "results" / "real_double_pendulum" / "cross_validation"))
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--report-only", action="store_true", help="rewrite the report from OUTPUT's JSON")
+    add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum" / "cross_validation"),
+                   "the folder of cross_validation.json and cross_validation.md")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite cross_validation.md from the output folder's cross_validation.json")
     ap.add_argument("--add", action="store_true",
-                    help="keep the other settings' results in OUTPUT's JSON (same folds and config) and add these")
+                    help="keep the other settings' results in the output folder's cross_validation.json (same folds "
+                         "and config) and add these")
     args = ap.parse_args()
     if args.report_only:
-        out = Path(args.output)
-        return write_report(json.loads((out / "cross_validation.json").read_text()), out)
+        out = Path(args.output_dir)
+        write_report(json.loads((out / "cross_validation.json").read_text()), out)
+        wrote(out / "cross_validation.md")
+        return
     for name, text in args.define:
         SETTINGS[name] = json.loads(text)
     if args.define and args.settings == list(SETTINGS)[:len(SETTINGS) - len(args.define)]:
@@ -117,11 +125,12 @@ def main() -> None:
     names = json.loads(source.attrs["recordings"])
     pool = sorted(np.concatenate([source.splits["train"], source.splits["val"]]).tolist())
     lab = RigidArmModel.from_yaml(PARAMS)
-    work, out = Path(args.work), Path(args.output)
+    work, out = Path(args.work), Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     sums = {name: {} for name in [LAB, *args.settings]}  # held-out recording: (squared error, squared reference)
     fitted = {name: {} for name in sums}  # the fold's training recordings, alike
     seconds = {name: [] for name in args.settings}
+    written = []  # the fold files and the folders of their training runs
     if args.folds:
         pool_names = [names[i] for i in pool]
         if not set(args.folds) <= set(pool_names):
@@ -132,6 +141,7 @@ def main() -> None:
             continue
         path = work / f"fold_{rec}.h5"
         fold_file(Path(args.data), path, held, [i for i in pool if i != held], source.splits["test"])
+        written += [path, work / f"fold_{rec}"]
         reference = None
         for setting in args.settings:
             run_dir = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(setting)}"
@@ -172,7 +182,9 @@ def main() -> None:
     result = {"config": config, "settings": {s: SETTINGS[s] for s in args.settings}, "fit_seconds": seconds,
               "results": table}
     if args.folds:  # a quick look at some folds: printed, never written over the study's files
-        return write_report(result, out, save=False)
+        write_report(result, out, save=False)
+        wrote(written)
+        return
     previous = out / "cross_validation.json"
     if args.add and previous.exists():  # the other settings' earlier results, in SETTINGS order
         old = json.loads(previous.read_text())
@@ -187,6 +199,7 @@ def main() -> None:
                   **({"note": old["note"]} if "note" in old else {})}
     (out / "cross_validation.json").write_text(json.dumps(result, indent=1))
     write_report(result, out)
+    wrote(out / "cross_validation.json", out / "cross_validation.md", written)
 
 
 def write_report(result: dict, out: Path, save: bool = True) -> None:
