@@ -38,7 +38,7 @@ class PredictionWriter(BasePredictionWriter):
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, **arrays)
         self.path = path
-        print(f"predictions written to {path}")
+        print(f"wrote {path} (predictions)")
 
     def _path(self, trainer) -> Path:
         if self.output:
@@ -56,7 +56,7 @@ class TestMetricsWriter(L.Callback):
         path = Path(trainer.log_dir or ".") / "test_metrics.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(metrics, indent=2) + "\n")
-        print(f"test metrics written to {path}")
+        print(f"wrote {path} (test metrics)")
 
 
 class LastCheckpoint(L.Callback):
