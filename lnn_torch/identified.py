@@ -76,6 +76,21 @@ class RigidArmModel:
         det = M11 * M22 - M12 * M12
         return torch.stack([M22 * rhs1 - M12 * rhs2, M11 * rhs2 - M12 * rhs1], -1) / det[..., None]
 
+    def friction_force(self, q, qd, params=None):
+        """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint."""
+        v = self.values
+        return -torch.stack([v[f"b{j}"] * qd[..., j - 1] + v[f"cf{j}"] * torch.atan(self.coulomb_slope * qd[..., j - 1])
+                             for j in (1, 2)], -1)
+
+    def energy(self, q, qd, params=None):
+        """``T + V`` in J, the rotors' kinetic energy included (``V = 0`` with both links hanging down)."""
+        v = self.values
+        M = self.mass_matrix(q)
+        T = 0.5 * torch.einsum("...i,...ij,...j->...", qd, M, qd)
+        c1, c12 = torch.cos(q[..., 0]), torch.cos(q[..., 0] + q[..., 1])
+        V = v["g"] * ((v["m1"] * v["r1"] + v["m2"] * v["l1"]) * (1 - c1) + v["m2"] * v["r2"] * (1 - c12))
+        return T + V
+
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
         return rollout(lambda q, qd, p, *u: self.acceleration(q, qd, p, *u), q0, qd0, params, dt, num_steps, method,
                        tau=tau)

@@ -1,0 +1,9 @@
+"""Using a learned model: the plant view (``plant``), controllers (``controllers``) and closed-loop
+simulation on a true plant (``closed_loop``)."""
+
+from .closed_loop import closed_loop
+from .controllers import LQR, ComputedTorque, equilibrium_input, lqr_gain, wrap
+from .plant import Plant, calibrate_torque_scale, plant_of
+
+__all__ = ["Plant", "plant_of", "calibrate_torque_scale", "LQR", "ComputedTorque", "lqr_gain", "equilibrium_input",
+           "wrap", "closed_loop"]

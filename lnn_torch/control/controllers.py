@@ -1,0 +1,110 @@
+"""Controllers on a ``Plant`` (``lnn_torch.control.plant``): the same code runs on a learned model's
+plant and on the truth's. Each controller is a callable ``u = controller(t, q, qd)`` over a batch of
+states (float64, SI), built for fixed conditioning parameters ``params (B, P)``.
+
+* ``lqr_gain``: infinite-horizon LQR about an equilibrium, continuous or discrete at a control period
+  (zero-order hold), on the plant's exact linearisation;
+* ``LQR``: ``u = u_eq - K (x - x_eq)`` with angle errors wrapped to (-pi, pi];
+* ``ComputedTorque``: model feed-forward plus PD on a reference trajectory,
+  ``u = B^+ (M (qdd_ref + Kp e + Kd e') + n - Q_f)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from .plant import Plant
+
+
+def wrap(dq: torch.Tensor, angle_mask) -> torch.Tensor:
+    """Coordinate differences with the angle ones wrapped to (-pi, pi]."""
+    mask = torch.tensor(angle_mask, device=dq.device)
+    return torch.where(mask, torch.remainder(dq + torch.pi, 2 * torch.pi) - torch.pi, dq)
+
+
+def equilibrium_input(plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | None = None,
+                      tol: float = 1e-6) -> torch.Tensor:
+    """The constant input that holds ``q_eq (B, n)`` at rest; ``InputError`` where the inputs cannot
+    (an unreachable equilibrium: gravity pulls along a direction no input acts on)."""
+    zero = torch.zeros_like(q_eq)
+    u = plant.inverse(q_eq, zero, zero, params)
+    res = plant.residual(q_eq, zero, zero, params)
+    scale = plant.gravity(q_eq, params).norm(dim=-1).clamp_min(1.0)
+    bad = res > tol * scale
+    if bad.any():
+        i = int(bad.nonzero()[0])
+        raise InputError(f"{plant.name}: the inputs cannot hold q = {q_eq[i].tolist()} at rest (unbalanced force "
+                         f"{float(res[i]):.3g} along directions no input acts on): not an equilibrium of this actuation")
+    return u
+
+
+def lqr_gain(A: torch.Tensor, B: torch.Tensor, Q, R, dt: float | None = None) -> torch.Tensor:
+    """LQR gains ``K (batch, m, 2n)`` for ``x' = A x + B u`` (batched ``(batch, 2n, 2n)``, ``(batch, 2n, m)``)
+    minimising ``int x^T Q x + u^T R u``; with ``dt``, the discrete-time problem of the zero-order-hold
+    discretisation at that control period (what a digital controller at ``1/dt`` Hz runs).
+    Raises ``InputError`` where no stabilising solution exists (an uncontrollable linearisation)."""
+    import scipy.linalg
+
+    A_np, B_np = A.detach().double().cpu().numpy(), B.detach().double().cpu().numpy()
+    n2, m = A_np.shape[-1], B_np.shape[-1]
+    Q, R = _weights(Q, n2, "Q"), _weights(R, m, "R")
+    gains = []
+    for a, b in zip(A_np, B_np):
+        try:
+            if dt is None:
+                P = scipy.linalg.solve_continuous_are(a, b, Q, R)
+                K = np.linalg.solve(R, b.T @ P)
+            else:
+                block = np.zeros((n2 + m, n2 + m))
+                block[:n2, :n2], block[:n2, n2:] = a, b
+                E = scipy.linalg.expm(block * dt)
+                Ad, Bd = E[:n2, :n2], E[:n2, n2:]
+                P = scipy.linalg.solve_discrete_are(Ad, Bd, Q, R)
+                K = np.linalg.solve(R + Bd.T @ P @ Bd, Bd.T @ P @ Ad)
+        except (np.linalg.LinAlgError, ValueError) as err:
+            raise InputError(f"LQR: no stabilising solution for this linearisation ({err}); is the equilibrium "
+                             "controllable with these inputs?") from None
+        gains.append(K)
+    return torch.tensor(np.stack(gains), dtype=torch.float64)
+
+
+def _weights(W, k: int, name: str) -> np.ndarray:
+    """A weight matrix ``(k, k)`` from a scalar (times the identity), a diagonal or a matrix."""
+    W = np.asarray(W, dtype=np.float64)
+    W = W * np.eye(k) if W.ndim == 0 else (np.diag(W) if W.ndim == 1 else W)
+    if W.shape != (k, k):
+        raise InputError(f"LQR: {name} must be a scalar, {k} diagonal entries or a ({k}, {k}) matrix, got shape "
+                         f"{W.shape}")
+    return W
+
+
+class LQR:
+    """``u = u_eq - K (x - x_eq)`` about the equilibrium ``(q_eq, 0, u_eq)`` of ``plant``, one gain per
+    parameter set: designed on the plant's linearisation (``lqr_gain``)."""
+
+    def __init__(self, plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | None = None, Q=1.0, R=1.0,
+                 dt: float | None = None) -> None:
+        self.q_eq, self.angle_mask = q_eq, plant.angle_mask
+        self.u_eq = equilibrium_input(plant, q_eq, params)
+        A, B = plant.linearize(q_eq, torch.zeros_like(q_eq), self.u_eq, params)
+        self.K = lqr_gain(A, B, Q, R, dt)
+
+    def __call__(self, t, q, qd) -> torch.Tensor:
+        x = torch.cat([wrap(q - self.q_eq, self.angle_mask), qd], -1)
+        return self.u_eq - torch.einsum("bmj,bj->bm", self.K, x)
+
+
+class ComputedTorque:
+    """Model feed-forward + PD on a reference ``ref(t) -> (q, qd, qdd)`` (each ``(B, n)``):
+    ``u = B^+ (M (qdd_ref + Kp e + Kd e') + n - Q_f)``; exact tracking on a perfect model of a fully
+    actuated plant (the error then obeys ``e'' + Kd e' + Kp e = 0``)."""
+
+    def __init__(self, plant: Plant, ref, params: torch.Tensor | None = None, kp=100.0, kd=20.0) -> None:
+        self.plant, self.ref, self.params, self.kp, self.kd = plant, ref, params, kp, kd
+
+    def __call__(self, t, q, qd) -> torch.Tensor:
+        q_r, qd_r, qdd_r = self.ref(t)
+        e = wrap(q_r - q, self.plant.angle_mask)
+        return self.plant.inverse(q, qd, qdd_r + self.kp * e + self.kd * (qd_r - qd), self.params)

@@ -1,0 +1,187 @@
+"""The plant view and the controllers (``lnn_torch.control``): linearisations against finite
+differences and the closed form, the rigid-body terms against independent references, LQR
+stabilising the true upright, one code path for every plant, clear refusals."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch.control import LQR, ComputedTorque, Plant, calibrate_torque_scale, closed_loop, lqr_gain, plant_of, wrap
+from lnn_torch.errors import InputError
+from lnn_torch.identified import RigidArmModel
+from lnn_torch.networks import build_model
+from lnn_torch.systems import get_system
+
+from .helpers import perturbed, random_batch
+
+DP = get_system("double_pendulum")
+ARM = get_system("actuated_double_pendulum")
+LAB = RigidArmModel(m1=0.59, m2=0.59, l1=0.3, r1=0.3, r2=0.28, I1=0.054, I2=0.048, Ir=7e-5, gr=6.0, b1=0.001,
+                    b2=0.001, cf1=0.09, cf2=0.08)
+
+
+def structured_model(system, seed=0):
+    """An untrained film_lnn of ``system`` (perturbed so every path matters), normaliser fitted."""
+    torch.manual_seed(seed)
+    model = perturbed(build_model("film_lnn", system, hidden_dims=[16, 16]).double(), 0.05, seed)
+    rng = np.random.default_rng(seed)
+    q, qd, params = random_batch(system, rng, 256)
+    tau = None if not system.num_inputs else torch.tensor(rng.uniform(-1, 1, (256, system.num_inputs)))
+    model.fit_normalizer({"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
+                          "params_points": params, **({"tau": tau} if tau is not None else {})})
+    return model
+
+
+PLANTS = {
+    "double pendulum, both joints": lambda: plant_of(DP),
+    "double pendulum, pendubot": lambda: plant_of(DP, actuation=(True, False)),
+    "actuated arm with friction": lambda: plant_of(ARM),
+    "learned arm (film_lnn)": lambda: plant_of(structured_model(ARM)),
+    "learned double pendulum, acrobot": lambda: plant_of(structured_model(DP), actuation=(False, True)),
+    "identified lab arm": lambda: plant_of(LAB),
+}
+
+
+def _states(plant, n=6, seed=0):
+    rng = np.random.default_rng(seed)
+    system = ARM if plant.num_params == ARM.num_params else DP
+    q, qd, params = random_batch(system, rng, n)
+    params = params if plant.num_params else torch.zeros(n, 0, dtype=torch.float64)
+    u = torch.tensor(rng.uniform(-1, 1, (n, plant.num_inputs)))
+    return q, qd, params, u
+
+
+@pytest.mark.parametrize("name", PLANTS)
+def test_linearisation_equals_central_differences(name):
+    plant = PLANTS[name]()
+    q, qd, params, u = _states(plant)
+    A, B = plant.linearize(q, qd, u, params)
+    x, n, h = torch.cat([q, qd], -1), plant.dof, 1e-6
+
+    def f(x, u):
+        return torch.cat([x[:, n:], plant.forward(x[:, :n], x[:, n:], params, u)], -1)
+
+    for j in range(2 * n):
+        dx = torch.zeros_like(x)
+        dx[:, j] = h
+        fd = (f(x + dx, u) - f(x - dx, u)) / (2 * h)
+        torch.testing.assert_close(A[..., j], fd, rtol=1e-6, atol=1e-6)
+    for j in range(plant.num_inputs):
+        du = torch.zeros_like(u)
+        du[:, j] = h
+        torch.testing.assert_close(B[..., j], (f(x, u + du) - f(x, u - du)) / (2 * h), rtol=1e-6, atol=1e-6)
+
+
+def test_linearisation_at_the_upright_is_the_closed_form():
+    """About theta1 = theta2 = pi at rest: qdd = M^-1 (diag((m1+m2) g l1, m2 g l2) dtheta + D^T u),
+    M = [[(m1+m2) l1^2, m2 l1 l2], [m2 l1 l2, m2 l2^2]] (point masses, absolute angles)."""
+    m1, m2, l1, l2, g = 1.0, 0.6, 1.2, 1.1, 9.81
+    params = torch.tensor([[m1, m2, l1, l2]], dtype=torch.float64)
+    up = torch.full((1, 2), math.pi, dtype=torch.float64)
+    A, B = plant_of(DP).linearize(up, torch.zeros_like(up), None, params)
+    M = torch.tensor([[(m1 + m2) * l1**2, m2 * l1 * l2], [m2 * l1 * l2, m2 * l2**2]], dtype=torch.float64)
+    Minv = torch.linalg.inv(M)
+    torch.testing.assert_close(A[0, 2:, :2], Minv @ torch.diag(torch.tensor([(m1 + m2) * g * l1, m2 * g * l2],
+                                                                           dtype=torch.float64)))
+    torch.testing.assert_close(A[0, :2, 2:], torch.eye(2, dtype=torch.float64))
+    torch.testing.assert_close(B[0, 2:], Minv @ torch.tensor([[1.0, -1.0], [0.0, 1.0]], dtype=torch.float64))
+
+
+@pytest.mark.parametrize("name", PLANTS)
+def test_rigid_body_terms_are_consistent(name):
+    """``M qdd + n = B u + Q_f`` with the inverse undoing the forward dynamics (fully actuated)."""
+    plant = PLANTS[name]()
+    q, qd, params, u = _states(plant)
+    qdd = plant.forward(q, qd, params, u)
+    M, n, Qf = plant.mass_matrix(q, params), plant.bias(q, qd, params), plant.friction(q, qd, params)
+    torch.testing.assert_close(torch.einsum("bij,bj->bi", M, qdd) + n, u @ plant.input_matrix.T + Qf)
+    if plant.num_inputs == plant.dof:
+        torch.testing.assert_close(plant.inverse(q, qd, qdd, params), u)
+        assert plant.residual(q, qd, qdd, params).max() < 1e-9
+
+
+def test_gravity_is_the_gradient_of_the_potential():
+    """An independent reference: the truth's ``n(q, 0)`` equals ``dV/dq`` by autograd of its potential."""
+    q, _, params = random_batch(ARM, np.random.default_rng(3), 8)
+    q = q.requires_grad_(True)
+    dV = torch.autograd.grad(ARM.potential(q, params).sum(), q)[0]
+    torch.testing.assert_close(plant_of(ARM).gravity(q.detach(), params), dV)
+
+
+@pytest.mark.parametrize("actuation, ball", [(None, 0.05), ((True, False), 0.05), ((False, True), 0.01)])
+def test_lqr_of_the_true_double_pendulum_stabilises_the_upright(actuation, ball):
+    """Fully actuated, pendubot and acrobot: digital LQR at 500 Hz on the nonlinear truth, from a ball of
+    starts around the upright, ends within 1e-3 rad of it after 5 s."""
+    plant = plant_of(DP, actuation=actuation)
+    N = 16
+    params = torch.tensor([[1.0, 0.6, 1.2, 1.1]] * N, dtype=torch.float64)
+    up = torch.full((N, 2), math.pi, dtype=torch.float64)
+    gen = torch.Generator().manual_seed(0)
+    q0 = up + ball * (2 * torch.rand(N, 2, generator=gen, dtype=torch.float64) - 1)
+    lqr = LQR(plant, up, params, Q=[10, 10, 1, 1], R=0.1, dt=0.002)
+    ep = closed_loop(plant, lqr, q0, torch.zeros_like(q0), params, 5.0, 0.002, substeps=2)
+    assert wrap(ep["q"][:, -1] - up, (True, True)).abs().max() < 1e-3
+    # without the controller it falls: the test can fail
+    free = closed_loop(plant, lambda t, q, qd: torch.zeros(N, plant.num_inputs, dtype=torch.float64), q0,
+                       torch.zeros_like(q0), params, 5.0, 0.002, substeps=2)
+    assert wrap(free["q"][:, -1] - up, (True, True)).abs().max() > 0.5
+
+
+def test_one_code_path_for_the_learned_and_the_true_plant():
+    """LQR and computed torque take any ``Plant``: designed on a learned plant they run on the truth's
+    (here an untrained model: only the code path is shared, not the quality)."""
+    learned, true = plant_of(structured_model(ARM)), plant_of(ARM)
+    assert isinstance(learned, Plant) and isinstance(true, Plant)
+    q, qd, params, _ = _states(true, n=4)
+    ref = lambda t: (q, torch.zeros_like(q), torch.zeros_like(q))  # noqa: E731
+    for design in (learned, true):
+        ct = ComputedTorque(design, ref, params, kp=50.0, kd=14.0)
+        ep = closed_loop(true, ct, q, torch.zeros_like(q), params, 0.2, 0.002)
+        assert torch.isfinite(ep["q"]).all() and ep["u"].shape == (4, 100, 2)
+
+
+def test_computed_torque_on_the_true_model_tracks_a_reference_exactly():
+    plant = plant_of(ARM)
+    q, _, params, _ = _states(plant, n=4)
+
+    def ref(t):
+        s = torch.tensor(t, dtype=torch.float64)
+        return (q + 0.3 * torch.sin(2 * s), 0.6 * torch.cos(2 * s) * torch.ones_like(q),
+                -1.2 * torch.sin(2 * s) * torch.ones_like(q))
+
+    ep = closed_loop(plant, ComputedTorque(plant, ref, params, kp=400.0, kd=40.0), q, 0.6 * torch.ones_like(q), params,
+                     1.0, 0.001, substeps=1)
+    err = (ep["q"][:, -1] - ref(1.0)[0]).abs().max()
+    assert err < 1e-3, err
+
+
+def test_torque_scale_of_a_lagrangian_known_up_to_scale_is_calibrated():
+    """A plant whose Lagrangian is 3 times the truth's (what a model learned without inputs may be)
+    gets its scale back from a recording with known torques."""
+    true = plant_of(DP)
+    scaled = Plant("scaled", 2, 4, true.input_matrix, true.angle_mask, true.accel,
+                   lambda q, p: 3.0 * DP.mass_matrix(q, p))
+    q, qd, params, u = _states(true, n=32)
+    qdd = true.forward(q, qd, params, u)
+    assert calibrate_torque_scale(scaled, q, qd, qdd, u, params) == pytest.approx(3.0, rel=1e-9)
+
+
+def test_bad_input_is_refused_in_one_line():
+    up = torch.tensor([[math.pi / 2, 0.0]], dtype=torch.float64)
+    params = torch.tensor([[1.0, 0.6, 1.2, 1.1]], dtype=torch.float64)
+    with pytest.raises(InputError, match="cannot hold q = .* not an equilibrium"):
+        LQR(plant_of(DP, actuation=(False, True)), up, params)
+    plant = plant_of(DP)
+    with pytest.raises(InputError, match="torque_limit needs 2 positive values"):
+        closed_loop(plant, lambda t, q, qd: torch.zeros(1, 2), up, torch.zeros_like(up), params, 0.01, 0.002,
+                    torque_limit=[1.0, 1.0, 1.0])
+    with pytest.raises(InputError, match="has no mass matrix"):
+        plant_of(build_model("mlp", DP, hidden_dims=[8]))
+    with pytest.raises(InputError, match="u must have shape"):
+        plant.forward(up, torch.zeros_like(up), params, torch.zeros(1, 3))
+    with pytest.raises(InputError, match="inputs of its own"):
+        plant_of(ARM, actuation=(True, False))
+    with pytest.raises(InputError, match="Q must be"):
+        lqr_gain(*plant.linearize(up, torch.zeros_like(up), None, params), Q=[1.0, 2.0], R=1.0)
