@@ -20,6 +20,7 @@ COMMANDS = {
     "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
     "identify": ("identify", "the physical parameters of a recorded trajectory, through a trained model"),
     "list": ("list_registry", "scenes, model variants and parts, shipped models and integrators"),
+    "control": ("control", "design a controller on a model and run it in closed loop on a plant; report + animation"),
 }
 
 

@@ -29,10 +29,11 @@ class RigidArmModel:
     variant = "identified rigid-body model"
 
     def __init__(self, m1, m2, l1, r1, r2, I1, I2, Ir=0.0, gr=1.0, b1=0.0, b2=0.0, cf1=0.0, cf2=0.0, g=9.81,
-                 coulomb_slope: float = 100.0) -> None:
+                 coulomb_slope: float = 100.0, l2: float | None = None) -> None:
         self.values = dict(m1=m1, m2=m2, l1=l1, r1=r1, r2=r2, I1=I1, I2=I2, Ir=Ir, gr=gr, b1=b1, b2=b2, cf1=cf1, cf2=cf2,
                            g=g)
         self.coulomb_slope = float(coulomb_slope)
+        self.l2 = None if l2 is None else float(l2)  # for drawing only (link 2's length is not in its dynamics)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RigidArmModel":
@@ -43,7 +44,7 @@ class RigidArmModel:
         missing = [k for k in KEYS if k not in values]
         if missing:
             raise ValueError(f"{path}: missing parameter(s) {', '.join(missing)}")
-        return cls(**{k: float(values[k]) for k in KEYS})
+        return cls(**{k: float(values[k]) for k in KEYS}, l2=values.get("l2"))
 
     def _mass(self, q):
         v = self.values
@@ -75,6 +76,15 @@ class RigidArmModel:
             rhs1, rhs2 = rhs1 + tau[..., 0], rhs2 + tau[..., 1]
         det = M11 * M22 - M12 * M12
         return torch.stack([M22 * rhs1 - M12 * rhs2, M11 * rhs2 - M12 * rhs1], -1) / det[..., None]
+
+    def positions(self, q, params=None):
+        """The elbow and the tip ``(..., 2, 2)`` (x right, y up; m) for drawing; None without ``l2``."""
+        if self.l2 is None:
+            return None
+        a1, a12 = q[..., 0], q[..., 0] + q[..., 1]
+        elbow = torch.stack([self.values["l1"] * torch.sin(a1), -self.values["l1"] * torch.cos(a1)], -1)
+        tip = elbow + torch.stack([self.l2 * torch.sin(a12), -self.l2 * torch.cos(a12)], -1)
+        return torch.stack([elbow, tip], -2)
 
     def friction_force(self, q, qd, params=None):
         """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint."""

@@ -185,3 +185,38 @@ def test_bad_input_is_refused_in_one_line():
         plant_of(ARM, actuation=(True, False))
     with pytest.raises(InputError, match="Q must be"):
         lqr_gain(*plant.linearize(up, torch.zeros_like(up), None, params), Q=[1.0, 2.0], R=1.0)
+
+
+def test_the_control_command_reports_a_swing_up_designed_on_the_plant(tmp_path, capsys):
+    """``lnn-torch control plant -c SCENARIO``: the shipped real-pendulum scenario with the lab model
+    both as plant and as design swings up every episode, and writes what it says."""
+    import json
+
+    from lnn_torch.cli import main
+
+    from .helpers import ROOT
+
+    scenario = ROOT / "configs" / "control" / "real_double_pendulum_swingup.yaml"
+    out = tmp_path / "ctl"
+    assert main(["control", "plant", "-c", str(scenario), "--episodes", "4", "-o", str(out)]) == 0
+    report = json.loads((out / "control.json").read_text())
+    assert report["success_rate"] == 1.0 and report["torque_max"] <= 10.0
+    printed = capsys.readouterr().out
+    assert "| success (within tolerance of the goal at the end) | 100.0 % |" in printed
+    for name in ("control.json", "report.md", "episode.png", "episode.gif"):
+        assert (out / name).stat().st_size > 100 and str(out / name) in printed
+
+
+@pytest.mark.parametrize("text, message", [("controller: {kind: swingup}\n", "'plant' is missing"),
+                                           ("plant: {scene: double_pendulum}\ncontroller: {kind: lqr}\n",
+                                            "plant.params is missing"),
+                                           ("plant: {identified: nowhere.yml}\ncontroller: {}\n",
+                                            "file nowhere.yml does not exist")])
+def test_the_control_command_names_a_bad_scenario_in_one_line(text, message, tmp_path, capsys):
+    from lnn_torch.cli import main
+
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(text)
+    assert main(["control", "plant", "-c", str(scenario), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err

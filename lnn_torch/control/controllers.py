@@ -108,3 +108,40 @@ class ComputedTorque:
         q_r, qd_r, qdd_r = self.ref(t)
         e = wrap(q_r - q, self.plant.angle_mask)
         return self.plant.inverse(q, qd, qdd_r + self.kp * e + self.kd * (qd_r - qd), self.params)
+
+
+def min_jerk(q_start: torch.Tensor, q_goal: torch.Tensor, seconds: float):
+    """A minimum-jerk (quintic) reference from rest at ``q_start`` to rest at ``q_goal`` (each ``(B, n)``)
+    in ``seconds``: ``ref(t) -> (q, qd, qdd)``, holding the goal afterwards."""
+    delta = q_goal - q_start
+
+    def ref(t: float):
+        s = min(max(t / seconds, 0.0), 1.0)
+        pos = 10 * s**3 - 15 * s**4 + 6 * s**5
+        vel = (30 * s**2 - 60 * s**3 + 30 * s**4) / seconds
+        acc = (60 * s - 180 * s**2 + 120 * s**3) / seconds**2
+        return q_start + pos * delta, vel * delta, acc * delta
+
+    return ref
+
+
+class SwingUp:
+    """Swing-up and balance of a fully actuated arm: computed-torque tracking of a minimum-jerk path
+    from the start to the target (``seconds`` long), then LQR about the target once the state is within
+    ``catch`` rad (angles) and ``catch`` rad/s of it, for good. Both parts are designed on ``plant``."""
+
+    def __init__(self, plant: Plant, q_start: torch.Tensor, q_goal: torch.Tensor, params: torch.Tensor | None = None,
+                 seconds: float = 2.0, kp=60.0, kd=16.0, Q=(10, 10, 1, 1), R=0.1, dt: float | None = None,
+                 catch: float = 0.1) -> None:
+        if plant.num_inputs < plant.dof:
+            raise InputError(f"{plant.name}: this swing-up tracks a path by computed torque and needs every joint "
+                             f"actuated ({plant.num_inputs} inputs for {plant.dof} coordinates)")
+        self.track = ComputedTorque(plant, min_jerk(q_start, q_goal, seconds), params, kp, kd)
+        self.lqr = LQR(plant, q_goal, params, Q, R, dt)
+        self.q_goal, self.angle_mask, self.catch = q_goal, plant.angle_mask, catch
+        self.caught = torch.zeros(q_goal.shape[0], dtype=torch.bool)
+
+    def __call__(self, t, q, qd) -> torch.Tensor:
+        near = (wrap(q - self.q_goal, self.angle_mask).abs().amax(-1) < self.catch) & (qd.abs().amax(-1) < self.catch)
+        self.caught |= near
+        return torch.where(self.caught[:, None], self.lqr(t, q, qd), self.track(t, q, qd))

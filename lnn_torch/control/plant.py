@@ -48,7 +48,7 @@ class Plant:
     mass: Callable  # (q, params) -> M
     friction_force: Callable | None = None  # (q, qd, params) -> Q_f
     energy_fn: Callable | None = None  # (q, qd, params) -> E
-    torque_scale: float = 1.0
+    torque_scale: float | torch.Tensor = 1.0  # model units per N m (one, or one per state of the batch)
     input_names: tuple[str, ...] = field(default_factory=tuple)
 
     @property
@@ -249,10 +249,15 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     else:
         D = torch.tensor(scene.joint_map, dtype=dtype) if scene.joint_map is not None else torch.eye(scene.dof, dtype=dtype)
         B = _joint_inputs(D, actuation)
-    scale = 1.0 if torque_scale is None else float(torque_scale)
+    scale = torch.as_tensor(1.0 if torque_scale is None else torque_scale, dtype=dtype)
+    if scale.ndim > 1 or (scale <= 0).any():
+        raise InputError(f"torque_scale must be positive: one value, or one per state of the batch, got {scale.tolist()}")
+
+    def per_state(x):  # x (B, ...) divided by the scale (one, or one per state)
+        return x / scale.reshape(-1, *([1] * (x.ndim - 1))) if scale.ndim else x / scale
 
     def mass(q, p):
-        return network.mass_matrix_si(q, p) / scale
+        return per_state(network.mass_matrix_si(q, p))
 
     def accel(q, qd, p, u):
         if own:
@@ -271,19 +276,29 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
             return -(network.friction_torque_si(qd @ Dm.T.to(qd.dtype), p) @ Dm.to(qd.dtype))
 
     def energy(q, qd, p):
-        return network.energy_si(q, qd, p) / scale
+        return per_state(network.energy_si(q, qd, p))
 
     names = tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(f"{network.variant} ({scene.name})", scene.dof, scene.num_params, B, tuple(scene.angle_mask), accel,
                  mass, friction, energy, scale, names)
 
 
-def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None) -> float:
+def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None):
     """The scale ``c`` (model units per N m) that makes the plant's Lagrangian explain a recording with
     known inputs: least squares of ``M_model (qdd - a_free) = c B u`` over the samples (``plant`` built
-    with ``torque_scale=1``)."""
-    params = plant._params(q, params)
+    with ``torque_scale=1``). ``(N, n)`` samples give one float; ``(S, T, n)`` recordings of ``S``
+    systems (``params (S, P)``) give one scale per system ``(S,)``."""
+    if q.ndim == 3:
+        S, T, n = q.shape
+        p = plant._params(q[:, 0], params)[:, None].expand(-1, T, -1).reshape(S * T, -1)
+        flat = [x.reshape(S * T, -1) for x in (q, qd, qdd, u)]
+        lhs, rhs = _calibration_terms(plant, *flat, p)
+        return (lhs * rhs).reshape(S, -1).sum(-1) / (rhs * rhs).reshape(S, -1).sum(-1)
+    lhs, rhs = _calibration_terms(plant, q, qd, qdd, u, plant._params(q, params))
+    return float((lhs * rhs).sum() / (rhs * rhs).sum())
+
+
+def _calibration_terms(plant: Plant, q, qd, qdd, u, params):
     M = plant.mass(q, params)
     lhs = torch.einsum("bij,bj->bi", M, qdd - plant.accel(q, qd, params, None))
-    rhs = u @ plant.input_matrix.T.to(u.dtype)
-    return float((lhs * rhs).sum() / (rhs * rhs).sum())
+    return lhs, u @ plant.input_matrix.T.to(u.dtype)

@@ -1,0 +1,261 @@
+"""``lnn-torch control``: design a controller on a model, run it in closed loop on a plant standing in
+for the hardware, and report how it did.
+
+    lnn-torch control CHECKPOINT -c configs/control/real_double_pendulum_swingup.yaml
+    lnn-torch control plant -c configs/control/real_double_pendulum_swingup.yaml   # designed on the plant itself
+
+``CHECKPOINT`` (a path or ``pretrained:NAME``) is the model the controller is designed on; ``plant``
+designs it on the plant itself (the comparison a learned model has to meet). The scenario (YAML):
+
+* ``plant``: ``{identified: FILE}`` (an identified rigid-body arm, ``lnn_torch.identified``) or
+  ``{scene: NAME, scene_config: {...}, params: [...], actuation: full | [true, false] ...}``;
+* ``controller``: ``{kind: swingup | lqr, goal: [q...], seconds, kp, kd, Q, R, catch}``
+  (``lnn_torch.control.controllers``: swing-up = computed-torque tracking of a minimum-jerk path,
+  then LQR; lqr = LQR about ``goal`` from starts near it);
+* ``episodes``, ``duration`` (s), ``control_hz``, ``substeps`` (RK4 steps of the plant per control
+  period), ``limits: {torque: [...]}`` (N m), ``noise: {angle, velocity}`` (standard deviations, rad
+  and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}`` (uniform offsets, rad, at
+  rest), ``success: {tolerance, hold}`` (within ``tolerance`` rad of the goal for the last ``hold``
+  s), ``seed``.
+
+Writes ``control.json``, ``report.md``, ``episode.png`` (angles and torques of the first episode)
+and ``episode.gif`` (its animation) to ``--output-dir`` and prints the report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import torch
+
+from ..errors import InputError
+
+DEFAULTS = {"episodes": 100, "duration": 5.0, "control_hz": 500.0, "substeps": 2, "limits": {}, "noise": {},
+            "delay": 0, "start": {}, "success": {}, "seed": 0}
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="lnn-torch control", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", metavar="CHECKPOINT",
+                    help="the model the controller is designed on: a .ckpt, pretrained:NAME, or 'plant'")
+    ap.add_argument("--config", "-c", required=True, help="the scenario (YAML)")
+    ap.add_argument("--episodes", type=int, default=None, help="override the scenario's episode count")
+    ap.add_argument("--output-dir", "-o", default=None, help="default: control/<scenario name>")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    ap.add_argument("--no-animation", action="store_true", help="skip episode.gif")
+    return ap
+
+
+def build_plant(spec: dict, where: str):
+    """The plant of a scenario's ``plant`` mapping, and its parameters ``(1, P)`` (or None)."""
+    from ..control import plant_of
+    from ..identified import RigidArmModel
+    from ..systems import get_system
+
+    if "identified" in spec:
+        arm = RigidArmModel.from_yaml(_data_path(spec["identified"], where))
+        return plant_of(arm), None, arm
+    if "scene" in spec:
+        system = get_system(spec["scene"], **spec.get("scene_config", {}))
+        if "params" not in spec:
+            raise InputError(f"{where}: plant.params is missing ({', '.join(system.param_names)})")
+        params = torch.tensor([spec["params"]], dtype=torch.float64)
+        system.check_params(params)
+        return plant_of(system, actuation=spec.get("actuation")), params, system
+    raise InputError(f"{where}: plant needs 'identified: FILE' or 'scene: NAME' with params")
+
+
+def _data_path(name: str, where: str) -> Path:
+    """A file named in a scenario: relative to the current folder, or (``lnn_torch/...``) to the
+    installed package, so the shipped scenarios work from any folder."""
+    path = Path(name)
+    if path.exists():
+        return path
+    package = Path(__file__).resolve().parents[1]
+    if path.parts and path.parts[0] == "lnn_torch" and (package.parent / path).exists():
+        return package.parent / path
+    raise InputError(f"{where}: file {name} does not exist")
+
+
+def _controller(kind, plant, q0, goal, params, ctrl, dt):
+    from ..control import LQR, SwingUp
+
+    weights = {k: ctrl[k] for k in ("Q", "R") if k in ctrl}
+    if kind == "swingup":
+        return SwingUp(plant, q0, goal, params, seconds=float(ctrl.get("seconds", 2.0)), kp=float(ctrl.get("kp", 60.0)),
+                       kd=float(ctrl.get("kd", 16.0)), dt=dt, catch=float(ctrl.get("catch", 0.1)), **weights)
+    if kind == "lqr":
+        return LQR(plant, goal, params, dt=dt, **weights)
+    raise InputError(f"controller.kind must be swingup or lqr, got {kind!r}")
+
+
+def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int | None = None) -> dict:
+    """Run a scenario with the controller designed on ``design`` (a model, or None: the plant).
+    Returns the metrics and the episodes' arrays (``_episodes``)."""
+    from ..control import closed_loop, plant_of, wrap
+
+    s = {**DEFAULTS, **scenario}
+    for key in ("plant", "controller"):
+        if key not in s:
+            raise InputError(f"{where}: '{key}' is missing")
+    plant, params, truth = build_plant(s["plant"], where)
+    design_plant = plant if design is None else plant_of(design, actuation=s["plant"].get("actuation"))
+    if design is not None and design_plant.dof != plant.dof:
+        raise InputError(f"{where}: the model has {design_plant.dof} coordinates, the plant {plant.dof}")
+    n, N = plant.dof, int(episodes or s["episodes"])
+    gen = torch.Generator().manual_seed(int(s["seed"]))
+    ctrl = s["controller"]
+    goal1 = torch.tensor([ctrl.get("goal", [math.pi] + [0.0] * (n - 1))], dtype=torch.float64)
+    if goal1.shape != (1, n):
+        raise InputError(f"{where}: controller.goal needs {n} values, got {goal1.tolist()[0]}")
+    kind = ctrl.get("kind", "swingup")
+    start = s["start"]
+    centre = torch.tensor([start.get("q", [0.0] * n if kind == "swingup" else goal1[0].tolist())], dtype=torch.float64)
+    spread = float(start.get("spread", 0.05))
+    q0 = centre + spread * (2 * torch.rand(N, n, generator=gen, dtype=torch.float64) - 1)
+    goal = goal1.expand(N, -1)
+    p_design = None
+    if design is not None and design_plant.num_params:
+        p_design = params.expand(N, -1) if params is not None else None
+        if p_design is None:
+            raise InputError(f"{where}: the model is conditioned on {design_plant.num_params} parameters; give "
+                             "plant.params")
+    p_plant = None if params is None else params.expand(N, -1)
+    dt = 1.0 / float(s["control_hz"])
+    controller = _controller(kind, design_plant, q0, goal, p_design if design is not None else p_plant, ctrl, dt)
+    noise = s["noise"]
+    std = (float(noise.get("angle", 0.0)), float(noise.get("velocity", 0.0))) if noise else None
+    started = time.perf_counter()
+    ep = closed_loop(plant, controller, q0, torch.zeros_like(q0), p_plant, float(s["duration"]), dt,
+                     int(s["substeps"]), s["limits"].get("torque"), std, int(s["delay"]), int(s["seed"]))
+    seconds = time.perf_counter() - started
+    tol, hold = float(s["success"].get("tolerance", 0.05)), float(s["success"].get("hold", 1.0))
+    err = wrap(ep["q"] - goal[:, None], plant.angle_mask).abs().amax(-1)  # (N, T)
+    err = torch.nan_to_num(err, nan=math.inf)
+    k_hold = max(1, int(round(hold / dt)))
+    success = (err[:, -k_hold:] < tol).all(-1)
+    inside = err < tol
+    # the first time from which the error stays within the tolerance to the end
+    outside_after = torch.flip(torch.cumsum(torch.flip((~inside).int(), [1]), 1), [1]) > 0
+    first = (~outside_after).int().argmax(-1).double() * dt
+    reach = first[success]
+    out = {"episodes": N, "success_rate": float(success.double().mean()),
+           "time_to_goal_s": {"median": float(reach.median()) if len(reach) else None,
+                              "q25": float(reach.quantile(0.25)) if len(reach) else None,
+                              "q75": float(reach.quantile(0.75)) if len(reach) else None},
+           "torque_rms": float(ep["u"].pow(2).mean().sqrt()), "torque_max": float(ep["u"].abs().max()),
+           "final_error_rad_median": float(err[:, -1].median()), "closed_loop_seconds": seconds,
+           "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
+    if kind == "swingup":
+        ref = controller.track.ref
+        q_ref = torch.stack([ref(k * dt)[0] for k in range(ep["q"].shape[1])], 1)
+        swing = int(round(float(ctrl.get("seconds", 2.0)) / dt))
+        out["tracking_error_rms_rad"] = float(wrap(ep["q"][:, :swing] - q_ref[:, :swing], plant.angle_mask)
+                                              .pow(2).mean().sqrt())
+    out["_episodes"], out["_truth"], out["_params"] = ep, truth, params
+    return out
+
+
+def _figures(result: dict, out: Path, goal, animate: bool) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ep = result["_episodes"]
+    t, q, u = ep["t"], ep["q"][0], ep["u"][0]
+    fig, axes = plt.subplots(2, 1, figsize=(7, 4.8), sharex=True)
+    for i in range(q.shape[1]):
+        line = axes[0].plot(t, q[:, i], label=f"q{i + 1}")[0]
+        axes[0].axhline(float(goal[i]), color=line.get_color(), ls=":", lw=0.8)
+    axes[0].set_ylabel("angle [rad]")
+    axes[0].legend(loc="upper left", fontsize=8)
+    for i in range(u.shape[1]):
+        axes[1].step(t[:-1], u[:, i], where="post", label=f"tau{i + 1}")
+    axes[1].set_ylabel("torque [N m]")
+    axes[1].set_xlabel("t [s]")
+    axes[1].legend(loc="upper left", fontsize=8)
+    fig.suptitle(f"{result['controller']} designed on {result['design']}, run on {result['plant']}: episode 1",
+                 fontsize=10)
+    fig.tight_layout()
+    paths = [out / "episode.png"]
+    fig.savefig(paths[0], dpi=110)
+    plt.close(fig)
+    if animate:
+        xy = _positions(result, q)
+        if xy is not None:
+            paths.append(_animation(xy, float(t[1] - t[0]), out / "episode.gif", result))
+    return paths
+
+
+def _positions(result, q):
+    """Joint and tip positions ``(T, links, 2)`` of an arm plant (None where it is not drawn)."""
+    truth, params = result["_truth"], result["_params"]
+    if hasattr(truth, "positions"):
+        p = None if params is None else params.expand(q.shape[0], -1)
+        return truth.positions(q, p)
+    return None
+
+
+def _animation(xy, dt: float, path: Path, result: dict) -> Path:
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    stride = max(1, int(round(1 / (25 * dt))))  # 25 frames per second
+    frames = xy[::stride]
+    reach = 1.1 * float(xy.abs().max())
+    fig, ax = plt.subplots(figsize=(3.6, 3.6))
+    ax.set_xlim(-reach, reach), ax.set_ylim(-reach, reach), ax.set_aspect("equal")
+    ax.set_xticks([]), ax.set_yticks([])
+    line, = ax.plot([], [], "k-o", ms=4)
+    label = ax.set_title("", fontsize=9)
+
+    def draw(k):
+        chain = torch.cat([torch.zeros(1, 2, dtype=frames.dtype), frames[k]])
+        line.set_data(chain[:, 0], chain[:, 1])
+        label.set_text(f"{result['controller']} on {result['plant']}, t = {k * stride * dt:.2f} s")
+        return line, label
+
+    FuncAnimation(fig, draw, frames=len(frames), blit=False).save(path, writer=PillowWriter(fps=25))
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str]) -> int:
+    from ..checkpoints import load_model
+    from ..config_files import read_config
+    from ..perf import configure_cpu
+
+    args = _parser().parse_args(argv)
+    configure_cpu(args.threads)
+    scenario = read_config(args.config, "scenario")
+    design = None if args.checkpoint == "plant" else load_model(args.checkpoint)
+    result = run_scenario(scenario, design, str(args.config), args.episodes)
+    out = Path(args.output_dir or Path("control") / Path(args.config).stem)
+    out.mkdir(parents=True, exist_ok=True)
+    clean = {k: v for k, v in result.items() if not k.startswith("_")}
+    clean.update({"checkpoint": args.checkpoint, "scenario": str(args.config)})
+    (out / "control.json").write_text(json.dumps(clean, indent=2) + "\n")
+    goal = scenario["controller"].get("goal", [math.pi] + [0.0] * (result["_episodes"]["q"].shape[-1] - 1))
+    figures = _figures(result, out, goal, not args.no_animation)
+    ttg = clean["time_to_goal_s"]
+    lines = [f"# {clean['controller']} designed on {clean['design']}, run on {clean['plant']}", "",
+             f"`lnn-torch control {args.checkpoint} -c {args.config}`: {clean['episodes']} episodes.", "",
+             "| metric | value |", "|---|---|",
+             f"| success (within tolerance of the goal at the end) | {100 * clean['success_rate']:.1f} % |",
+             "| time to the goal, s: median [q25, q75] of the successes | "
+             + ("-" if ttg["median"] is None else f"{ttg['median']:.2f} [{ttg['q25']:.2f}, {ttg['q75']:.2f}]") + " |",
+             f"| torque RMS / max, N m | {clean['torque_rms']:.3g} / {clean['torque_max']:.3g} |",
+             f"| final angle error, median, rad | {clean['final_error_rad_median']:.2g} |"]
+    if "tracking_error_rms_rad" in clean:
+        lines.append(f"| tracking error along the swing-up path, RMS, rad | {clean['tracking_error_rms_rad']:.3g} |")
+    lines += ["", f"Closed loop: {clean['closed_loop_seconds']:.1f} s of computation."]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print("wrote " + ", ".join(str(p) for p in [out / "control.json", out / "report.md", *figures]))
+    return 0
