@@ -82,13 +82,15 @@ def _weights(W, k: int, name: str) -> np.ndarray:
 
 class LQR:
     """``u = u_eq - K (x - x_eq)`` about the equilibrium ``(q_eq, 0, u_eq)`` of ``plant``, one gain per
-    parameter set: designed on the plant's linearisation (``lqr_gain``)."""
+    parameter set: designed on the linearisation of the plant's rigid body (``lqr_gain``; friction, not
+    differentiable at rest, acts on the loop as a disturbance)."""
 
     def __init__(self, plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | None = None, Q=1.0, R=1.0,
                  dt: float | None = None) -> None:
         self.q_eq, self.angle_mask = q_eq, plant.angle_mask
         self.u_eq = equilibrium_input(plant, q_eq, params)
-        A, B = plant.linearize(q_eq, torch.zeros_like(q_eq), self.u_eq, params)
+        # the rigid body's linearisation: friction has no useful derivative at rest (Plant.linearize)
+        A, B = plant.linearize(q_eq, torch.zeros_like(q_eq), self.u_eq, params, friction=False)
         self.K = lqr_gain(A, B, Q, R, dt)
 
     def __call__(self, t, q, qd) -> torch.Tensor:

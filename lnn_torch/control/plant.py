@@ -50,6 +50,7 @@ class Plant:
     energy_fn: Callable | None = None  # (q, qd, params) -> E
     torque_scale: float | torch.Tensor = 1.0  # model units per N m (one, or one per state of the batch)
     input_names: tuple[str, ...] = field(default_factory=tuple)
+    rigid_bias: Callable | None = None  # (q, qd, params) -> n without friction; None: Q_f - M a_free
 
     @property
     def num_inputs(self) -> int:
@@ -86,6 +87,8 @@ class Plant:
         """``n(q, qd)``: Coriolis, centrifugal and gravity forces (``M qdd + n = B u + Q_f``)."""
         params = self._params(q, params)
         self._check(q, qd, params)
+        if self.rigid_bias is not None:
+            return self.rigid_bias(q, qd, params)
         free = self.accel(q, qd, params, None)
         M = self.mass(q, params)
         return self.friction(q, qd, params) - torch.einsum("bij,bj->bi", M, free)
@@ -127,16 +130,27 @@ class Plant:
         self._check(q, qd, params)
         return self.energy_fn(q, qd, params)
 
-    def linearize(self, q, qd, u=None, params=None) -> tuple[torch.Tensor, torch.Tensor]:
+    def rigid_forward(self, q, qd, params=None, u=None) -> torch.Tensor:
+        """Accelerations of the rigid body alone, friction left out: ``M^-1 (B u - n)``."""
+        params = self._params(q, params)
+        force = -self.bias(q, qd, params)
+        if u is not None:
+            force = force + u @ self.input_matrix.T.to(u.dtype)
+        return torch.linalg.solve(self.mass(q, params), force[..., None])[..., 0]
+
+    def linearize(self, q, qd, u=None, params=None, friction: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """``(A (B, 2n, 2n), B (B, 2n, m))`` of ``x' = f(x, u)``, ``x = (q, qd)``, about the given states
-        and inputs (zeros for None), by forward-mode differentiation of ``forward``."""
+        and inputs (zeros for None), by forward-mode differentiation of ``forward`` (``friction=False``:
+        of ``rigid_forward``; friction has no useful derivative at rest: Coulomb friction is a step and
+        static friction holds a joint against small inputs, which would read as no input at all)."""
         params = self._params(q, params)
         u = torch.zeros(q.shape[0], self.num_inputs, dtype=q.dtype) if u is None else u
         self._check(q, qd, params, u)
         n, m = self.dof, self.num_inputs
+        fn = self.accel if friction else (lambda q_, qd_, p_, u_: self.rigid_forward(q_, qd_, p_, u_))
 
         def f(x, v):  # the batch: (B, 2n), (B, m) -> (B, 2n); samples are independent
-            return torch.cat([x[:, n:], self.accel(x[:, :n], x[:, n:], params, v if m else None)], -1)
+            return torch.cat([x[:, n:], fn(x[:, :n], x[:, n:], params, v if m else None)], -1)
 
         x = torch.cat([q, qd], -1)
         columns = []  # one forward-mode derivative per state and input direction, for the whole batch
@@ -225,9 +239,12 @@ def _system_plant(system, actuation) -> Plant:
             force = force + u @ B.T.to(u.dtype)
         return system.forced_acceleration(q, qd, p, force)
 
+    def rigid_bias(q, qd, p):
+        return -torch.einsum("bij,bj->bi", system.mass_matrix(q, p), system.free_acceleration(q, qd, p))
+
     names = tuple(system.input_names) if own else tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(system.name, system.dof, system.num_params, B, tuple(system.angle_mask), accel, system.mass_matrix,
-                 system.dissipative_force if system.has_friction else None, system.energy, 1.0, names)
+                 system.dissipative_force if system.has_friction else None, system.energy, 1.0, names, rigid_bias)
 
 
 def _model_plant(network, actuation, torque_scale) -> Plant:
@@ -278,9 +295,12 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     def energy(q, qd, p):
         return per_state(network.energy_si(q, qd, p))
 
+    def rigid_bias(q, qd, p):
+        return per_state(network.rigid_bias_si(q, qd, p))
+
     names = tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(f"{network.variant} ({scene.name})", scene.dof, scene.num_params, B, tuple(scene.angle_mask), accel,
-                 mass, friction, energy, scale, names)
+                 mass, friction, energy, scale, names, rigid_bias if hasattr(network, "rigid_bias_si") else None)
 
 
 def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None):

@@ -350,6 +350,17 @@ class StructuredLagrangian(DynamicsModel):
         q_diss = self.forces.dissipative_force(qd, params_norm, phi_f, qd_norm)
         return norm.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_diss
 
+    def rigid_bias_si(self, q, qd, params) -> torch.Tensor:
+        """The learned Lagrangian's Coriolis, centrifugal and gravity forces ``n(q, qd)`` (``M qdd + n =
+        Q``) at SI states ``(B, dof)``, without friction: ``-M_si`` times its force-free acceleration (in
+        N m where inputs fix the Lagrangian's scale, else in the units of ``mass_matrix_si``)."""
+        self._require(MASS_MATRIX)
+        dtype = self.dtype
+        q_n, qd_n, p_n = self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype))
+        _, chol, dchol, _, dV = self._terms(q_n, p_n, self.films(p_n))
+        free = self.normalizer.accel_to_phys(structured_acceleration_from_factor(chol, dchol, qd_n, dV, self.eps))
+        return -torch.einsum("bij,bj->bi", self.mass_matrix_si(q, params), free.to(q.dtype))
+
     def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` in N m that make the model accelerate by ``qdd`` (SI): the input
         force solved through the input matrix (least squares where fewer inputs than coordinates)."""
