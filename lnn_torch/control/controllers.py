@@ -25,18 +25,22 @@ def wrap(dq: torch.Tensor, angle_mask) -> torch.Tensor:
 
 
 def equilibrium_input(plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | None = None,
-                      tol: float = 1e-6) -> torch.Tensor:
-    """The constant input that holds ``q_eq (B, n)`` at rest; ``InputError`` where the inputs cannot
-    (an unreachable equilibrium: gravity pulls along a direction no input acts on)."""
+                      tol: float = 0.02) -> torch.Tensor:
+    """The constant input that holds ``q_eq (B, n)`` at rest (least squares); ``InputError`` where the
+    inputs cannot: the unbalanced force, along directions no input acts on, exceeds ``tol`` times the
+    plant's gravity scale (its gravity force with every angle a quarter turn from ``q_eq``). The
+    tolerance admits a learned model's upright, balanced to a fraction of a percent."""
     zero = torch.zeros_like(q_eq)
     u = plant.inverse(q_eq, zero, zero, params)
     res = plant.residual(q_eq, zero, zero, params)
-    scale = plant.gravity(q_eq, params).norm(dim=-1).clamp_min(1.0)
+    turned = q_eq + (torch.pi / 2) * torch.tensor(plant.angle_mask, dtype=q_eq.dtype)
+    scale = plant.gravity(turned, params).norm(dim=-1).clamp_min(1e-12)
     bad = res > tol * scale
     if bad.any():
         i = int(bad.nonzero()[0])
         raise InputError(f"{plant.name}: the inputs cannot hold q = {q_eq[i].tolist()} at rest (unbalanced force "
-                         f"{float(res[i]):.3g} along directions no input acts on): not an equilibrium of this actuation")
+                         f"{float(res[i]):.3g}, {100 * float(res[i] / scale[i]):.2g} % of the gravity scale, along "
+                         "directions no input acts on): not an equilibrium of this actuation")
     return u
 
 
