@@ -151,3 +151,57 @@ class SwingUp:
         near = (wrap(q - self.q_goal, self.angle_mask).abs().amax(-1) < self.catch) & (qd.abs().amax(-1) < self.catch)
         self.caught |= near
         return torch.where(self.caught[:, None], self.lqr(t, q, qd), self.track(t, q, qd))
+
+
+class MPPI:
+    """Model-predictive path integral control (Williams et al.): at every call, ``samples`` input
+    sequences of ``horizon`` control periods, perturbed about the current plan, are rolled out on
+    ``plant`` in one batch (semi-implicit Euler at the control period, inputs clipped to
+    ``torque_limit``); the plan becomes their average weighted by ``exp(-cost / temperature)`` and its
+    first input is applied. Cost per step: ``Q``-weighted squared state error to ``(q_goal, 0)``
+    (angles wrapped) plus ``R`` times the squared inputs; ``terminal`` times the state cost at the end.
+    One plan per episode (``q_goal (B, n)``); seeded."""
+
+    def __init__(self, plant: Plant, q_goal: torch.Tensor, params: torch.Tensor | None = None, samples: int = 1000,
+                 horizon: int = 50, dt: float = 0.02, noise: float = 1.0, temperature: float = 1.0,
+                 Q=(10, 10, 1, 1), R: float = 0.01, terminal: float = 10.0, torque_limit=None,
+                 seed: int = 0) -> None:
+        B, m = q_goal.shape[0], plant.num_inputs
+        self.plant, self.q_goal, self.params = plant, q_goal, params
+        self.K, self.H, self.dt, self.noise, self.lam = samples, horizon, dt, noise, temperature
+        self.Q = torch.as_tensor(Q, dtype=torch.float64)
+        if self.Q.shape != (2 * plant.dof,):
+            raise InputError(f"MPPI: Q needs {2 * plant.dof} diagonal weights, got {self.Q.tolist()}")
+        self.R, self.terminal = float(R), float(terminal)
+        self.limit = None if torque_limit is None else torch.as_tensor(torque_limit, dtype=torch.float64)
+        if self.limit is not None and self.limit.shape != (m,):
+            raise InputError(f"MPPI: torque_limit needs {m} values, got {self.limit.tolist()}")
+        self.plan = torch.zeros(B, horizon, m, dtype=torch.float64)
+        self.gen = torch.Generator().manual_seed(int(seed))
+        self._p = None if params is None else params.repeat_interleave(samples, 0)
+
+    def _clip(self, u):
+        return u if self.limit is None else torch.maximum(torch.minimum(u, self.limit), -self.limit)
+
+    def __call__(self, t, q, qd) -> torch.Tensor:
+        B, K, H = q.shape[0], self.K, self.H
+        eps = self.noise * torch.randn(B, K, H, self.plan.shape[-1], generator=self.gen, dtype=torch.float64)
+        u = self._clip(self.plan[:, None] + eps)  # (B, K, H, m)
+        qs, qds = q.repeat_interleave(K, 0), qd.repeat_interleave(K, 0)
+        goal = self.q_goal.repeat_interleave(K, 0)
+        flat_u = u.reshape(B * K, H, -1)
+        cost = torch.zeros(B * K, dtype=torch.float64)
+        with torch.no_grad():
+            for k in range(H):
+                qdd = self.plant.accel(qs, qds, self.plant._params(qs, self._p), flat_u[:, k])
+                qds = qds + self.dt * qdd
+                qs = qs + self.dt * qds
+                x = torch.cat([wrap(qs - goal, self.plant.angle_mask), qds], -1)
+                step = (x.pow(2) * self.Q).sum(-1) + self.R * flat_u[:, k].pow(2).sum(-1)
+                cost = cost + torch.nan_to_num(step, nan=1e12, posinf=1e12) * (self.terminal if k == H - 1 else 1.0)
+        cost = cost.reshape(B, K)
+        w = torch.softmax(-(cost - cost.min(1, keepdim=True).values) / self.lam, dim=1)  # (B, K)
+        self.plan = torch.einsum("bk,bkhm->bhm", w, u)
+        first = self.plan[:, 0].clone()
+        self.plan = torch.cat([self.plan[:, 1:], self.plan[:, -1:]], 1)  # shift for the next call
+        return first

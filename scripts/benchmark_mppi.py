@@ -1,0 +1,67 @@
+"""The cost of one MPPI step (``lnn_torch.control.MPPI``): ``--samples`` input sequences of
+``--horizon`` steps rolled out in one batch on a plant, median wall time of ``--repeats`` calls after
+a warm-up, for the learned model given and the real pendulum's identified lab model, at 1 and 2 CPU
+threads. A 500 Hz control loop has 2 ms per step.
+
+    python scripts/benchmark_mppi.py LAST_CKPT    # a model of the real pendulum (configs/real_double_pendulum.yaml)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _cli import HelpFormatter, add_output_file, wrote  # noqa: E402
+
+LAB = Path(__file__).resolve().parents[1] / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
+
+
+def main(argv=None) -> int:
+    from lnn_torch import load_model
+    from lnn_torch.control import MPPI, plant_of
+    from lnn_torch.identified import RigidArmModel
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("checkpoint", help="a model of the real double pendulum (path or pretrained:NAME)")
+    ap.add_argument("--samples", type=int, default=1000)
+    ap.add_argument("--horizon", type=int, default=50)
+    ap.add_argument("--repeats", type=int, default=7)
+    add_output_file(ap, "results/control/mppi.md", "the table (Markdown)")
+    args = ap.parse_args(argv)
+    plants = {"learned model (film_lnn, float32)": plant_of(load_model(args.checkpoint)),
+              "lab model (closed form)": plant_of(RigidArmModel.from_yaml(LAB))}
+    goal = torch.tensor([[math.pi, 0.0]], dtype=torch.float64)
+    q, qd = goal + 0.05, torch.zeros(1, 2, dtype=torch.float64)
+    rows = []
+    for name, plant in plants.items():
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            ctrl = MPPI(plant, goal, None, samples=args.samples, horizon=args.horizon, dt=0.01, torque_limit=[10.0, 10.0])
+            ctrl(0.0, q, qd)  # warm-up
+            times = []
+            for _ in range(args.repeats):
+                start = time.perf_counter()
+                ctrl(0.0, q, qd)
+                times.append(time.perf_counter() - start)
+            rows.append((name, threads, 1e3 * statistics.median(times)))
+    lines = [f"# One MPPI step: {args.samples} samples x {args.horizon}-step horizon", "",
+             f"`python scripts/benchmark_mppi.py {args.checkpoint}` (median of {args.repeats} calls after a warm-up; "
+             "a 500 Hz loop has 2 ms)", "", "| plant rolled out | CPU threads | ms per step |", "|---|---|---|"]
+    lines += [f"| {n} | {t} | {ms:.1f} |" for n, t, ms in rows]
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    wrote(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
