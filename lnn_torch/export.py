@@ -23,23 +23,24 @@ centrifugal, gravity and learned friction forces (the model's inverse dynamics a
 friction's holding torques (``dissipation: joint+stiction``) are not a force of the state and are in
 neither ``n`` nor ``inverse_dynamics``, as in the model's own inverse dynamics.
 
-Formats:
+Formats (``export_model``; ``lnn-torch export --format``):
 
-* ``pt2``: ``torch.export.export`` with the batch a ``torch.export.Dim``, saved by ``torch.export.save``
-  (``torch.export.load(path).module()(q, qd, params)``). Only models whose functions make no autograd
-  call can be exported: the structured models' hand-carried tangents and the direct MLP. The black-box
-  ``lnn`` (velocity Hessians through ``torch.func``) and ``hnn`` (gradients of its Hamiltonian) are
-  refused (``InputError``, one line).
-* ``onnx``: ``torch.onnx.export(..., dynamo=True)`` of the same program (opset 18), where the optional
-  packages ``onnx`` and ``onnxscript`` are installed (``pip install 'lnn-torch[export]'``, which adds
-  ``onnxruntime`` to run them).
-
-Not done: AOTInductor (``torch._inductor.aoti_compile_and_package``). On a CPU build it compiles the
-program's C++ with the system compiler: about a minute per function and batch shape on the
-two-core machine this was written on, against a second for ``torch.export`` (``results/export.md``),
-and the shared library it produces is bound to the compiler, the CPU's instruction set and the exact
-torch version that loads it; a controller that needs native code can compile the saved ``.pt2`` itself
-where it runs.
+* ``pt2``: ``torch.export.export`` with the batch a ``torch.export.Dim`` (1 to ``MAX_BATCH``), saved by
+  ``torch.export.save`` (``torch.export.load(path).module()(q, qd, params)``). Only models whose
+  functions make no autograd call can be exported: the structured models' hand-carried tangents and
+  the direct MLP. The black-box ``lnn`` (velocity Hessians through ``torch.func``) and ``hnn``
+  (gradients of its Hamiltonian) are refused (``InputError``, one line). The loaded program calls
+  the same aten operators as the eager model from generated Python code: as fast as eager at large
+  batches, slower at batch 1 (Python's cost per operator); it is the portable form.
+* ``onnx``: ``torch.onnx.export(..., dynamo=True)`` of the same program (opset ``ONNX_OPSET``), where the
+  optional packages ``onnx`` and ``onnxscript`` are installed (``pip install 'lnn-torch[export]'``,
+  which adds ``onnxruntime`` to run them). Python scalars keep their float64 digits (``_onnx_translations``).
+  An operator without an ONNX translation is refused in one line: static friction's holding torques
+  (``dissipation: joint+stiction``) solve with ``linalg.solve``, so its forward dynamics has no ONNX form.
+* ``aoti``: AOTInductor (``torch._inductor.aoti_compile_and_package``): the program compiled to a
+  shared library in a ``NAME.aoti.pt2`` package, loaded by ``load_program`` (``AOTIProgram``). It needs
+  a C++ compiler where it is exported (10-20 s per function on one thread), and the package is bound to
+  the torch version and CPU kind that compiled it; the fastest form at batch 1 (``results/export.md``).
 
 What the programs do not do: check their inputs (shapes, NaN, parameter signs, a scene's valid
 states) or warn about parameters beyond the model's trusted range; they condition on the nearest
@@ -341,6 +342,23 @@ def export_onnx(program: torch.export.ExportedProgram, fn: _Function, path: str 
     return path
 
 
+# what is computed from the weights alone (FiLM's maps of its output layers, transposes) folded once when
+# the package loads, not at every call: batch-1 inverse dynamics 75 -> 55 us (results/export.md)
+AOTI_CONFIG = {"aot_inductor.use_runtime_constant_folding": True}
+
+
+class AOTIProgram:
+    """A loaded AOTInductor package called with positional tensors: ``torch._inductor.aoti_load_package``'s
+    model less its per-call parsing of the argument structure (about 20 us of a batch-1 call)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.package = torch._inductor.aoti_load_package(str(path))
+        self.loader = self.package.loader
+
+    def __call__(self, *args: torch.Tensor) -> torch.Tensor:
+        return self.loader.run(list(args))[0]
+
+
 def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str | Path) -> Path:
     """The exported program compiled ahead of time by AOTInductor into a package at ``path``
     (``torch._inductor.aoti_compile_and_package``; load it with ``torch._inductor.aoti_load_package``).
@@ -351,7 +369,8 @@ def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path)))
+            return Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path),
+                                                                 inductor_configs=dict(AOTI_CONFIG)))
     except Exception as err:  # noqa: BLE001
         raise InputError(f"{fn.name} could not be compiled by AOTInductor ({_reason(err)})") from err
 
@@ -494,9 +513,9 @@ def export_model(module, output_dir: str | Path, functions=None, formats=("pt2",
 
 
 def load_program(path: str | Path):
-    """A saved program as a callable: ``NAME.aoti.pt2`` through ``torch._inductor.aoti_load_package``,
+    """A saved program as a callable of the function's arguments: ``NAME.aoti.pt2`` as an ``AOTIProgram``,
     another ``.pt2`` through ``torch.export.load(path).module()``."""
     path = str(path)
     if path.endswith(".aoti.pt2"):
-        return torch._inductor.aoti_load_package(path)
+        return AOTIProgram(path)
     return torch.export.load(path).module()
