@@ -19,7 +19,7 @@ COMMANDS = {
     "evaluate": ("evaluate", "report of a checkpoint: errors, rollouts, energy drift, stability, plots"),
     "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
     "identify": ("identify", "the physical parameters of a recorded trajectory, through a trained model"),
-    "export": ("export", "the learned dynamics as torch.export programs (and ONNX) for a control loop"),
+    "export": ("export", "the learned dynamics as torch.export programs (ONNX, AOTInductor) for a control loop"),
     "list": ("list_registry", "scenes, model variants and parts, shipped models and integrators"),
 }
 

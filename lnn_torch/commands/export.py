@@ -13,8 +13,8 @@ units), the scene's conventions, the trusted parameter range and the versions th
 Inverse dynamics and the forces need a structured model (film_lnn, delan) of a scene with inputs;
 the mass matrix a structured model. Variants whose accelerations need autograd (lnn, hnn) cannot
 be exported. ONNX needs the optional packages onnx and onnxscript (``pip install 'lnn-torch[export]'``);
-``aoti`` compiles each program to native code with AOTInductor (a C++ compiler, about 20 s per
-function). ``lnn_torch.export`` has the details.
+``aoti`` compiles each program to native code with AOTInductor (a C++ compiler, 10-20 s per
+function on one thread). ``lnn_torch.export`` has the details.
 
     lnn-torch export pretrained:double_pendulum -o exported
     lnn-torch export lightning_logs/version_0/checkpoints/last.ckpt --format pt2 onnx --dtype float64
