@@ -72,7 +72,7 @@ MAX_BATCH = 1 << 24  # the largest batch an exported program takes
 # what each function needs of the model, beyond accelerations
 _NEEDS = {"inverse_dynamics": INVERSE_DYNAMICS, "mass_matrix": MASS_MATRIX, "bias_force": INVERSE_DYNAMICS,
           "gravity_force": INVERSE_DYNAMICS}
-# variants whose accelerations need autograd (torch.export traces no autograd call)
+# variants whose accelerations need autograd: torch.export (2.13) fails inside their torch.func transforms
 _AUTOGRAD = {"lnn": "its accelerations solve the Euler-Lagrange equations through torch.func velocity Hessians",
              "hnn": "its vector field is the torch.func gradient of its Hamiltonian"}
 
@@ -187,8 +187,8 @@ def refusal(model, function: str = "forward_dynamics") -> str | None:
     if function not in _CLASSES:
         return f"unknown function '{function}' (choose from {', '.join(FUNCTIONS)})"
     if m.variant in _AUTOGRAD:
-        return (f"variant '{m.variant}' cannot be exported: {_AUTOGRAD[m.variant]}, and torch.export traces no "
-                "autograd call (export a structured model: film_lnn, delan)")
+        return (f"variant '{m.variant}' cannot be exported: {_AUTOGRAD[m.variant]}, autograd that torch.export "
+                "does not trace (export a structured model: film_lnn, delan)")
     needed = _NEEDS.get(function)
     if needed is not None:
         reason = m.missing(needed)
