@@ -1,5 +1,5 @@
 """The ``lnn-torch`` command: a dispatcher over ``generate``, ``import``, ``evaluate``, ``simulate``,
-``identify``, ``list`` (modules of
+``identify``, ``export``, ``list`` (modules of
 ``lnn_torch.commands``) and Lightning's ``fit``/``validate``/``test``/``predict``."""
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ COMMANDS = {
     "evaluate": ("evaluate", "report of a checkpoint: errors, rollouts, energy drift, stability, plots"),
     "simulate": ("simulate", "roll a trained (or shipped) model out from a state; CSV/HDF5 and a plot"),
     "identify": ("identify", "the physical parameters of a recorded trajectory, through a trained model"),
+    "export": ("export", "the learned dynamics as torch.export programs (ONNX, AOTInductor) for a control loop"),
     "list": ("list_registry", "scenes, model variants and parts, shipped models and integrators"),
     "control": ("control", "design a controller on a model and run it in closed loop on a plant; report + animation"),
 }

@@ -224,7 +224,10 @@ def structured_acceleration_from_factor(
     cdot = torch.einsum("kbij,bk->bij", dchol, qd)  # (B, dof, dof)
     mdot_qd = torch.baddbmm(cdot @ u, chol, cdot.mT @ qd_col)[..., 0]  # (B, dof)
     M = torch.bmm(chol, chol.mT)
-    M.diagonal(dim1=-2, dim2=-1).add_(eps)
+    if torch.compiler.is_exporting():  # the same values without an in-place op on a view (ONNX's decompositions)
+        M = M + eps * torch.eye(M.shape[-1], dtype=M.dtype, device=M.device)
+    else:
+        M.diagonal(dim1=-2, dim2=-1).add_(eps)
     rhs = dT_dq - dV_dq - mdot_qd
     qdd = spd_solve(M, rhs if force is None else rhs + force)
     if not return_kinetic:

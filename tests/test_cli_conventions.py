@@ -85,7 +85,7 @@ def _bad_file(tmp_path, kind: str, suffix: str, good: bytes | None = None) -> st
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "truncated", "newer", "foreign"])
-@pytest.mark.parametrize("command", ["evaluate", "identify", "simulate"])
+@pytest.mark.parametrize("command", ["evaluate", "identify", "simulate", "export"])
 def test_every_command_names_a_bad_checkpoint_in_one_line(command, kind, tmp_path, capsys):
     from lnn_torch.pretrained import HERE
 

@@ -41,8 +41,9 @@ def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> 
 def mm_t(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """``x @ weight.T`` for ``x (B, k)``, ``weight (n, k)``; with few outputs (``n <= SKINNY < B``)
     computed as ``(weight @ x.T).T`` (a transposed view): single-thread BLAS kernels for a skinny
-    right-hand side are slow on the CPUs measured."""
-    if weight.shape[0] <= SKINNY < x.shape[0]:
+    right-hand side are slow on the CPUs measured. Under ``torch.export`` (a program for every batch
+    size: no branch on the batch) the transposed form whenever ``n <= SKINNY``."""
+    if weight.shape[0] <= SKINNY and (torch.compiler.is_exporting() or SKINNY < x.shape[0]):
         return torch.mm(weight, x.t()).t()
     return torch.mm(x, weight.t())
 

@@ -1,0 +1,521 @@
+"""A trained model's dynamics as standalone programs for a control loop (``lnn-torch export``).
+
+Each exported function is a small ``nn.Module`` with plain tensor arguments and SI units, the
+model's normaliser and the scene's constants (input matrix, joint map, Coulomb smoothing velocity)
+baked in, and a dynamic batch dimension:
+
+==================  =======================================  ==========================================
+function            arguments -> result                      what
+==================  =======================================  ==========================================
+forward_dynamics    ``(q, qd, params[, tau]) -> qdd``        accelerations (``tau``: actuated scenes)
+inverse_dynamics    ``(q, qd, qdd, params) -> tau``          the inputs that give ``qdd``
+mass_matrix         ``(q, params) -> M``                     the learned mass matrix ``(B, dof, dof)``
+bias_force          ``(q, qd, params) -> n``                 ``M qdd + n(q, qd) = B tau``
+gravity_force       ``(q, params) -> g``                     ``g(q) = n(q, 0)``
+==================  =======================================  ==========================================
+
+Shapes: ``q, qd, qdd (B, dof)``, ``params (B, P)``, ``tau (B, n_u)``. ``inverse_dynamics``,
+``bias_force`` and ``gravity_force`` need a structured model (``film_lnn``, ``delan``) of a scene with
+inputs (``INVERSE_DYNAMICS``: the torques fix the scale of the learned Lagrangian, so ``n`` is in
+N m); ``mass_matrix`` a structured model (``MASS_MATRIX``; without inputs it is in the model's own
+units, up to one positive factor per system). ``n = -M a(q, qd, tau=0)`` holds the Coriolis,
+centrifugal, gravity and learned friction forces (the model's inverse dynamics at ``qdd = 0``); static
+friction's holding torques (``dissipation: joint+stiction``) are not a force of the state and are in
+neither ``n`` nor ``inverse_dynamics``, as in the model's own inverse dynamics.
+
+Formats (``export_model``; ``lnn-torch export --format``):
+
+* ``pt2``: ``torch.export.export`` with the batch a ``torch.export.Dim`` (1 to ``MAX_BATCH``), saved by
+  ``torch.export.save`` (``torch.export.load(path).module()(q, qd, params)``). Only models whose
+  functions make no autograd call can be exported: the structured models' hand-carried tangents and
+  the direct MLP. The black-box ``lnn`` (velocity Hessians through ``torch.func``) and ``hnn``
+  (gradients of its Hamiltonian) are refused (``InputError``, one line). The loaded program calls
+  the same aten operators as the eager model from generated Python code: as fast as eager at large
+  batches, slower at batch 1 (Python's cost per operator); it is the portable form.
+* ``onnx``: ``torch.onnx.export(..., dynamo=True)`` of the same program (opset ``ONNX_OPSET``), where the
+  optional packages ``onnx`` and ``onnxscript`` are installed (``pip install 'lnn-torch[export]'``,
+  which adds ``onnxruntime`` to run them). Python scalars keep their float64 digits (``_onnx_translations``).
+  An operator without an ONNX translation is refused in one line: static friction's holding torques
+  (``dissipation: joint+stiction``) solve with ``linalg.solve``, so its forward dynamics has no ONNX form.
+* ``aoti``: AOTInductor (``torch._inductor.aoti_compile_and_package``): the program compiled to a
+  shared library in a ``NAME.aoti.pt2`` package, loaded by ``load_program`` (``AOTIProgram``). It needs
+  a C++ compiler where it is exported (10-20 s per function on one thread), and the package is bound to
+  the torch version and CPU kind that compiled it; the fastest form at batch 1 (``results/export.md``).
+
+What the programs do not do: check their inputs (shapes, NaN, parameter signs, a scene's valid
+states) or warn about parameters beyond the model's trusted range; they condition on the nearest
+trusted values as the model does (``describe`` records the range). Call the model
+(``lnn_torch.load_model``) where such checks matter.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import platform
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from .errors import InputError
+from .networks.base import INVERSE_DYNAMICS, MASS_MATRIX
+
+FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force")
+FORMATS = ("pt2", "onnx", "aoti")
+SUFFIXES = {"pt2": "pt2", "onnx": "onnx", "aoti": "aoti.pt2"}
+DTYPES = {"float32": torch.float32, "float64": torch.float64}
+ONNX_OPSET = 18
+ONNX_PACKAGES = ("onnx", "onnxscript")  # needed to write ONNX; onnxruntime runs it
+MAX_BATCH = 1 << 24  # the largest batch an exported program takes
+
+# what each function needs of the model, beyond accelerations
+_NEEDS = {"inverse_dynamics": INVERSE_DYNAMICS, "mass_matrix": MASS_MATRIX, "bias_force": INVERSE_DYNAMICS,
+          "gravity_force": INVERSE_DYNAMICS}
+# variants whose accelerations need autograd: torch.export (2.13) fails inside their torch.func transforms
+_AUTOGRAD = {"lnn": "its accelerations solve the Euler-Lagrange equations through torch.func velocity Hessians",
+             "hnn": "its vector field is the torch.func gradient of its Hamiltonian"}
+
+
+# ---------------------------------------------------------------------------- the functions
+class _Function(nn.Module):
+    """A copy of a dynamics model (frozen, evaluation mode) behind one plain tensor function."""
+
+    name = ""
+    arguments: tuple[str, ...] = ()
+    result = ""
+
+    def __init__(self, model) -> None:
+        super().__init__()
+        self.model = model
+
+    def _normalize(self, q, qd, params):
+        m = self.model
+        return m.normalize(q.to(m.dtype), qd.to(m.dtype), params.to(m.dtype))
+
+    def _inputs_of(self, input_force):
+        """The inputs ``tau`` whose force ``B tau`` is closest to ``input_force`` (``LearnedForces.solve_inputs``
+        with the pseudo-inverse computed once, here, as a constant of the program)."""
+        forces = self.model.forces
+        if forces.identity_inputs:
+            return input_force
+        if not hasattr(self, "input_pinv"):
+            self.register_buffer("input_pinv", torch.linalg.pinv(forces.input_matrix.detach()).mT.contiguous())
+        return input_force @ self.input_pinv.to(input_force.dtype)
+
+    def _input_force_at(self, q, qd, qdd, params):
+        """``B tau`` (SI, ``(B, dof)``) that makes the model accelerate by ``qdd``."""
+        m = self.model
+        q_n, qd_n, p_n = self._normalize(q, qd, params)
+        return m.inverse_dynamics_norm(q_n, qd_n, m.normalizer.accel_to_norm(qdd.to(m.dtype)), p_n)
+
+
+class ForwardDynamics(_Function):
+    """``(q, qd, params[, tau]) -> qdd``: the model's accelerations (``tau`` for an actuated scene)."""
+
+    name, result = "forward_dynamics", "qdd"
+
+    def __init__(self, model) -> None:
+        super().__init__(model)
+        self.arguments = ("q", "qd", "params") + (("tau",) if model.scene.num_inputs else ())
+
+    def forward(self, q, qd, params, tau=None):
+        return self.model.acceleration(q, qd, params, tau, check=False)
+
+
+class InverseDynamics(_Function):
+    """``(q, qd, qdd, params) -> tau``: the inputs that make the model accelerate by ``qdd``."""
+
+    name, arguments, result = "inverse_dynamics", ("q", "qd", "qdd", "params"), "tau"
+
+    def __init__(self, model) -> None:
+        super().__init__(model)
+        self._inputs_of(torch.zeros(1, model.scene.dof))  # the pseudo-inverse buffer, before export
+
+    def forward(self, q, qd, qdd, params):
+        return self._inputs_of(self._input_force_at(q, qd, qdd, params)).to(q.dtype)
+
+
+class MassMatrix(_Function):
+    """``(q, params) -> M (B, dof, dof)``: the learned mass matrix in SI velocities."""
+
+    name, arguments, result = "mass_matrix", ("q", "params"), "M"
+
+    def forward(self, q, params):
+        # ``mass_matrix_si`` with the Lagrangian's scale as a tensor (it reads it as a Python float)
+        m = self.model
+        q_n, _, p_n = self._normalize(q, q, params)
+        norm = m.normalizer
+        D = (norm.time_scale / norm.coord_scale).to(m.dtype)
+        M = D[:, None] * m.mass_matrix_norm(q_n, p_n) * D[None, :]
+        if m.scene.num_inputs:  # J s^2 per unit^2 where the inputs fix the scale (``DynamicsModel._joules``)
+            M = M / norm.force_scale.to(m.dtype)
+        return M.to(q.dtype)
+
+
+class BiasForce(_Function):
+    """``(q, qd, params) -> n``: ``M qdd + n = B tau`` (Coriolis, centrifugal, gravity, learned friction)."""
+
+    name, arguments, result = "bias_force", ("q", "qd", "params"), "n"
+
+    def forward(self, q, qd, params):
+        return self._input_force_at(q, qd, torch.zeros_like(q), params).to(q.dtype)
+
+
+class GravityForce(_Function):
+    """``(q, params) -> g``: the bias force at rest, ``n(q, 0)`` (gravity and the learned potential)."""
+
+    name, arguments, result = "gravity_force", ("q", "params"), "g"
+
+    def forward(self, q, params):
+        zero = torch.zeros_like(q)
+        return self._input_force_at(q, zero, zero, params).to(q.dtype)
+
+
+_CLASSES = {cls.name: cls for cls in (ForwardDynamics, InverseDynamics, MassMatrix, BiasForce, GravityForce)}
+
+
+def _dynamics_model(model):
+    """The ``DynamicsModel`` of an ``LNNModule`` (or the model itself)."""
+    return getattr(model, "model", model)
+
+
+def refusal(model, function: str = "forward_dynamics") -> str | None:
+    """Why ``function`` of ``model`` (an ``LNNModule`` or a ``DynamicsModel``) cannot be exported (one
+    sentence), or None if it can."""
+    m = _dynamics_model(model)
+    if function not in _CLASSES:
+        return f"unknown function '{function}' (choose from {', '.join(FUNCTIONS)})"
+    if m.variant in _AUTOGRAD:
+        return (f"variant '{m.variant}' cannot be exported: {_AUTOGRAD[m.variant]}, autograd that torch.export "
+                "does not trace (export a structured model: film_lnn, delan)")
+    needed = _NEEDS.get(function)
+    if needed is not None:
+        reason = m.missing(needed)
+        if reason is not None:
+            return f"{function} is not available for this model: {reason}"
+    return None
+
+
+def available_functions(model) -> tuple[str, ...]:
+    """The functions of ``model`` that can be exported, in ``FUNCTIONS`` order."""
+    return tuple(f for f in FUNCTIONS if refusal(model, f) is None)
+
+
+def wrap(model, function: str = "forward_dynamics", dtype: torch.dtype | None = None) -> _Function:
+    """``function`` of ``model`` (an ``LNNModule`` or a ``DynamicsModel``) as a small ``nn.Module`` over a
+    frozen copy of the model in ``dtype`` (default: the model's own), in evaluation mode. ``InputError``
+    (one line) for what cannot be exported."""
+    reason = refusal(model, function)
+    if reason is not None:
+        raise InputError(reason)
+    m = copy.deepcopy(_dynamics_model(model))
+    m.compile_dynamics(False)
+    if dtype is not None:
+        m = m.to(dtype)
+    m.eval().requires_grad_(False)
+    return _CLASSES[function](m).eval()
+
+
+def example_inputs(fn: _Function, batch: int = 8, seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """Arguments of ``fn`` for tracing: random states near rest and the normaliser's mean parameters
+    (the values do not matter to the program, only shapes and dtype)."""
+    m = fn.model
+    dtype, dof = m.dtype, m.scene.dof
+    gen = torch.Generator().manual_seed(seed)
+    norm = m.normalizer
+    with torch.no_grad():
+        params = norm.params_to_phys(torch.zeros(m.scene.num_params, dtype=torch.float64)).to(dtype)
+    shapes = {"q": dof, "qd": dof, "qdd": dof, "tau": m.scene.num_inputs}
+    args = []
+    for name in fn.arguments:
+        if name == "params":
+            args.append(params.expand(batch, -1).clone())
+        else:
+            args.append(torch.randn(batch, shapes[name], generator=gen, dtype=torch.float64).to(dtype))
+    return tuple(args)
+
+
+def dynamic_shapes(fn: _Function) -> dict:
+    """The batch (dimension 0 of every argument) as one ``torch.export.Dim`` from 1 to ``MAX_BATCH``."""
+    batch = torch.export.Dim("batch", min=1, max=MAX_BATCH)
+    return {name: {0: batch} for name in fn.arguments}
+
+
+def export_program(fn: _Function, batch: int = 8) -> torch.export.ExportedProgram:
+    """``fn`` through ``torch.export.export`` with a dynamic batch. A failure to trace is an
+    ``InputError`` naming the variant and the first line of torch's reason."""
+    args = example_inputs(fn, batch)
+    try:
+        with torch.no_grad():
+            return torch.export.export(fn, args, dynamic_shapes=dynamic_shapes(fn), strict=False)
+    except Exception as err:  # noqa: BLE001 (torch.export raises many kinds)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+        raise InputError(f"{fn.name} of variant '{fn.model.variant}' could not be exported by torch.export "
+                         f"({type(err).__name__}: {first})") from err
+
+
+def missing_onnx_packages() -> list[str]:
+    """The optional packages that writing ONNX needs and this environment lacks."""
+    import importlib.util
+
+    return [p for p in ONNX_PACKAGES if importlib.util.find_spec(p) is None]
+
+
+def _onnx_translations() -> dict:
+    """ONNX translations that replace the exporter's own: ``aten.scalar_tensor`` of a Python number as a
+    constant of the graph's dtype. The exporter's translation (onnxscript 0.7) makes a float32 constant
+    and casts it, so every Python scalar of a float64 program (``eps``, the Coulomb velocity, ...) lost
+    its digits beyond float32's, about 1e-8 relative error in float64 ONNX programs."""
+    import numpy as np
+    import onnx_ir as ir
+    from onnxscript import opset18 as op
+
+    def scalar_tensor(s, dtype=ir.DataType.FLOAT, layout: str = "", device: str = "", pin_memory: bool = False):
+        dtype = ir.DataType(dtype)
+        if isinstance(s, (bool, int, float)):
+            return op.Constant(value=ir.tensor(np.asarray(s, dtype=dtype.numpy())))
+        return op.Cast(s, to=dtype)
+
+    return {torch.ops.aten.scalar_tensor.default: scalar_tensor}
+
+
+def _reason(err: BaseException) -> str:
+    """The line of a conversion failure that says what failed: the operator without an ONNX translation
+    where that is it, else the first line of the innermost error."""
+    import re
+
+    seen = err
+    while seen is not None:
+        found = re.search(r"No ONNX function found for <OpOverload\(op='([\w.]+)', overload='(\w+)'\)>", str(seen))
+        if found:
+            return f"no ONNX translation of the operator {found.group(1)}.{found.group(2)}"
+        if seen.__cause__ is None:
+            break
+        seen = seen.__cause__
+    first = (str(seen).strip().splitlines() or [type(seen).__name__])[0][:200]
+    return f"{type(seen).__name__}: {first}"
+
+
+def onnx_requirement() -> str | None:
+    """One line naming the optional packages that writing ONNX needs where they are missing, else None."""
+    missing = missing_onnx_packages()
+    if not missing:
+        return None
+    return (f"ONNX export needs the optional package(s) {' and '.join(missing)}: "
+            "pip install 'lnn-torch[export]' (or: pip install onnx onnxscript onnxruntime)")
+
+
+def to_onnx(program: torch.export.ExportedProgram, fn: _Function):
+    """The exported program as an ``ONNXProgram`` (``torch.onnx.export(..., dynamo=True)``, opset
+    ``ONNX_OPSET``; ``.save(path)`` writes it), its inputs named as ``fn``'s arguments and its output
+    as ``fn``'s result. ``InputError`` (one line) where ``onnx``/``onnxscript`` are missing or an
+    operator has no ONNX translation (e.g. ``linalg.solve`` of static friction's holding torques)."""
+    requirement = onnx_requirement()
+    if requirement:
+        raise InputError(requirement)
+    import logging
+    import warnings
+
+    quiet = [logging.getLogger(n) for n in ("torch.onnx", "onnxscript", "onnx_ir")]
+    levels = [log.level for log in quiet]
+    try:
+        for log in quiet:
+            log.setLevel(logging.ERROR)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return torch.onnx.export(program, (), input_names=list(fn.arguments), output_names=[fn.result],
+                                     opset_version=ONNX_OPSET, dynamo=True, verbose=False,
+                                     custom_translation_table=_onnx_translations())
+    except Exception as err:  # noqa: BLE001
+        raise InputError(f"{fn.name} of variant '{fn.model.variant}' could not be converted to ONNX "
+                         f"({_reason(err)})") from err
+    finally:
+        for log, level in zip(quiet, levels):
+            log.setLevel(level)
+
+
+def export_onnx(program: torch.export.ExportedProgram, fn: _Function, path: str | Path) -> Path:
+    """``to_onnx`` saved to ``path``."""
+    path = Path(path)
+    to_onnx(program, fn).save(str(path))
+    return path
+
+
+# what is computed from the weights alone (FiLM's maps of its output layers, transposes) folded once when
+# the package loads, not at every call: batch-1 inverse dynamics 75 -> 55 us (results/export.md)
+AOTI_CONFIG = {"aot_inductor.use_runtime_constant_folding": True}
+
+
+class AOTIProgram:
+    """A loaded AOTInductor package called with positional tensors: ``torch._inductor.aoti_load_package``'s
+    model less its per-call parsing of the argument structure (about 20 us of a batch-1 call)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.package = torch._inductor.aoti_load_package(str(path))
+        self.loader = self.package.loader
+
+    def __call__(self, *args: torch.Tensor) -> torch.Tensor:
+        return self.loader.run(list(args))[0]
+
+
+def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str | Path) -> Path:
+    """The exported program compiled ahead of time by AOTInductor into a package at ``path``
+    (``torch._inductor.aoti_compile_and_package``; load it with ``torch._inductor.aoti_load_package``).
+    Needs a C++ compiler here; ``InputError`` (one line) where the compilation fails."""
+    import warnings
+
+    path = Path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path),
+                                                                 inductor_configs=dict(AOTI_CONFIG)))
+    except Exception as err:  # noqa: BLE001
+        raise InputError(f"{fn.name} could not be compiled by AOTInductor ({_reason(err)})") from err
+
+
+# ---------------------------------------------------------------------------- the description
+def _units(system, model) -> dict:
+    coord = list(system.coord_units)
+    force = ["N m" if u == "rad" else "N" for u in coord]
+    return {"q": coord, "qd": [f"{u}/s" for u in coord], "qdd": [f"{u}/s^2" for u in coord],
+            "params": list(system.param_units), "tau": ["N m"] * system.num_inputs, "force": force}
+
+
+def describe_function(fn: _Function, system) -> dict:
+    """Inputs and output of an exported function: names, shapes (``batch`` dynamic), dtype, units."""
+    m = fn.model
+    dof, units = m.scene.dof, _units(system, m)
+    dtype = str(m.dtype).replace("torch.", "")
+    names = {"q": list(system.coord_names), "qd": [f"{n}_dot" for n in system.coord_names],
+             "qdd": [f"{n}_ddot" for n in system.coord_names], "params": list(system.param_names),
+             "tau": list(system.input_names)}
+    text = {"q": "generalised coordinates", "qd": "their velocities", "qdd": "their accelerations",
+            "params": "physical parameters of the system (the model conditions on them)",
+            "tau": "inputs (motor torques)"}
+    inputs = [{"name": a, "shape": ["batch", len(names[a])], "dtype": dtype, "units": units[a],
+               "components": names[a], "description": text[a]} for a in fn.arguments]
+    scaled = bool(m.scene.num_inputs)
+    matrix_units = ("SI: M[i][j] in (force unit i) s^2 / (coordinate unit j), e.g. kg m^2 between angles" if scaled
+                    else "the model's own units: without inputs the learned Lagrangian's scale is free "
+                         "(M up to one positive factor per system)")
+    outputs = {
+        "forward_dynamics": ("qdd", ["batch", dof], units["qdd"], "accelerations"),
+        "inverse_dynamics": ("tau", ["batch", system.num_inputs], units["tau"],
+                             "the inputs that give the accelerations qdd (least squares through the input matrix "
+                             "where there are fewer inputs than coordinates)"),
+        "mass_matrix": ("M", ["batch", dof, dof], matrix_units, "the learned mass matrix (symmetric positive definite)"),
+        "bias_force": ("n", ["batch", dof], units["force"],
+                       "M qdd + n(q, qd) = B tau: Coriolis, centrifugal, gravity and learned friction forces "
+                       "(n = -M a(q, qd, tau=0)); static friction's holding torques excluded"),
+        "gravity_force": ("g", ["batch", dof], units["force"], "n(q, 0): the forces at rest (gravity, the learned "
+                                                                  "potential)"),
+    }[fn.name]
+    return {"inputs": inputs, "output": {"name": outputs[0], "shape": outputs[1], "dtype": dtype,
+                                         "units": outputs[2], "description": outputs[3]}}
+
+
+def describe(module, functions: dict, source: str = "", files: dict | None = None) -> dict:
+    """What ``lnn-torch export`` writes beside the programs: each function's inputs and output, the scene's
+    conventions, the model, the trusted parameter range and the versions that wrote them. ``functions``:
+    ``{name: wrapped function}``; ``files``: ``{name: [file names]}``."""
+    from . import __version__
+
+    system = module.system
+    m = _dynamics_model(module)
+    low, high = m.normalizer.trusted_range()
+    out = {
+        "lnn_torch_version": __version__, "torch_version": torch.__version__, "python": platform.python_version(),
+        "checkpoint": source, "variant": m.variant,
+        "scene": {"name": system.name, "dof": system.dof, "conventions": system.conventions,
+                  "coord_names": list(system.coord_names), "coord_units": list(system.coord_units),
+                  "param_names": list(system.param_names), "param_units": list(system.param_units),
+                  "input_names": list(system.input_names),
+                  "input_matrix": None if not system.num_inputs else system.input_matrix().tolist()},
+        "trusted_params": {"low": low.tolist(), "high": high.tolist(),
+                           "note": "beyond this range the model conditions on the nearest trusted values; the "
+                                   "programs do not warn"},
+        "batch": {"min": 1, "max": MAX_BATCH},
+        "notes": "the programs check nothing (shapes, NaN, parameter signs, valid states): "
+                 "lnn_torch.load_model checks them. Load a .pt2 with torch.export.load(path).module() and call it "
+                 "with the inputs in the order listed.",
+        "functions": {},
+    }
+    for name, fn in functions.items():
+        out["functions"][name] = {**describe_function(fn, system), "files": list((files or {}).get(name, []))}
+    return out
+
+
+# ---------------------------------------------------------------------------- all of it
+def output_name(function: str, fmt: str) -> str:
+    """The file of ``function`` in format ``fmt``: ``NAME.pt2``, ``NAME.onnx``, ``NAME.aoti.pt2``."""
+    return f"{function}.{SUFFIXES[fmt]}"
+
+
+def export_model(module, output_dir: str | Path, functions=None, formats=("pt2",), dtype=None, source: str = "",
+                 overwrite: bool = False) -> list[Path]:
+    """Export ``functions`` (default: every one ``module`` has) of an ``LNNModule`` to ``output_dir``: a
+    file per function and format (``output_name``) and ``export.json`` (``describe``). ``dtype``:
+    ``torch.float32``/``float64`` or its name (default: the model's own). Every refusal (a function
+    the model lacks, a variant that needs autograd, ONNX without its packages or an operator without
+    an ONNX translation, files that exist without ``overwrite``) comes before anything is written
+    (AOTInductor compiles last). Returns the paths written."""
+    if isinstance(dtype, str):
+        if dtype not in DTYPES:
+            raise InputError(f"dtype must be one of {', '.join(DTYPES)}, got '{dtype}'")
+        dtype = DTYPES[dtype]
+    formats = tuple(dict.fromkeys(formats))
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown or not formats:
+        raise InputError(f"format must be among {', '.join(FORMATS)}, got {', '.join(unknown) or 'none'}")
+    if functions is None:
+        reason = refusal(module)
+        if reason is not None:
+            raise InputError(reason)
+        functions = available_functions(module)
+    functions = tuple(dict.fromkeys(functions))
+    for name in functions:
+        reason = refusal(module, name)
+        if reason is not None:
+            raise InputError(reason)
+    if "onnx" in formats and onnx_requirement():
+        raise InputError(onnx_requirement())
+    output_dir = Path(output_dir)
+    targets = [output_dir / output_name(n, f) for n in functions for f in formats] + [output_dir / "export.json"]
+    existing = [str(p) for p in targets if p.exists()]
+    if existing and not overwrite:
+        raise FileExistsError(f"{', '.join(existing)} exist; refusing to overwrite (pass --overwrite)")
+    wrapped, programs, onnx_programs = {}, {}, {}
+    for name in functions:  # everything that can fail, before a file is written
+        fn = wrapped[name] = wrap(module, name, dtype)
+        programs[name] = export_program(fn)
+        if "onnx" in formats:
+            onnx_programs[name] = to_onnx(programs[name], fn)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    files, written = {name: [] for name in functions}, []
+    for fmt in formats:
+        for name in functions:
+            path = output_dir / output_name(name, fmt)
+            if fmt == "pt2":
+                torch.export.save(programs[name], path)
+            elif fmt == "onnx":
+                onnx_programs[name].save(str(path))
+            else:
+                compile_aoti(programs[name], wrapped[name], path)
+            files[name].append(path.name)
+            written.append(path)
+    meta = describe(module, wrapped, source, files)
+    meta["dtype"] = str(next(iter(wrapped.values())).model.dtype).replace("torch.", "")
+    meta_path = output_dir / "export.json"
+    meta_path.write_text(json.dumps(meta, indent=2) + "\n")
+    return [*written, meta_path]
+
+
+def load_program(path: str | Path):
+    """A saved program as a callable of the function's arguments: ``NAME.aoti.pt2`` as an ``AOTIProgram``,
+    another ``.pt2`` through ``torch.export.load(path).module()``."""
+    path = str(path)
+    if path.endswith(".aoti.pt2"):
+        return AOTIProgram(path)
+    return torch.export.load(path).module()

@@ -1,0 +1,239 @@
+"""``lnn_torch.export`` and ``lnn-torch export``: the exported programs equal the eager model (float64 to
+1e-10, float32 to 1e-5) for the shipped double pendulum and an untrained actuated structured model
+(forward and inverse dynamics, mass matrix, bias and gravity forces), saved programs load back and
+take any batch, refusals come in one line; ONNX through onnxruntime where installed. One thread: about
+17 s, 36 s with the ONNX packages, and the slow AOTInductor test 17 s more."""
+
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch import export as ex
+from lnn_torch.checkpoints import load_model
+from lnn_torch.cli import main
+from lnn_torch.systems import get_system
+
+from .helpers import perturbed, random_batch, random_inputs
+
+ADP = get_system("actuated_double_pendulum")
+TOL = {torch.float64: dict(rtol=1e-10, atol=1e-10), torch.float32: dict(rtol=1e-5, atol=1e-5)}
+
+
+def untrained_module(variant="film_lnn", scene="actuated_double_pendulum", seed=0, **options):
+    """An ``LNNModule`` with small random (perturbed) networks and its normaliser fitted on the scene's
+    distribution, inputs included: every path of the model matters."""
+    from lnn_torch import LNNModule
+
+    torch.manual_seed(seed)
+    module = LNNModule(scene=scene, variant=variant, hidden_dims=[16, 16], model_options=options or None)
+    system = module.system
+    rng = np.random.default_rng(seed)
+    q, qd, params = random_batch(system, rng, 256)
+    tau = random_inputs(system, rng, 256)
+    stats = {"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params, "params_points": params}
+    if tau is not None:
+        stats["tau"] = tau
+    module.model.fit_normalizer(stats)
+    perturbed(module.model, 0.1, seed)
+    return module.eval()
+
+
+def save_checkpoint(module, path):
+    """``module`` as a checkpoint that ``load_model`` reads (weights, hyper-parameters, the stamp)."""
+    import lightning as L
+
+    from lnn_torch.checkpoints import stamp
+
+    ckpt = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+            "pytorch-lightning_version": L.__version__}
+    stamp(ckpt)
+    torch.save(ckpt, path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def models():
+    return {"double_pendulum": load_model("pretrained:double_pendulum"), "actuated": untrained_module()}
+
+
+def states(module, n, dtype, seed=1):
+    """Random states, parameters, inputs and accelerations of the module's scene in ``dtype``."""
+    system = module.system
+    rng = np.random.default_rng(seed)
+    q, qd, params = random_batch(system, rng, n)
+    tau = random_inputs(system, rng, n)
+    qdd = torch.tensor(rng.normal(0.0, 5.0, (n, system.dof)))
+    cast = lambda x: None if x is None else x.to(dtype)  # noqa: E731
+    return cast(q), cast(qd), cast(params), cast(tau), cast(qdd)
+
+
+def eager(model, function, q, qd, params, tau, qdd):
+    """``function`` by the model's own public methods (``model``: a ``DynamicsModel`` in the dtype)."""
+    if function == "forward_dynamics":
+        return model.acceleration(q, qd, params, tau)
+    if function == "inverse_dynamics":
+        return model.inverse_dynamics(q, qd, qdd, params)
+    return model.mass_matrix_si(q, params)
+
+
+def arguments(function, q, qd, params, tau, qdd):
+    return {"forward_dynamics": (q, qd, params) + (() if tau is None else (tau,)),
+            "inverse_dynamics": (q, qd, qdd, params), "mass_matrix": (q, params), "bias_force": (q, qd, params),
+            "gravity_force": (q, params)}[function]
+
+
+# ---------------------------------------------------------------------------- the programs
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("name", ["double_pendulum", "actuated"])
+def test_exported_programs_equal_the_eager_model(models, name, dtype):
+    module = models[name]
+    model = copy.deepcopy(module.model).to(dtype)
+    expected = {"double_pendulum": ("forward_dynamics", "mass_matrix"),
+                "actuated": ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force")}[name]
+    assert ex.available_functions(module) == expected
+    q, qd, params, tau, qdd = states(module, 33, dtype)
+    for function in ("forward_dynamics", "inverse_dynamics", "mass_matrix"):
+        if function not in expected:
+            continue
+        program = ex.export_program(ex.wrap(module, function, dtype)).module()
+        args = arguments(function, q, qd, params, tau, qdd)
+        with torch.no_grad():
+            out, ref = program(*args), eager(model, function, q, qd, params, tau, qdd)
+        assert out.dtype == dtype and out.shape == ref.shape
+        torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{name} {function}")
+
+
+def test_bias_and_gravity_forces_are_what_the_mass_matrix_and_accelerations_give(models):
+    """``n = -M a(q, qd, tau=0)`` and ``g = n(q, 0)`` (float64), and ``M qdd + n = B tau`` through the
+    exported inverse dynamics."""
+    module = models["actuated"]
+    model = copy.deepcopy(module.model).double()
+    q, qd, params, _, qdd = states(module, 33, torch.float64)
+    zero_tau = torch.zeros(33, ADP.num_inputs, dtype=torch.float64)
+    fns = {f: ex.export_program(ex.wrap(module, f, torch.float64)).module()
+           for f in ("bias_force", "gravity_force", "inverse_dynamics")}
+    with torch.no_grad():
+        M = model.mass_matrix_si(q, params)
+        n = -(M @ model.acceleration(q, qd, params, zero_tau)[..., None])[..., 0]
+        g = -(M @ model.acceleration(q, torch.zeros_like(qd), params, zero_tau)[..., None])[..., 0]
+        torch.testing.assert_close(fns["bias_force"](q, qd, params), n, rtol=1e-9, atol=1e-10 * float(n.abs().max()))
+        torch.testing.assert_close(fns["gravity_force"](q, params), g, rtol=1e-9, atol=1e-10 * float(g.abs().max()))
+        tau = fns["inverse_dynamics"](q, qd, qdd, params)  # identity input matrix: B tau = tau
+        Mqdd = (M @ qdd[..., None])[..., 0]
+        torch.testing.assert_close(tau, Mqdd + n, rtol=1e-9, atol=1e-10 * float(tau.abs().max()))
+
+
+def test_saved_programs_load_back_and_take_any_batch(models, tmp_path):
+    module = models["actuated"]
+    files = ex.export_model(module, tmp_path, functions=["forward_dynamics", "inverse_dynamics"], dtype="float64",
+                            source="test")
+    assert [p.name for p in files] == ["forward_dynamics.pt2", "inverse_dynamics.pt2", "export.json"]
+    model = copy.deepcopy(module.model).double()
+    for function in ("forward_dynamics", "inverse_dynamics"):
+        program = torch.export.load(tmp_path / f"{function}.pt2").module()
+        for batch in (1, 5, 300):  # traced at 8
+            q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
+            with torch.no_grad():
+                out = program(*arguments(function, q, qd, params, tau, qdd))
+                torch.testing.assert_close(out, eager(model, function, q, qd, params, tau, qdd), **TOL[torch.float64])
+    meta = json.loads((tmp_path / "export.json").read_text())
+    fwd = meta["functions"]["forward_dynamics"]
+    assert [x["name"] for x in fwd["inputs"]] == ["q", "qd", "params", "tau"]
+    assert fwd["inputs"][0] == {"name": "q", "shape": ["batch", 2], "dtype": "float64", "units": ["rad", "rad"],
+                                "components": ["q1", "q2"], "description": "generalised coordinates"}
+    assert fwd["inputs"][3]["components"] == ["tau1", "tau2"] and fwd["output"]["units"] == ["rad/s^2", "rad/s^2"]
+    assert fwd["files"] == ["forward_dynamics.pt2"]
+    assert meta["functions"]["inverse_dynamics"]["output"]["name"] == "tau"
+    assert meta["scene"]["name"] == "actuated_double_pendulum" and "joint angles" in meta["scene"]["conventions"]
+    from lnn_torch import __version__
+
+    assert meta["lnn_torch_version"] == __version__ and meta["dtype"] == "float64"
+
+
+# ---------------------------------------------------------------------------- the command
+def test_export_command_writes_the_programs_and_their_description(models, tmp_path, capsys):
+    ckpt = save_checkpoint(models["actuated"], tmp_path / "actuated.ckpt")
+    out = tmp_path / "out"
+    assert main(["export", ckpt, "-o", str(out), "--functions", "inverse_dynamics", "bias_force"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith("inverse_dynamics  (q[batch, 2], qd[batch, 2], qdd[batch, 2], params[batch, 11]) "
+                               "-> tau[batch, 2]  float32")
+    assert lines[-1] == f"wrote {out / 'inverse_dynamics.pt2'}, {out / 'bias_force.pt2'}, {out / 'export.json'}"
+    # the same again refuses to overwrite, in one line
+    assert main(["export", ckpt, "-o", str(out), "--functions", "inverse_dynamics"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--overwrite" in err
+
+
+@pytest.mark.parametrize("case", ["inverse_of_conservative", "lnn", "hnn", "onnx_missing"])
+def test_what_cannot_be_exported_is_refused_in_one_line(case, tmp_path, capsys, monkeypatch):
+    argv = ["export", "pretrained:double_pendulum", "-o", str(tmp_path / "out")]
+    if case == "inverse_of_conservative":
+        argv += ["--functions", "inverse_dynamics"]
+        expected = "inverse_dynamics is not available for this model: scene 'double_pendulum' has no inputs"
+    elif case == "onnx_missing":
+        monkeypatch.setattr(ex, "missing_onnx_packages", lambda: ["onnxscript"])
+        argv += ["--format", "pt2", "onnx"]
+        expected = "ONNX export needs the optional package(s) onnxscript: pip install 'lnn-torch[export]'"
+    else:
+        module = untrained_module(case, scene="double_pendulum")
+        argv[1] = save_checkpoint(module, tmp_path / f"{case}.ckpt")
+        expected = f"variant '{case}' cannot be exported: "
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("lnn-torch export: error: ") and expected in err, err
+    assert not (tmp_path / "out").exists()  # nothing written
+
+
+# ---------------------------------------------------------------------------- ONNX, AOTInductor
+def test_onnx_programs_equal_the_eager_model_through_onnxruntime(models, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnxscript")
+    module = models["actuated"]
+    model = copy.deepcopy(module.model).double()
+    ex.export_model(module, tmp_path, functions=["forward_dynamics", "inverse_dynamics", "mass_matrix"],
+                    formats=["onnx"], dtype="float64")
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = options.inter_op_num_threads = 1
+    for function in ("forward_dynamics", "inverse_dynamics", "mass_matrix"):
+        session = ort.InferenceSession(str(tmp_path / f"{function}.onnx"), options, providers=["CPUExecutionProvider"])
+        for batch in (1, 50):
+            q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
+            args = arguments(function, q, qd, params, tau, qdd)
+            names = [i.name for i in session.get_inputs()]
+            (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args)})
+            with torch.no_grad():
+                ref = eager(model, function, q, qd, params, tau, qdd)
+            torch.testing.assert_close(torch.from_numpy(out), ref, **TOL[torch.float64], msg=function)
+
+
+def test_an_operator_without_onnx_translation_is_refused_in_one_line(tmp_path):
+    """Static friction's holding torques solve with ``linalg.solve``, which ONNX cannot express."""
+    pytest.importorskip("onnxscript")
+    module = untrained_module(dissipation="joint+stiction")
+    with pytest.raises(ex.InputError, match=r"^forward_dynamics of variant 'film_lnn' could not be converted to "
+                                            r"ONNX \(no ONNX translation of the operator aten._linalg_solve_ex"):
+        ex.export_model(module, tmp_path, functions=["forward_dynamics"], formats=["onnx"])
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None, reason="no C++ compiler")
+def test_aoti_package_equals_the_eager_model(models, tmp_path):
+    """AOTInductor (about 20 s: a C++ compilation)."""
+    module = models["double_pendulum"]
+    files = ex.export_model(module, tmp_path, functions=["forward_dynamics"], formats=["aoti"], dtype="float64")
+    assert files[0].name == "forward_dynamics.aoti.pt2"
+    program = ex.load_program(files[0])
+    model = copy.deepcopy(module.model).double()
+    for batch in (1, 64):
+        q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
+        with torch.no_grad():
+            torch.testing.assert_close(program(q, qd, params), model.acceleration(q, qd, params), **TOL[torch.float64])
