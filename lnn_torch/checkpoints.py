@@ -147,6 +147,16 @@ def load_model(source: str | Path, map_location="cpu"):
     return model
 
 
+def output_dir(checkpoint: str, given: str | None, kind: str) -> Path:
+    """Where a command writes what it makes of ``checkpoint``: ``given``, else ``<kind>/<name>`` for
+    ``pretrained:<name>``, else ``<kind>`` beside the run's ``checkpoints`` folder."""
+    if given:
+        return Path(given)
+    if str(checkpoint).startswith(PRETRAINED):
+        return Path(kind) / str(checkpoint)[len(PRETRAINED):]
+    return Path(checkpoint).parent.parent / kind
+
+
 def load_pretrained(name: str = "double_pendulum", map_location="cpu"):
     """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
 

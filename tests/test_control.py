@@ -220,3 +220,20 @@ def test_the_control_command_names_a_bad_scenario_in_one_line(text, message, tmp
     assert main(["control", "plant", "-c", str(scenario), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_mppi_holds_the_lab_arm_upright_where_it_falls_without_control():
+    from lnn_torch.control import MPPI
+
+    N = 3
+    goal = torch.tensor([[math.pi, 0.0]] * N, dtype=torch.float64)
+    gen = torch.Generator().manual_seed(1)
+    q0 = goal + 0.05 * (2 * torch.rand(N, 2, generator=gen, dtype=torch.float64) - 1)
+    plant = plant_of(LAB)
+    mppi = MPPI(plant, goal, None, samples=300, horizon=30, dt=0.01, noise=0.3, temperature=0.05, Q=(20, 20, 1, 1),
+                torque_limit=[10.0, 10.0])
+    ep = closed_loop(plant, mppi, q0, torch.zeros_like(q0), None, 2.0, 0.01, substeps=5, torque_limit=[10.0, 10.0])
+    assert wrap(ep["q"][:, 50:] - goal[:, None], (True, True)).abs().max() < 0.15
+    free = closed_loop(plant, lambda t, q, qd: torch.zeros(N, 2, dtype=torch.float64), q0, torch.zeros_like(q0), None,
+                       2.0, 0.01, substeps=5)
+    assert wrap(free["q"][:, -1] - goal, (True, True)).abs().max() > 0.5

@@ -104,7 +104,7 @@ def _data_file(checkpoint: str, split: str) -> str:
 
 
 def main(argv: list[str]) -> int:
-    from ..checkpoints import PRETRAINED, data_hparams, load_model
+    from ..checkpoints import data_hparams, load_model, output_dir
     from ..data import TrajectoryDataModule, read_dataset
     from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu
@@ -125,12 +125,7 @@ def main(argv: list[str]) -> int:
                             sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}
-    if args.output_dir:
-        out_dir = Path(args.output_dir)
-    elif args.checkpoint.startswith(PRETRAINED):
-        out_dir = Path("evaluation") / args.checkpoint[len(PRETRAINED):]
-    else:
-        out_dir = Path(args.checkpoint).parent.parent / "evaluation"
+    out_dir = output_dir(args.checkpoint, args.output_dir, "evaluation")
     files = write_report(result, out_dir, module.system)
     print((out_dir / "report.md").read_text())
     print("wrote " + ", ".join(str(p) for p in files))

@@ -25,7 +25,6 @@ In Python: ``torch.export.load("exported/forward_dynamics.pt2").module()(q, qd, 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -62,19 +61,14 @@ def _signature(entry: dict) -> str:
 def main(argv: list[str]) -> int:
     import json
 
-    from ..checkpoints import PRETRAINED, load_model
+    from ..checkpoints import load_model, output_dir
     from ..export import export_model
     from ..perf import configure_cpu
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
     module = load_model(args.checkpoint)
-    if args.output_dir:
-        out_dir = Path(args.output_dir)
-    elif args.checkpoint.startswith(PRETRAINED):
-        out_dir = Path("export") / args.checkpoint[len(PRETRAINED):]
-    else:
-        out_dir = Path(args.checkpoint).parent.parent / "export"
+    out_dir = output_dir(args.checkpoint, args.output_dir, "export")
     files = export_model(module, out_dir, functions=args.functions, formats=args.formats, dtype=args.dtype,
                          source=args.checkpoint, overwrite=args.overwrite)
     meta = json.loads(files[-1].read_text())
