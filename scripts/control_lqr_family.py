@@ -47,29 +47,9 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _calibration(true_plant, model_plant, params, seconds, seed):
-    """Per-set torque scales of the model from ``seconds`` of the truth driven by random torques
-    (sampled at 200 Hz, exact accelerations of the recorded states)."""
-    from lnn_torch.control import calibrate_torque_scale
-
-    S, n, m = params.shape[0], true_plant.dof, true_plant.num_inputs
-    gen = torch.Generator().manual_seed(seed)
-    dt, steps = 0.005, int(round(seconds / 0.005))
-    q = math.pi * (2 * torch.rand(S, n, generator=gen, dtype=torch.float64) - 1)
-    qd = torch.zeros(S, n, dtype=torch.float64)
-    rec = {"q": [], "qd": [], "qdd": [], "u": []}
-    for _ in range(steps):
-        u = torch.randn(S, m, generator=gen, dtype=torch.float64)
-        rec["q"].append(q), rec["qd"].append(qd), rec["u"].append(u)
-        rec["qdd"].append(true_plant.forward(q, qd, params, u))
-        q, qd = true_plant.step(q, qd, params, u, dt, 2)
-    arrays = {k: torch.stack(v, 1) for k, v in rec.items()}
-    return calibrate_torque_scale(model_plant, arrays["q"], arrays["qd"], arrays["qdd"], arrays["u"], params)
-
-
 def main(argv=None) -> int:
     from lnn_torch import load_model
-    from lnn_torch.control import LQR, closed_loop, plant_of, wrap
+    from lnn_torch.control import LQR, calibrate_on, closed_loop, plant_of, wrap
 
     args = parser().parse_args(argv)
     torch.set_num_threads(1)
@@ -83,7 +63,7 @@ def main(argv=None) -> int:
     mask = MASKS[args.actuation]
     true_plant = plant_of(system, actuation=mask)
     start = time.perf_counter()
-    scales = _calibration(true_plant, plant_of(module, actuation=mask), params, args.calibration_seconds, args.seed)
+    scales = calibrate_on(true_plant, plant_of(module, actuation=mask), params, args.calibration_seconds, args.seed)
     up = torch.full((S, 2), math.pi, dtype=torch.float64)
     weights = dict(Q=[10, 10, 1, 1], R=0.1, dt=1 / args.control_hz)
     designs = {"truth": LQR(true_plant, up, params, **weights),

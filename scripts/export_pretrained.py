@@ -33,7 +33,8 @@ def main() -> None:
     if out.exists() and not args.overwrite:
         raise SystemExit(f"{out} exists; pass --overwrite to replace it")
     ckpt = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
-    slim = {k: ckpt[k] for k in ("state_dict", "hyper_parameters", "pytorch-lightning_version", "epoch", "global_step")
+    slim = {k: ckpt[k] for k in ("state_dict", "hyper_parameters", "pytorch-lightning_version", "epoch", "global_step",
+                                 "lnn_torch")
             if k in ckpt}
     slim["state_dict"] = {k: v.clone() for k, v in slim["state_dict"].items()}
     torch.save(slim, out)

@@ -1,7 +1,8 @@
 """``lnn-torch control``: design a controller on a model, run it in closed loop on a plant standing in
 for the hardware, and report how it did.
 
-    lnn-torch control CHECKPOINT -c configs/control/real_double_pendulum_swingup.yaml
+    lnn-torch control pretrained:real_double_pendulum -c configs/control/real_double_pendulum_swingup.yaml
+    lnn-torch control pretrained:double_pendulum_control -c configs/control/double_pendulum_lqr.yaml
     lnn-torch control plant -c configs/control/real_double_pendulum_swingup.yaml   # designed on the plant itself
 
 ``CHECKPOINT`` (a path or ``pretrained:NAME``) is the model the controller is designed on; ``plant``
@@ -16,7 +17,9 @@ designs it on the plant itself (the comparison a learned model has to meet). The
   period), ``limits: {torque: [...]}`` (N m), ``noise: {angle, velocity}`` (standard deviations, rad
   and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}`` (uniform offsets, rad, at
   rest), ``success: {tolerance, hold}`` (within ``tolerance`` rad of the goal for the last ``hold``
-  s), ``seed``.
+  s), ``seed``; ``calibration_seconds`` (default 1): a model learned without inputs knows its
+  Lagrangian only up to a scale, calibrated from this long a recording of the plant driven by random
+  torques (``lnn_torch.control.calibrate_on``) and reported.
 
 Writes ``control.json``, ``report.md``, ``episode.png`` (angles and torques of the first episode)
 and ``episode.gif`` (its animation) to ``--output-dir`` and prints the report.
@@ -97,14 +100,21 @@ def _controller(kind, plant, q0, goal, params, ctrl, dt):
 def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int | None = None) -> dict:
     """Run a scenario with the controller designed on ``design`` (a model, or None: the plant).
     Returns the metrics and the episodes' arrays (``_episodes``)."""
-    from ..control import closed_loop, plant_of, wrap
+    from ..control import calibrate_on, closed_loop, plant_of, wrap
 
     s = {**DEFAULTS, **scenario}
     for key in ("plant", "controller"):
         if key not in s:
             raise InputError(f"{where}: '{key}' is missing")
     plant, params, truth = build_plant(s["plant"], where)
-    design_plant = plant if design is None else plant_of(design, actuation=s["plant"].get("actuation"))
+    design_plant, scale = plant, None
+    if design is not None:
+        design_plant = plant_of(design, actuation=s["plant"].get("actuation"))
+        network = getattr(design, "model", design)
+        if getattr(network, "scene", None) is not None and network.scene.num_inputs == 0:
+            # learned without inputs: its Lagrangian's scale, per N m, from a recording of the plant
+            scale = calibrate_on(plant, design_plant, params, float(s.get("calibration_seconds", 1.0)), int(s["seed"]))
+            design_plant = plant_of(design, actuation=s["plant"].get("actuation"), torque_scale=scale)
     if design is not None and design_plant.dof != plant.dof:
         raise InputError(f"{where}: the model has {design_plant.dof} coordinates, the plant {plant.dof}")
     n, N = plant.dof, int(episodes or s["episodes"])
@@ -151,6 +161,8 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
            "torque_rms": float(ep["u"].pow(2).mean().sqrt()), "torque_max": float(ep["u"].abs().max()),
            "final_error_rad_median": float(err[:, -1].median()), "closed_loop_seconds": seconds,
            "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
+    if scale is not None:
+        out["torque_scale_calibrated"] = [float(x) for x in scale.reshape(-1)]
     if kind == "swingup":
         ref = controller.track.ref
         q_ref = torch.stack([ref(k * dt)[0] for k in range(ep["q"].shape[1])], 1)

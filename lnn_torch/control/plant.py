@@ -322,3 +322,24 @@ def _calibration_terms(plant: Plant, q, qd, qdd, u, params):
     M = plant.mass(q, params)
     lhs = torch.einsum("bij,bj->bi", M, qdd - plant.accel(q, qd, params, None))
     return lhs, u @ plant.input_matrix.T.to(u.dtype)
+
+
+def calibrate_on(true_plant: Plant, model_plant: Plant, params: torch.Tensor | None, seconds: float = 1.0,
+                 seed: int = 0, dt: float = 0.005):
+    """Per-system torque scales of ``model_plant`` (built with scale 1) from ``seconds`` of
+    ``true_plant`` driven by random torques (standard normal, N m, held ``dt``) from random angles at
+    rest: the recording a user makes of each system, with its exact accelerations. ``params (S, P)``
+    (None: one system). Returns ``(S,)``."""
+    S = 1 if params is None else params.shape[0]
+    n, m = true_plant.dof, true_plant.num_inputs
+    gen = torch.Generator().manual_seed(int(seed))
+    q = torch.pi * (2 * torch.rand(S, n, generator=gen, dtype=torch.float64) - 1)
+    qd = torch.zeros(S, n, dtype=torch.float64)
+    rec = {"q": [], "qd": [], "qdd": [], "u": []}
+    for _ in range(int(round(seconds / dt))):
+        u = torch.randn(S, m, generator=gen, dtype=torch.float64)
+        rec["q"].append(q), rec["qd"].append(qd), rec["u"].append(u)
+        rec["qdd"].append(true_plant.forward(q, qd, params, u))
+        q, qd = true_plant.step(q, qd, params, u, dt, 2)
+    arrays = {k: torch.stack(v, 1) for k, v in rec.items()}
+    return calibrate_torque_scale(model_plant, arrays["q"], arrays["qd"], arrays["qdd"], arrays["u"], params)
