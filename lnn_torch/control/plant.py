@@ -313,7 +313,7 @@ def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None):
         p = plant._params(q[:, 0], params)[:, None].expand(-1, T, -1).reshape(S * T, -1)
         flat = [x.reshape(S * T, -1) for x in (q, qd, qdd, u)]
         lhs, rhs = _calibration_terms(plant, *flat, p)
-        return (lhs * rhs).reshape(S, -1).sum(-1) / (rhs * rhs).reshape(S, -1).sum(-1)
+        return ((lhs * rhs).reshape(S, -1).sum(-1) / (rhs * rhs).reshape(S, -1).sum(-1)).detach()
     lhs, rhs = _calibration_terms(plant, q, qd, qdd, u, plant._params(q, params))
     return float((lhs * rhs).sum() / (rhs * rhs).sum())
 
