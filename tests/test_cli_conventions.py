@@ -204,3 +204,12 @@ def test_a_variant_lists_every_option_and_loss_term_it_cannot_use_at_once():
     with pytest.raises(InputError, match=r"energy_weight 0.1 \(variant mlp has no energy"):
         LNNModule(variant="mlp", hidden_dims=[8], energy_weight=0.1)
 
+
+
+def test_simulate_a_model_of_a_measured_system_without_parameters(tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", "pretrained:real_double_pendulum", "--q0", "0.5", "0", "--duration", "0.2",
+                 "--excitation", '{"kind": "none"}', "-o", str(out)]) == 0
+    assert "no closed form" in capsys.readouterr().out
+    header = [line for line in out.read_text().splitlines() if not line.startswith("#")][0]
+    assert header.split(",")[:3] == ["t", "q1", "q2"] and "energy" not in header

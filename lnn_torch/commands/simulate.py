@@ -37,7 +37,8 @@ def _parser() -> argparse.ArgumentParser:
                          f"({', '.join(available()) or 'none'}; default pretrained:double_pendulum)")
     ap.add_argument("--pretrained", default=None, help=argparse.SUPPRESS)  # deprecated: CHECKPOINT
     ap.add_argument("--checkpoint", dest="checkpoint_option", default=None, help=argparse.SUPPRESS)  # deprecated
-    ap.add_argument("--params", type=float, nargs="+", required=True, help="physical parameters, SI, scene order")
+    ap.add_argument("--params", type=float, nargs="*", default=[],
+                    help="physical parameters, SI, scene order (none for a scene without parameters)")
     ap.add_argument("--q0", type=float, nargs="+", required=True, help="initial coordinates (rad or m)")
     ap.add_argument("--qd0", type=float, nargs="+", default=None, help="initial velocities (default 0)")
     ap.add_argument("--duration", type=float, default=10.0, help="seconds")
@@ -125,12 +126,13 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
             raise ValueError(f"inputs must be ({steps}, {system.num_inputs}) for {steps} steps, got {tuple(tau.shape[1:])}")
     with torch.no_grad():
         q, qd = model.rollout(q0, qd0, params, dt, steps, method, tau=tau)
-        out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy(),
-               "energy": system.energy(q, qd, params[:, None].expand(-1, steps + 1, -1))[0].numpy(),
-               "energy_drift": power_balance_error(system, q, qd, params, tau, dt)[0].numpy()}
+        out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy()}
+        if system.closed_form:  # a measured system has no true energy: its recordings are the reference
+            out["energy"] = system.energy(q, qd, params[:, None].expand(-1, steps + 1, -1))[0].numpy()
+            out["energy_drift"] = power_balance_error(system, q, qd, params, tau, dt)[0].numpy()
     if tau is not None:
         out["tau"] = np.concatenate([tau[0].numpy(), tau[0, -1:].numpy()])  # the last row repeats (held)
-    if exact:
+    if exact and system.closed_form:
         out["q_exact"] = reference_rollout(system, q0, qd0, params, dt, steps, tau=tau)[0][0].numpy()
     return out
 
@@ -152,8 +154,9 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
     if "tau" in result:
         cols += list(system.input_names)
         data.append(result["tau"])
-    cols += ["energy", "energy_drift"]
-    data += [result["energy"][:, None], result["energy_drift"][:, None]]
+    if "energy" in result:
+        cols += ["energy", "energy_drift"]
+        data += [result["energy"][:, None], result["energy_drift"][:, None]]
     units = ", ".join(f"{n} [{u}]" for n, u in zip(names, system.coord_units))
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
               f"columns: t [s], {units}, their time derivatives; *_exact: the closed-form trajectory; energy: the "
@@ -169,15 +172,18 @@ def plot_trajectory(path: Path, result: dict, system) -> Path:
     from ..plots import plt
 
     names = system.coord_names
-    fig, axes = plt.subplots(system.dof + 1, 1, figsize=(7, 1.9 * (system.dof + 1)), sharex=True)
-    for i, ax in enumerate(axes[:-1]):
+    rows = system.dof + ("energy_drift" in result)
+    fig, axes = plt.subplots(rows, 1, figsize=(7, 1.9 * rows), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    for i, ax in enumerate(axes[:system.dof]):
         if "q_exact" in result:
             ax.plot(result["t"], result["q_exact"][:, i], "k-", lw=1.4, label="exact")
         ax.plot(result["t"], result["q"][:, i], "C1--", lw=1.2, label="model")
-        ax.set_ylabel(names[i])
+        ax.set_ylabel(f"{names[i]} [{system.coord_units[i]}]")
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].semilogy(result["t"], np.maximum(result["energy_drift"], 1e-16), "C0")
-    axes[-1].set_ylabel("energy drift")
+    if "energy_drift" in result:
+        axes[-1].semilogy(result["t"], np.maximum(result["energy_drift"], 1e-16), "C0")
+        axes[-1].set_ylabel("power-balance error" if system.has_forces else "energy drift")
     axes[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -243,9 +249,12 @@ def main(argv: list[str]) -> int:
             "dt": args.dt, "method": integrator}
     write_trajectory(output, result, model.system, meta, args.overwrite)
     plot_trajectory(plot, result, model.system)
-    drift = result["energy_drift"]
-    what = "power-balance error" if system.has_forces else "true-energy drift"
-    line = f"wrote {output} ({len(result['t'])} points) and {plot}; {what} max {drift.max():.2e}"
+    line = f"wrote {output} ({len(result['t'])} points) and {plot}"
+    if "energy_drift" in result:
+        what = "power-balance error" if system.has_forces else "true-energy drift"
+        line += f"; {what} max {result['energy_drift'].max():.2e}"
+    else:
+        line += f"; scene '{system.name}' has no closed form: no exact trajectory or true energy to compare"
     if "q_exact" in result:
         err = np.abs(result["q"] - result["q_exact"]).max(-1)
         over = np.nonzero(err > 0.1)[0]
