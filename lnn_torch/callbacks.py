@@ -77,6 +77,14 @@ class LastCheckpoint(L.Callback):
         trainer.save_checkpoint(self.path)
 
 
+def _divergence(module, seconds: float) -> str:
+    """The validation rollouts' median time within the threshold, in words, ``≥ horizon`` when capped."""
+    hp = getattr(module, "hparams", {})
+    thr, horizon = hp.get("val_threshold", 0.1), hp.get("val_rollout_seconds", float("inf"))
+    held = f"≥ {horizon:g} s (never exceeded)" if seconds >= horizon - 1e-9 else f"{seconds:.2f} s"
+    return f"validation rollouts within {thr:g} rad (or m) of the data: median {held}"
+
+
 class FitSummary(L.Callback):
     """Prints, at the end of ``fit``, where the TensorBoard run and the checkpoints are and the last
     validation metrics, with the command that tests the last checkpoint."""
@@ -98,8 +106,9 @@ class FitSummary(L.Callback):
         if "val/acc_rel_err" in m:
             lines.append(f"  validation: acc. rel. L2 error {100 * m['val/acc_rel_err']:.2f} % pooled, "
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
-                         + (f"; median time within the threshold {m['val/divergence_time']:.1f} s"
-                            if "val/divergence_time" in m else ""))
+                         + (f"; {_divergence(pl_module, m['val/divergence_time'])}" if "val/divergence_time" in m
+                            else ""))
         if last is not None:
-            lines.append(f"  test it: lnn-torch test -c <this config> --ckpt_path {path(last)}")
+            configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
+            lines.append(f"  test it: lnn-torch test {configs} --ckpt_path {path(last)}")
         print("\n".join(lines))

@@ -260,7 +260,7 @@ class EvalContext:
 
 def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIONS, integrator: str = "rk4",
                    dt: float | None = None, horizon: float | None = None, thresholds=(0.1, 0.5),
-                   accel_stride: int = 10, num_rollouts: int | None = None, **options) -> dict:
+                   accel_stride: int = 10, num_rollouts: int | None = None, progress=None, **options) -> dict:
     """Evaluate ``model`` on trajectories of ``system`` (SI units).
 
     Args:
@@ -273,6 +273,7 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
         thresholds: coordinate errors (rad or m) that define divergence times.
         accel_stride: accelerations are evaluated at every ``accel_stride``-th point.
         num_rollouts: roll out only the first so many trajectories (default: all).
+        progress: called with each section's name before it is computed (e.g. to tell the user).
         options: section options (``perturbation``, ``stability_seconds``, ``long_horizon_steps``,
             ``horizons``, ``start_every``, ``time_limit``).
 
@@ -293,6 +294,8 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
     for name in sections:
         fn = SECTIONS[name]
         reason = missing(model, getattr(fn, "needs", ()))
+        if progress is not None and reason is None:
+            progress(name)
         result = skip(reason) if reason is not None else SectionResult.of(fn(ctx))
         if result.skipped is not None:
             skipped[name] = result.skipped

@@ -34,6 +34,14 @@ class LNNCLI(LightningCLI):
         if logger.get("class_path") == LOGGER["class_path"] and init is not None and init.get("save_dir") == ".":
             init["save_dir"] = str(root)
 
+    def before_fit(self) -> None:
+        """The fit's closing summary names the config files it was given (its ``test`` command)."""
+        config = self.config[self.subcommand] if self.subcommand else self.config
+        paths = [str(getattr(p, "relative", p)) for p in (config.get("config") or [])]
+        for cb in self.trainer.callbacks:
+            if type(cb).__name__ == "FitSummary":
+                cb.config_paths = paths
+
 
 TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
 LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
@@ -72,6 +80,11 @@ def quiet_third_parties() -> None:
             logger.addFilter(_DropLightningTips())
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)` is deprecated",
                             module=r"lightning\.pytorch\.utilities\._pytree")
+    # `lnn-torch test --ckpt_path` starts a new run folder: Lightning's note that the checkpoint
+    # folder changed is about resuming, which testing does not do
+    warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
+    # a compiled solve without a native kernel runs through a fallback: correct, nothing to act on
+    logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
 
 
 def run_cli(argv: list[str]) -> LNNCLI:

@@ -40,12 +40,13 @@ def main() -> None:
     ap.add_argument("--split", default="test", help="the recordings to judge on: train, val or test")
     ap.add_argument("--start-every", type=float, default=0.25, help="seconds between the rollouts' starts")
     ap.add_argument("--time-limit", type=float, default=4.0, help="rollout length, s (time to 0.1 rad censored there)")
-    add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum"),
-                   "the folder of metrics.json, report.md and error_vs_horizon.png")
+    add_output_dir(ap, None, "the folder of metrics.json, report.md and error_vs_horizon.png (default: "
+                   "real_pendulum/ beside the run's checkpoints folder, real_pendulum/NAME for pretrained:NAME; the "
+                   "committed report is -o results/real_double_pendulum)")
     ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
-    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.checkpoints import data_hparams, load_model, output_dir
     from lnn_torch.data import TrajectoryDataModule
     from lnn_torch.evaluation import evaluate_model
     from lnn_torch.identified import RigidArmModel
@@ -73,7 +74,7 @@ def main() -> None:
                               for rec, f, e in zip(held_out, filtered, recorded)}
         results[name] = r
     structure = compare_structure(module.model, lab, data, held_out)
-    out = Path(args.output_dir)
+    out = output_dir(args.checkpoint, args.output_dir, "real_pendulum")
     out.mkdir(parents=True, exist_ok=True)
     meta = {"checkpoint": args.checkpoint, "held_out": held_out, "targets": saved.get("targets"),
             "start_every_s": args.start_every, "time_limit_s": args.time_limit, "note": args.note}

@@ -103,6 +103,20 @@ def _data_file(checkpoint: str, split: str) -> str:
     return str(cached_split(DatasetSpec(**saved["spec"]), split, progress=True))
 
 
+def _progress():
+    """Prints each section as it starts, with the time since the first, to stderr (the report comes at
+    the end; the long sections take a minute on one thread)."""
+    import sys
+    import time
+
+    start = time.perf_counter()
+
+    def tell(name: str) -> None:
+        print(f"evaluate: {name} ({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
+
+    return tell
+
+
 def main(argv: list[str]) -> int:
     from ..checkpoints import data_hparams, load_model, output_dir
     from ..data import TrajectoryDataModule, read_dataset
@@ -123,7 +137,8 @@ def main(argv: list[str]) -> int:
                               targets=data_hparams(args.checkpoint).get("targets", "file"))
     result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
                             sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
-                            stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps)
+                            stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps,
+                            progress=_progress())
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}
     out_dir = output_dir(args.checkpoint, args.output_dir, "evaluation")
     files = write_report(result, out_dir, module.system)
