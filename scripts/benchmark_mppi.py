@@ -33,10 +33,15 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=1000)
     ap.add_argument("--horizon", type=int, default=50)
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--compile", action="store_true", help="also the learned model's accelerations through torch.compile")
     add_output_file(ap, "results/control/mppi.md", "the table (Markdown)")
     args = ap.parse_args(argv)
-    plants = {"learned model (film_lnn, float32)": plant_of(load_model(args.checkpoint)),
-              "lab model (closed form)": plant_of(RigidArmModel.from_yaml(LAB))}
+    plants = {"learned model (film_lnn, float32)": plant_of(load_model(args.checkpoint))}
+    if args.compile:
+        compiled = load_model(args.checkpoint)
+        compiled.model.compile_dynamics(True)
+        plants["learned model, compiled"] = plant_of(compiled)
+    plants["lab model (closed form)"] = plant_of(RigidArmModel.from_yaml(LAB))
     goal = torch.tensor([[math.pi, 0.0]], dtype=torch.float64)
     q, qd = goal + 0.05, torch.zeros(1, 2, dtype=torch.float64)
     rows = []
@@ -52,7 +57,7 @@ def main(argv=None) -> int:
                 times.append(time.perf_counter() - start)
             rows.append((name, threads, 1e3 * statistics.median(times)))
     lines = [f"# One MPPI step: {args.samples} samples x {args.horizon}-step horizon", "",
-             f"`python scripts/benchmark_mppi.py {args.checkpoint}` (median of {args.repeats} calls after a warm-up; "
+             f"`python scripts/benchmark_mppi.py {args.checkpoint}{' --compile' if args.compile else ''}` (median of {args.repeats} calls after a warm-up; "
              "a 500 Hz loop has 2 ms)", "", "| plant rolled out | CPU threads | ms per step |", "|---|---|---|"]
     lines += [f"| {n} | {t} | {ms:.1f} |" for n, t, ms in rows]
     out = Path(args.output)
