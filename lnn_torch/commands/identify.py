@@ -177,6 +177,15 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def _unit(coefficients: dict, system) -> str:
+    """`` kg``, `` m``...: the unit of a quantity that is one parameter; ratios and combinations have none."""
+    if len(coefficients) == 1 and list(coefficients.values())[0] == 1:
+        name = next(iter(coefficients))
+        if name in system.param_names:
+            return f" {system.param_units[list(system.param_names).index(name)]}"
+    return ""
+
+
 def markdown(report: dict, system) -> str:
     """The short report: estimates, uncertainties, the classical reference, residuals."""
     truth, ls, exact = report["truth"], report["least_squares"] or {}, report["true_structure"] or {}
@@ -187,14 +196,15 @@ def markdown(report: dict, system) -> str:
                 else "") + ".",
              f"Model: {report['checkpoint']}; method {report['method']}, {report['starts']} starts, "
              f"{report['seconds']:.1f} s.", "",
-             "| quantity | estimate | ± 1 std | same fit, true equations | linear least squares, true equations |"
+             "| quantity | estimate | ± 1 std (noise, given the model) | same fit, true equations | linear least squares, "
+             "true equations |"
              + (" truth | error |" if truth else ""),
              "|---|---|---|---|---|" + ("---|---|" if truth else "")]
     for name, qv in report["quantities"].items():
         if not qv["identifiable"]:
             est, std = "not identifiable", "–"
         else:
-            est = f"{qv['value']:.5g}"
+            est = f"{qv['value']:.5g}" + _unit(qv["coefficients"], system)
             std = (f"{100 * qv['rel_std']:.2g} %" if "rel_std" in qv else f"{qv['std']:.2g}")
         ref = f"{ls[name]['value']:.5g} ± {100 * ls[name]['rel_std']:.2g} %" if name in ls else "–"
         same = f"{exact[name]['value']:.5g}" if name in exact else "–"
@@ -216,6 +226,8 @@ def markdown(report: dict, system) -> str:
     if report["at_bound"]:
         lines.append(f"On the edge of the search box (the model's training distribution): {', '.join(report['at_bound'])}; "
                      "the truth may lie outside what the model was trained on.")
+    lines.append("The ± column is the statistical uncertainty of the fit given the model: the model's own error is "
+                 "not in it" + (" (compare the same fit on the true equations)." if exact else "."))
     rms = ", ".join(f"{k} {v:.3g}" for k, v in report["residual_rms"].items())
     lines += ["", f"Residual rms of the fit (normalised: accelerations / their rms, or position error / "
                   f"(window² / 2) in acceleration units): {rms}.", ""]
