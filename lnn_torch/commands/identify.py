@@ -68,7 +68,9 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--noise", type=float, default=0.0,
                      help="add Gaussian noise of this std to the observed positions (studies; default 0)")
     fit.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--output-dir", "-o", default="identification", help="where the report goes")
+    ap.add_argument("--output-dir", "-o", default=None,
+                    help="where the report goes (default: identification/<recording>, with the split and trajectory "
+                         "of a dataset file, so that identifying another recording keeps this one's report)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the fit's operations are small)")
     return ap
 
@@ -166,7 +168,7 @@ def main(argv: list[str]) -> int:
                               "used": "+".join(n for n, x in (("q", q), ("qd", obs.qd), ("qdd", obs.qdd))
                                                if x is not None), "noise_added": args.noise},
               **result.to_json(), "truth": obs.truth, "true_structure": true_structure, "least_squares": reference}
-    out = Path(args.output_dir)
+    out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
     (out / "identification.json").write_text(json.dumps(report, indent=2) + "\n")
     _plot(module, system, obs, q, result, out / "fit.png")
@@ -175,6 +177,15 @@ def main(argv: list[str]) -> int:
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}, {out / 'fit.png'}")
     return 0
+
+
+def _default_output(args) -> Path:
+    """``identification/<recording stem>`` (``-<split>-<trajectory>`` for a dataset file)."""
+    path = Path(args.recording)
+    stem = path.name.split(".")[0]
+    if path.suffix in (".h5", ".hdf5"):
+        stem += f"-{args.split}-{args.trajectory}"
+    return Path("identification") / stem
 
 
 def _unit(coefficients: dict, system) -> str:
