@@ -213,3 +213,16 @@ def test_simulate_a_model_of_a_measured_system_without_parameters(tmp_path, caps
     assert "no closed form" in capsys.readouterr().out
     header = [line for line in out.read_text().splitlines() if not line.startswith("#")][0]
     assert header.split(",")[:3] == ["t", "q1", "q2"] and "energy" not in header
+
+
+def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, capsys):
+    import numpy as np
+
+    monkeypatch.chdir(tmp_path)
+    t = np.arange(200) * 0.01
+    for name, phase in (("a", 0.0), ("b", 0.3)):
+        rows = "".join(f"{x:.3f},{0.5 * np.cos(3 * x + phase):.6f},{0.4 * np.sin(3 * x + phase):.6f}\n" for x in t)
+        (tmp_path / f"{name}.csv").write_text("t,theta1,theta2\n" + rows)
+        assert main(["identify", "pretrained:double_pendulum", f"{name}.csv", "--starts", "1", "--steps", "20"]) == 0
+    assert (tmp_path / "identification" / "a" / "report.md").exists()
+    assert (tmp_path / "identification" / "b" / "report.md").exists()
