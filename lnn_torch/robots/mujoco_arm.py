@@ -155,6 +155,52 @@ class MujocoArm:
             out[k] = self.data.qfrc_inverse
         return torch.from_numpy(out)
 
+    def payload_regressor(self, q, qd, qdd) -> torch.Tensor:
+        """``Y (B, n, 10)``: the joint torques a payload adds are linear in its inertial parameters
+        ``pi = (m, m c (3), I_o (Ixx, Iyy, Izz, Ixy, Ixz, Iyz))`` (centre of mass ``c`` and inertia ``I_o``
+        about the flange point, flange frame): ``inverse(payload) - inverse(description's) = Y pi``
+        (Newton-Euler of the payload body: the flange's angular velocity and acceleration and its
+        acceleration against gravity from MuJoCo, mapped to the joints by the flange Jacobian). The
+        classical least-squares identification stacks these rows."""
+        mujoco = _mujoco()
+        m, d, i = self.model, self.data, self.payload_id
+        out = np.zeros((len(_array(q, "q", self.dof)), self.dof, 10))
+        vel, acc = np.zeros(6), np.zeros(6)
+        jacp, jacr = np.zeros((3, self.dof)), np.zeros((3, self.dof))
+        for k in self._each(q, qd, None, qdd=qdd):
+            mujoco.mj_inverse(m, d)
+            mujoco.mj_rnePostConstraint(m, d)
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, i, vel, 1)
+            mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, i, acc, 1)
+            mujoco.mj_jacBody(m, d, jacp, jacr, i)
+            R = d.xmat[i].reshape(3, 3)
+            Jv, Jw = R.T @ jacp, R.T @ jacr  # flange frame
+            w, dw, a = vel[:3], acc[:3], acc[3:]  # a: the flange point's acceleration against gravity
+            force, moment = np.zeros((3, 10)), np.zeros((3, 10))
+            force[:, 0] = a
+            for j in range(3):
+                e = np.eye(3)[j]
+                force[:, 1 + j] = np.cross(dw, e) + np.cross(w, np.cross(w, e))
+                moment[:, 1 + j] = np.cross(e, a)
+            for j, (r, c) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+                E = np.zeros((3, 3))
+                E[r, c] = E[c, r] = 1.0
+                moment[:, 4 + j] = E @ dw + np.cross(w, E @ w)
+            out[k] = Jv.T @ force + Jw.T @ moment
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def inertial_parameters(payload) -> torch.Tensor:
+        """``pi (10,)`` of ``payload_regressor`` from ``(mass, c (3)[, I_com (6)])`` (parallel axes)."""
+        p = torch.as_tensor(np.asarray(payload, dtype=np.float64))
+        mass, c = p[0], p[1:4]
+        I = torch.zeros(3, 3, dtype=torch.float64)
+        if p.shape[0] == 10:
+            ixx, iyy, izz, ixy, ixz, iyz = p[4:]
+            I = torch.stack([torch.stack([ixx, ixy, ixz]), torch.stack([ixy, iyy, iyz]), torch.stack([ixz, iyz, izz])])
+        I_o = I + mass * (c.dot(c) * torch.eye(3, dtype=torch.float64) - torch.outer(c, c))
+        return torch.cat([mass[None], mass * c, I_o[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
+
     def payload_position(self, q, payload) -> torch.Tensor:
         """The payload's centre of mass in the world ``(B, 3)`` (m) at ``q``."""
         mujoco = _mujoco()
