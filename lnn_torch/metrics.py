@@ -40,13 +40,17 @@ def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None
     return out
 
 
+def wrap_angles(dq: torch.Tensor, angle_mask) -> torch.Tensor:
+    """Coordinate differences ``(..., dof)`` with the angle ones (``angle_mask``) wrapped to (-pi, pi]."""
+    mask = torch.as_tensor(angle_mask, dtype=torch.bool, device=dq.device)
+    return torch.where(mask, torch.remainder(dq + torch.pi, 2 * torch.pi) - torch.pi, dq)
+
+
 def coordinate_error(q_pred: torch.Tensor, q_true: torch.Tensor, angle_mask=None) -> torch.Tensor:
     """The largest coordinate error at each time, ``(B, T)``; angle errors wrapped to (-pi, pi]."""
     err = q_pred - q_true
     if angle_mask is not None:
-        mask = torch.as_tensor(angle_mask, dtype=torch.bool, device=err.device)
-        wrapped = torch.remainder(err + torch.pi, 2 * torch.pi) - torch.pi
-        err = torch.where(mask, wrapped, err)
+        err = wrap_angles(err, angle_mask)
     return err.abs().amax(-1)
 
 

@@ -76,9 +76,7 @@ def main(argv=None) -> int:
     p_rep = params.repeat_interleave(K, 0)
     ok = {}
     for name, lqr in designs.items():
-        per_start = LQR.__new__(LQR)  # the same gains, one row per start
-        per_start.q_eq, per_start.angle_mask = up.repeat_interleave(K, 0), lqr.angle_mask
-        per_start.u_eq, per_start.K = lqr.u_eq.repeat_interleave(K, 0), lqr.K.repeat_interleave(K, 0)
+        per_start = lqr.repeat_interleave(K)  # the same gains, one row per start
         ep = closed_loop(true_plant, per_start, q0, torch.zeros_like(q0), p_rep, args.seconds, 1 / args.control_hz,
                          substeps=2)
         final = wrap(ep["q"][:, -1] - per_start.q_eq, (True, True)).abs().amax(-1)

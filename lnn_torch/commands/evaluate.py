@@ -85,15 +85,14 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _data_file(checkpoint: str, split: str) -> str:
-    """The checkpoint's dataset file where it exists, else its ``split`` alone from the user's cache
-    (generated there from the specification the checkpoint records, the first time)."""
-    from ..checkpoints import data_hparams
+def _data_file(saved: dict, split: str) -> str:
+    """The checkpoint's dataset file (``saved``: its data hyper-parameters) where it exists, else its
+    ``split`` alone from the user's cache (generated there from the specification it records, the
+    first time)."""
     from ..data import DatasetSpec
     from ..data.cache import cached_split
     from ..errors import InputError
 
-    saved = data_hparams(checkpoint)
     path = saved.get("path")
     if path and Path(path).exists():
         return path
@@ -128,13 +127,14 @@ def main(argv: list[str]) -> int:
     module = load_model(args.checkpoint)
     if args.compile:
         module.model.compile_dynamics()
-    data = args.data or _data_file(args.checkpoint, args.split)
+    saved = data_hparams(args.checkpoint)
+    data = args.data or _data_file(saved, args.split)
     f = read_dataset(data)
     if f.attrs["scene"] != module.system.name:
         raise ValueError(f"{data} holds scene '{f.attrs['scene']}' but the checkpoint models '{module.system.name}'")
     # the reference as in training: the file's accelerations, or the checkpoint's derivative estimates
     dm = TrajectoryDataModule(path=str(data), spec=None if f.measured else dict(f.spec),
-                              targets=data_hparams(args.checkpoint).get("targets", "file"))
+                              targets=saved.get("targets", "file"))
     result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
                             sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps,

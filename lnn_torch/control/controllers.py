@@ -11,17 +11,15 @@ states (float64, SI), built for fixed conditioning parameters ``params (B, P)``.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 
 from ..errors import InputError
+from ..integrators import held, semi_implicit_euler_step
+from ..metrics import wrap_angles as wrap
 from .plant import Plant
-
-
-def wrap(dq: torch.Tensor, angle_mask) -> torch.Tensor:
-    """Coordinate differences with the angle ones wrapped to (-pi, pi]."""
-    mask = torch.tensor(angle_mask, device=dq.device)
-    return torch.where(mask, torch.remainder(dq + torch.pi, 2 * torch.pi) - torch.pi, dq)
 
 
 def equilibrium_input(plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | None = None,
@@ -31,8 +29,7 @@ def equilibrium_input(plant: Plant, q_eq: torch.Tensor, params: torch.Tensor | N
     plant's gravity scale (its gravity force with every angle a quarter turn from ``q_eq``). The
     tolerance admits a learned model's upright, balanced to a fraction of a percent."""
     zero = torch.zeros_like(q_eq)
-    u = plant.inverse(q_eq, zero, zero, params)
-    res = plant.residual(q_eq, zero, zero, params)
+    u, res = plant.solve_inputs(q_eq, zero, zero, params)
     turned = q_eq + (torch.pi / 2) * torch.tensor(plant.angle_mask, dtype=q_eq.dtype)
     scale = plant.gravity(turned, params).norm(dim=-1).clamp_min(1e-12)
     bad = res > tol * scale
@@ -96,6 +93,12 @@ class LQR:
         # the rigid body's linearisation: friction has no useful derivative at rest (Plant.linearize)
         A, B = plant.linearize(q_eq, torch.zeros_like(q_eq), self.u_eq, params, friction=False)
         self.K = lqr_gain(A, B, Q, R, dt)
+
+    def repeat_interleave(self, k: int) -> "LQR":
+        """The same controller for ``k`` episodes of each design (one row per episode)."""
+        out = copy.copy(self)
+        out.q_eq, out.u_eq, out.K = (x.repeat_interleave(k, 0) for x in (self.q_eq, self.u_eq, self.K))
+        return out
 
     def __call__(self, t, q, qd) -> torch.Tensor:
         x = torch.cat([wrap(q - self.q_eq, self.angle_mask), qd], -1)
@@ -193,9 +196,8 @@ class MPPI:
         cost = torch.zeros(B * K, dtype=torch.float64)
         with torch.no_grad():
             for k in range(H):
-                qdd = self.plant.accel(qs, qds, self.plant._params(qs, self._p), flat_u[:, k])
-                qds = qds + self.dt * qdd
-                qs = qs + self.dt * qds
+                params = self.plant._params(qs, self._p)
+                qs, qds = semi_implicit_euler_step(held(self.plant.accel, flat_u[:, k]), qs, qds, params, self.dt)
                 x = torch.cat([wrap(qs - goal, self.plant.angle_mask), qds], -1)
                 step = (x.pow(2) * self.Q).sum(-1) + self.R * flat_u[:, k].pow(2).sum(-1)
                 cost = cost + torch.nan_to_num(step, nan=1e12, posinf=1e12) * (self.terminal if k == H - 1 else 1.0)

@@ -30,6 +30,7 @@ from typing import Callable
 import torch
 
 from ..errors import InputError
+from ..integrators import held, rk4_step
 
 
 @dataclass
@@ -107,14 +108,15 @@ class Plant:
     def inverse(self, q, qd, qdd, params=None) -> torch.Tensor:
         """The inputs ``u (B, m)`` that give ``qdd``: ``B u = M qdd + n - Q_f``, least squares where
         there are fewer inputs than coordinates (``residual`` tells how far from exact)."""
-        return self._inverse(q, qd, qdd, params)[0]
+        return self.solve_inputs(q, qd, qdd, params)[0]
 
     def residual(self, q, qd, qdd, params=None) -> torch.Tensor:
         """``|B u - (M qdd + n - Q_f)|`` per state of the least-squares ``inverse``: 0 where ``qdd`` is
         reachable with the inputs (always, fully actuated)."""
-        return self._inverse(q, qd, qdd, params)[1]
+        return self.solve_inputs(q, qd, qdd, params)[1]
 
-    def _inverse(self, q, qd, qdd, params):
+    def solve_inputs(self, q, qd, qdd, params=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(inverse, residual)`` from one least-squares solve."""
         params = self._params(q, params)
         self._check(q, qd, params)
         M = self.mass(q, params)
@@ -163,16 +165,9 @@ class Plant:
 
     def step(self, q, qd, params, u, dt: float, substeps: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """``dt`` of motion under the input ``u`` held constant (zero-order hold), RK4 in ``substeps``."""
-        h = dt / substeps
+        accel = held(self.accel, u)
         for _ in range(substeps):
-            def acc(qq, vv):
-                return self.accel(qq, vv, params, u)
-            k1q, k1v = qd, acc(q, qd)
-            k2q, k2v = qd + 0.5 * h * k1v, acc(q + 0.5 * h * k1q, qd + 0.5 * h * k1v)
-            k3q, k3v = qd + 0.5 * h * k2v, acc(q + 0.5 * h * k2q, qd + 0.5 * h * k2v)
-            k4q, k4v = qd + h * k3v, acc(q + h * k3q, qd + h * k3v)
-            q = q + h / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
-            qd = qd + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+            q, qd = rk4_step(accel, q, qd, params, dt / substeps)
         return q, qd
 
 
@@ -261,11 +256,8 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     if own and torque_scale not in (None, 1.0):
         raise InputError("the model was trained with inputs: its torque scale is fixed (1)")
     dtype = torch.float64
-    if own:
-        B = torch.tensor(scene.input_matrix, dtype=dtype)
-    else:
-        D = torch.tensor(scene.joint_map, dtype=dtype) if scene.joint_map is not None else torch.eye(scene.dof, dtype=dtype)
-        B = _joint_inputs(D, actuation)
+    D = torch.tensor(scene.joint_map, dtype=dtype) if scene.joint_map is not None else torch.eye(scene.dof, dtype=dtype)
+    B = torch.tensor(scene.input_matrix, dtype=dtype) if own else _joint_inputs(D, actuation)
     scale = torch.as_tensor(1.0 if torque_scale is None else torque_scale, dtype=dtype)
     if scale.ndim > 1 or (scale <= 0).any():
         raise InputError(f"torque_scale must be positive: one value, or one per state of the batch, got {scale.tolist()}")
@@ -287,10 +279,8 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
 
     friction = None
     if FRICTION in capabilities:
-        Dm = torch.tensor(scene.joint_map, dtype=dtype) if scene.joint_map is not None else torch.eye(scene.dof, dtype=dtype)
-
         def friction(q, qd, p):
-            return -(network.friction_torque_si(qd @ Dm.T.to(qd.dtype), p) @ Dm.to(qd.dtype))
+            return -(network.friction_torque_si(qd @ D.T.to(qd.dtype), p) @ D.to(qd.dtype))
 
     def energy(q, qd, p):
         return per_state(network.energy_si(q, qd, p))
