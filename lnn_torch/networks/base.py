@@ -62,6 +62,7 @@ class SceneInfo:
     angle_combinations: tuple[tuple[float, ...], ...] | None = None
     param_names: tuple[str, ...] = ()  # for messages; empty: params[i]
     param_units: tuple[str, ...] = ()
+    robot_description: str | None = None  # a robot arm's description (its scene config's ``description``)
 
     @property
     def num_inputs(self) -> int:
@@ -87,7 +88,7 @@ class SceneInfo:
                    as_tuple(d.get("input_matrix")), d.get("friction") is not None,
                    as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)),
                    as_tuple(d.get("angle_combinations")), tuple(d.get("param_names", ())),
-                   tuple(d.get("param_units", ())))
+                   tuple(d.get("param_units", ())), (d.get("config") or {}).get("description"))
 
 
 class DynamicsModel(nn.Module):

@@ -99,7 +99,7 @@ class StructuredLagrangian(DynamicsModel):
         ctx = BuildContext(self.scene.name, self.scene.dof, self.scene.num_params, self.num_features,
                            self.all_angles, self.scene.angle_mask, self.conditioning,
                            {k: given[k] for k in _PART_DEFAULTS}, self.sel_angle,
-                           tuple(self.linear_idx.tolist()))
+                           tuple(self.linear_idx.tolist()), robot_description=self.scene.robot_description)
         kinetic_spec, potential_spec = self._part_specs(kinetic, potential, given)
         # phase 1: each part's own network (kinetic parts first); phase 2: their conditioning networks
         self.kinetic, self.potential = nn.ModuleDict(), nn.ModuleDict()
@@ -116,10 +116,13 @@ class StructuredLagrangian(DynamicsModel):
             for name, opts in potential_spec.items():
                 cls = POTENTIAL_PARTS[name]
                 check_angles(cls, ctx, "potential")
-                extra = {"residual": True} if name == "harmonic" and "chain" in potential_spec else {}
+                extra = {"residual": True} if ((name == "harmonic" and "chain" in potential_spec)
+                                               or (name == "mlp" and "spatial" in potential_spec)) else {}
                 self.potential[name] = cls(ctx, **opts, **extra)
         # the parts in their roles, as plain tuples (the ModuleDicts own them): iterated at every call
         self._parts = (*self.kinetic.values(), *self.potential.values())
+        for part in self._parts:
+            part.attach_normalizer(self.normalizer)
         self._kinetic_parts = tuple(self.kinetic.values())
         self._potential_parts = self._kinetic_parts if self.shared else tuple(self.potential.values())
         self._num_kinetic = 0 if self.shared else len(self._kinetic_parts)

@@ -33,6 +33,16 @@ def _mujoco():
     return mujoco
 
 
+def load_description(description="franka_panda"):
+    """The compiled ``mujoco.MjModel`` of a shipped description or an MJCF path; ``InputError`` in one line."""
+    mujoco = _mujoco()
+    path = description_path(description)
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as err:
+        raise InputError(f"robot description {path}: {str(err).splitlines()[0]}") from None
+
+
 class MujocoArm:
     """The dynamics of a description's arm, the payload a parameter (see the module docstring)."""
 

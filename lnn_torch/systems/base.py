@@ -71,7 +71,7 @@ def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
     # one reduction: the smallest value of each parameter (NaN propagates and is refused too)
     lowest = params.reshape(-1, len(kinds)).amin(0).tolist()
     bad_pos = [n for n, k, v in zip(names, kinds, lowest) if k == "positive" and not v > 0]
-    bad_neg = [n for n, k, v in zip(names, kinds, lowest) if k != "positive" and not v >= 0]
+    bad_neg = [n for n, k, v in zip(names, kinds, lowest) if k == "nonnegative" and not v >= 0]
     if bad_pos:
         raise InputError(f"{where}: parameters must be positive; non-positive values in {bad_pos}")
     if bad_neg:

@@ -50,6 +50,7 @@ class BuildContext:
     sel_angle: torch.Tensor  # (dof, n_feature_angles): the feature angles G q, as G^T
     linear_idx: tuple[int, ...]  # the non-angle coordinates
     kinetic_parts: dict = field(default_factory=dict)  # the kinetic parts built so far, by name
+    robot_description: str | None = None  # the scene's robot description (``robot_arm``), for the spatial parts
 
     @property
     def film(self) -> bool:
@@ -100,6 +101,14 @@ class Part(nn.Module):
         """The second phase of construction: the part's conditioning network (registered by the model
         under ``conditioning_nets``), or None."""
         return None
+
+    def attach_normalizer(self, normalizer: nn.Module) -> None:
+        self._normalizer_ref = (normalizer,)  # a reference: the model owns it
+
+    @property
+    def normalizer(self) -> nn.Module:
+        """The model's ``Normalizer`` (its time, force and parameter scales), for parts in SI units."""
+        return self._normalizer_ref[0]
 
     def attach_conditioning(self, net: nn.Module | None) -> None:
         self._conditioning_ref = (net,)  # a reference: the model owns the network

@@ -1,5 +1,6 @@
 """Potential part ``mlp``: ``V`` from an MLP of the features and the parameters (FiLM on its hidden
-layers too, unless ``potential_film`` is off), its gradient by a hand-written reverse pass."""
+layers too, unless ``potential_film`` is off), its gradient by a hand-written reverse pass. Beside the
+spatial arm's gravity it is a residual that starts at zero."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ class PotentialMLP(FiLMConditioned, PotentialPart):
     name = "mlp"
 
     def __init__(self, ctx: BuildContext, hidden_dims=None, activation=None, film_mode=None, film_hidden=None,
-                 potential_film: bool | None = None) -> None:
+                 potential_film: bool | None = None, residual: bool = False) -> None:
         super().__init__()
         self.hidden_dims = tuple(option(ctx, hidden_dims, "hidden_dims"))
         self.film_mode, self.film_hidden = option(ctx, film_mode, "film_mode"), option(ctx, film_hidden, "film_hidden")
@@ -26,6 +27,9 @@ class PotentialMLP(FiLMConditioned, PotentialPart):
         self.num_features = ctx.num_features
         self.net = TangentMLP(ctx.num_features + ctx.num_params, list(self.hidden_dims), 1,
                               option(ctx, activation, "activation"), out_bias=False)
+        self.residual = bool(residual)
+        if self.residual:  # beside a physical potential (the arm's gravity): starts at V = 0
+            torch.nn.init.zeros_(self.net.out.weight)
 
     def potential(self, inputs: PartInputs, cond, grad: bool) -> PotentialTerm:
         x = torch.cat([inputs.phi, inputs.params_norm], -1)

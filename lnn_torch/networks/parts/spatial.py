@@ -1,0 +1,281 @@
+"""The mass matrix and gravity of a spatial serial arm read from its robot description (grey box).
+
+Kinetic part ``spatial``: ``M(q) = sum_i tr(dT_i J_i dT_i^T) + diag(armature)`` (``lnn_torch.robots.kinematics``:
+the poses ``T_i`` of the description's moving bodies, each body's pseudo-inertia ``J_i``), given to the
+structured solve as the factor ``F`` with its closed-form derivative; potential part ``spatial``:
+gravity on the same masses. The inertial parameters start at the description's values and are learned
+(``learn: false`` keeps them: the description alone), always physically consistent: each ``J_i = U_i
+U_i^T`` with ``U_i`` upper triangular, its diagonal ``exp`` of a learned value (the log-Cholesky
+parameterisation of the pseudo-inertia: positive mass, inertia positive definite and within the
+triangle inequality, for every value of the raw parameters); the armature (rotor inertia) is ``exp`` of
+a learned value.
+
+The scene's parameters are the payload at the flange, ``(mass, cx, cy, cz)`` (kg, m, flange frame) or
+with its inertia about its centre of mass ``(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)`` (kg m^2): the part adds the
+payload's pseudo-inertia to the last body's, so the model is conditioned on the payload exactly (one
+model for every payload). The parameters are SI; the part's output is scaled to the model's normalised
+units (``M_norm = force_scale / time_scale^2 M``, ``V_norm = force_scale V``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ...errors import InputError
+from ...robots import kinematics as K
+from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm
+
+_OFF = torch.triu_indices(4, 4, 1)  # the six entries above the diagonal of U
+
+
+def _load_chain(description) -> K.SerialChain:
+    from ...robots.mujoco_arm import load_description
+
+    return K.read_chain(load_description(description))
+
+
+def payload_pseudo_inertia(payload: torch.Tensor) -> torch.Tensor:
+    """``J (B, 4, 4)`` of payloads ``(B, 4)`` (point masses) or ``(B, 10)`` (with inertia about the centre of
+    mass), in the payload's frame; a negative mass is taken as zero."""
+    m = payload[:, 0].clamp_min(0)
+    c = payload[:, 1:4]
+    sigma = m[:, None, None] * c[:, :, None] * c[:, None, :]
+    if payload.shape[1] == 10:
+        ixx, iyy, izz, ixy, ixz, iyz = payload[:, 4:].unbind(-1)
+        I = torch.stack([torch.stack([ixx, ixy, ixz], -1), torch.stack([ixy, iyy, iyz], -1),
+                         torch.stack([ixz, iyz, izz], -1)], -2)
+        tr = (ixx + iyy + izz)[:, None, None]
+        sigma = sigma + 0.5 * tr * torch.eye(3, dtype=payload.dtype, device=payload.device) - I
+    top = torch.cat([sigma, (m[:, None] * c)[..., None]], -1)
+    bottom = torch.cat([m[:, None] * c, m[:, None]], -1)[:, None]
+    return torch.cat([top, bottom], -2)
+
+
+class SpatialChain(KineticPart):
+    """``spatial``: the mass-matrix factor of the arm of a robot description (module docstring).
+
+    Options:
+        description: a shipped description (``franka_panda``) or an MJCF path; None: the scene's own.
+        learn: learn the inertial parameters and armature (True) or keep the description's (False).
+    """
+
+    name = "spatial"
+    needs_angles = True
+
+    def __init__(self, ctx: BuildContext, description=None, learn: bool = True) -> None:
+        super().__init__()
+        description = description or ctx.robot_description
+        if description is None:
+            raise InputError("kinetic part 'spatial' needs a robot description: kinetic: {spatial: {description: "
+                             "franka_panda}} (or a scene that has one, e.g. robot_arm)")
+        self.description = str(description)
+        chain = _load_chain(description)
+        if chain.dof != ctx.dof:
+            raise InputError(f"robot description {description} has {chain.dof} joints; scene '{ctx.scene_name}' has "
+                             f"{ctx.dof} coordinates")
+        if ctx.num_params not in (0, 4, 10):
+            raise InputError(f"kinetic part 'spatial' reads the scene's parameters as a payload (mass, cx, cy, cz"
+                             f"[, six inertias]); scene '{ctx.scene_name}' has {ctx.num_params}")
+        if ctx.num_params and chain.flange is None:
+            raise InputError(f"robot description {description} has no body 'payload' for the scene's payload")
+        self.num_links, self.dof, self.payload = chain.dof, chain.dof, bool(ctx.num_params)
+        self.learn = bool(learn)
+        # the description's geometry, exact: float64 constants (not buffers, which a float32 model would
+        # round), cast once per dtype and device
+        self._constants = {"X": chain.X, "axis": chain.axis, "anchor": chain.anchor, "qpos0": chain.qpos0,
+                           "flange": chain.flange if chain.flange is not None else torch.eye(4, dtype=torch.float64),
+                           "gravity": chain.gravity, "nominal_J": chain.J}
+        self._cast = {}
+        U = K.reverse_cholesky(chain.J)
+        # in the default dtype (a float64 test builds the description's values exactly)
+        raw = torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _OFF[0], _OFF[1]]], -1).to(torch.get_default_dtype())
+        log_arm = chain.armature.clamp_min(1e-6).log().to(torch.get_default_dtype())
+        if self.learn:
+            self.raw = nn.Parameter(raw)  # (n, 10): log of U's diagonal, then its six upper entries
+            self.log_armature = nn.Parameter(log_arm)
+        else:  # the description alone: nothing learned, nothing to save
+            self._fixed = {"raw": raw.double(), "log_armature": log_arm.double()}
+        self.joint_names = chain.joint_names
+        self.num_columns = 12 * self.num_links + self.dof
+
+    def const(self, name: str, like: torch.Tensor) -> torch.Tensor:
+        """A constant of the description in ``like``'s dtype and device."""
+        key = (name, like.dtype, like.device)
+        if key not in self._cast:
+            self._cast[key] = self._constants[name].to(dtype=like.dtype, device=like.device)
+        return self._cast[key]
+
+    def _raw(self, name: str, dtype) -> torch.Tensor:
+        if self.learn:
+            return getattr(self, name).to(dtype)
+        return self._fixed[name].to(dtype=dtype, device=self.normalizer.time_scale.device)
+
+    def coefficient_parameters(self):
+        return [self.raw, self.log_armature] if self.learn else []
+
+    # ------------------------------------------------------------------ the inertial parameters
+    def chain(self, dtype=torch.float64) -> K.SerialChain:
+        """The ``SerialChain`` of the description with this part's current inertia (detached)."""
+        with torch.no_grad():
+            c = {k: v.to(dtype) for k, v in self._constants.items()}
+            return K.SerialChain(c["X"], c["axis"], c["anchor"], c["qpos0"], self.link_J(dtype), c["flange"],
+                                 self.armature(dtype), None, c["gravity"], self.joint_names)
+
+    def link_U(self, dtype) -> torch.Tensor:
+        """``U (n, 4, 4)``: each link's factor ``J_i = U_i U_i^T``."""
+        raw = self._raw("raw", dtype)
+        U = torch.diag_embed(raw[:, :4].exp())
+        return U.index_put((torch.arange(self.num_links, device=raw.device)[:, None], _OFF[0].to(raw.device),
+                            _OFF[1].to(raw.device)), raw[:, 4:])
+
+    def link_J(self, dtype=torch.float64) -> torch.Tensor:
+        U = self.link_U(dtype)
+        return U @ U.mT
+
+    def armature(self, dtype=torch.float64) -> torch.Tensor:
+        return self._raw("log_armature", dtype).exp()
+
+    def payload_si(self, params_norm: torch.Tensor) -> torch.Tensor | None:
+        """The payload in SI ``(B, P)`` from the normalised parameters (None without one)."""
+        if not self.payload:
+            return None
+        return self.normalizer.params_to_phys(params_norm)
+
+    def scales(self, dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(sqrt(force_scale) / time_scale, force_scale)``: SI factor and potential to normalised units."""
+        norm = self.normalizer
+        force = norm.force_scale.to(dtype) if hasattr(norm, "force_scale") else torch.ones((), dtype=dtype)
+        return force.sqrt() / norm.time_scale.to(dtype), force
+
+    def body_inertia(self, params_norm: torch.Tensor, dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(J, U)``, each ``(B or 1, n, 4, 4)``: the links' pseudo-inertias and factors, the payload's
+        added to the last link's."""
+        U = self.link_U(dtype)[None]
+        J = U @ U.mT
+        payload = self.payload_si(params_norm)
+        if payload is None:
+            return J, U
+        Xf = self.const("flange", payload.to(dtype))
+        last = J[:, -1] + Xf @ payload_pseudo_inertia(payload.to(dtype)) @ Xf.T  # (B, 4, 4)
+        B = payload.shape[0]
+        J = torch.cat([J.expand(B, -1, -1, -1)[:, :-1], last[:, None]], 1)
+        U = torch.cat([U.expand(B, -1, -1, -1)[:, :-1], K.reverse_cholesky(last)[:, None]], 1)
+        return J, U
+
+    def _kinematic_chain(self, like: torch.Tensor):
+        c = {k: self.const(k, like) for k in ("X", "axis", "anchor", "qpos0")}
+        return K.SerialChain(c["X"], c["axis"], c["anchor"], c["qpos0"], None, None, None, None, None, self.joint_names)
+
+    def geometry(self, q_norm: torch.Tensor, params_norm: torch.Tensor):
+        """``(T, S, J, U)``: poses and twists (``kinematics.poses_and_twists``) and the bodies' inertia."""
+        T, S = K.poses_and_twists(self._kinematic_chain(q_norm), q_norm)
+        J, U = self.body_inertia(params_norm, q_norm.dtype)
+        return T, S, J, U
+
+    def _geometry(self, inputs: PartInputs):
+        return inputs.shared(self, lambda: self.geometry(inputs.q_norm, inputs.params_norm))
+
+    # ------------------------------------------------------------------ the factor
+    def factor(self, inputs: PartInputs, cond):
+        T, S, _, U = self._geometry(inputs)
+        dtype, B = inputs.q_norm.dtype, inputs.q_norm.shape[0]
+        F, dF = K.factor(T, S, U.expand(B, -1, -1, -1), inputs.tangents)
+        root_a = torch.diag_embed(self.armature(dtype).sqrt()).expand(B, -1, -1)
+        scale, _ = self.scales(dtype)
+        F = torch.cat([F, root_a], -1) * scale
+        if dF is not None:
+            dF = torch.cat([dF, dF.new_zeros(self.dof, B, self.dof, self.dof)], -1) * scale
+        return F, dF
+
+    def reference_factor(self, q_norm, params_norm, phi):
+        """A factor written out from the bodies' centre-of-mass velocities and angular velocities: ``F =
+        [sqrt(m_i) Jv_i^T | Jw_i^T R_i L_i | sqrt(armature)]`` (``Jv_i``, ``Jw_i`` by autograd of the
+        poses, ``L_i L_i^T`` the inertia about the centre of mass), in normalised units."""
+        dtype = q_norm.dtype
+        J, _ = self.body_inertia(params_norm, dtype)
+        B = q_norm.shape[0]
+        J = J.expand(B, -1, -1, -1)
+        mass = J[..., 3, 3]
+        com = J[..., :3, 3] / mass[..., None]
+        sigma_c = J[..., :3, :3] - mass[..., None, None] * com[..., :, None] * com[..., None, :]
+        eye = torch.eye(3, dtype=dtype)
+        inertia = sigma_c.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None] * eye - sigma_c
+        L = torch.linalg.cholesky(inertia)
+        chain = self._kinematic_chain(q_norm)
+
+        def pose(q1):
+            return K.poses_and_twists(chain, q1[None])[0][0]  # (n, 4, 4)
+
+        cols = []
+        for b in range(B):
+            Tb = pose(q_norm[b])
+            dT = torch.func.jacfwd(pose)(q_norm[b])  # (n, 4, 4, dof)
+            for i in range(self.num_links):
+                c_h = torch.cat([com[b, i], com[b, i].new_ones(1)])
+                Jv = torch.einsum("xyk,y->xk", dT[i, :3], c_h)  # (3, dof)
+                Jw = torch.stack([_vee(dT[i, :3, :3, k] @ Tb[i, :3, :3].T) for k in range(self.dof)], -1)
+                cols.append((b, torch.cat([mass[b, i].sqrt() * Jv.T, Jw.T @ Tb[i, :3, :3] @ L[b, i]], -1)))
+        F = torch.stack([torch.cat([c for bb, c in cols if bb == b], -1) for b in range(B)])
+        F = torch.cat([F, torch.diag_embed(self.armature(dtype).sqrt()).expand(B, -1, -1)], -1)
+        return F * self.scales(dtype)[0]
+
+    def gravity(self, inputs: PartInputs, grad: bool):
+        T, S, J, _ = self._geometry(inputs)
+        V, dV = K.gravity_potential(T, S, J, self.const("gravity", T), grad)
+        _, force = self.scales(T.dtype)
+        return V * force, None if dV is None else dV * force
+
+    # ------------------------------------------------------------------ report
+    def si_report(self, scales=None, params_norm=None) -> dict:
+        """The learned links in SI (detached): ``mass (n)`` kg, centre of mass ``com (n, 3)`` m and inertia
+        about it ``inertia (n, 3, 3)`` kg m^2 in each body's frame (welded bodies folded in), ``armature
+        (n)`` kg m^2; and ``pseudo_inertia (n, 4, 4)``."""
+        with torch.no_grad():
+            J = self.link_J(torch.float64)
+            mass = J[:, 3, 3]
+            com = J[:, :3, 3] / mass[:, None]
+            sigma_c = J[:, :3, :3] - mass[:, None, None] * com[:, :, None] * com[:, None, :]
+            inertia = sigma_c.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] * torch.eye(3, dtype=J.dtype) - sigma_c
+            return {"mass": mass, "com": com, "inertia": inertia, "armature": self.armature(torch.float64),
+                    "pseudo_inertia": J}
+
+
+def _vee(A: torch.Tensor) -> torch.Tensor:
+    return torch.stack([A[2, 1], A[0, 2], A[1, 0]])
+
+
+class SpatialGravity(PotentialPart):
+    """``spatial``: gravity (the description's vector, 9.81 m/s^2 down its z) on the masses of the kinetic
+    part ``spatial`` and the payload; no parameter of its own."""
+
+    name = "spatial"
+    needs_angles = True
+
+    def __init__(self, ctx: BuildContext) -> None:
+        super().__init__()
+        chain = ctx.kinetic_parts.get("spatial")
+        if chain is None:
+            raise InputError("potential part 'spatial' is the gravity of the arm's masses: it needs the kinetic part "
+                             "'spatial'")
+        self._chain = (chain,)
+
+    @property
+    def chain(self) -> SpatialChain:
+        return self._chain[0]
+
+    def potential(self, inputs: PartInputs, cond, grad: bool) -> PotentialTerm:
+        V, dV = self.chain.gravity(inputs, grad)
+        return PotentialTerm(V, dV_dq=dV)
+
+    def reference_potential(self, q_norm, params_norm, phi, gravity):
+        """``V = -sum_i m_i g . c_i`` from the bodies' centres of mass (``T_i`` applied to each)."""
+        chain = self.chain
+        dtype = q_norm.dtype
+        T, _ = K.poses_and_twists(chain._kinematic_chain(q_norm), q_norm)
+        J, _ = chain.body_inertia(params_norm, dtype)
+        J = J.expand(q_norm.shape[0], -1, -1, -1)
+        mass = J[..., 3, 3]
+        com = torch.cat([J[..., :3, 3] / mass[..., None], mass.new_ones(*mass.shape, 1)], -1)
+        world = (T @ com[..., None])[..., :3, 0]
+        return -(mass * (world @ chain.const("gravity", q_norm))).sum(-1) * chain.scales(dtype)[1]
