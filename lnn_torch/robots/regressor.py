@@ -1,0 +1,116 @@
+"""Classical identification of a serial arm: inverse dynamics linear in the inertial parameters, the
+regressor, and the base parameters (the combinations a trajectory can identify).
+
+Each moving body's inertia enters the joint torques linearly through its pseudo-inertia ``J_i``
+(``lnn_torch.robots.kinematics``): with ``D_ki = dT_i/dq_k = S_k T_i`` and the pose acceleration
+``Tdd_i = A_i T_i``, ``A_i = sum_{l <= i} S_l qdd_l + sum_{l, m <= i} S_min(l,m) S_max(l,m) qd_l qd_m``,
+
+    tau_k = sum_{i >= k} [ tr(D_ki J_i Tdd_i^T) - g~^T D_ki J_i e_4 ] + armature_k qdd_k + damping_k qd_k
+
+(``g~ = (g, 0)``). The parameter vector ``pi`` has, per link, ``(Ixx, Iyy, Izz, Ixy, Ixz, Iyz, m cx, m
+cy, m cz, m)`` (inertia about the link frame's origin, first moment, mass; the classical ten), then the
+armature and the viscous damping of every joint: ``tau = Y(q, qd, qdd) pi``.
+
+A trajectory excites only some combinations of ``pi``: ``base_parameters`` finds them by QR with
+column pivoting of the stacked regressor (Gautier's numerical base parameters): ``r`` independent
+columns ``B`` and the others ``D = B K``, so ``tau = Y_B (pi_B + K pi_D)``: the base parameters
+``beta = pi_B + K pi_D``; a parameter outside every combination gets no number.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .kinematics import SerialChain, poses_and_twists
+
+LINK_NAMES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "mcx", "mcy", "mcz", "m")
+
+
+def parameter_names(chain: SerialChain) -> list[str]:
+    links = [f"{name}.{p}" for name in chain.joint_names for p in LINK_NAMES]
+    return links + [f"{n}.armature" for n in chain.joint_names] + [f"{n}.damping" for n in chain.joint_names]
+
+
+def pseudo_inertia_of(pi_links: torch.Tensor) -> torch.Tensor:
+    """``J (..., n, 4, 4)`` from the classical ten per link ``(..., n, 10)``."""
+    ixx, iyy, izz, ixy, ixz, iyz, hx, hy, hz, m = pi_links.unbind(-1)
+    I = torch.stack([torch.stack([ixx, ixy, ixz], -1), torch.stack([ixy, iyy, iyz], -1),
+                     torch.stack([ixz, iyz, izz], -1)], -2)
+    tr = (ixx + iyy + izz)[..., None, None]
+    sigma = 0.5 * tr * torch.eye(3, dtype=pi_links.dtype) - I
+    h = torch.stack([hx, hy, hz], -1)
+    return torch.cat([torch.cat([sigma, h[..., None]], -1), torch.cat([h, m[..., None]], -1)[..., None, :]], -2)
+
+
+def classical_of(J: torch.Tensor) -> torch.Tensor:
+    """The classical ten per link ``(..., n, 10)`` from pseudo-inertias ``(..., n, 4, 4)``."""
+    sigma = J[..., :3, :3]
+    I = sigma.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None] * torch.eye(3, dtype=J.dtype) - sigma
+    return torch.stack([I[..., 0, 0], I[..., 1, 1], I[..., 2, 2], I[..., 0, 1], I[..., 0, 2], I[..., 1, 2],
+                        J[..., 0, 3], J[..., 1, 3], J[..., 2, 3], J[..., 3, 3]], -1)
+
+
+def parameter_vector(J: torch.Tensor, armature: torch.Tensor, damping: torch.Tensor) -> torch.Tensor:
+    """``pi (12 n,)``: the classical ten of each link, armature, damping."""
+    return torch.cat([classical_of(J).reshape(-1), armature, damping])
+
+
+def inverse_dynamics(chain: SerialChain, q, qd, qdd, pi: torch.Tensor) -> torch.Tensor:
+    """``tau (B, n)`` at states ``(B, n)`` for the parameter vector ``pi (12 n,)`` (module docstring)."""
+    n = chain.dof
+    T, S = poses_and_twists(chain, q)
+    J = pseudo_inertia_of(pi[: 10 * n].reshape(n, 10))
+    armature, damping = pi[10 * n: 11 * n], pi[11 * n:]
+    idx = torch.arange(n)
+    lo, hi = torch.minimum(idx[:, None], idx[None, :]), torch.maximum(idx[:, None], idx[None, :])
+    P = S[:, lo] @ S[:, hi]  # (B, l, m, 4, 4)
+    below = (hi[:, :, None] <= idx[None, None, :]).to(q.dtype)  # [l, m, i]
+    upto = (idx[:, None] <= idx[None, :]).to(q.dtype)  # [l, i]: l <= i
+    A = (torch.einsum("blmxy,lmi,bl,bm->bixy", P, below, qd, qd)
+         + torch.einsum("blxy,li,bl->bixy", S, upto, qdd))  # (B, i, 4, 4)
+    Tdd = A @ T
+    D = torch.einsum("bkxy,biyz->bkixz", S, T)  # (B, k, i, 4, 4)
+    inertial = torch.einsum("bkixy,iyz,bixz->bki", D, J, Tdd)  # tr(D J Tdd^T)
+    g = torch.cat([chain.gravity.to(q.dtype), q.new_zeros(1)])
+    weight = torch.einsum("x,bkixy,iy->bki", g, D, J[:, :, 3])
+    tau = ((inertial - weight) * upto[None]).sum(-1)
+    return tau + armature * qdd + damping * qd
+
+
+def regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
+    """``Y (B, n, 12 n)`` with ``tau = Y pi`` (exact: the torques are linear in ``pi``)."""
+    p = 12 * chain.dof
+    zero = torch.zeros(p, dtype=q.dtype)
+    basis = torch.eye(p, dtype=q.dtype)
+    _, cols = torch.func.vmap(lambda e: torch.func.jvp(lambda x: inverse_dynamics(chain, q, qd, qdd, x), (zero,), (e,)))(basis)
+    return cols.permute(1, 2, 0)
+
+
+def base_parameters(Y: torch.Tensor, rtol: float = 1e-6) -> dict:
+    """The identifiable combinations of a stacked regressor ``Y (N, p)``: ``{"independent": indices B (r,),
+    "dependent": D, "K": (r, p - r), "rank": r, "map": P (r, p)}`` with ``beta = P pi = pi_B + K pi_D``
+    (QR with column pivoting; ``rtol``: the rank tolerance relative to the largest ``|R_jj|``)."""
+    import scipy.linalg
+
+    Yn = Y.detach().double().cpu().numpy()
+    scale = np.linalg.norm(Yn, axis=0)
+    zero = scale <= 1e-10 * scale.max()  # a parameter that moves no torque (round-off at most)
+    scale[zero] = 1.0
+    Ys = np.where(zero[None, :], 0.0, Yn / scale)
+    _, R, piv = scipy.linalg.qr(Ys, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    r = int((d > rtol * d[0]).sum())
+    B, D = piv[:r], piv[r:]
+    K = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:]) if r < Yn.shape[1] else np.zeros((r, 0))
+    K = K * scale[D][None, :] / scale[B][:, None]  # back to unscaled columns: Y_D = Y_B K
+    P = np.zeros((r, Yn.shape[1]))
+    P[np.arange(r), B] = 1.0
+    P[:, D] += K
+    return {"independent": B, "dependent": D, "K": K, "rank": r, "map": P}
+
+
+def least_squares(Y: torch.Tensor, tau: torch.Tensor, base: dict) -> np.ndarray:
+    """Base parameters ``beta (r,)`` by ordinary least squares on ``tau = Y_B beta``."""
+    YB = Y.detach().double().cpu().numpy()[:, base["independent"]]
+    return np.linalg.lstsq(YB, tau.detach().double().cpu().numpy().reshape(-1), rcond=None)[0]
