@@ -23,7 +23,13 @@ def power_balance_residual(system, q, qd, params, work) -> torch.Tensor:
     """``|E(t) - E(0) - W(t)| / energy scale`` with ``W (N, T)`` the work of the generalised forces
     since ``t = 0``: ``(N, T)`` (the energy drift when ``W = 0``)."""
     E = system.energy(q, qd, params[:, None, :].expand(-1, q.shape[1], -1))
-    return (E - E[:, :1] - work).abs() / system.energy_scale(params)[:, None]
+    return relative_residual(E, work, system.energy_scale(params))
+
+
+def relative_residual(energy: torch.Tensor, work: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """``|E(t) - E(0) - W(t)| / scale`` from the energies ``(N, T)`` and the work ``(N, T)`` since
+    ``t = 0`` (J) and the energy scales ``(N,)`` (J): ``(N, T)``."""
+    return (energy - energy[:, :1] - work).abs() / scale[:, None]
 
 
 def _augmented_field(system):

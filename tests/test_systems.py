@@ -265,3 +265,18 @@ def test_the_actuated_scene_refuses_a_link_lighter_in_inertia_than_its_point_mas
     p[1, 6] = 0.9 * p[1, 1] * p[1, 4] ** 2  # I2 below m2 r2^2
     with pytest.raises(InputError, match=r"I2 = [\d.e-]+ kg m\^2 is below m2 r2\^2"):
         system.check_params(p)
+
+
+def test_parameter_kinds_positive_nonnegative_and_real():
+    """``positive`` refuses zero, ``nonnegative`` refuses negatives, ``real`` takes any sign (a centre
+    of mass); a kind the code does not know is refused rather than read as ``real``."""
+    from lnn_torch.systems.base import check_param_signs
+
+    kinds, names = ("positive", "nonnegative", "real"), ("m", "b", "x")
+    check_param_signs(torch.tensor([[1.0, 0.0, -3.0], [2.0, 1.0, 4.0]]), kinds, names, "s")
+    with pytest.raises(InputError, match=r"must be positive; non-positive values in \['m'\]"):
+        check_param_signs(torch.tensor([[0.0, 0.0, -3.0]]), kinds, names, "s")
+    with pytest.raises(InputError, match=r"negative values in \['b'\]"):
+        check_param_signs(torch.tensor([[1.0, -0.1, -3.0]]), kinds, names, "s")
+    with pytest.raises(InputError, match=r"unknown parameter kind\(s\) \['nonegative'\]"):
+        check_param_signs(torch.ones(1, 3), ("positive", "nonegative", "real"), names, "s")

@@ -14,7 +14,7 @@ import torch
 from .. import __version__
 from ..errors import InputError
 from ..excitation import sample
-from ..ground_truth import integrate_ground_truth, power_balance_residual
+from ..ground_truth import integrate_ground_truth, relative_residual
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
 
@@ -64,8 +64,12 @@ def split_indices(spec: DatasetSpec) -> dict:
 def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> dict:
     """Integrate the given trajectories of ``spec`` (default: all). Returns float64 numpy arrays,
     including ``integrator_steps`` (N,): steps each trajectory took (``integrate_ground_truth``), and
-    for an actuated scene the inputs ``tau (N, T, n_u)`` (input k acts on ``[t_k, t_{k+1})``)."""
+    for an actuated scene the inputs ``tau (N, T, n_u)`` (input k acts on ``[t_k, t_{k+1})``). A scene
+    that records its data its own way (``System.generate_trajectories``) returns them instead."""
     system = spec.build_system()
+    own = system.generate_trajectories(spec, indices, progress)
+    if own is not None:
+        return own
     actuated = system.num_inputs > 0
     sampled = sample_initial_conditions(spec, indices, inputs=actuated)
     params, q0, qd0 = (torch.from_numpy(a) for a in sampled[:3])
@@ -139,9 +143,9 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
     finally:
         torch.set_num_threads(old_threads)
     system = spec.build_system()
-    q, qd, params = (torch.from_numpy(arrays[k]) for k in ("q", "qd", "params"))
-    work = torch.from_numpy(arrays["work"]).sum(-1) if "work" in arrays else torch.zeros(q.shape[:2], dtype=q.dtype)
-    residual = float(power_balance_residual(system, q, qd, params, work).max())
+    energy, params = (torch.from_numpy(arrays[k]) for k in ("energy", "params"))
+    work = torch.from_numpy(arrays["work"]).sum(-1) if "work" in arrays else torch.zeros_like(energy)
+    residual = float(relative_residual(energy, work, system.energy_scale(params)).max())
     refined = int((arrays["integrator_steps"] != (spec.num_points - 1) * spec.substeps).sum())
     check = "power-balance residual |E(t) - E(0) - W(t)|" if system.has_forces else "energy drift"
     attrs = {
@@ -179,6 +183,7 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "generation_seconds": elapsed,
     }
+    attrs.update(system.generation_attrs(spec, arrays, residual))
     if indices is not None:
         arrays["trajectory_index"] = indices
         attrs["subset"] = json.dumps(list(splits))

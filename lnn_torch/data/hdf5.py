@@ -17,6 +17,7 @@ name               shape            meaning
 ``lengths``        ``(N,)``         points of each trajectory; the rest is NaN padding (imported recordings)
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
 ``trajectory_index`` ``(N,)``       each trajectory's index in the full specification (files of some splits only)
+``q_ref``          ``(N, T, dof)``  the reference a tracking controller followed (``robot_arm``; optional)
 =================  ===============  =====================================================
 
 Root attributes: ``format``, ``format_version``, ``scene``, ``scene_json`` (the scene's full
@@ -25,7 +26,9 @@ description: dof, angle mask, names, units, sampler configuration), ``convention
 ``integrator``, ``substeps``, ``tolerances`` (JSON: the accuracy check, energy drift or power
 balance, and its measured maximum), ``targets``, ``inputs`` (JSON, actuated scenes: names, units,
 input matrix, excitation, hold), ``package_version``, ``created``, ``complete`` and, in a file of some splits only, ``subset``
-(JSON list of the splits it holds). Files written before
+(JSON list of the splits it holds). A scene that records its own data adds its method (``robot_arm``:
+``recording``, the controller, gains, rates, reference and noise; ``robot``, the description and its
+perturbation; ``energy`` and ``work`` are then those of the true motion, ``q`` may carry encoder noise). Files written before
 ``tau`` existed read as unactuated. Imported recordings (``lnn-torch import``; attribute
 ``measured``) have no ``qdd`` and no ``energy`` (nothing is known but the measurements), a scene
 ``measured`` without parameters, ``lengths``, ``recordings`` and ``provenance``.
@@ -48,7 +51,7 @@ FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "params")  # every file
 SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
-OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index")
+OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index", "q_ref")
 SPLITS = ("train", "val", "test")
 
 

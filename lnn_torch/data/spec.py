@@ -7,7 +7,6 @@ import math
 from dataclasses import asdict, dataclass, field
 
 from ..errors import InputError
-from ..excitation import validate as validate_excitation
 from ..integrators import METHODS
 from ..systems import System, get_system
 
@@ -35,7 +34,8 @@ class DatasetSpec:
         targets: ``"analytic"`` (the scene's closed-form accelerations, default) or
             ``"finite_difference"`` (second-order central differences of qd, as for measured data).
         excitation: the input signals of an actuated scene (``lnn_torch.excitation``); empty: the
-            scene's ``default_excitation()``. Refused for a scene without inputs.
+            scene's ``default_excitation()``. Refused for a scene without inputs, and by a scene whose
+            inputs come from its own recording (``robot_arm``: a tracking controller's torques).
     """
 
     scene: str = "double_pendulum"
@@ -104,8 +104,7 @@ class DatasetSpec:
 
     def input_signal(self) -> dict:
         """The excitation of the inputs (the scene's default when the spec names none), validated."""
-        system = self.build_system()
-        return validate_excitation(self.excitation or system.default_excitation(), system.num_inputs)
+        return self.build_system().input_signal(self.excitation)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)

@@ -1,7 +1,8 @@
 """A serial arm read from its robot description (MJCF) by MuJoCo, which is its ground truth: joint-space
 mass matrix, bias forces, passive (damping) forces, inverse and forward dynamics, potential energy,
 batched over states and payloads (a loop over MuJoCo's single-state calls: MuJoCo has no batched call
-for these; about 3-4 us per state).
+for these; about 3-4 us per state), and the engine's own RK4 integration of one sample interval under
+a held torque (``start``/``hold``: data generation).
 
 Conventions: ``q`` the joint angles of the description (rad; its zero configuration and axes; the
 Panda's q = 0 lies outside joint 4's range), ``qd`` rad/s, torques N m at the joints, gravity -9.81
@@ -12,9 +13,23 @@ given no payload computes the arm with the description's own (massless in the sh
 carries over between calls.
 
     M qdd + bias(q, qd) = tau + passive(qd)      (passive = -damping qd; armature is in M)
+
+The dynamics are the smooth ones: MuJoCo's constraint solver (joint limits, contacts) is switched off,
+so that forward dynamics is ``qacc_smooth`` everywhere, also outside the joint ranges. ``damping=False``
+(the methods that take it) switches the joint damper off (``mjDSBL_DAMPER``): the arm without its
+passive force, to which a caller adds its own generalised force.
+
+A perturbed arm (``perturbation=seed``): "a real arm is not its description". The compiled model is
+edited, seeded: every moving body's mass (payload excepted) times U(0.8, 1.2), its centre of mass
+shifted by U(-0.01, 0.01) m per axis (its own frame), its three principal inertias each times U(0.7,
+1.3), the three factors drawn again together until the perturbed inertias satisfy the triangle
+inequality (a rigid body's); each joint's armature times U(0.7, 1.3) and damping times U(0.5, 2.0).
+``perturbation_report()`` gives the nominal and perturbed values.
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -23,6 +38,9 @@ from ..errors import InputError
 from . import description_path
 
 PAYLOAD_BODY = "payload"
+# the perturbation's factors and offsets (module docstring)
+MASS_FACTOR, COM_SHIFT, INERTIA_FACTOR = (0.8, 1.2), 0.01, (0.7, 1.3)
+ARMATURE_FACTOR, DAMPING_FACTOR = (0.7, 1.3), (0.5, 2.0)
 
 
 def _mujoco():
@@ -44,35 +62,96 @@ def load_description(description="franka_panda"):
 
 
 class MujocoArm:
-    """The dynamics of a description's arm, the payload a parameter (see the module docstring)."""
+    """The dynamics of a description's arm, the payload a parameter (see the module docstring).
 
-    def __init__(self, description="franka_panda") -> None:
+    Args:
+        description: a shipped description's name (``franka_panda``) or the path of an MJCF file.
+        perturbation: None (the description as written) or an int seed of the perturbed arm.
+    """
+
+    def __init__(self, description="franka_panda", perturbation: int | None = None) -> None:
         mujoco = _mujoco()
         self.path = description_path(description)
         try:
             self.model = mujoco.MjModel.from_xml_path(str(self.path))
         except ValueError as err:
-            raise InputError(f"robot description {self.path}: {str(err).splitlines()[0]}") from None
+            lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+            where = f" ({'; '.join(lines[1:])})" if len(lines) > 1 else ""
+            raise InputError(f"robot description {self.path}: {lines[0] if lines else err}{where}") from None
         m = self.model
-        if m.nq != m.nv or m.nv == 0 or any(m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE for j in range(m.njnt)):
-            raise InputError(f"robot description {self.path}: a serial arm of hinge joints is expected "
-                             f"({m.njnt} joints, nq = {m.nq}, nv = {m.nv})")
+        _check_serial_arm(m, self.path)
         self.payload_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
         if self.payload_id < 0:
             raise InputError(f"robot description {self.path} has no body '{PAYLOAD_BODY}' at its flange (add "
                              f"<body name=\"{PAYLOAD_BODY}\" pos=...><inertial mass=\"0\" pos=\"0 0 0\" "
                              "diaginertia=\"0 0 0\"/></body> to the last link)")
+        # smooth dynamics (no joint-limit or contact constraints); the engine's energies on
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+        m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         # a body compiled with its centre of mass at its origin ignores later edits of it, unless told
         m.body_sameframe[self.payload_id] = 0
+        self.moving_bodies = tuple(int(b) for b in range(1, m.nbody)
+                                   if m.body_weldid[b] != 0 and b != self.payload_id and m.body_mass[b] > 0)
+        self._nominal = self._inertials()
+        self.perturbation = None if perturbation is None else int(perturbation)
+        if self.perturbation is not None:
+            self._perturb(np.random.default_rng(self.perturbation))
         i = self.payload_id  # the description's own payload (massless in the shipped ones): payload=None
         self._written = (float(m.body_mass[i]), m.body_ipos[i].copy(), m.body_inertia[i].copy(), m.body_iquat[i].copy())
+        self._loaded = None  # the payload row last written into the model
         self.data = mujoco.MjData(m)
+        self._sim = None  # the MjData of start/hold
         self.dof = int(m.nv)
         self.joint_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt))
+        self.body_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody))
+        self.actuator_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(m.nu))
         self.joint_range = torch.tensor(m.jnt_range, dtype=torch.float64)
         self.armature = torch.tensor(m.dof_armature, dtype=torch.float64)
         self.damping = torch.tensor(m.dof_damping, dtype=torch.float64)
         self.gravity = torch.tensor(m.opt.gravity, dtype=torch.float64)
+
+    # ------------------------------------------------------------------ perturbation
+    def _inertials(self) -> dict:
+        """Copies of the values a perturbation edits (moving bodies; every joint)."""
+        m, b = self.model, list(self.moving_bodies)
+        return {"mass": m.body_mass[b].copy(), "com": m.body_ipos[b].copy(), "inertia": m.body_inertia[b].copy(),
+                "armature": m.dof_armature.copy(), "damping": m.dof_damping.copy()}
+
+    def _perturb(self, rng: np.random.Generator) -> None:
+        """Edit the compiled model in place (module docstring); draws in a fixed order: per moving body
+        its mass factor, centre-of-mass shift and inertia factors, then the armature and damping factors."""
+        m = self.model
+        for b in self.moving_bodies:
+            m.body_mass[b] *= rng.uniform(*MASS_FACTOR)
+            m.body_ipos[b] += rng.uniform(-COM_SHIFT, COM_SHIFT, 3)
+            principal = m.body_inertia[b].copy()
+            for _ in range(100_000):
+                scaled = principal * rng.uniform(*INERTIA_FACTOR, 3)
+                if np.all(scaled <= scaled.sum() - scaled):  # the triangle inequality of a rigid body
+                    break
+            else:  # pragma: no cover - only a degenerate inertia (a point or a rod) can fail
+                raise InputError(f"robot description {self.path}: no perturbation of body {b}'s inertia "
+                                 f"{principal.tolist()} satisfies the triangle inequality")
+            m.body_inertia[b] = scaled
+            m.body_sameframe[b] = 0  # the shifted centre of mass is no longer the body's origin
+        m.dof_armature[:] *= rng.uniform(*ARMATURE_FACTOR, m.nv)
+        m.dof_damping[:] *= rng.uniform(*DAMPING_FACTOR, m.nv)
+
+    def perturbation_report(self) -> dict:
+        """The nominal (description's) and the model's values of everything a perturbation edits:
+        ``{"seed", "bodies": {name: {"mass": [nominal, value] (kg), "com": [[3], [3]] (m, body frame),
+        "principal_inertia": [[3], [3]] (kg m^2)}}, "joints": {name: {"armature": [nominal, value]
+        (kg m^2), "damping": [nominal, value] (N m s/rad)}}}`` (the two equal without a perturbation)."""
+        now = self._inertials()
+        bodies = {self.body_names[b]: {"mass": [float(self._nominal["mass"][k]), float(now["mass"][k])],
+                                       "com": [self._nominal["com"][k].tolist(), now["com"][k].tolist()],
+                                       "principal_inertia": [self._nominal["inertia"][k].tolist(),
+                                                             now["inertia"][k].tolist()]}
+                  for k, b in enumerate(self.moving_bodies)}
+        joints = {name: {"armature": [float(self._nominal["armature"][j]), float(now["armature"][j])],
+                         "damping": [float(self._nominal["damping"][j]), float(now["damping"][j])]}
+                  for j, name in enumerate(self.joint_names)}
+        return {"seed": self.perturbation, "bodies": bodies, "joints": joints}
 
     # ------------------------------------------------------------------ payload
     def set_payload(self, payload) -> None:
@@ -95,24 +174,44 @@ class MujocoArm:
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, v.reshape(-1))
         m.body_inertia[i], m.body_iquat[i] = np.clip(w, 0, None), quat
+        self._loaded = p.tobytes()
+
+    def _load_payload(self, row) -> None:
+        """Write a payload row (None: the description's own) unless it is the one already loaded."""
+        if row is None:
+            m, i = self.model, self.payload_id
+            m.body_mass[i], m.body_ipos[i], m.body_inertia[i], m.body_iquat[i] = self._written
+            self._loaded = None
+        elif np.asarray(row, dtype=np.float64).tobytes() != self._loaded:
+            self.set_payload(row)
 
     # ------------------------------------------------------------------ per state
+    @contextmanager
+    def _damper(self, on: bool):
+        """The joint damper on (the description's) or off (``mjDSBL_DAMPER``) within the block."""
+        flag = int(_mujoco().mjtDisableBit.mjDSBL_DAMPER)
+        opt = self.model.opt
+        old = opt.disableflags
+        opt.disableflags = (old & ~flag) if on else (old | flag)
+        try:
+            yield
+        finally:
+            opt.disableflags = old
+
     def _each(self, q, qd=None, payload=None, qdd=None, tau=None):
         """Yield ``k`` after loading state ``k`` (and its payload) into ``self.data``."""
         q = _array(q, "q", self.dof)
         B = q.shape[0]
         arrays = {name: _array(x, name, self.dof, B) for name, x in (("qd", qd), ("qdd", qdd), ("tau", tau))
                   if x is not None}
-        if payload is None:
-            m, i = self.model, self.payload_id
-            m.body_mass[i], m.body_ipos[i], m.body_inertia[i], m.body_iquat[i] = self._written
-        else:
+        if payload is not None:  # one payload, or one per state
             payload = np.asarray(payload, dtype=np.float64)
-            payload = payload.reshape(B if payload.ndim > 1 else 1, -1)  # one payload, or one per state
+            payload = payload.reshape(-1, payload.shape[-1]) if payload.ndim > 1 else payload[None]
+            if len(payload) not in (1, B):
+                raise InputError(f"payload must be one row or one per state ({B}), got {len(payload)} rows")
         d = self.data
         for k in range(B):
-            if payload is not None and (k == 0 or len(payload) > 1):
-                self.set_payload(payload[k if len(payload) > 1 else 0])
+            self._load_payload(None if payload is None else payload[k if len(payload) > 1 else 0])
             d.qpos[:] = q[k]
             d.qvel[:] = arrays["qd"][k] if "qd" in arrays else 0.0
             d.qacc[:] = arrays["qdd"][k] if "qdd" in arrays else 0.0
@@ -130,12 +229,25 @@ class MujocoArm:
             mujoco.mj_fullM(self.model, self.data, out[k])
         return torch.from_numpy(out)
 
-    def _forward_field(self, field: str, q, qd=None, payload=None, tau=None) -> torch.Tensor:
+    def potential(self, q, payload=None) -> torch.Tensor:
+        """Gravitational potential energy ``(B,)`` in J: MuJoCo's ``mj_energyPos``, ``-sum_i m_i g .
+        x_i`` over the bodies (their centres of mass ``x_i``, payload included; the fixed base adds a
+        constant)."""
+        mujoco = _mujoco()
+        out = np.zeros(len(_array(q, "q", self.dof)))
+        for k in self._each(q, payload=payload):
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_energyPos(self.model, self.data)
+            out[k] = self.data.energy[0]
+        return torch.from_numpy(out)
+
+    def _forward_field(self, field: str, q, qd=None, payload=None, tau=None, damping: bool = True) -> torch.Tensor:
         mujoco = _mujoco()
         out = np.zeros((len(_array(q, "q", self.dof)), self.dof))
-        for k in self._each(q, qd, payload, tau=tau):
-            mujoco.mj_forward(self.model, self.data)
-            out[k] = getattr(self.data, field)
+        with self._damper(damping):
+            for k in self._each(q, qd, payload, tau=tau):
+                mujoco.mj_forward(self.model, self.data)
+                out[k] = getattr(self.data, field)
         return torch.from_numpy(out)
 
     def bias(self, q, qd, payload=None) -> torch.Tensor:
@@ -150,21 +262,78 @@ class MujocoArm:
         """Joint damping forces ``-damping qd`` (MuJoCo's ``qfrc_passive`` of this description)."""
         return -torch.as_tensor(np.asarray(qd), dtype=torch.float64) * self.damping
 
-    def forward(self, q, qd, tau, payload=None) -> torch.Tensor:
-        """Accelerations ``(B, n)`` under joint torques ``tau`` (smooth dynamics: no joint-limit
-        constraint, ``qacc_smooth``)."""
-        return self._forward_field("qacc_smooth", q, qd, payload, tau)
+    def forward(self, q, qd, tau, payload=None, damping: bool = True) -> torch.Tensor:
+        """Accelerations ``(B, n)`` under joint torques ``tau`` (smooth dynamics, ``qacc_smooth``);
+        ``damping=False``: without the joint damper (``M qdd + bias = tau``)."""
+        return self._forward_field("qacc_smooth", q, qd, payload, tau, damping)
 
-    def inverse(self, q, qd, qdd, payload=None) -> torch.Tensor:
+    def inverse(self, q, qd, qdd, payload=None, damping: bool = True) -> torch.Tensor:
         """The joint torques ``(B, n)`` that give ``qdd`` (MuJoCo's ``mj_inverse``: ``M qdd + bias -
-        passive``)."""
+        passive``; ``damping=False``: ``M qdd + bias``)."""
         mujoco = _mujoco()
         out = np.zeros((len(_array(q, "q", self.dof)), self.dof))
-        for k in self._each(q, qd, payload, qdd=qdd):
-            mujoco.mj_inverse(self.model, self.data)
-            out[k] = self.data.qfrc_inverse
+        with self._damper(damping):
+            for k in self._each(q, qd, payload, qdd=qdd):
+                mujoco.mj_inverse(self.model, self.data)
+                out[k] = self.data.qfrc_inverse
         return torch.from_numpy(out)
 
+    # ------------------------------------------------------------------ integration (data generation)
+    def start(self, q, qd, payload=None) -> None:
+        """Put the arm at ``q``, ``qd`` ``(n,)`` with its payload: the state that ``hold`` advances."""
+        q, qd = (_array(np.reshape(x, (1, -1)), name, self.dof)[0] for name, x in (("q", q), ("qd", qd)))
+        if self._sim is None:  # its own MjData: the per-state methods may run between two holds
+            self._sim = _mujoco().MjData(self.model)
+        self._load_payload(payload)
+        self._sim_payload = payload if payload is None else np.asarray(payload, dtype=np.float64).copy()
+        self._sim.qpos[:], self._sim.qvel[:], self._sim.qfrc_applied[:] = q, qd, 0.0
+
+    def hold(self, tau, dt: float, substeps: int = 1):
+        """Advance the state of ``start`` by ``dt`` s under the torques ``tau (n,)`` held constant
+        (N m, zero-order hold): MuJoCo's RK4 (``mj_RungeKutta``) in ``substeps`` steps of ``dt /
+        substeps``, damper on, no constraints.
+
+        Returns ``(qdd, work)``: the acceleration at the start under ``tau`` ``(n,)`` (the engine's
+        ``qacc``, exactly ``forward(q, qd, tau)``) and the work ``(2,)`` in J over the interval of the
+        torques ``int tau . qd dt`` and of the damper ``int -qd . D qd dt``, each by the trapezoidal
+        rule with its end correction (error O(h^5) per step of length h: ``h/2 (P0 + P1) + h^2/12
+        (P0' - P1')``, ``P' = tau . qdd`` and ``-2 qd . D qdd``). The new state is ``state()``.
+        """
+        mujoco = _mujoco()
+        if self._sim is None:
+            raise InputError("MujocoArm.hold: call start() first")
+        m, d = self.model, self._sim
+        self._load_payload(self._sim_payload)  # (unless loaded: the per-state methods may load others)
+        tau = _array(np.reshape(tau, (1, -1)), "tau", self.dof)[0]
+        if not (np.isfinite(dt) and dt > 0 and int(substeps) >= 1):
+            raise InputError(f"MujocoArm.hold: dt must be positive and substeps >= 1, got dt={dt}, substeps={substeps}")
+        h = dt / int(substeps)
+        D = m.dof_damping
+        m.opt.timestep = h
+        d.qfrc_applied[:] = tau
+        work = np.zeros(2)
+
+        def powers():
+            qd, qdd = d.qvel, d.qacc
+            return (np.array([tau @ qd, -qd @ (D * qd)]), np.array([tau @ qdd, -2 * qd @ (D * qdd)]))
+
+        with self._damper(True):
+            mujoco.mj_forward(m, d)
+            qdd0 = d.qacc.copy()
+            p0, dp0 = powers()
+            for _ in range(int(substeps)):
+                mujoco.mj_RungeKutta(m, d, 4)
+                mujoco.mj_forward(m, d)  # the accelerations at the step's end (the next step's start)
+                p1, dp1 = powers()
+                work += h / 2 * (p0 + p1) + h**2 / 12 * (dp0 - dp1)
+                p0, dp0 = p1, dp1
+        return qdd0, work
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current ``(q, qd)`` of ``start``/``hold``, copies ``(n,)`` each."""
+        return self._sim.qpos.copy(), self._sim.qvel.copy()
+
+    # ------------------------------------------------------------------ identification
     def payload_regressor(self, q, qd, qdd) -> torch.Tensor:
         """``Y (B, n, 10)``: the joint torques a payload adds are linear in its inertial parameters
         ``pi = (m, m c (3), I_o (Ixx, Iyy, Izz, Ixy, Ixz, Iyz))`` (centre of mass ``c`` and inertia ``I_o``
@@ -224,6 +393,33 @@ class MujocoArm:
         """Joint angles uniform within the description's ranges, ``margin`` rad inside each end."""
         low, high = self.joint_range[:, 0].numpy() + margin, self.joint_range[:, 1].numpy() - margin
         return rng.uniform(low, high, (n, self.dof))
+
+
+def _check_serial_arm(m, path) -> None:
+    """Refuse, in one line, what is not a serial arm of hinge joints with massive links: another joint
+    type, a branched kinematic tree (two moving children of one body), a moving body without mass."""
+    mujoco = _mujoco()
+    name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
+    joint_type = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball",
+                  int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
+    for j in range(m.njnt):
+        if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
+            raise InputError(f"robot description {path}: joint '{name(mujoco.mjtObj.mjOBJ_JOINT, j)}' is a "
+                             f"{joint_type.get(int(m.jnt_type[j]), 'non-hinge')} joint; only hinge joints are supported")
+    if m.nv == 0:
+        raise InputError(f"robot description {path} has no joints: a serial arm of hinge joints is expected")
+    for i in range(1, m.nv):  # in a serial chain each joint hangs from the one before it
+        if m.dof_parentid[i] != i - 1:
+            parent = 0 if m.dof_parentid[i] < 0 else m.dof_bodyid[m.dof_parentid[i]]
+            raise InputError(f"robot description {path}: the kinematic tree branches at body "
+                             f"'{name(mujoco.mjtObj.mjOBJ_BODY, parent)}' (joint "
+                             f"'{name(mujoco.mjtObj.mjOBJ_JOINT, m.dof_jntid[i])}' does not continue the chain "
+                             f"after joint '{name(mujoco.mjtObj.mjOBJ_JOINT, m.dof_jntid[i - 1])}'): a serial "
+                             "arm is expected")
+    for b in range(1, m.nbody):
+        if m.body_jntnum[b] > 0 and not m.body_mass[b] > 0:
+            raise InputError(f"robot description {path}: body '{name(mujoco.mjtObj.mjOBJ_BODY, b)}' moves but "
+                             "has no mass (give it an <inertial>)")
 
 
 def _array(x, name: str, dof: int, batch: int | None = None) -> np.ndarray:

@@ -11,10 +11,11 @@ from .mass_spring import MassSpring
 from .measured import MeasuredSystem
 from .pendulum import Pendulum
 from .relativistic_particle import RelativisticParticle
+from .robot_arm import RobotArm
 
 SYSTEMS: dict[str, type[System]] = {
     cls.name: cls for cls in (DoublePendulum, Pendulum, MassSpring, ChainPendulum, RelativisticParticle,
-                              ActuatedDoublePendulum, MeasuredSystem)
+                              ActuatedDoublePendulum, RobotArm, MeasuredSystem)
 }
 
 
@@ -32,4 +33,4 @@ def get_system(name: str, **config) -> System:
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
            "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle", "ActuatedDoublePendulum",
-           "MeasuredSystem"]
+           "RobotArm", "MeasuredSystem"]

@@ -22,9 +22,11 @@ import numpy as np
 import torch
 
 from ..errors import InputError  # also importable from here, where it was first defined
+from ..excitation import validate as validate_excitation
 from ..forces import check_inputs, dissipative_force, identity_or_none, input_force
 
 GRAVITY = 9.81  # m/s^2, the one gravity constant of the project
+PARAM_KINDS = ("positive", "nonnegative", "real")  # see ``System.param_kinds``
 
 
 @dataclass(frozen=True)
@@ -64,8 +66,12 @@ def as_range(value, name: str) -> Range:
 
 def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
     """Raise ``InputError`` naming the parameters that are not positive (kind ``positive``) or are
-    negative (kind ``nonnegative``, e.g. friction coefficients)."""
+    negative (kind ``nonnegative``, e.g. friction coefficients); a parameter of kind ``real`` (a
+    position, of either sign) may take any finite value."""
     kinds = list(kinds)
+    unknown = sorted(set(kinds) - set(PARAM_KINDS))
+    if unknown:
+        raise InputError(f"{where}: unknown parameter kind(s) {unknown}; known: {', '.join(PARAM_KINDS)}")
     if not kinds or params.numel() == 0:  # a system without parameters (a measured one), or no rows
         return
     # one reduction: the smallest value of each parameter (NaN propagates and is refused too)
@@ -96,14 +102,19 @@ class System(abc.ABC):
     conventions: str = ""
     gravity: float = GRAVITY
     speed_limit: float | None = None  # |qd| must stay below this (the relativistic particle's c = 1)
-    # per parameter: "positive" (masses, lengths; normalised as logarithms) or "nonnegative"
-    # (friction coefficients, which may be zero); empty means all positive
+    # per parameter: "positive" (masses, lengths; normalised as logarithms), "nonnegative" (friction
+    # coefficients, which may be zero) or "real" (any sign, e.g. a centre of mass; z-scored as it
+    # is); empty means all positive
     param_kinds: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()  # one per input (motor torques), in N m
     coulomb_velocity: float = 0.05  # rad/s: the smoothing of Coulomb friction, tanh(rate / v)
     # fixed integrator steps per sample interval of the ground truth (stiff friction needs more)
     ground_truth_substeps: int = 1
     closed_form = True  # False for a measured system: no closed-form dynamics, energy or sampler
+    # False for an engine-backed scene (``robot_arm``): its physics is exact but not torch-differentiable
+    # (no autograd through it, no torch.func transforms), so the generic tests that differentiate a
+    # Lagrangian leave it out
+    differentiable = True
 
     @property
     def num_params(self) -> int:
@@ -168,6 +179,26 @@ class System(abc.ABC):
 
     def default_excitation(self) -> dict:
         """The input signal a generated dataset uses when its spec names none (``lnn_torch.excitation``)."""
+        return {}
+
+    def input_signal(self, excitation: dict) -> dict:
+        """The excitation a dataset spec's ``excitation`` stands for, validated (the scene's default
+        when empty; ``lnn_torch.excitation``): what generation uses and the file records."""
+        return validate_excitation(excitation or self.default_excitation(), self.num_inputs)
+
+    # ------------------------------------------------------------------ data generation (optional)
+    def generate_trajectories(self, spec, indices=None, progress: bool = False) -> dict | None:
+        """A scene that records its data its own way (an engine-backed arm tracking a reference)
+        returns the arrays of ``lnn_torch.data.generate_arrays`` for the trajectories ``indices`` of
+        ``spec`` (default all), each seeded by ``trajectory_rng(spec.seed, index)``; None (default):
+        the generic path (the closed form integrated by ``integrate_ground_truth``, inputs from the
+        spec's excitation)."""
+        return None
+
+    def generation_attrs(self, spec, arrays: dict, residual: float) -> dict:
+        """File attributes that replace ``generate_dataset``'s defaults for data the scene recorded
+        itself (its integrator and method, stated honestly; ``residual`` the largest relative
+        power-balance residual); default none."""
         return {}
 
     @property
