@@ -54,13 +54,39 @@ SCENES = {
     "actuated_double_pendulum": dict(path="data/actuated_double_pendulum.h5",
                                      spec=dict(num_trajectories=200, duration=10.0, seed=0),
                                      minutes=5.0, horizon=10.0, threshold=0.1),
+    # the 7-joint arm (MuJoCo ground truth): the data of configs/robot_arm.yaml; one integrator at the
+    # data's rate; single points from many trajectories per batch (four payload parameters), the
+    # inverse-dynamics (torque) loss beside the acceleration loss, checkpoints kept for identification
+    "robot_arm": dict(path="data/robot_arm.h5", spec=dict(num_trajectories=200, duration=10.0, dt=0.005, seed=0),
+                      minutes=6.0, horizon=5.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
+                      chunks_per_batch=512, torque_weight=1.0, variants="arm"),
+    # the same arm built from a perturbed copy of its description (masses +-20 %, centres of mass +-1 cm,
+    # inertias +-30 %, armature and damping changed): what a user with a URDF and a real robot has
+    "robot_arm_perturbed": dict(scene="robot_arm", scene_config={"perturbation": 1}, path="data/robot_arm_perturbed.h5",
+                                spec=dict(num_trajectories=200, duration=10.0, dt=0.005, seed=0),
+                                minutes=6.0, horizon=5.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
+                                chunks_per_batch=512, torque_weight=1.0, variants="perturbed_arm"),
+}
+GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}, "eps": 0.0}
+RESIDUAL = {"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}, "eps": 0.0}
+DESCRIPTION = {"kinetic": {"spatial": {"learn": False}}, "potential": {"spatial": {}}, "eps": 0.0}
+ARM_VARIANTS = {
+    "arm": [("film_lnn", {"variant": "film_lnn"}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX}),
+            ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL}),
+            ("delan", {"variant": "delan"}), ("lnn", {"variant": "lnn"}), ("mlp", {"variant": "mlp"})],
+    "perturbed_arm": [("description (inertia as shipped, friction fitted)", {"variant": "film_lnn", "model_options": DESCRIPTION}),
+                      ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX}),
+                      ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL}),
+                      ("film_lnn", {"variant": "film_lnn"})],
 }
 INTEGRATORS = [("rk4", 0.005), ("rk4", 0.01), ("leapfrog", 0.005), ("leapfrog", 0.01),
                ("semi_implicit_euler", 0.005), ("semi_implicit_euler", 0.001)]
 
 
-def variants_for(system) -> list[tuple[str, dict]]:
+def variants_for(system, cfg: dict | None = None) -> list[tuple[str, dict]]:
     """(row name, LNNModule overrides) of every variant that applies to the scene."""
+    if cfg and cfg.get("variants"):
+        return ARM_VARIANTS[cfg["variants"]]
     rows = [("film_lnn", {"variant": "film_lnn"}), ("delan", {"variant": "delan"})] if system.quadratic_kinetic else []
     rows += [("lnn", {"variant": "lnn"}), ("mlp", {"variant": "mlp"}),
              ("hnn (canonical p)", {"variant": "hnn", "hnn_coordinates": "canonical"})]
@@ -107,8 +133,11 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
             self.points.append((self.train_s, float((pred - qdd).norm() / qdd.norm())))
 
     torch.manual_seed(args.seed)
-    dm = TrajectoryDataModule(path=str(ROOT / cfg["path"]), spec=dict(scene=scene, **cfg["spec"]),
-                              chunk_len=args.chunk_len, chunks_per_batch=args.chunks_per_batch, steps_per_epoch=500,
+    scene, scene_config = cfg.get("scene", scene), cfg.get("scene_config", {})
+    dm = TrajectoryDataModule(path=str(ROOT / cfg["path"]),
+                              spec=dict(scene=scene, scene_config=scene_config, **cfg["spec"]),
+                              chunk_len=cfg.get("chunk_len", args.chunk_len),
+                              chunks_per_batch=cfg.get("chunks_per_batch", args.chunks_per_batch), steps_per_epoch=500,
                               seed=args.seed)
     dm.prepare_data()
     val = dm.trajectories("val", 64)
@@ -118,7 +147,9 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     # every sampled point with its trajectory's parameters (and recorded inputs, for an actuated scene)
     params = val.params[:, None].expand(-1, T, -1).reshape(-1, val.params.shape[-1]).float()
     sample = [flat(val.q), flat(val.qd), flat(val.qdd), params, None if val.tau is None else flat(val.tau)]
-    model = LNNModule(scene=scene, val_rollouts=0, energy_weight=args.energy_weight, hidden_dims=[128, 128], **overrides)
+    extra = {"torque_weight": cfg["torque_weight"]} if "torque_weight" in cfg else {}
+    model = LNNModule(scene=scene, scene_config=scene_config, val_rollouts=0, energy_weight=args.energy_weight,
+                      hidden_dims=[128, 128], **extra, **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
     trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
                         num_sanity_val_steps=0, inference_mode=False, gradient_clip_val=1.0,
@@ -128,6 +159,10 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
                         callbacks=[curve], accelerator="cpu", devices=1)
     start = time.perf_counter()
     trainer.fit(model, dm)
+    if args.save_checkpoints:
+        path = Path(args.output_dir) / "checkpoints" / f"{cfg.get('name', scene)}_{name.split(' (')[0].replace(' ', '_').replace('+', 'plus')}.ckpt"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        trainer.save_checkpoint(path)
     model.eval()
     return model, dm, {"train_seconds": time.perf_counter() - start, "steps": trainer.global_step,
                        "skipped_steps": int(model.skipped_steps), "curve": curve.points}, trainer.log_dir
@@ -159,7 +194,7 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     throughput = n / median_seconds(ev, repeats=5)
     rows = []
     B = len(test)
-    for method, dt in INTEGRATORS:
+    for method, dt in cfg.get("integrators", INTEGRATORS):
         row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc["total"],
                "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput, "torque_nrmse": torque}
         if first_order and method not in ("rk4", "rk8"):
@@ -204,7 +239,8 @@ def acc_cell(r: dict) -> str:
 def energy_label(result: dict) -> str:
     from lnn_torch.systems import get_system
 
-    return "power-balance error" if get_system(result["scene"]).has_forces else "true-energy drift"
+    forces = result["has_forces"] if "has_forces" in result else get_system(result["scene"]).has_forces
+    return "power-balance error" if forces else "true-energy drift"
 
 
 def drift_cell(r: dict) -> str:
@@ -339,6 +375,8 @@ def main() -> None:
     ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
     ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
+    ap.add_argument("--save-checkpoints", action="store_true",
+                    help="keep each trained model under <output-dir>/checkpoints (for the arm's identification study)")
     ap.add_argument("--stability-seconds", type=float, default=2.0, help="rollout length of the hard cases, s")
     add_output_dir(ap, str(OUT), "the folder of the results (and of the merged report)")
     ap.add_argument("--report", action="store_true",
@@ -363,9 +401,10 @@ def main() -> None:
         import inspect
 
         args.energy_weight = inspect.signature(LNNModule.__init__).parameters["energy_weight"].default
-    system = get_system(args.scene)
-    rows_spec = [v for v in variants_for(system) if args.variants is None or v[0] in args.variants]
-    result = {"scene": args.scene, "minutes": args.minutes, "train_threads": args.threads,
+    cfg["name"] = args.scene
+    system = get_system(cfg.get("scene", args.scene), **cfg.get("scene_config", {}))
+    rows_spec = [v for v in variants_for(system, cfg) if args.variants is None or v[0] in args.variants]
+    result = {"scene": args.scene, "has_forces": system.has_forces, "minutes": args.minutes, "train_threads": args.threads,
               "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in

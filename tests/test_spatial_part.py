@@ -190,3 +190,29 @@ def test_bad_part_options_are_refused_in_one_line(tmp_path):
         build_model("film_lnn", scene, kinetic={"spatial": {"description": "franka_panda"}})
     with pytest.raises(InputError, match="needs the kinetic part 'spatial'"):
         build_model("film_lnn", ARM, potential="spatial")
+
+
+def test_identification_with_the_exact_part_recovers_the_payload(arm, float64):
+    """Noise-free engine data (states with the engine's accelerations under the recorded torques) and
+    the grey box with the description's parameters and damping: ``identify`` recovers the payload's
+    mass and centre of mass to 1e-6."""
+    from lnn_torch.identification import identify
+    from lnn_torch.systems import get_system
+
+    system = get_system("robot_arm")
+    model = _grey_box().double()
+    rng = np.random.default_rng(7)
+    params = torch.tensor(system.sample_params(rng, 64))
+    model.fit_normalizer({"q": torch.zeros(1, 7), "qd": torch.zeros(1, 7), "qdd": torch.ones(1, 7), "params": params})
+    forces = model.forces
+    with torch.no_grad():
+        b = torch.as_tensor(arm.damping) / forces.units[0]
+        forces.coefficient_net[-1].bias.copy_(torch.cat([b + torch.log(-torch.expm1(-b)), torch.full((7,), -60.0)]))
+    truth = torch.tensor([1.7, 0.02, -0.03, 0.06])
+    n = 200
+    q = torch.tensor(arm.sample_q(rng, n))
+    qd, tau = torch.tensor(rng.normal(size=(n, 7))), torch.tensor(rng.normal(scale=5.0, size=(n, 7)))
+    qdd = arm.forward(q, qd, tau, truth)
+    found = identify(model, system, np.arange(n) * 0.01, q.numpy(), qd.numpy(), tau.numpy(), qdd.numpy(), starts=2)
+    estimate = torch.tensor([found.params[name] for name in system.param_names])
+    assert (estimate - truth).abs().max() < 1e-6, estimate - truth
