@@ -216,3 +216,14 @@ def test_identification_with_the_exact_part_recovers_the_payload(arm, float64):
     found = identify(model, system, np.arange(n) * 0.01, q.numpy(), qd.numpy(), tau.numpy(), qdd.numpy(), starts=2)
     estimate = torch.tensor([found.params[name] for name in system.param_names])
     assert (estimate - truth).abs().max() < 1e-6, estimate - truth
+
+
+def test_the_grey_box_starts_its_friction_at_the_descriptions_damping(arm):
+    """After the normaliser is fitted (the force units set), the joint friction of a model with the
+    spatial part is the description's viscous damping with a negligible Coulomb level."""
+    model = _grey_box()
+    q, qd, qdd, tau, payload = _batch(arm, n=64)
+    model.fit_normalizer({"q": q, "qd": qd, "qdd": qdd, "params": payload, "tau": 20 * tau})
+    b, c = model.forces.coefficients(model.normalizer.params(payload[:1].float()))
+    torch.testing.assert_close(b[0].double(), arm.damping, rtol=1e-5, atol=0)
+    assert (c < 1e-3 * 20).all()

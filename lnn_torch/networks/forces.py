@@ -95,6 +95,21 @@ class LearnedForces(nn.Module):
         if self.friction:
             self.units.copy_(torch.tensor([torque_scale / max(rate_rms, 1e-6), torque_scale]))
 
+    @torch.no_grad()
+    def start_at(self, viscous: torch.Tensor, coulomb: float = 1e-4) -> None:
+        """Start the friction at known values (after ``fit_units``): viscous ``b (num_joints,)`` in N m
+        s/rad, and Coulomb ``coulomb`` times the torque unit (a grey box's description gives its joint
+        damping, not the rest)."""
+        units = self.units.double()
+        b = (viscous.double().clamp_min(1e-6) / units[0])
+        c = torch.full_like(b, coulomb)
+        raw = torch.cat([b + torch.log(-torch.expm1(-b)), c + torch.log(-torch.expm1(-c))])
+        if hasattr(self, "coefficient_net"):
+            self.coefficient_net[-1].weight.zero_()
+            self.coefficient_net[-1].bias.copy_(raw)
+        else:
+            self.coefficients_raw.copy_(raw)
+
     # ------------------------------------------------------------------ the forces (SI)
     def coefficients(self, params_norm: torch.Tensor):
         """Friction coefficients ``(b, c)``, each ``(B, num_joints)`` (or ``(num_joints,)`` without

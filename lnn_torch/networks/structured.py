@@ -203,6 +203,15 @@ class StructuredLagrangian(DynamicsModel):
         scales = {"time": norm.time_scale, "force": norm.force_scale}
         return self.chain.si_report(scales, norm.params(params.to(self.dtype)))
 
+    def fit_normalizer(self, stats: dict) -> None:
+        """As ``DynamicsModel.fit_normalizer``; a model with the spatial arm part then starts its joint
+        friction at the description's viscous damping (and a small Coulomb level)."""
+        super().fit_normalizer(stats)
+        spatial = self.part("kinetic", "spatial")
+        if spatial is not None and self.forces is not None and self.forces.friction and \
+                self.forces.num_joints == spatial.dof:
+            self.forces.start_at(spatial.description_damping())
+
     def coefficient_parameters(self):
         """As ``DynamicsModel.coefficient_parameters``, plus each part's own (the chain's constants, a
         harmonic series that is not a residual, a Cholesky residual's output bias)."""

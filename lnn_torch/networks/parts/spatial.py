@@ -85,7 +85,7 @@ class SpatialChain(KineticPart):
         # round), cast once per dtype and device
         self._constants = {"X": chain.X, "axis": chain.axis, "anchor": chain.anchor, "qpos0": chain.qpos0,
                            "flange": chain.flange if chain.flange is not None else torch.eye(4, dtype=torch.float64),
-                           "gravity": chain.gravity, "nominal_J": chain.J}
+                           "gravity": chain.gravity, "nominal_J": chain.J, "damping": chain.damping}
         self._cast = {}
         U = K.reverse_cholesky(chain.J)
         # in the default dtype (a float64 test builds the description's values exactly)
@@ -110,6 +110,10 @@ class SpatialChain(KineticPart):
         if self.learn:
             return getattr(self, name).to(dtype)
         return self._fixed[name].to(dtype=dtype, device=self.normalizer.time_scale.device)
+
+    def description_damping(self) -> torch.Tensor:
+        """The description's viscous joint damping ``(n,)`` in N m s/rad (where a model's friction starts)."""
+        return self._constants["damping"].clone()
 
     def coefficient_parameters(self):
         return [self.raw, self.log_armature] if self.learn else []
