@@ -67,16 +67,16 @@ SCENES = {
                                 minutes=6.0, horizon=5.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
                                 chunks_per_batch=512, torque_weight=1.0, variants="perturbed_arm"),
 }
-GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}, "eps": 0.0}
-RESIDUAL = {"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}, "eps": 0.0}
-DESCRIPTION = {"kinetic": {"spatial": {"learn": False}}, "potential": {"spatial": {}}, "eps": 0.0}
+GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
+RESIDUAL = {"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}}
+DESCRIPTION = {"kinetic": {"spatial": {"learn": False}}, "potential": {"spatial": {}}}
 ARM_VARIANTS = {
-    "arm": [("film_lnn", {"variant": "film_lnn"}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX}),
-            ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL}),
+    "arm": [("film_lnn", {"variant": "film_lnn"}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
+            ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
             ("delan", {"variant": "delan"}), ("lnn", {"variant": "lnn"}), ("mlp", {"variant": "mlp"})],
-    "perturbed_arm": [("description (inertia as shipped, friction fitted)", {"variant": "film_lnn", "model_options": DESCRIPTION}),
-                      ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX}),
-                      ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL}),
+    "perturbed_arm": [("description (inertia as shipped, friction fitted)", {"variant": "film_lnn", "model_options": DESCRIPTION, "eps": 0.0}),
+                      ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
+                      ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
                       ("film_lnn", {"variant": "film_lnn"})],
 }
 INTEGRATORS = [("rk4", 0.005), ("rk4", 0.01), ("leapfrog", 0.005), ("leapfrog", 0.01),
@@ -148,6 +148,8 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     params = val.params[:, None].expand(-1, T, -1).reshape(-1, val.params.shape[-1]).float()
     sample = [flat(val.q), flat(val.qd), flat(val.qdd), params, None if val.tau is None else flat(val.tau)]
     extra = {"torque_weight": cfg["torque_weight"]} if "torque_weight" in cfg else {}
+    if args.lr is not None:
+        extra["lr"] = args.lr
     model = LNNModule(scene=scene, scene_config=scene_config, val_rollouts=0, energy_weight=args.energy_weight,
                       hidden_dims=[128, 128], **extra, **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
@@ -372,6 +374,7 @@ def main() -> None:
     ap.add_argument("--variants", nargs="*", default=None, help="row names to run (default: all applicable)")
     ap.add_argument("--energy-weight", type=float, default=None, help="default: LNNModule's default")
     ap.add_argument("--seed", type=int, default=0, help="seed of the initialisation and the chunk sampling")
+    ap.add_argument("--lr", type=float, default=None, help="peak learning rate of every variant (default: LNNModule's)")
     ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
     ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")

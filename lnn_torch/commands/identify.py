@@ -156,7 +156,9 @@ def main(argv: list[str]) -> int:
                       starts=args.starts, steps=args.steps, window=args.window, seed=args.seed)
     reference = least_squares_reference(system, obs.t, q, obs.qd, obs.tau, obs.qdd, window=args.window)
     true_structure = None
-    if system.closed_form:  # the same fit on the scene's own equations: the ceiling
+    # the same fit on the scene's own equations (the ceiling), where torch can differentiate them (an
+    # engine-backed scene such as robot_arm has its least-squares reference instead)
+    if system.closed_form and getattr(system, "differentiable", True):
         from ..evaluation import ClosedForm
 
         exact = identify(ClosedForm(system), system, obs.t, q, obs.qd, obs.tau, obs.qdd, method=args.method,

@@ -300,6 +300,26 @@ class RobotArm(System):
         scaled[..., 0] = (params[..., 0] * k).clamp(*MASS_LIMIT)
         return scaled, f"payload mass x{k:g} (at most {MASS_LIMIT[1]:g} kg)"
 
+    # ------------------------------------------------------------------ classical identification
+    def identifiable_quantities(self) -> dict:
+        """The payload's mass and position, each its own quantity (what least squares reports)."""
+        return {name: {name: 1.0} for name in PARAM_NAMES}
+
+    def linear_regressor(self, q, qd, qdd, tau=None):
+        """Classical payload identification on the engine: the torques the payload adds, ``tau -
+        tau_arm(q, qd, qdd)`` (the engine's inverse dynamics of the arm without payload, damping
+        included), are linear in its ten inertial parameters ``(m, m c, I_o)``
+        (``MujocoArm.payload_regressor``); the quantities are ``m`` and ``c = (m c) / m``."""
+        if tau is None:
+            return None
+        Y = self.arm.payload_regressor(q, qd, qdd).reshape(-1, 10)
+        b = (torch.as_tensor(tau, dtype=torch.float64) - self.arm.inverse(q, qd, qdd)).reshape(-1)
+
+        def quantities(phi):
+            return torch.cat([phi[:1], phi[1:4] / phi[0]])
+
+        return Y, b, quantities
+
     # ------------------------------------------------------------------ data
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """The velocity (rad/s) and torque (N m) limits per joint ``(dof,)`` each, for data generation."""
