@@ -176,22 +176,32 @@ def reverse_cholesky(J: torch.Tensor) -> torch.Tensor:
     return flip(torch.linalg.cholesky(flip(J)))
 
 
+def _pairs(n: int, device) -> tuple[torch.Tensor, ...]:
+    """Index lists of the nonzero blocks: pairs ``(k, i)`` with ``k <= i`` and triples ``(m, k, i)`` with
+    ``max(m, k) <= i``."""
+    pk, pi = torch.triu_indices(n, n, device=device)
+    trip = torch.tensor([(m, k, i) for i in range(n) for m in range(i + 1) for k in range(i + 1)],
+                        device=device).T
+    return pk, pi, trip[0], trip[1], trip[2]
+
+
 def factor(T: torch.Tensor, S: torch.Tensor, U: torch.Tensor, tangents: bool = True):
     """The mass-matrix factor of the bodies, ``F (B, n, 12 n)`` with ``F F^T = sum_i tr(dT_i J_i dT_i^T)``
-    terms (``U (B or 1, n, 4, 4)``: ``J_i = U_i U_i^T``), and with ``tangents`` ``dF/dq_m (n, B, n, 12 n)``."""
+    terms (``U (B or 1, n, 4, 4)``: ``J_i = U_i U_i^T``), and with ``tangents`` ``dF/dq_m (n, B, n, 12 n)``.
+    Only the nonzero blocks are computed (``k <= i``; ``max(m, k) <= i``) and scattered into place."""
     B, n = T.shape[:2]
+    pk, pi, tm, tk, ti = _pairs(n, T.device)
     W = T @ U  # (B, n, 4, 4): T_i U_i
-    mask = torch.ones(n, n, dtype=torch.bool, device=T.device).triu()  # [k, i]: k <= i
-    F = torch.einsum("bkxy,biyr->bkixr", S[..., :3, :], W) * mask[None, :, :, None, None].to(T.dtype)
+    S3 = S[..., :3, :]
+    F = T.new_zeros(B, n, n, 12)
+    F[:, pk, pi] = (S3[:, pk] @ W[:, pi]).reshape(B, len(pk), 12)
     F = F.reshape(B, n, n * 12)
     if not tangents:
         return F, None
-    # P[m, k] = S_min S_max (B, n, n, 4, 4); nonzero where max(m, k) <= i
-    lo = torch.minimum(torch.arange(n)[:, None], torch.arange(n)[None, :]).to(T.device)
-    hi = torch.maximum(torch.arange(n)[:, None], torch.arange(n)[None, :]).to(T.device)
-    P = S[:, lo] @ S[:, hi]  # (B, n, n, 4, 4)
-    mask3 = (hi[:, :, None] <= torch.arange(n, device=T.device)[None, None, :]).to(T.dtype)  # [m, k, i]
-    dF = torch.einsum("bmkxy,biyr->mbkixr", P[..., :3, :], W) * mask3[:, None, :, :, None, None]
+    # d2T_i / dq_m dq_k = S_min(m,k) S_max(m,k) T_i where max(m, k) <= i
+    P3 = S3[:, torch.minimum(tm, tk)] @ S[:, torch.maximum(tm, tk)]  # (B, t, 3, 4)
+    dF = T.new_zeros(n, B, n, n, 12)
+    dF[tm, :, tk, ti] = (P3 @ W[:, ti]).reshape(B, len(tm), 12).transpose(0, 1)
     return F, dF.reshape(n, B, n, n * 12)
 
 
