@@ -176,33 +176,66 @@ def reverse_cholesky(J: torch.Tensor) -> torch.Tensor:
     return flip(torch.linalg.cholesky(flip(J)))
 
 
-def _pairs(n: int, device) -> tuple[torch.Tensor, ...]:
-    """Index lists of the nonzero blocks: pairs ``(k, i)`` with ``k <= i`` and triples ``(m, k, i)`` with
-    ``max(m, k) <= i``."""
+def _blocks(n: int, device) -> tuple[torch.Tensor, ...]:
+    """Index lists of the nonzero blocks: pairs ``(k, i)`` with ``k <= i`` and triples ``(k, m, i)`` with
+    ``k < m <= i``."""
     pk, pi = torch.triu_indices(n, n, device=device)
-    trip = torch.tensor([(m, k, i) for i in range(n) for m in range(i + 1) for k in range(i + 1)],
-                        device=device).T
-    return pk, pi, trip[0], trip[1], trip[2]
+    trip = [(k, m, i) for i in range(n) for m in range(i + 1) for k in range(m)]
+    tk, tm, ti = torch.tensor(trip, device=device, dtype=torch.long).reshape(-1, 3).T
+    return pk, pi, tk, tm, ti
 
 
-def factor(T: torch.Tensor, S: torch.Tensor, U: torch.Tensor, tangents: bool = True):
-    """The mass-matrix factor of the bodies, ``F (B, n, 12 n)`` with ``F F^T = sum_i tr(dT_i J_i dT_i^T)``
-    terms (``U (B or 1, n, 4, 4)``: ``J_i = U_i U_i^T``), and with ``tangents`` ``dF/dq_m (n, B, n, 12 n)``.
-    Only the nonzero blocks are computed (``k <= i``; ``max(m, k) <= i``) and scattered into place."""
+def spatial_inertia(J: torch.Tensor) -> torch.Tensor:
+    """``G (..., 6, 6)`` about the body origin in (angular, linear) order from pseudo-inertias ``(..., 4, 4)``:
+    ``[[I_o, m c^], [-m c^, m 1]]`` (``I_o = tr(Sigma) 1 - Sigma``, ``c^`` the cross-product matrix of the
+    centre of mass)."""
+    sigma, h, m = J[..., :3, :3], J[..., :3, 3], J[..., 3, 3]
+    eye = torch.eye(3, dtype=J.dtype, device=J.device)
+    inertia = sigma.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None] * eye - sigma
+    hh = _hat(h)
+    return torch.cat([torch.cat([inertia, hh], -1), torch.cat([-hh, m[..., None, None] * eye], -1)], -2)
+
+
+def _bracket(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The Lie bracket of twists ``(w, v)``: ``(w1 x w2, w1 x v2 - w2 x v1)``."""
+    w1, v1, w2, v2 = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+    cross = torch.linalg.cross
+    return torch.cat([cross(w1, w2), cross(w1, v2) - cross(w2, v1)], -1)
+
+
+def inertia_factor(J: torch.Tensor) -> torch.Tensor:
+    """``L (..., 6, 6)``, lower triangular with ``L L^T = G`` the spatial inertia of pseudo-inertias ``J``."""
+    return torch.linalg.cholesky(spatial_inertia(J))
+
+
+def factor(T: torch.Tensor, S: torch.Tensor, L: torch.Tensor, tangents: bool = True):
+    """The mass-matrix factor of the bodies, ``F (B, n, 6 n)`` with ``F F^T = sum_i Jb_i^T G_i Jb_i``
+    (``Jb_i``: body i's Jacobian in its own frame, columns ``xi_k = Ad(T_i^-1) S_k`` for ``k <= i``; ``G_i =
+    L_i L_i^T`` its spatial inertia, ``L (B or 1, n, 6, 6)`` from ``inertia_factor``: ``F[k, i-block] =
+    xi_k^T L_i``), and with ``tangents`` ``dF/dq_m (n, B, n, 6 n)`` from ``d xi_k / dq_m = [xi_k, xi_m]``
+    (``k < m <= i``, else 0). Only the nonzero blocks are computed and scattered into place."""
     B, n = T.shape[:2]
-    pk, pi, tm, tk, ti = _pairs(n, T.device)
-    W = T @ U  # (B, n, 4, 4): T_i U_i
-    S3 = S[..., :3, :]
-    F = T.new_zeros(B, n, n, 12)
-    F[:, pk, pi] = (S3[:, pk] @ W[:, pi]).reshape(B, len(pk), 12)
-    F = F.reshape(B, n, n * 12)
+    pk, pi, tk, tm, ti = _blocks(n, T.device)
+    L = L.expand(B, -1, -1, -1)  # (B, n, 6, 6)
+    R, p = T[..., :3, :3], T[..., :3, 3]  # (B, n, ...)
+    w, v = S[..., :3, :3], S[..., :3, 3]
+    w = torch.stack([w[..., 2, 1], w[..., 0, 2], w[..., 1, 0]], -1)  # the world axes (B, n, 3)
+    # xi[:, pair]: joint k's twist in body i's frame (k <= i)
+    Rt = R[:, pi].mT
+    wk = w[:, pk]
+    xi = torch.cat([(Rt @ wk[..., None])[..., 0],
+                    (Rt @ (v[:, pk] + torch.linalg.cross(wk, p[:, pi]))[..., None])[..., 0]], -1)  # (B, P, 6)
+    F = T.new_zeros(B, n, n, 6)
+    F[:, pk, pi] = (xi[..., None, :] @ L[:, pi])[..., 0, :]
+    F = F.reshape(B, n, n * 6)
     if not tangents:
         return F, None
-    # d2T_i / dq_m dq_k = S_min(m,k) S_max(m,k) T_i where max(m, k) <= i
-    P3 = S3[:, torch.minimum(tm, tk)] @ S[:, torch.maximum(tm, tk)]  # (B, t, 3, 4)
-    dF = T.new_zeros(n, B, n, n, 12)
-    dF[tm, :, tk, ti] = (P3 @ W[:, ti]).reshape(B, len(tm), 12).transpose(0, 1)
-    return F, dF.reshape(n, B, n, n * 12)
+    pair = torch.full((n, n), -1, dtype=torch.long, device=T.device)
+    pair[pk, pi] = torch.arange(len(pk), device=T.device)
+    d = _bracket(xi[:, pair[tk, ti]], xi[:, pair[tm, ti]])  # (B, t, 6)
+    dF = T.new_zeros(n, B, n, n, 6)
+    dF[tm, :, tk, ti] = (d[..., None, :] @ L[:, ti])[..., 0, :].transpose(0, 1)
+    return F, dF.reshape(n, B, n, n * 6)
 
 
 def gravity_potential(T: torch.Tensor, S: torch.Tensor, J: torch.Tensor, gravity: torch.Tensor, grad: bool = True):
@@ -225,6 +258,6 @@ def mass_matrix(chain: SerialChain, q: torch.Tensor, J: torch.Tensor | None = No
     armature (default the description's)."""
     T, S = poses_and_twists(chain, q)
     J = chain.J.to(q.dtype) if J is None else J
-    F, _ = factor(T, S, reverse_cholesky(J).expand(q.shape[0], -1, -1, -1), tangents=False)
+    F, _ = factor(T, S, inertia_factor(J), tangents=False)
     a = chain.armature.to(q.dtype) if armature is None else armature
     return F @ F.mT + torch.diag_embed(a.expand(q.shape[0], -1))

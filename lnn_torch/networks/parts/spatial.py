@@ -97,7 +97,7 @@ class SpatialChain(KineticPart):
         else:  # the description alone: nothing learned, nothing to save
             self._fixed = {"raw": raw.double(), "log_armature": log_arm.double()}
         self.joint_names = chain.joint_names
-        self.num_columns = 12 * self.num_links + self.dof
+        self.num_columns = 6 * self.num_links + self.dof
 
     def const(self, name: str, like: torch.Tensor) -> torch.Tensor:
         """A constant of the description in ``like``'s dtype and device."""
@@ -153,38 +153,40 @@ class SpatialChain(KineticPart):
         return force.sqrt() / norm.time_scale.to(dtype), force
 
     def body_inertia(self, params_norm: torch.Tensor, dtype) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(J, U)``, each ``(B or 1, n, 4, 4)``: the links' pseudo-inertias and factors, the payload's
-        added to the last link's."""
+        """``(J, L)``: the links' pseudo-inertias ``(B or 1, n, 4, 4)``, the payload's added to the last
+        link's, and the factors of their spatial inertias ``(B or 1, n, 6, 6)`` (``kinematics.inertia_factor``:
+        the links' once, the last link's per row where a payload is added)."""
         U = self.link_U(dtype)[None]
         J = U @ U.mT
+        L = K.inertia_factor(J)
         payload = self.payload_si(params_norm)
         if payload is None:
-            return J, U
+            return J, L
         Xf = self.const("flange", payload.to(dtype))
         last = J[:, -1] + Xf @ payload_pseudo_inertia(payload.to(dtype)) @ Xf.T  # (B, 4, 4)
         B = payload.shape[0]
         J = torch.cat([J.expand(B, -1, -1, -1)[:, :-1], last[:, None]], 1)
-        U = torch.cat([U.expand(B, -1, -1, -1)[:, :-1], K.reverse_cholesky(last)[:, None]], 1)
-        return J, U
+        L = torch.cat([L.expand(B, -1, -1, -1)[:, :-1], K.inertia_factor(last)[:, None]], 1)
+        return J, L
 
     def _kinematic_chain(self, like: torch.Tensor):
         c = {k: self.const(k, like) for k in ("X", "axis", "anchor", "qpos0")}
         return K.SerialChain(c["X"], c["axis"], c["anchor"], c["qpos0"], None, None, None, None, None, self.joint_names)
 
     def geometry(self, q_norm: torch.Tensor, params_norm: torch.Tensor):
-        """``(T, S, J, U)``: poses and twists (``kinematics.poses_and_twists``) and the bodies' inertia."""
+        """``(T, S, J, L)``: poses and twists (``kinematics.poses_and_twists``) and the bodies' inertia."""
         T, S = K.poses_and_twists(self._kinematic_chain(q_norm), q_norm)
-        J, U = self.body_inertia(params_norm, q_norm.dtype)
-        return T, S, J, U
+        J, L = self.body_inertia(params_norm, q_norm.dtype)
+        return T, S, J, L
 
     def _geometry(self, inputs: PartInputs):
         return inputs.shared(self, lambda: self.geometry(inputs.q_norm, inputs.params_norm))
 
     # ------------------------------------------------------------------ the factor
     def factor(self, inputs: PartInputs, cond):
-        T, S, _, U = self._geometry(inputs)
+        T, S, _, L = self._geometry(inputs)
         dtype, B = inputs.q_norm.dtype, inputs.q_norm.shape[0]
-        F, dF = K.factor(T, S, U.expand(B, -1, -1, -1), inputs.tangents)
+        F, dF = K.factor(T, S, L, inputs.tangents)
         root_a = torch.diag_embed(self.armature(dtype).sqrt()).expand(B, -1, -1)
         scale, _ = self.scales(dtype)
         F = torch.cat([F, root_a], -1) * scale
