@@ -371,7 +371,7 @@ class MujocoArm:
     @staticmethod
     def inertial_parameters(payload) -> torch.Tensor:
         """``pi (10,)`` of ``payload_regressor`` from ``(mass, c (3)[, I_com (6)])`` (parallel axes)."""
-        p = torch.as_tensor(np.asarray(payload, dtype=np.float64))
+        p = payload if isinstance(payload, torch.Tensor) else torch.as_tensor(np.asarray(payload, dtype=np.float64))
         mass, c = p[0], p[1:4]
         I = torch.zeros(3, 3, dtype=torch.float64)
         if p.shape[0] == 10:
