@@ -57,27 +57,28 @@ SCENES = {
     # the 7-joint arm (MuJoCo ground truth): the data of configs/robot_arm.yaml; one integrator at the
     # data's rate; single points from many trajectories per batch (four payload parameters), the
     # inverse-dynamics (torque) loss beside the acceleration loss, checkpoints kept for identification
-    "robot_arm": dict(path="data/robot_arm.h5", spec=dict(num_trajectories=200, duration=10.0, dt=0.005, seed=0),
-                      minutes=6.0, horizon=5.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
+    "robot_arm": dict(path="data/robot_arm.h5", spec=dict(num_trajectories=1000, duration=3.0, dt=0.005, seed=0),
+                      minutes=5.0, horizon=3.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
                       chunks_per_batch=512, torque_weight=1.0, variants="arm"),
     # the same arm built from a perturbed copy of its description (masses +-20 %, centres of mass +-1 cm,
     # inertias +-30 %, armature and damping changed): what a user with a URDF and a real robot has
     "robot_arm_perturbed": dict(scene="robot_arm", scene_config={"perturbation": 1}, path="data/robot_arm_perturbed.h5",
-                                spec=dict(num_trajectories=200, duration=10.0, dt=0.005, seed=0),
-                                minutes=6.0, horizon=5.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
+                                spec=dict(num_trajectories=1000, duration=3.0, dt=0.005, seed=0),
+                                minutes=5.0, horizon=3.0, threshold=0.1, integrators=[("rk4", 0.005)], chunk_len=1,
                                 chunks_per_batch=512, torque_weight=1.0, variants="perturbed_arm"),
 }
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
 RESIDUAL = {"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}}
 DESCRIPTION = {"kinetic": {"spatial": {"learn": False}}, "potential": {"spatial": {}}}
 ARM_VARIANTS = {
-    "arm": [("film_lnn", {"variant": "film_lnn"}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
+    "arm": [("film_lnn", {"variant": "film_lnn", "model_options": {"mass_invariant": [0]}}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
             ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
-            ("delan", {"variant": "delan"}), ("lnn", {"variant": "lnn"}), ("mlp", {"variant": "mlp"})],
+            ("delan", {"variant": "delan", "model_options": {"mass_invariant": [0]}}), ("lnn", {"variant": "lnn"}),
+            ("mlp", {"variant": "mlp"})],
     "perturbed_arm": [("description (inertia as shipped, friction fitted)", {"variant": "film_lnn", "model_options": DESCRIPTION, "eps": 0.0}),
                       ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
                       ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
-                      ("film_lnn", {"variant": "film_lnn"})],
+                      ("film_lnn", {"variant": "film_lnn", "model_options": {"mass_invariant": [0]}})],
 }
 INTEGRATORS = [("rk4", 0.005), ("rk4", 0.01), ("leapfrog", 0.005), ("leapfrog", 0.01),
                ("semi_implicit_euler", 0.005), ("semi_implicit_euler", 0.001)]
