@@ -182,6 +182,7 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     base = evaluate_model(model, system, test, sections=("accelerations", "torques"), accel_stride=10)
     acc = base["acc_rel_err"]
     torque = base.get("torque_nrmse", {}).get("mean")
+    torque_nmse = base.get("torque_nmse", {}).get("mean")
     # throughput: float32 batches of 8192 states (the model's own dtype), one thread
     n = 8192
     states = [x[:, ::10].reshape(-1, x.shape[-1]) for x in (test.q, test.qd)]
@@ -199,7 +200,8 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     B = len(test)
     for method, dt in cfg.get("integrators", INTEGRATORS):
         row = {"model": name, "integrator": method, "dt": dt, "acc_rel_err": acc["total"],
-               "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput, "torque_nrmse": torque}
+               "acc_non_finite": acc["non_finite_fraction"], "states_per_s": throughput, "torque_nrmse": torque,
+               "torque_nmse": torque_nmse}
         if first_order and method not in ("rk4", "rk8"):
             row["note"] = "n/a: a Hamiltonian network integrates its own first-order flow (RK methods only)"
             rows.append(row)
