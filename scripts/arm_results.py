@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from _cli import HelpFormatter, wrote
+from _cli import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -84,7 +84,8 @@ def main() -> None:
                     help="first row: the shipped description in the engine (for a perturbed arm's data)")
     ap.add_argument("--test-trajectories", type=int, default=100, help="test trajectories (at most)")
     ap.add_argument("--horizon", type=float, default=3.0, help="rollout horizon, s")
-    ap.add_argument("--output", required=True, help="the Markdown table (the JSON is written beside it)")
+    add_output_file(ap, str(ROOT / "results" / "robot_arm" / "table.md"),
+                    "the Markdown table (the JSON is written beside it)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     from lnn_torch.checkpoints import load_model
