@@ -415,8 +415,12 @@ def main() -> None:
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
                                                                    (("scene", args.scene), ("minutes", args.minutes),
-                                                                    ("chunk_len", args.chunk_len),
-                                                                    ("chunks_per_batch", args.chunks_per_batch))),
+                                                                    ("threads", args.threads))
+                                                                   + ((("chunk_len", args.chunk_len),
+                                                                       ("chunks_per_batch", args.chunks_per_batch))
+                                                                      if "chunk_len" not in cfg else ())),
+              "chunking": {"chunk_len": cfg.get("chunk_len", args.chunk_len),
+                           "chunks_per_batch": cfg.get("chunks_per_batch", args.chunks_per_batch)},
               "rows": [], "training": {}, "stability": {}, "stability_seconds": args.stability_seconds}
     test = None
     written = [] if (ROOT / cfg["path"]).exists() else [ROOT / cfg["path"]]  # the dataset, generated when missing
