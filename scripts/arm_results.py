@@ -68,10 +68,14 @@ def markdown(result: dict) -> str:
              "time within 0.1 rad, median (q25) | power-balance error, mean |", "|---|---|---|---|---|---|"]
     for name, r in result["rows"].items():
         nmse = r["torque_nmse"]
-        joints = " / ".join(f"{100 * v:.3g}" for k, v in nmse.items() if k != "mean") + " %"
+        if nmse is None:  # a model without inverse dynamics (black-box LNN, direct MLP)
+            mean, joints = "n/a", "n/a (no inverse dynamics)"
+        else:
+            mean = f"**{100 * nmse['mean']:.3g} %**"
+            joints = " / ".join(f"{100 * v:.3g}" for k, v in nmse.items() if k != "mean") + " %"
         t = r["time_to_0.1"]
         cap = "≥ " if t["median"] >= result["horizon"] - 1e-9 else ""
-        lines.append(f"| {name} | **{100 * nmse['mean']:.3g} %** | {joints} | {100 * r['acc_rel_err']:.3g} % | "
+        lines.append(f"| {name} | {mean} | {joints} | {100 * r['acc_rel_err']:.3g} % | "
                      f"{cap}{t['median']:.2f} s ({t['q25']:.2f}) | {r['power_balance_mean']:.2e} |")
     return "\n".join(lines) + "\n"
 
