@@ -148,7 +148,9 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     # every sampled point with its trajectory's parameters (and recorded inputs, for an actuated scene)
     params = val.params[:, None].expand(-1, T, -1).reshape(-1, val.params.shape[-1]).float()
     sample = [flat(val.q), flat(val.qd), flat(val.qdd), params, None if val.tau is None else flat(val.tau)]
-    extra = {"torque_weight": cfg["torque_weight"]} if "torque_weight" in cfg else {}
+    # the inverse-dynamics loss for the variants that have inverse dynamics (structured Lagrangians)
+    inverse = overrides.get("variant") in ("film_lnn", "delan")
+    extra = {"torque_weight": cfg["torque_weight"]} if "torque_weight" in cfg and inverse else {}
     if args.lr is not None:
         extra["lr"] = args.lr
     model = LNNModule(scene=scene, scene_config=scene_config, val_rollouts=0, energy_weight=args.energy_weight,
@@ -381,6 +383,8 @@ def main() -> None:
     ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
     ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
+    ap.add_argument("--add", action="store_true",
+                    help="add the --variants to the folder's existing result of the scene (theirs replaced)")
     ap.add_argument("--save-checkpoints", action="store_true",
                     help="keep each trained model under <output-dir>/checkpoints (for the arm's identification study)")
     ap.add_argument("--stability-seconds", type=float, default=2.0, help="rollout length of the hard cases, s")
@@ -422,6 +426,15 @@ def main() -> None:
               "chunking": {"chunk_len": cfg.get("chunk_len", args.chunk_len),
                            "chunks_per_batch": cfg.get("chunks_per_batch", args.chunks_per_batch)},
               "rows": [], "training": {}, "stability": {}, "stability_seconds": args.stability_seconds}
+    previous = out / f"{args.scene}.json"
+    if args.add and previous.exists():  # more variants into an existing result: theirs replaced, the rest kept
+        old = json.loads(previous.read_text())
+        names = {n for n, _ in rows_spec}
+        old["rows"] = [r for r in old["rows"] if r["model"] not in names]
+        old["training"] = {k: v for k, v in old["training"].items() if k not in names}
+        old["stability"] = {k: v for k, v in old.get("stability", {}).items() if k not in names}
+        old.setdefault("added", []).append(result["command"] + " --add --variants " + " ".join(f'"{n}"' for n in names))
+        result = old
     test = None
     written = [] if (ROOT / cfg["path"]).exists() else [ROOT / cfg["path"]]  # the dataset, generated when missing
     for name, overrides in rows_spec:
@@ -432,7 +445,8 @@ def main() -> None:
         if test is None:
             test = test_data(dm)
             result["num_test"] = len(test)
-            result["rows"] += evaluate_dynamics("closed form", ClosedForm(system), system, test, cfg, False)
+            if not any(r["model"] == "closed form" for r in result["rows"]):
+                result["rows"] += evaluate_dynamics("closed form", ClosedForm(system), system, test, cfg, False)
         model = module.model
         result["rows"] += evaluate_dynamics(name, model, system, test, cfg, overrides.get("variant") == "hnn")
         cases = system.hard_parameter_cases()
