@@ -13,7 +13,7 @@ method) and the torques pass through the same smoothing. Then
   the payload's ten inertial parameters (``MujocoArm.payload_regressor``); ordinary least squares, then
   ``m`` and ``c = (m c) / m``;
 * each given checkpoint through ``lnn_torch.identification.identify_batch`` (the acceleration fit of
-  ``lnn-torch identify``, four starts, in the model's training box).
+  ``lnn-torch identify`` on every ``--stride``-th sample, ``--starts`` starts, in the model's training box).
 
 Base-parameter study (``--perturbed-*``): on the held-out trajectories of the perturbed arm (``data``
 of the perturbed configuration), the numerical base parameters of the arm (``lnn_torch.robots.regressor``)
@@ -114,14 +114,14 @@ def errors(mass, com, truth) -> dict:
             "num_heavy": int(heavy.sum())}
 
 
-def model_payloads(checkpoint, t, q_noisy, tau, starts):
+def model_payloads(checkpoint, t, q_noisy, tau, starts, stride):
     from lnn_torch.checkpoints import load_model
     from lnn_torch.identification import identify_batch
     from lnn_torch.systems import get_system
 
     module = load_model(checkpoint)
     system = get_system("robot_arm")
-    found = identify_batch(module.model, system, t, q_noisy, None, tau, None, starts=starts)
+    found = identify_batch(module.model, system, t, q_noisy, None, tau, None, starts=starts, accel_stride=stride)
     names = system.param_names
     est = np.array([[r.params[n] for n in names] for r in found])
     return est[:, 0], est[:, 1:4]
@@ -145,7 +145,7 @@ def payload_study(args) -> dict:
     for name, ckpt in (("film_lnn", args.film_lnn), ("grey box", args.grey_box)):
         if ckpt:
             start = time.perf_counter()
-            m, c = model_payloads(ckpt, t, arrays["q_noisy"], arrays["tau"], args.starts)
+            m, c = model_payloads(ckpt, t, arrays["q_noisy"], arrays["tau"], args.starts, args.stride)
             rows[name] = {**errors(m, c, truth), "seconds": time.perf_counter() - start, "checkpoint": str(ckpt)}
     return {"payloads": args.payloads, "seconds": args.seconds, "dt": args.dt, "noise_rad": args.noise,
             "derivatives": how, "spec": json.loads(spec.to_json()), "rows": rows}
@@ -240,11 +240,12 @@ def main() -> None:
     ap.add_argument("--grey-box", help="checkpoint of the grey-box arm model")
     ap.add_argument("--perturbed-grey-box", help="checkpoint of the grey box trained on the perturbed arm")
     ap.add_argument("--perturbed-data", help="the perturbed arm's dataset (.h5) for the base-parameter study")
-    ap.add_argument("--payloads", type=int, default=40, help="held-out payloads")
+    ap.add_argument("--payloads", type=int, default=20, help="held-out payloads")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion per payload, s")
     ap.add_argument("--dt", type=float, default=0.005, help="sample interval, s")
     ap.add_argument("--noise", type=float, default=1e-3, help="encoder noise, rad (standard deviation)")
-    ap.add_argument("--starts", type=int, default=4, help="random starts of the learned models' fit")
+    ap.add_argument("--starts", type=int, default=2, help="random starts of the learned models' fit")
+    ap.add_argument("--stride", type=int, default=4, help="every n-th sample in the learned models' acceleration fit")
     ap.add_argument("--seed", type=int, default=1000, help="seed of the held-out payloads and the noise")
     ap.add_argument("--base-trajectories", type=int, default=20, help="held-out trajectories for the base parameters")
     ap.add_argument("--base-stride", type=int, default=5, help="use every n-th sample of them")
