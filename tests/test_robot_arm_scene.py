@@ -391,3 +391,20 @@ def test_without_mujoco_the_scene_says_so_in_one_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "mujoco", None)  # import mujoco now raises ImportError
     with pytest.raises(InputError, match=r"^robot arms need MuJoCo: pip install 'lnn-torch\[robots\]'$"):
         get_system("robot_arm")
+
+
+def test_the_energy_of_a_diverged_rollout_is_nan_where_it_diverged(system):
+    """A model rollout that diverged (NaN states) gets NaN energies in those rows, as a closed-form scene's
+    arithmetic gives them; the finite rows are the engine's."""
+    rng = np.random.default_rng(3)
+    q = torch.tensor(system.arm.sample_q(rng, 4))
+    qd = torch.tensor(rng.normal(size=(4, 7)))
+    params = torch.tensor(system.sample_params(rng, 4))
+    E = system.energy(q, qd, params)
+    q_bad = q.clone()
+    q_bad[1, 3] = float("nan")
+    E_bad = system.energy(q_bad, qd, params)
+    assert torch.isnan(E_bad[1]) and torch.isfinite(E_bad[[0, 2, 3]]).all()
+    torch.testing.assert_close(E_bad[[0, 2, 3]], E[[0, 2, 3]], rtol=1e-12, atol=1e-12)
+    with pytest.raises(InputError, match="must have shape"):
+        system.energy(q_bad[:, :6], qd[:, :6], params)

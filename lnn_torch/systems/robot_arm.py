@@ -261,15 +261,36 @@ class RobotArm(System):
         """``qdd`` without any generalised force (no torques, no damping)."""
         return self.forced_acceleration(q, qd, params, torch.zeros_like(q))
 
+    def _finite_rows(self, fn, q, params, tail: tuple):
+        """``fn(q, params)`` where every coordinate of ``q`` is finite, NaN elsewhere: the energy of a
+        diverged model rollout is undefined, as a closed-form scene's NaN arithmetic makes it (the
+        engine itself takes finite states only); shapes and parameters are checked as always."""
+        ok = torch.isfinite(q).all(-1)
+        if ok.all():
+            return fn(q, params)
+        self.check_state(torch.where(ok[..., None], q, torch.zeros_like(q)))
+        params = params.expand(*q.shape[:-1], params.shape[-1])
+        out = torch.full((*q.shape[:-1], *tail), float("nan"), dtype=q.dtype, device=q.device)
+        if ok.any():
+            out[ok] = fn(q[ok], params[ok])
+        return out
+
     def mass_matrix(self, q, params):
-        """``M (*batch, dof, dof)`` in kg m^2, armature included."""
-        self.check_inputs(q, None, params, inputs="skip")
-        return self._engine(lambda q_, p_: self.arm.mass_matrix(q_, p_), q, params)
+        """``M (*batch, dof, dof)`` in kg m^2, armature included (NaN where ``q`` is not finite)."""
+        def engine(q_, p_):
+            self.check_inputs(q_, None, p_, inputs="skip")
+            return self._engine(lambda a, b: self.arm.mass_matrix(a, b), q_, p_)
+
+        return self._finite_rows(engine, q, params, (self.dof, self.dof))
 
     def potential(self, q, params):
-        """``V (*batch,)`` in J: MuJoCo's ``-sum_i m_i g . x_i`` (payload included; the fixed base adds a constant)."""
-        self.check_inputs(q, None, params, inputs="skip")
-        return self._engine(lambda q_, p_: self.arm.potential(q_, p_)[:, None], q, params)[..., 0]
+        """``V (*batch,)`` in J: MuJoCo's ``-sum_i m_i g . x_i`` (payload included; the fixed base adds a
+        constant; NaN where ``q`` is not finite)."""
+        def engine(q_, p_):
+            self.check_inputs(q_, None, p_, inputs="skip")
+            return self._engine(lambda a, b: self.arm.potential(a, b)[:, None], q_, p_)[..., 0]
+
+        return self._finite_rows(engine, q, params, ())
 
     def energy_scale(self, params):
         """``V_max - V_min`` over a fixed sample of ``SCALE_SAMPLES`` configurations (seed 0, within the
