@@ -383,6 +383,8 @@ def main() -> None:
     ap.add_argument("--chunk-len", type=int, default=8, help="points per training chunk (every variant)")
     ap.add_argument("--chunks-per-batch", type=int, default=64, help="chunks per training batch (every variant)")
     ap.add_argument("--threads", type=int, default=2, help="training threads (timings use 1)")
+    ap.add_argument("--merge-from", metavar="DIR",
+                    help="only merge the variants of another run of --scene (in DIR) into the folder's result")
     ap.add_argument("--add", action="store_true",
                     help="add the --variants to the folder's existing result of the scene (theirs replaced)")
     ap.add_argument("--save-checkpoints", action="store_true",
@@ -396,6 +398,18 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     if args.report:
         report(out)
+        return
+    if args.merge_from:  # another run's variants of the same scene (run beside this one) into this folder's result
+        mine, theirs = (json.loads((Path(d) / f"{args.scene}.json").read_text()) for d in (out, args.merge_from))
+        names = set(theirs["training"])
+        mine["rows"] = [r for r in mine["rows"] if r["model"] not in names] + [
+            r for r in theirs["rows"] if r["model"] in names]
+        mine["training"].update(theirs["training"])
+        mine.setdefault("stability", {}).update({k: v for k, v in theirs.get("stability", {}).items() if k in names})
+        mine.setdefault("added", []).append(theirs["command"] + " --variants " + " ".join(f'"{n}"' for n in names))
+        (out / f"{args.scene}.json").write_text(json.dumps(mine, indent=1))
+        (out / f"{args.scene}.md").write_text(markdown(mine))
+        wrote(out / f"{args.scene}.json", out / f"{args.scene}.md")
         return
     from lnn_torch import LNNModule
     from lnn_torch.evaluation import ClosedForm, model_rollout
