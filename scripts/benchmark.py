@@ -262,7 +262,8 @@ def markdown(result: dict) -> str:
     lines = [f"### {scene}", "",
              f"{result['machine']}; each variant trained {result['minutes']:g} min on {result['train_threads']} threads "
              f"(same data, seed, budget); speed on 1 thread; {result['num_test']} test trajectories, rollouts over "
-             f"{result['horizon']:g} s. Command: `{result['command']}`", "",
+             f"{result['horizon']:g} s. Command: `{result['command']}`"
+             + "".join(f"; then `{c}`" for c in result.get("added", [])), "",
              "| model | integrator | dt (s) | accel. throughput (states/s) | rollout cost (s / 1000 steps, batch 64) | "
              f"x closed form | test acc. rel. L2 | time to 0.1 error, median (s) | {energy_label(result)}, mean |",
              "|---|---|---|---|---|---|---|---|---|"]
