@@ -257,3 +257,23 @@ def test_controllers_designed_on_the_shipped_models_succeed_on_the_true_plants(m
     report = json.loads((out / "control.json").read_text())
     assert report["success_rate"] == 1.0, report
     assert ("torque_scale_calibrated" in report) == (model.endswith("control"))
+
+
+@pytest.mark.slow
+def test_the_arm_reaches_its_goal_by_computed_torque_designed_on_the_grey_box():
+    """configs/control/robot_arm_reach.yaml on the engine (the 7-joint arm with a 2 kg payload), designed
+    on the description's grey box (untrained: its inertia is the description's, its friction not yet
+    fitted): every episode ends at the goal."""
+    pytest.importorskip("mujoco")
+    from lnn_torch import LNNModule
+    from lnn_torch.commands.control import run_scenario
+    from lnn_torch.config_files import read_config
+
+    from .helpers import ROOT
+
+    scenario = read_config(ROOT / "configs" / "control" / "robot_arm_reach.yaml")
+    module = LNNModule(scene="robot_arm", model_options={"kinetic": {"spatial": {}}, "potential": {"spatial": {}}},
+                       eps=0.0)
+    out = run_scenario({**scenario, "duration": 3.0}, module.model, episodes=3)
+    assert out["success_rate"] == 1.0, {k: v for k, v in out.items() if not k.startswith("_")}
+    assert out["tracking_error_rms_rad"] < 0.01
