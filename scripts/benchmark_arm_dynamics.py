@@ -142,6 +142,8 @@ class RawEngine:
     def _payloads(self):
         return None if self.mode == "once" else self.s["payload"]
 
+    # forward and inverse are written out in full, alike (no helper called per state): the engine is
+    # timed with the least Python around it
     def forward(self) -> np.ndarray:
         mj, m, d, i = self.mujoco, self.arm.model, self.arm.data, self.arm.payload_id
         q, qd, tau, out = self.s["q"], self.s["qd"], self.s["tau"], self.out
