@@ -118,8 +118,6 @@ def read_chain(model, payload_body: str | None = "payload") -> SerialChain:
         name = names(mujoco.mjtObj.mjOBJ_BODY, b)
         if payload_body is not None and name == payload_body:
             flange = local  # the payload's frame in its moving body's; its (run-time) inertia is a parameter
-            if owner != len(moving) - 1:
-                raise InputError("robot description: the payload body must hang from the last moving body")
             continue
         if owner >= 0:
             R = _quat_matrix(model.body_iquat[b])
@@ -135,6 +133,21 @@ def read_chain(model, payload_body: str | None = "payload") -> SerialChain:
                        flange=None if flange is None else t(flange), armature=t(model.dof_armature[dofs]),
                        damping=t(model.dof_damping[dofs]), gravity=t(model.opt.gravity),
                        joint_names=tuple(names(mujoco.mjtObj.mjOBJ_JOINT, int(model.body_jntadr[b])) for b in moving))
+
+
+def vee(A: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3) -> (..., 3)``: the vector of a cross-product matrix (inverse of ``_hat``)."""
+    return torch.stack([A[..., 2, 1], A[..., 0, 2], A[..., 1, 0]], -1)
+
+
+def mass_properties(J: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(mass (...), com (..., 3), inertia about the centre of mass (..., 3, 3))`` of pseudo-inertias
+    ``J (..., 4, 4)`` (the inverse of ``pseudo_inertia``)."""
+    mass = J[..., 3, 3]
+    com = J[..., :3, 3] / mass[..., None]
+    sigma_c = J[..., :3, :3] - mass[..., None, None] * com[..., :, None] * com[..., None, :]
+    eye = torch.eye(3, dtype=J.dtype, device=J.device)
+    return mass, com, sigma_c.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None] * eye - sigma_c
 
 
 def _hat(w: torch.Tensor) -> torch.Tensor:
@@ -219,7 +232,7 @@ def factor(T: torch.Tensor, S: torch.Tensor, L: torch.Tensor, tangents: bool = T
     L = L.expand(B, -1, -1, -1)  # (B, n, 6, 6)
     R, p = T[..., :3, :3], T[..., :3, 3]  # (B, n, ...)
     w, v = S[..., :3, :3], S[..., :3, 3]
-    w = torch.stack([w[..., 2, 1], w[..., 0, 2], w[..., 1, 0]], -1)  # the world axes (B, n, 3)
+    w = vee(w)  # the world axes (B, n, 3)
     # xi[:, pair]: joint k's twist in body i's frame (k <= i)
     Rt = R[:, pi].mT
     wk = w[:, pk]

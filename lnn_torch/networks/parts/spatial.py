@@ -119,13 +119,6 @@ class SpatialChain(KineticPart):
         return [self.raw, self.log_armature] if self.learn else []
 
     # ------------------------------------------------------------------ the inertial parameters
-    def chain(self, dtype=torch.float64) -> K.SerialChain:
-        """The ``SerialChain`` of the description with this part's current inertia (detached)."""
-        with torch.no_grad():
-            c = {k: v.to(dtype) for k, v in self._constants.items()}
-            return K.SerialChain(c["X"], c["axis"], c["anchor"], c["qpos0"], self.link_J(dtype), c["flange"],
-                                 self.armature(dtype), None, c["gravity"], self.joint_names)
-
     def link_U(self, dtype) -> torch.Tensor:
         """``U (n, 4, 4)``: each link's factor ``J_i = U_i U_i^T``."""
         raw = self._raw("raw", dtype)
@@ -201,12 +194,7 @@ class SpatialChain(KineticPart):
         dtype = q_norm.dtype
         J, _ = self.body_inertia(params_norm, dtype)
         B = q_norm.shape[0]
-        J = J.expand(B, -1, -1, -1)
-        mass = J[..., 3, 3]
-        com = J[..., :3, 3] / mass[..., None]
-        sigma_c = J[..., :3, :3] - mass[..., None, None] * com[..., :, None] * com[..., None, :]
-        eye = torch.eye(3, dtype=dtype)
-        inertia = sigma_c.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None] * eye - sigma_c
+        mass, com, inertia = K.mass_properties(J.expand(B, -1, -1, -1))
         L = torch.linalg.cholesky(inertia)
         chain = self._kinematic_chain(q_norm)
 
@@ -220,7 +208,7 @@ class SpatialChain(KineticPart):
             for i in range(self.num_links):
                 c_h = torch.cat([com[b, i], com[b, i].new_ones(1)])
                 Jv = torch.einsum("xyk,y->xk", dT[i, :3], c_h)  # (3, dof)
-                Jw = torch.stack([_vee(dT[i, :3, :3, k] @ Tb[i, :3, :3].T) for k in range(self.dof)], -1)
+                Jw = torch.stack([K.vee(dT[i, :3, :3, k] @ Tb[i, :3, :3].T) for k in range(self.dof)], -1)
                 cols.append((b, torch.cat([mass[b, i].sqrt() * Jv.T, Jw.T @ Tb[i, :3, :3] @ L[b, i]], -1)))
         F = torch.stack([torch.cat([c for bb, c in cols if bb == b], -1) for b in range(B)])
         F = torch.cat([F, torch.diag_embed(self.armature(dtype).sqrt()).expand(B, -1, -1)], -1)
@@ -239,16 +227,9 @@ class SpatialChain(KineticPart):
         (n)`` kg m^2; and ``pseudo_inertia (n, 4, 4)``."""
         with torch.no_grad():
             J = self.link_J(torch.float64)
-            mass = J[:, 3, 3]
-            com = J[:, :3, 3] / mass[:, None]
-            sigma_c = J[:, :3, :3] - mass[:, None, None] * com[:, :, None] * com[:, None, :]
-            inertia = sigma_c.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] * torch.eye(3, dtype=J.dtype) - sigma_c
+            mass, com, inertia = K.mass_properties(J)
             return {"mass": mass, "com": com, "inertia": inertia, "armature": self.armature(torch.float64),
                     "pseudo_inertia": J}
-
-
-def _vee(A: torch.Tensor) -> torch.Tensor:
-    return torch.stack([A[2, 1], A[0, 2], A[1, 0]])
 
 
 class SpatialGravity(PotentialPart):
@@ -280,8 +261,7 @@ class SpatialGravity(PotentialPart):
         dtype = q_norm.dtype
         T, _ = K.poses_and_twists(chain._kinematic_chain(q_norm), q_norm)
         J, _ = chain.body_inertia(params_norm, dtype)
-        J = J.expand(q_norm.shape[0], -1, -1, -1)
-        mass = J[..., 3, 3]
-        com = torch.cat([J[..., :3, 3] / mass[..., None], mass.new_ones(*mass.shape, 1)], -1)
+        mass, com, _ = K.mass_properties(J.expand(q_norm.shape[0], -1, -1, -1))
+        com = torch.cat([com, mass.new_ones(*mass.shape, 1)], -1)
         world = (T @ com[..., None])[..., :3, 0]
         return -(mass * (world @ chain.const("gravity", q_norm))).sum(-1) * chain.scales(dtype)[1]
