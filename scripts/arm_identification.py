@@ -74,18 +74,19 @@ def smoothed(arrays, dt):
 
 
 def least_squares_payloads(q, qd, qdd, tau, edge: int):
-    """Per observation, on the engine's payload regressor ``Y`` (``tau - tau_arm = Y pi``): the classical
+    """Per observation, on the engine's payload regressor ``Y`` (``tau - tau_arm = Y pi``,
+    ``RobotArm.linear_regressor``): the classical
     linear least squares of the ten inertial parameters (``m = pi_0``, ``c = pi_1:4 / m``), and the
     point-mass fit (the payloads are point masses: ``pi(m, c)``, four unknowns, Gauss-Newton from the
     linear estimate). Returns ``{"linear": (mass, com), "point mass": (mass, com)}``."""
     from lnn_torch.robots.mujoco_arm import MujocoArm
+    from lnn_torch.systems import get_system
 
-    arm = MujocoArm("franka_panda")
+    system = get_system("robot_arm")
     out = {"linear": ([], []), "point mass": ([], [])}
     for i in range(len(q)):
         sl = slice(edge, len(q[i]) - edge)  # the smoothing's ends are least reliable
-        Y = arm.payload_regressor(q[i][sl], qd[i][sl], qdd[i][sl]).reshape(-1, 10)
-        b = (torch.as_tensor(tau[i][sl]) - arm.inverse(q[i][sl], qd[i][sl], qdd[i][sl])).reshape(-1)
+        Y, b, _ = system.linear_regressor(q[i][sl], qd[i][sl], qdd[i][sl], tau[i][sl])  # the scene's classical form
         pi = torch.linalg.lstsq(Y, b[:, None]).solution[:, 0]
         out["linear"][0].append(float(pi[0]))
         out["linear"][1].append((pi[1:4] / pi[0]).numpy())
