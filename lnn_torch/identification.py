@@ -185,8 +185,9 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
         best = _lbfgs(traj_loss, best)
     else:
         best = _lbfgs(lambda uu: objectives.loss("acceleration", space.params(space.x(uu))), best)
-        h = 1e-6 if getattr(model, "dtype", torch.float32) == torch.float64 else 1e-3
-        best = _gauss_newton(lambda uu: objectives.residuals("acceleration", space.params(space.x(uu))), best, h)
+        if getattr(model, "dtype", None) == torch.float64:  # a float32 model's round-off is far above L-BFGS's
+            best = _gauss_newton(lambda uu: objectives.residuals("acceleration", space.params(space.x(uu))), best,
+                                 1e-6)
     best = best[:, 0].detach()
     x, states = space.x(best[:, :P]), (best[:, P:] if final == "trajectory" else None)  # (N, P), (N, M)
     with torch.no_grad():
@@ -300,8 +301,8 @@ def _lbfgs(fn, u, iterations: int = 60):
 
 
 def _gauss_newton(residuals, u, h: float, iterations: int = 6):
-    """Polish ``u (N, 1, P)`` by Gauss-Newton steps on ``residuals(u) -> (N, 1, n)`` (Jacobian by central
-    differences of step ``h``), each observation's step kept only where it lowers its loss: where the
+    """Polish ``u (N, 1, P)`` by Gauss-Newton steps on ``residuals(u) -> (N, 1, n)`` of a float64 model
+    (Jacobian by central differences of step ``h``), each observation's step kept only where it lowers its loss: where the
     residuals vanish at the optimum (noise-free data, the exact model) this reaches it to round-off,
     which L-BFGS on the squared loss (its changes below 1e-16) does not."""
     with torch.no_grad():
