@@ -46,7 +46,6 @@ recorded inputs, held over each step (zero-order hold). The exact reference is
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import time
 from dataclasses import dataclass, field
@@ -55,11 +54,15 @@ from typing import Callable
 import torch
 
 from .data.trajectories import Trajectories
-from .ground_truth import reference_rollout
-from .integrators import rollout
+from .ground_truth import ClosedForm, reference_rollout  # noqa: F401 - ClosedForm: also importable from here
 from .metrics import (acceleration_errors, condition_numbers, divergence_time, energy_drift,  # noqa: F401
                       normalized_rmse, power_balance_error, quartiles, relative_l2, scaled_matrix_error)
-from .networks.base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, NAN_ON_SINGULAR, DynamicsModel
+from .networks.calls import counting_failures, model_accelerations, model_rollout  # noqa: F401 - also from here
+from .networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, capabilities_of, missing
+from .report import pct as _pct
+from .report import quartile_cell as _quartile_cell
+from .report import scalar_rows as _scalar_rows
+from .report import time_cell as _time
 
 SECTIONS: dict[str, Callable[["EvalContext"], "SectionResult | dict"]] = {}
 DEFAULT_SECTIONS = ("accelerations", "rollouts", "energy")
@@ -115,19 +118,6 @@ def skip(reason: str) -> SectionResult:
     return SectionResult(skipped=reason)
 
 
-def _scalar_rows(values: dict) -> list[str]:
-    """``| name | value |`` rows of the scalars of ``values`` (one level of nested dicts)."""
-    rows = []
-    for key, value in values.items():
-        if key.startswith("_"):
-            continue
-        items = value.items() if isinstance(value, dict) else [(None, value)]
-        for sub, v in items:
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                rows.append(f"| {key if sub is None else f'{key} ({sub})'} | {v:.4g} |")
-    return rows
-
-
 def _figure(name: str, *args, **kwargs):
     """A figure builder of ``lnn_torch.plots`` (imported only when a figure is drawn)."""
     def build(result: dict):
@@ -135,76 +125,6 @@ def _figure(name: str, *args, **kwargs):
 
         return getattr(plots, name)(*args, **kwargs)
     return build
-
-
-# ---------------------------------------------------------------------------- models
-class ClosedForm:
-    """A scene's closed-form dynamics behind the model interface (the ceiling rows of reports)."""
-
-    variant = "closed form"
-    capabilities = frozenset()  # accelerations and rollouts only
-
-    def __init__(self, system) -> None:
-        self.system = system
-
-    def acceleration(self, q, qd, params, tau=None, check: bool = False):
-        return self.system.acceleration(q, qd, params, tau)
-
-    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
-        return rollout(self.system.acceleration, q0, qd0, params, dt, num_steps, method, tau=tau)
-
-
-def capabilities_of(model) -> frozenset:
-    """A model's declared capabilities (``DynamicsModel.capabilities``); an object that declares none
-    gives accelerations and rollouts only."""
-    return frozenset(getattr(model, "capabilities", frozenset()))
-
-
-def missing(model, needs) -> str | None:
-    """Why ``model`` cannot give the capabilities ``needs``, or None."""
-    lacking = [c for c in needs if c not in capabilities_of(model)]
-    if not lacking:
-        return None
-    if isinstance(model, DynamicsModel):  # it says what its scene rules out
-        return model.missing(*lacking)
-    return f"variant '{getattr(model, 'variant', type(model).__name__)}' does not provide {', '.join(lacking)}"
-
-
-@contextlib.contextmanager
-def counting_failures(model):
-    """Within the block, a model whose accelerations can be undefined (``NAN_ON_SINGULAR``: the
-    black-box LNN's singular Hessians) returns NaN there instead of raising, so that batched
-    evaluations count them."""
-    if NAN_ON_SINGULAR in capabilities_of(model):
-        with model.nan_on_singular():
-            yield model
-    else:
-        yield model
-
-
-def model_accelerations(model, q, qd, params, tau=None, max_batch: int = 16384) -> torch.Tensor:
-    """A model's accelerations at states ``(B, T, dof)`` of trajectories with parameters ``(B, P)``
-    (and inputs ``tau (B, T, n_u)``): ``(B, T, dof)`` in ``q``'s dtype; NaN where undefined. No
-    autograd graph."""
-    B, T, dof = q.shape
-    flat_q, flat_qd = q.reshape(-1, dof), qd.reshape(-1, dof)
-    flat_p = params[:, None, :].expand(-1, T, -1).flatten(0, 1)
-    flat_tau = None if tau is None else tau.reshape(B * T, -1)
-    out = []
-    with torch.no_grad(), counting_failures(model):
-        for i in range(0, B * T, max_batch):
-            sl = slice(i, i + max_batch)
-            out.append(model.acceleration(flat_q[sl], flat_qd[sl], flat_p[sl],
-                                          None if flat_tau is None else flat_tau[sl], check=False))
-    return torch.cat(out).reshape(B, T, dof)
-
-
-def model_rollout(model, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
-    """A model's rollout (inputs ``tau (B, num_steps, n_u)`` held over each step) without an autograd
-    graph; trajectories through undefined accelerations become NaN (counted by the metrics)."""
-    with torch.no_grad(), counting_failures(model):
-        q, qd = model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
-    return q.detach(), qd.detach()
 
 
 # ---------------------------------------------------------------------------- the pipeline
@@ -346,25 +266,6 @@ def _closed_form(ctx: EvalContext, what: str) -> SectionResult | None:
 
 def _units(system) -> str:
     return "rad" if all(system.angle_mask) else "(rad or m)"
-
-
-def _pct(x: float) -> str:
-    """A fraction as a percentage, three significant digits (``0.0007`` -> ``0.07 %``)."""
-    return "n/a" if x != x else f"{100 * x:.3g} %"
-
-
-def _time(t: float, cap: float) -> str:
-    """A divergence time in s; one at the horizon ``cap`` (the error never exceeded the threshold)
-    reads ``≥ cap``."""
-    return f"≥ {cap:g}" if t >= cap - 1e-9 else f"{t:.2f}"
-
-
-def _quartile_cell(d: dict, cap: float) -> str:
-    """``median [q25, q75]`` of divergence times; ``≥ cap (never exceeded)`` where all three are at
-    the horizon."""
-    if d["q25"] >= cap - 1e-9:
-        return f"≥ {cap:g} (never exceeded)"
-    return f"{_time(d['median'], cap)} [{_time(d['q25'], cap)}, {_time(d['q75'], cap)}]"
 
 
 def _inputs_note(system) -> str:

@@ -131,3 +131,20 @@ def reference_rollout(system, q0, qd0, params, dt: float, num_steps: int, tau=No
     with torch.no_grad():
         q, qd, _ = integrate_ground_truth(system, *f64[:3], dt, num_steps, energy_tol=energy_tol, tau=f64[3])
     return q, qd
+
+
+class ClosedForm:
+    """A scene's closed-form dynamics behind the model interface (``acceleration``, ``rollout`` in SI
+    units): the ceiling rows of reports and the exact model of identification."""
+
+    variant = "closed form"
+    capabilities = frozenset()  # accelerations and rollouts only
+
+    def __init__(self, system) -> None:
+        self.system = system
+
+    def acceleration(self, q, qd, params, tau=None, check: bool = False):
+        return self.system.acceleration(q, qd, params, tau)
+
+    def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
+        return rollout(self.system.acceleration, q0, qd0, params, dt, num_steps, method, tau=tau)

@@ -57,6 +57,31 @@ CALLBACKS = [
 ]
 
 
+def _instantiate(spec: dict):
+    """An object from a LightningCLI ``{"class_path": ..., "init_args": {...}}`` dict."""
+    import importlib
+
+    module, _, name = spec["class_path"].rpartition(".")
+    return getattr(importlib.import_module(module), name)(**spec.get("init_args", {}))
+
+
+def make_trainer(**overrides):
+    """A ``lightning.Trainer`` as ``lnn-torch fit`` builds it: the CLI's trainer defaults
+    (``TRAINER_DEFAULTS``: gradient clipping at 1.0, inference mode off), its TensorBoard logger and its
+    callbacks (best and last checkpoints, prediction and test-metric writers, the fit summary), with
+    ``overrides`` (any ``Trainer`` argument: ``max_steps``, ``logger=False``, ``callbacks=[...]``,
+    ``enable_progress_bar``...) taking precedence. Scripts and studies train through it, so that a
+    study's model is trained as a user's is."""
+    import lightning as L
+
+    kwargs = {**TRAINER_DEFAULTS, "logger": None, "callbacks": None, **overrides}
+    if kwargs["logger"] is None:
+        kwargs["logger"] = _instantiate(LOGGER)
+    if kwargs["callbacks"] is None:
+        kwargs["callbacks"] = [_instantiate(spec) for spec in CALLBACKS]
+    return L.Trainer(**kwargs)
+
+
 class _DropLightningTips(logging.Filter):
     """Lightning's advertisements for its cloud services ("Tip: ... try installing litlogger") and its
     note at every checkpoint written ("`weights_only` was not set"): nothing a user of this command can

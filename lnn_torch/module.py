@@ -24,12 +24,23 @@ import lightning as L
 import torch
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 
-from .checkpoints import old_default_widths, record_widths, stamp, without_old_checkpoint_defaults
-from .evaluation import DEFAULT_SECTIONS, evaluate_model, model_accelerations, section_figures, section_logs
+from .checkpoint_format import (
+    PRETRAINED,
+    READ_ERRORS,
+    old_default_widths,
+    read_checkpoint,
+    record_widths,
+    resolve,
+    stamp,
+    unreadable,
+    without_old_checkpoint_defaults,
+)
+from .evaluation import DEFAULT_SECTIONS, evaluate_model, section_figures, section_logs
 from .losses import shooting_residuals, training_loss, trajectory_loss
 from .networks import build_model
 from .errors import InputError
-from .networks.base import ENERGY, INVERSE_DYNAMICS
+from .networks.calls import counting_failures, model_accelerations
+from .networks.capabilities import ENERGY, INVERSE_DYNAMICS
 from .networks.registry import model_class, unknown_options
 from .networks import model_options as model_options_of
 from .perf import CompiledFallback, adamw, compile_pays_training, configure_cpu, warn_compile_failure
@@ -302,8 +313,6 @@ class LNNModule(L.LightningModule):
         """Multiple shooting: each chunk rolled out from its first state, driven by its inputs,
         against its positions (and velocities); errors in normalised units divided by the window's
         ``(k dt)^2 / 2`` (positions) and ``k dt`` (velocities), ``k = L - 1`` steps."""
-        from .evaluation import counting_failures
-
         q, qd = batch["q"], batch["qd"]
         if q.shape[1] < 2:
             raise ValueError("trajectory matching needs chunks of at least 2 points (data.chunk_len >= 2)")
@@ -462,3 +471,28 @@ class LNNModule(L.LightningModule):
         pred = model_accelerations(self.model, batch["q"], batch["qd"], batch["params"][:, 0])
         return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
                 "qdd_true": batch["qdd"], "qdd_pred": pred}
+
+
+def load_model(source, map_location="cpu") -> LNNModule:
+    """The ``LNNModule`` of a checkpoint path or ``pretrained:<name>``, in evaluation mode (SI units in
+    and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
+    lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
+    path = resolve(source)
+    read_checkpoint(path)
+    try:
+        model = LNNModule.load_from_checkpoint(path, map_location=map_location)
+    except InputError:
+        raise
+    except READ_ERRORS as err:
+        raise unreadable(path, err) from None
+    model.eval()
+    return model
+
+
+def load_pretrained(name: str = "double_pendulum", map_location="cpu") -> LNNModule:
+    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out).
+
+    >>> model = load_pretrained("double_pendulum")
+    >>> model.acceleration(q, qd, params)  # (B, 2), (B, 2), (B, 4) -> (B, 2)
+    """
+    return load_model(f"{PRETRAINED}{name}", map_location)

@@ -18,19 +18,16 @@ from torch import nn
 from .. import integrators
 from ..errors import InputError, SingularHessianError, UntrustedParameterWarning
 from ..perf import CompiledFallback, apply_cpu_defaults, compile_fn, compile_pays, warn_compile_failure
+from .capabilities import (  # noqa: F401 - the capability names, also importable from here
+    CAPABILITIES,
+    ENERGY,
+    FRICTION,
+    INVERSE_DYNAMICS,
+    MASS_MATRIX,
+    NAN_ON_SINGULAR,
+    STATIC_FRICTION,
+)
 from .normalization import Normalizer
-
-
-# ---------------------------------------------------------------------------- capabilities
-# What a model can give beyond accelerations and rollouts. A class declares them in ``provides``;
-# ``DynamicsModel.capabilities`` keeps those its scene allows (evaluation asks only this).
-ENERGY = "energy"  # its own energy H = T + V: ``energy_si(q, qd, params)``
-MASS_MATRIX = "mass_matrix"  # ``mass_matrix_si(q, params)`` (SI) and ``mass_matrix(q, params)`` (normalised)
-INVERSE_DYNAMICS = "inverse_dynamics"  # ``inverse_dynamics(q, qd, qdd, params)``: needs a scene with inputs
-FRICTION = "friction"  # learned joint friction: ``friction_torque_si``, ``friction_coefficients_si``; needs friction
-STATIC_FRICTION = "static_friction"  # holding torques at rest (``dissipation: joint+stiction``)
-NAN_ON_SINGULAR = "nan_on_singular"  # accelerations can be undefined; NaN there within ``nan_on_singular()``
-CAPABILITIES = (ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, NAN_ON_SINGULAR)
 
 
 def wrap_angle(q: torch.Tensor) -> torch.Tensor:

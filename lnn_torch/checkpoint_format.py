@@ -1,0 +1,153 @@
+"""The checkpoint format, a leaf of the package: where a checkpoint path or ``pretrained:<name>`` (a
+model shipped in ``lnn_torch/pretrained``) points, the stamp ``LNNModule`` writes (package version
+and format), the checks that refuse what is not an lnn-torch checkpoint in one line, and the shims
+that let ``LNNModule`` load checkpoints of earlier versions. It imports nothing above itself: the
+loader, ``load_model``, lives with ``LNNModule`` (``lnn_torch.module``; also ``lnn_torch.load_model``
+and ``lnn_torch.checkpoints.load_model``)."""
+
+from __future__ import annotations
+
+import pickle
+import zipfile
+from pathlib import Path
+
+from .errors import CheckpointError
+from .pretrained import HERE, available, info
+
+PRETRAINED = "pretrained:"
+
+# The layout of what ``LNNModule`` saves (``stamp``): raised when a change makes older code unable to
+# read new checkpoints, so that such code refuses them in one line instead of failing inside.
+CHECKPOINT_FORMAT = 1
+
+# ---------------------------------------------------------------------------- old checkpoints
+# What ``LNNModule`` needs to load checkpoints saved by earlier versions with the weights they were
+# trained with.
+
+# options that older checkpoints record with these values for every variant; a variant that does not
+# take one of them ignores it there (any other value of an option a variant does not take is an error)
+_UNSET_IN_OLD_CHECKPOINTS = {"film_mode": "neuron", "potential_film": True, "eps": 1e-4, "lnn_init": False,
+                             "hnn_coordinates": "canonical"}
+
+
+# film_lnn's default widths before the cost-accuracy front moved them to (64, 64): a checkpoint that
+# recorded no widths (hidden_dims None, saved before every checkpoint recorded its widths) has these
+_OLD_DEFAULT_WIDTHS = {"film_lnn": [128, 128]}
+
+
+def without_old_checkpoint_defaults(options: dict, known) -> dict:
+    """``options`` of a model less those a variant (taking the options ``known``) does not take and
+    that hold the value every older checkpoint recorded for them (``_UNSET_IN_OLD_CHECKPOINTS``); any
+    other option stays, to be accepted or refused by the variant."""
+    return {k: v for k, v in options.items()
+            if k in known or k not in _UNSET_IN_OLD_CHECKPOINTS or v != _UNSET_IN_OLD_CHECKPOINTS[k]}
+
+
+def record_widths(checkpoint: dict, model) -> None:
+    """Write ``model``'s widths into the ``checkpoint``'s hyper-parameters where they were left to the
+    variant's default (``hidden_dims`` None), so that a later change of the default cannot change
+    what the checkpoint loads as."""
+    hp = checkpoint.get("hyper_parameters")
+    if hp is not None and hp.get("hidden_dims") is None and hasattr(model, "hidden_dims"):
+        hp["hidden_dims"] = list(model.hidden_dims)
+
+
+def old_default_widths(hparams) -> list | None:
+    """The widths a checkpoint with these hyper-parameters was trained with where it recorded none
+    (saved before ``record_widths``): its variant's old default (``_OLD_DEFAULT_WIDTHS``); None where
+    it recorded its widths or its variant's default never changed."""
+    old = _OLD_DEFAULT_WIDTHS.get(hparams["variant"])
+    return old if hparams.get("hidden_dims") is None else None
+
+
+def stamp(checkpoint: dict) -> None:
+    """Record the package version and checkpoint format that wrote ``checkpoint``."""
+    from . import __version__
+
+    checkpoint["lnn_torch"] = {"version": __version__, "format": CHECKPOINT_FORMAT}
+
+
+def check_stamp(checkpoint: dict, path: Path) -> None:
+    """``CheckpointError`` where ``checkpoint`` is not a model of this package or was written in a
+    newer format than this version reads (checkpoints from before the stamp pass)."""
+    from . import __version__
+
+    if not isinstance(checkpoint, dict):
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (it holds a "
+                              f"{type(checkpoint).__name__})")
+    written = checkpoint.get("lnn_torch", {})
+    if int(written.get("format", 0)) > CHECKPOINT_FORMAT:
+        raise CheckpointError(f"checkpoint {path} was written by a newer version of lnn-torch "
+                              f"({written.get('version', '?')}; this is {__version__}): upgrade lnn-torch to read it")
+    if "variant" not in checkpoint.get("hyper_parameters", {}) or "state_dict" not in checkpoint:
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (no model variant or weights: a "
+                              "checkpoint of another program?)")
+
+
+def read_checkpoint(source: str | Path) -> dict:
+    """The checked contents of a checkpoint path or ``pretrained:<name>`` (``torch.load``)."""
+    import torch
+
+    path = resolve(source)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except READ_ERRORS as err:
+        raise unreadable(path, err) from None
+    check_stamp(ckpt, path)
+    return ckpt
+
+
+def check_checkpoint_file(path: Path) -> Path:
+    """``path`` if it can be an lnn-torch checkpoint (a non-empty PyTorch zip archive), else
+    ``CheckpointError`` naming the file and what it is not."""
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint {path} is a folder, not a checkpoint file")
+    if path.stat().st_size == 0:
+        raise CheckpointError(f"checkpoint {path} is an empty file")
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (not a PyTorch archive: another kind "
+                              "of file, or a truncated one)")
+    return path
+
+
+def resolve(source: str | Path) -> Path:
+    source = str(source)
+    if source.startswith(PRETRAINED):
+        name = source[len(PRETRAINED):]
+        path = HERE / f"{name}.ckpt"
+        if not path.exists():
+            raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
+        return path
+    path = Path(source)
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    return check_checkpoint_file(path)
+
+
+def unreadable(path: Path, err: Exception) -> CheckpointError:
+    text = str(err).splitlines()[0][:160] if str(err) else ""
+    return CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint ({type(err).__name__}: {text})")
+
+
+# what reading a damaged or foreign archive raises (torch.load, Lightning, the module's own arguments)
+READ_ERRORS = (KeyError, RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ModuleNotFoundError)
+
+
+def output_dir(checkpoint: str, given: str | None, kind: str) -> Path:
+    """Where a command writes what it makes of ``checkpoint``: ``given``, else ``<kind>/<name>`` for
+    ``pretrained:<name>``, else ``<kind>`` beside the run's ``checkpoints`` folder."""
+    if given:
+        return Path(given)
+    if str(checkpoint).startswith(PRETRAINED):
+        return Path(kind) / str(checkpoint)[len(PRETRAINED):]
+    return Path(checkpoint).parent.parent / kind
+
+
+def data_hparams(source: str | Path) -> dict:
+    """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
+    ckpt = read_checkpoint(source)
+    if "datamodule_hyper_parameters" in ckpt:
+        return ckpt["datamodule_hyper_parameters"]
+    if str(source).startswith(PRETRAINED):  # shipped models keep it in their card
+        return info(str(source)[len(PRETRAINED):]).get("datamodule_hyper_parameters", {})
+    return {}
