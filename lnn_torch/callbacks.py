@@ -1,9 +1,21 @@
-"""Lightning callbacks: writing ``predict`` results and ``test`` metrics to files, and a summary at the
-end of ``fit``."""
+"""Lightning callbacks: what training does beside its steps.
+
+``LNNModule.configure_callbacks`` adds the first three to every trainer that fits it (the module's
+behaviour, whatever trainer a user builds); the CLI's trainer defaults add the others:
+
+* ``SkipNonFiniteSteps``: a non-finite loss or gradient skips the optimiser step (counted in the
+  module's ``skipped_steps`` and ``train/skipped_steps``); logs ``train/grad_norm`` and ``train/lr``;
+* ``HParamsSummary``: the hyper-parameters in TensorBoard's HParams tab, with the metric keys;
+* ``EvaluationFigures``: the figures of the validation's evaluation (``LNNModule.evaluation``) in
+  TensorBoard, every ``figure_every_n_epochs`` validations and at the last;
+* ``LastCheckpoint``, ``PredictionWriter``, ``TestMetricsWriter``, ``FitSummary``: files and the
+  closing summary of ``lnn-torch fit``/``test``/``predict``.
+"""
 
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -11,6 +23,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
+from lightning.pytorch.loggers import TensorBoardLogger
 
 
 class PredictionWriter(BasePredictionWriter):
@@ -112,3 +125,116 @@ class FitSummary(L.Callback):
             configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
             lines.append(f"  test it: lnn-torch test {configs} --ckpt_path {path(last)}")
         print("\n".join(lines))
+
+
+# ---------------------------------------------------------------------------- the module's own callbacks
+def writes_logs(trainer) -> bool:
+    """Whether the logger writes this training step's per-step values (every ``log_every_n_steps``
+    optimiser steps, and at the last): a ``log`` call costs a fraction of a millisecond, several per
+    step, so per-step values are logged only on the steps that are written. True outside a trainer."""
+    if trainer is None:
+        return True
+    return (trainer.global_step + 1) % max(trainer.log_every_n_steps, 1) == 0 or trainer.should_stop
+
+
+class SkipNonFiniteSteps(L.Callback):
+    """A non-finite loss or gradient skips the optimiser step: the gradients are dropped, so AdamW
+    leaves the weights untouched, and the module's ``skipped_steps`` counts it; under DDP every rank
+    skips together. Logs ``train/grad_norm`` (of the steps taken), ``train/skipped_steps`` and
+    ``train/lr`` on the steps the logger writes."""
+
+    def __init__(self) -> None:
+        self.bad_loss = False
+
+    def on_before_backward(self, trainer, pl_module, loss) -> None:
+        self.bad_loss = not bool(torch.isfinite(loss))
+
+    def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
+        grads = [p.grad for p in pl_module.parameters() if p.grad is not None]
+        # one norm over all gradients: non-finite if some entry is NaN or Inf (or it overflows)
+        norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads))) if grads else torch.zeros(())
+        flag = torch.tensor(float(self.bad_loss or not bool(torch.isfinite(norm))), device=pl_module.device)
+        if trainer.world_size > 1:
+            flag = trainer.strategy.reduce(flag, reduce_op="max")
+        skip = flag.item() > 0
+        if skip:
+            pl_module.skipped_steps += 1
+            for p in pl_module.parameters():
+                p.grad = None
+        if not writes_logs(trainer):
+            return
+        if not skip:
+            pl_module.log("train/grad_norm", norm, on_step=True, on_epoch=False)
+        pl_module.log("train/skipped_steps", pl_module.skipped_steps.float(), on_step=True, on_epoch=False)
+        pl_module.log("train/lr", optimizer.param_groups[0]["lr"], on_step=True, on_epoch=False)
+
+
+def _plain_hparams(hparams: dict, prefix: str = "") -> dict:
+    """Hyper-parameters as TensorBoard's HParams plugin takes them: nested dicts flattened to ``a/b``,
+    values other than numbers, strings and booleans as their text."""
+    out = {}
+    for key, value in hparams.items():
+        if isinstance(value, dict):
+            out.update(_plain_hparams(value, f"{prefix}{key}/"))
+        else:
+            out[prefix + key] = value if isinstance(value, (bool, int, float, str)) else str(value)
+    return out
+
+
+class HParamsSummary(L.Callback):
+    """At the start of ``fit``, the module's hyper-parameters in every TensorBoard logger, with the keys
+    of the validation metrics, so that the HParams tab shows the real metrics (declared in the HParams
+    summary only: Lightning's ``log_hyperparams(params, metrics)`` would also write each key as a NaN
+    scalar at step 0)."""
+
+    def on_fit_start(self, trainer, pl_module) -> None:
+        from torch.utils.tensorboard.summary import hparams as hparams_summary
+
+        energy = "val/power_balance" if pl_module.system.has_forces else "val/energy_drift"
+        metrics = {"val/acc_rel_err": math.nan, energy: math.nan, "val/divergence_time": math.nan}
+        for logger in trainer.loggers:
+            if not isinstance(logger, TensorBoardLogger):
+                continue
+            logger.log_hyperparams(dict(pl_module.hparams))
+            writer = logger.experiment._get_file_writer()
+            if writer is None:  # the logger's stand-in on ranks other than the first writes nothing
+                continue
+            for summary in hparams_summary(_plain_hparams(dict(pl_module.hparams)), metrics):
+                writer.add_summary(summary)
+
+
+class EvaluationFigures(L.Callback):
+    """The figures of each validation's evaluation (``pl_module.evaluation``: an ``evaluate_model``
+    result, or None where the validation has none to show) as ``val/<tag>`` in every TensorBoard
+    logger, at the step of that validation's scalars: every ``figure_every_n_epochs``-th validation
+    (the module's hyper-parameter; 0: never) and the run's last; never the sanity check, never on
+    ranks other than the first."""
+
+    def __init__(self) -> None:
+        self.validations = 0
+
+    def on_validation_epoch_end(self, trainer, pl_module) -> None:
+        result, pl_module.evaluation = pl_module.evaluation, None
+        every = pl_module.hparams.get("figure_every_n_epochs", 1)
+        if result is None or not every or trainer.sanity_checking or not trainer.is_global_zero:
+            return
+        self.validations += 1
+        last = ((trainer.max_epochs not in (None, -1) and trainer.current_epoch + 1 >= trainer.max_epochs)
+                or (trainer.max_steps not in (None, -1) and trainer.global_step >= trainer.max_steps))
+        loggers = [lg for lg in trainer.loggers if isinstance(lg, TensorBoardLogger)]
+        if loggers and (self.validations % every == 0 or last):
+            _log_figures(loggers, result, max(trainer.global_step - 1, 0))
+
+
+def _log_figures(loggers, result: dict, step: int) -> None:
+    import matplotlib.pyplot as plt
+
+    from .evaluation import section_figures
+
+    for tag, build in section_figures(result, tags=True, case=f"val split, step {step}").items():
+        fig = build(result)
+        if fig is None:
+            continue
+        for lg in loggers:
+            lg.experiment.add_figure(f"val/{tag}", fig, global_step=step, close=False)
+        plt.close(fig)

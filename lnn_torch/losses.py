@@ -5,13 +5,18 @@
   accelerations, the energy-conservation / power-balance term, the inverse-dynamics torque term);
 * ``trajectory_loss``: trajectory matching from multiple-shooting residuals;
 * ``shooting_residuals``: multiple shooting (each window rolled out from its own start state and
-  compared with the data), the one used by training and by identification.
+  compared with the data), the one used by training and by identification;
+* ``acceleration_batch_loss`` and ``trajectory_batch_loss``: the loss of one training batch of
+  contiguous chunks (``(C, L, ...)`` tensors, as ``TrajectoryDataModule`` gives them), assembled from
+  the above; ``LNNModule.training_step`` is one call of one of them.
 """
 
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
+
+from .networks.calls import counting_failures
 
 
 def acceleration_loss(qdd_pred_norm: torch.Tensor, qdd_true_norm: torch.Tensor, accel_rms: torch.Tensor,
@@ -127,3 +132,41 @@ def trajectory_loss(err: torch.Tensor, err_v: torch.Tensor | None = None, *, hub
         parts["trajectory_velocity"] = F.huber_loss(err_v, torch.zeros_like(err_v), delta=huber_delta)
         loss = loss + velocity_weight * parts["trajectory_velocity"]
     return loss, parts
+
+
+def acceleration_batch_loss(model, batch: dict, pass_fn, *, huber_delta: float = 1.0, energy_weight: float = 0.0,
+                            torque_weight: float = 0.0, dt: float | None = None) -> tuple[torch.Tensor, dict]:
+    """``(loss, parts)`` of ``training_loss`` on one batch of ``C`` chunks of ``L`` contiguous points:
+    ``batch`` holds ``q, qd, qdd (C, L, dof)``, ``params (C, L, P)`` and, for a scene with inputs,
+    ``tau (C, L, n_u)`` (SI). ``pass_fn(q, qd, qdd, params, tau, chunks)`` gives the model's training
+    terms on the flattened rows (``DynamicsModel.training_terms``; compiled or eager); ``chunks`` is
+    ``C`` where each chunk has one parameter vector (the model then conditions once per chunk), else
+    None. ``dt``: the data's sampling interval in s (the power-balance term integrates the forces'
+    power over it, in the model's normalised time; None: 1)."""
+    C, L, _ = batch["q"].shape
+    flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "qdd", "params")]
+    tau = batch["tau"].reshape(C * L, -1) if "tau" in batch else None
+    params = batch["params"]
+    shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
+    out = pass_fn(*flat, tau, C if shared else None)
+    dt_norm = (dt or 1.0) / float(model.normalizer.time_scale) if "power" in out else 1.0
+    return training_loss(out, C, L, huber_delta=huber_delta, energy_weight=energy_weight,
+                         torque_weight=torque_weight, dt=dt_norm)
+
+
+def trajectory_batch_loss(model, batch: dict, *, dt: float | None = None, integrator: str = "rk4",
+                          huber_delta: float = 1.0, velocity_weight: float = 0.0) -> tuple[torch.Tensor, dict]:
+    """``(loss, parts)`` of ``trajectory_loss`` on one batch (shapes as ``acceleration_batch_loss``; no
+    ``qdd`` needed): multiple shooting, each chunk rolled out ``L - 1`` steps of ``dt`` (s) from its
+    first state with ``integrator``, driven by its inputs, against its positions (and, with
+    ``velocity_weight``, velocities); residuals in the model's normalised coordinates and time."""
+    q, qd = batch["q"], batch["qd"]
+    if q.shape[1] < 2:
+        raise ValueError("trajectory matching needs chunks of at least 2 points (data.chunk_len >= 2)")
+    tau = batch["tau"][:, :-1] if "tau" in batch else None
+    norm = model.normalizer
+    with counting_failures(model):
+        err, err_v = shooting_residuals(model, q[:, 0], qd[:, 0], batch["params"][:, 0], dt or 1.0, q, integrator,
+                                        tau=tau, qd_windows=qd if velocity_weight > 0 else None,
+                                        scale=norm.coord_scale.to(q.dtype), time_scale=float(norm.time_scale))
+    return trajectory_loss(err, err_v, huber_delta=huber_delta, velocity_weight=velocity_weight)

@@ -143,9 +143,9 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
     model.model.fit_normalizer(dm.normalization_data())
     model = model.double()
     results = []
-    for pass_fn in (model._training_pass, compile_fn(model._training_pass)):
+    for pass_fn in (model.training_terms, compile_fn(model.training_terms)):
         model.zero_grad()
-        loss, _ = model._training_loss(batch, pass_fn)
+        loss, _ = model.batch_loss(batch, pass_fn)
         loss.backward()
         results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
     (l0, g0), (l1, g1) = results
@@ -157,7 +157,7 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
     model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[16, 16])
     trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False)
     trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
-    assert model._compiled not in (None, False) and trainer.global_step == 3
+    assert model.training_pass.compiled not in (None, False) and trainer.global_step == 3
 
 
 def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset, tmp_path, monkeypatch):
@@ -183,11 +183,11 @@ def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset,
         return model
 
     assert LNNModule(hidden_dims=[8]).hparams.compile == "auto"
-    assert fit(3)._compiled is None and not built  # 3 < 4 planned steps: eager
-    assert fit(4)._compiled is not None and len(built) == 1  # 4 planned steps: compiled
-    assert fit(6, compile=False)._compiled is None and len(built) == 1
+    assert fit(3).training_pass.compiled is None and not built  # 3 < 4 planned steps: eager
+    assert fit(4).training_pass.compiled is not None and len(built) == 1  # 4 planned steps: compiled
+    assert fit(6, compile=False).training_pass.compiled is None and len(built) == 1
     monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
-    assert fit(6)._compiled is None and len(built) == 1
+    assert fit(6).training_pass.compiled is None and len(built) == 1
     with pytest.raises(ValueError, match="compile must be true, false or 'auto'"):
         LNNModule(compile="sometimes")
 
@@ -217,5 +217,5 @@ def test_compile_failure_falls_back_to_eager(where, dataset, tmp_path, monkeypat
     trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False)
     with pytest.warns(RuntimeWarning, match="continuing training eagerly"):
         trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
-    assert model._compiled is False and trainer.global_step == 3
+    assert model.training_pass.compiled is False and trainer.global_step == 3
     assert all(torch.isfinite(p).all() for p in model.parameters())

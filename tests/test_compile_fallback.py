@@ -55,8 +55,7 @@ def test_the_warning_names_what_failed_and_its_first_line():
 
 def test_the_model_and_the_module_compile_through_it(monkeypatch):
     module = LNNModule(compile=True, val_rollouts=0, hidden_dims=[8])
-    monkeypatch.setattr(module, "_compile_training", lambda: True)
-    assert isinstance(module._pass_fn(), CompiledFallback)
+    assert isinstance(module.training_pass.function(0, module.device), CompiledFallback)
     model = module.model.double().compile_dynamics()
     monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)  # a "compilation" that runs fn itself
     q = torch.tensor([[0.3, -0.2]], dtype=torch.float64)

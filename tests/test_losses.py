@@ -87,11 +87,15 @@ def test_shooting_residuals_roll_each_window_out_from_its_start():
 
 
 def test_identification_and_training_use_the_one_shooting_residual(monkeypatch):
-    """Both objectives go through losses.shooting_residuals: replacing it changes both."""
+    """Both objectives go through losses.shooting_residuals: identification calls it, training's
+    trajectory matching calls losses.trajectory_batch_loss, which calls it."""
     import lnn_torch.identification as identification
+    import lnn_torch.losses as losses
     import lnn_torch.module as module
 
-    assert identification.shooting_residuals is shooting_residuals and module.shooting_residuals is shooting_residuals
+    assert identification.shooting_residuals is shooting_residuals
+    assert module.trajectory_batch_loss is losses.trajectory_batch_loss
+    assert "shooting_residuals" in losses.trajectory_batch_loss.__code__.co_names
 
 
 # ---------------------------------------------------------------------------- loss terms
@@ -175,7 +179,7 @@ def old_assembly(module, batch):
     C, L, _ = batch["q"].shape
     flat = [batch[k].reshape(C * L, -1) for k in ("q", "qd", "qdd", "params")]
     tau = batch["tau"].reshape(C * L, -1) if "tau" in batch else None
-    out = module._training_pass(*flat, tau, C)
+    out = module.training_terms(*flat, tau, C)
     rms = out["rms"]
     huber_ = F.huber_loss(out["pred"] / rms, out["target"] / rms, delta=module.hparams.huber_delta)
     loss, parts = huber_, {"huber": huber_}
@@ -250,11 +254,11 @@ def shipped_model_losses():
     batch = fixed_batch(module.system)
     values = {}
     with torch.no_grad():
-        loss, parts = module._training_loss(batch, module._training_pass)
+        loss, parts = module.batch_loss(batch)
         values.update({k: float(v) for k, v in parts.items()}, loss=float(loss))
         module.hparams.loss = "trajectory"
         module.hparams.trajectory_velocity_weight = 0.5
-        loss, parts = module._training_loss(batch, module._training_pass)
+        loss, parts = module.batch_loss(batch)
         values.update({k: float(v) for k, v in parts.items()}, trajectory_loss=float(loss))
     return values
 
@@ -282,7 +286,7 @@ def test_module_losses_equal_the_assembly_the_module_had_before(scene, kw):
                                  "params": batch["params"][:, 0],
                                  **({"tau": flat(batch["tau"])} if "tau" in batch else {})})
     module.data_dt = 0.01
-    new, new_parts = module._training_loss(batch, module._training_pass)
+    new, new_parts = module.batch_loss(batch)
     old, old_parts = old_assembly(module, batch)
     assert set(new_parts) == set(old_parts) == {"huber", "energy_var", "torque"} & (
         {"huber"} | ({"energy_var"} if kw.get("energy_weight") else set()) | ({"torque"} if kw.get("torque_weight") else set()))
@@ -290,7 +294,7 @@ def test_module_losses_equal_the_assembly_the_module_had_before(scene, kw):
     module.hparams.loss = "trajectory"
     for weight in (0.0, 0.5):
         module.hparams.trajectory_velocity_weight = weight
-        new, new_parts = module._training_loss(batch, module._training_pass)
+        new, new_parts = module.batch_loss(batch)
         old, old_parts = old_trajectory_loss(module, batch)
         assert set(new_parts) == set(old_parts)
         assert torch.equal(new, old) and all(torch.equal(new_parts[k], old_parts[k]) for k in old_parts)

@@ -207,15 +207,15 @@ def test_trajectory_matching_gradient_equals_finite_differences(tmp_path):
     batch = {k: torch.from_numpy(arrays[k]) for k in ("q", "qd", "tau")}
     batch["params"] = torch.from_numpy(arrays["params"])[:, None].expand(-1, batch["q"].shape[1], -1)
     weight = model.model.kinetic["mlp"].net.hidden[0].weight
-    loss, _ = model._training_loss(batch, None)
+    loss, _ = model.batch_loss(batch)
     (grad,) = torch.autograd.grad(loss, weight)
     h = 1e-6
     for idx in [(0, 0), (1, 2), (3, 5)]:
         with torch.no_grad():
             weight[idx] += h
-            up = model._training_loss(batch, None)[0]
+            up = model.batch_loss(batch)[0]
             weight[idx] -= 2 * h
-            down = model._training_loss(batch, None)[0]
+            down = model.batch_loss(batch)[0]
             weight[idx] += h
         assert abs(grad[idx] - (up - down) / (2 * h)) <= 1e-6 * max(1.0, abs(float(grad[idx]))), idx
 

@@ -175,15 +175,15 @@ def test_training_conditions_once_per_chunk(dataset):
 
     def spy(*args):
         seen.append(args[-1])
-        return model._training_pass(*args)
+        return model.training_terms(*args)
 
-    loss_shared, _ = model._training_loss(batch, spy)
+    loss_shared, _ = model.batch_loss(batch, spy)
     mixed = dict(batch, params=batch["params"].clone())
     mixed["params"][0, 1:] *= 1.1
-    model._training_loss(mixed, spy)
+    model.batch_loss(mixed, spy)
     C = batch["q"].shape[0]
     assert seen == [C, None]
-    loss_rows, _ = model._training_loss(batch, lambda *a: model._training_pass(*a[:-1], None))
+    loss_rows, _ = model.batch_loss(batch, lambda *a: model.training_terms(*a[:-1], None))
     torch.testing.assert_close(loss_shared, loss_rows, rtol=1e-5, atol=0)
 
 

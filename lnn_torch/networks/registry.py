@@ -8,6 +8,7 @@ import inspect
 
 from ..errors import InputError
 from .base import DynamicsModel
+from .capabilities import ENERGY, INVERSE_DYNAMICS
 from .blackbox import BlackBoxLagrangian
 from .direct import DirectMLP
 from .hamiltonian import HamiltonianNN
@@ -53,3 +54,22 @@ def build_model(variant: str, scene, **options) -> DynamicsModel:
     if "hidden_dims" in options:
         options["hidden_dims"] = tuple(options["hidden_dims"])
     return model_class(variant)(scene, **options)
+
+
+def refuse_conflicts(variant: str, system, options: dict, energy_weight: float = 0.0,
+                     torque_weight: float = 0.0) -> None:
+    """Every option and loss term that ``variant`` cannot use on ``system``, in ONE ``InputError`` (a user
+    switching variants sees the whole list at once, not one refusal per attempt)."""
+    cls = model_class(variant)
+    problems = [f"option {k!r} (not an option of {variant})" for k in unknown_options(variant, options)]
+    if torque_weight > 0 and not (INVERSE_DYNAMICS in cls.provides and system.num_inputs):
+        problems.append(f"torque_weight {torque_weight:g} (needs inverse dynamics: film_lnn or delan on a scene with "
+                        f"inputs; scene '{system.name}' has {system.num_inputs})")
+    if energy_weight > 0 and ENERGY not in cls.provides:
+        problems.append(f"energy_weight {energy_weight:g} (variant {variant} has no energy of its own)")
+    if (energy_weight > 0 or torque_weight > 0) and options.get("dissipation") == "joint+stiction":
+        problems.append("energy_weight/torque_weight with dissipation 'joint+stiction' (static friction's holding "
+                        "torque is not a force of the state)")
+    if problems:
+        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}. "
+                         f"Its options: {', '.join(model_options(variant))}")

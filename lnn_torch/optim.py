@@ -1,0 +1,47 @@
+"""The optimiser and its schedule: AdamW (the fused kernel where torch has one) with the physical
+coefficients exempt from weight decay, and a cosine learning rate from ``lr`` to ``lr_min`` that ends
+with the run: at its step budget or, under a ``max_time`` (Lightning's ``Timer``), its time budget,
+whichever comes first."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .perf import adamw
+
+
+def training_progress(trainer, step: int) -> float:
+    """Fraction of a run's training budget used at optimiser step ``step``: of its steps or, under a
+    ``max_time``, of its time, whichever is further (0 outside a trainer)."""
+    if trainer is None:
+        return 0.0
+    from lightning.pytorch.callbacks import Timer  # Lightning only where a trainer runs
+
+    total = trainer.estimated_stepping_batches
+    progress = step / total if total and math.isfinite(total) else 0.0
+    for cb in trainer.callbacks:
+        if isinstance(cb, Timer) and cb.time_remaining("train") is not None:
+            elapsed = cb.time_elapsed("train")
+            duration = elapsed + cb.time_remaining("train")
+            progress = max(progress, elapsed / duration if duration > 0 else 1.0)
+    return min(progress, 1.0)
+
+
+def configure_optimizer(parameters, coefficients, *, lr: float, lr_min: float, weight_decay: float,
+                        progress) -> dict:
+    """Lightning's ``configure_optimizers`` answer: AdamW over ``parameters`` with ``weight_decay`` on
+    all but ``coefficients`` (physical coefficients: a decay would pull a mass or a length towards
+    zero), and a per-step cosine from ``lr`` to ``lr_min`` over ``progress(step)`` in [0, 1]."""
+    params = list(parameters)
+    if weight_decay:
+        exempt = {id(p) for p in coefficients}
+        groups = [{"params": [p for p in params if id(p) not in exempt]},
+                  {"params": [p for p in params if id(p) in exempt], "weight_decay": 0.0}]
+        params = [g for g in groups if g["params"]]
+    opt = adamw(params, lr=lr, weight_decay=weight_decay)
+    floor = lr_min / lr
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda step: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress(step))))
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
