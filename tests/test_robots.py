@@ -93,10 +93,30 @@ def test_bad_input_is_refused_in_one_line(arm, tmp_path):
         arm.mass_matrix(np.zeros((2, 6)))
     with pytest.raises(InputError, match="payload must be"):
         arm.set_payload([-1.0, 0, 0, 0])
-    bad = tmp_path / "bad.xml"
-    bad.write_text("<mujoco><worldbody><body name='a'><joint/><geom size='0.1'/></body></worldbody></mujoco>")
-    with pytest.raises(InputError, match="no body 'payload'"):
-        MujocoArm(bad)
+    two = tmp_path / "two_ends.xml"
+    two.write_text("<mujoco><worldbody><body name='a'><joint/><geom size='0.1'/></body>"
+                   "<body name='b'><geom size='0.1'/></body></worldbody></mujoco>")
+    with pytest.raises(InputError, match="name the flange .* the chain ends in a, b"):
+        MujocoArm(two)
+    with pytest.raises(InputError, match="no body or site 'c' for the flange"):
+        MujocoArm({"source": str(two), "flange": "c"})
+
+
+def test_a_description_without_a_payload_body_gets_one_at_its_flange(tmp_path):
+    """The payload attaches at the flange a description names (a body: its origin; a site: its frame), by
+    default at the chain's last body; the description file itself is not changed."""
+    path = tmp_path / "one.xml"
+    text = ("<mujoco><worldbody><body name='a'><joint axis='0 1 0'/><geom size='0.1'/>"
+            "<site name='tip' pos='0.3 0 0'/></body></worldbody></mujoco>")
+    path.write_text(text)
+    for flange, tip in ((None, 0.0), ("a", 0.0), ("tip", 0.3)):
+        arm = MujocoArm({"source": str(path), "flange": flange} if flange else path)
+        parent = arm.body_names[arm.model.body_parentid[arm.payload_id]]
+        assert parent == "a" and arm.model.body_pos[arm.payload_id][0] == pytest.approx(tip)
+        # 1 kg at the flange: its gravity torque about the joint is m g x at q = 0 (x along the arm)
+        loaded = arm.gravity_torque(np.zeros((1, 1)), [1.0, 0.0, 0.0, 0.0]) - arm.gravity_torque(np.zeros((1, 1)))
+        assert float(loaded) == pytest.approx(-9.81 * tip, abs=1e-12)
+    assert path.read_text() == text
 
 
 def test_the_payload_regressor_gives_the_torques_a_payload_adds_and_least_squares_recovers_it(arm):

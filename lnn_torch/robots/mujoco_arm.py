@@ -36,8 +36,7 @@ import torch
 
 from ..errors import InputError
 from . import description_path
-
-PAYLOAD_BODY = "payload"
+from .description import PAYLOAD_BODY, ArmDescription
 # the perturbation's factors and offsets (module docstring)
 MASS_FACTOR, COM_SHIFT, INERTIA_FACTOR = (0.8, 1.2), 0.01, (0.7, 1.3)
 ARMATURE_FACTOR, DAMPING_FACTOR = (0.7, 1.3), (0.5, 2.0)
@@ -52,39 +51,29 @@ def _mujoco():
 
 
 def load_description(description="franka_panda"):
-    """The compiled ``mujoco.MjModel`` of a shipped description or an MJCF path; ``InputError`` in one line."""
-    mujoco = _mujoco()
-    path = description_path(description)
-    try:
-        return mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as err:
-        raise InputError(f"robot description {path}: {str(err).splitlines()[0]}") from None
+    """The compiled ``mujoco.MjModel`` of a robot description: a shipped name, an MJCF or URDF path, or
+    the description as the robot you have (``ArmDescription``: a dict of source, flange, remove, tool,
+    armature, damping); ``InputError`` in one line."""
+    return ArmDescription.of(description).compile()
 
 
 class MujocoArm:
     """The dynamics of a description's arm, the payload a parameter (see the module docstring).
 
     Args:
-        description: a shipped description's name (``franka_panda``) or the path of an MJCF file.
+        description: a shipped description's name (``franka_panda``), an MJCF or URDF path, or the
+            description as the robot you have (``lnn_torch.robots.description.ArmDescription`` or its dict).
         perturbation: None (the description as written) or an int seed of the perturbed arm.
     """
 
     def __init__(self, description="franka_panda", perturbation: int | None = None) -> None:
         mujoco = _mujoco()
-        self.path = description_path(description)
-        try:
-            self.model = mujoco.MjModel.from_xml_path(str(self.path))
-        except ValueError as err:
-            lines = [line.strip() for line in str(err).splitlines() if line.strip()]
-            where = f" ({'; '.join(lines[1:])})" if len(lines) > 1 else ""
-            raise InputError(f"robot description {self.path}: {lines[0] if lines else err}{where}") from None
+        self.description = ArmDescription.of(description)
+        self.path = description_path(self.description.source)
+        self.model = self.description.compile()
         m = self.model
         _check_serial_arm(m, self.path)
         self.payload_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
-        if self.payload_id < 0:
-            raise InputError(f"robot description {self.path} has no body '{PAYLOAD_BODY}' at its flange (add "
-                             f"<body name=\"{PAYLOAD_BODY}\" pos=...><inertial mass=\"0\" pos=\"0 0 0\" "
-                             "diaginertia=\"0 0 0\"/></body> to the last link)")
         # smooth dynamics (no joint-limit or contact constraints); the engine's energies on
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
         m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)

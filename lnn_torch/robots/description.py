@@ -1,0 +1,225 @@
+"""A robot description as the robot you have: which description (a shipped one, an MJCF or a URDF file,
+read by MuJoCo), where payloads attach (the flange: a body or a site), which of its bodies the real
+robot does not carry (``remove``, e.g. a hand it was logged without), a tool it does carry (a fixed,
+known rigid body at the flange), and its joints' armature and damping (as written, exactly zero, or
+given values). The description file is never edited: MuJoCo's model editor (``mujoco.MjSpec``) applies
+the changes to the model it compiles.
+
+    ArmDescription.of("franka_panda")
+    ArmDescription.of({"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"})
+    ArmDescription.of({"source": "my_arm.urdf", "flange": "tool0", "tool": [0.8, 0, 0, 0.05]})
+
+The compiled model carries a massless body ``payload`` at the flange (the payload a scene or a model
+sets at run time) and, with a ``tool``, a body ``tool`` there with the tool's mass, centre of mass and
+inertia (flange frame).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from . import description_path
+
+PAYLOAD_BODY = "payload"
+TOOL_BODY = "tool"
+JOINT_SETTINGS = ("as_written", "zero")  # or one value per joint
+KEYS = ("source", "flange", "remove", "tool", "armature", "damping")
+
+
+def _mujoco():
+    try:
+        import mujoco
+    except ImportError:  # pragma: no cover - the optional dependency
+        raise InputError("robot arms need MuJoCo: pip install 'lnn-torch[robots]'") from None
+    return mujoco
+
+
+def _joint_setting(value, key: str):
+    if isinstance(value, str):
+        if value not in JOINT_SETTINGS:
+            raise InputError(f"robot description: {key} must be 'as_written', 'zero' or one value per joint, "
+                             f"got {value!r}")
+        return value
+    try:
+        values = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"robot description: {key} must be 'as_written', 'zero' or one value per joint, "
+                         f"got {value!r}") from None
+    if not all(np.isfinite(values)) or min(values, default=0.0) < 0:
+        raise InputError(f"robot description: {key} values must be finite and >= 0, got {list(values)}")
+    return values
+
+
+def payload_row(value, what: str = "tool") -> tuple[float, ...]:
+    """A rigid body at the flange as ``(mass, cx, cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz])`` (kg, m, kg m^2;
+    flange frame; inertia about the centre of mass); a dict ``{mass, com, inertia}`` is read too."""
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - {"mass", "com", "inertia"})
+        if unknown or "mass" not in value:
+            raise InputError(f"robot description: {what} takes mass (kg), com (3 values, m) and optionally inertia "
+                             f"(Ixx, Iyy, Izz, Ixy, Ixz, Iyz; kg m^2), got {sorted(value)}")
+        value = [value["mass"], *value.get("com", (0.0, 0.0, 0.0)), *value.get("inertia", ())]
+    try:
+        row = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"robot description: {what} must be (mass, cx, cy, cz[, six inertia entries]), "
+                         f"got {value!r}") from None
+    if len(row) not in (4, 10) or not all(np.isfinite(row)) or row[0] < 0:
+        raise InputError(f"robot description: {what} must be (mass >= 0, cx, cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]), "
+                         f"got {list(row)}")
+    return row
+
+
+@dataclass(frozen=True)
+class ArmDescription:
+    """What of a robot description is the robot (module docstring). Frozen and hashable: a model part
+    and a scene that read the same description share its compiled model."""
+
+    source: str = "franka_panda"
+    flange: str | None = None
+    remove: tuple[str, ...] = field(default_factory=tuple)
+    tool: tuple[float, ...] | None = None
+    armature: str | tuple[float, ...] = "as_written"
+    damping: str | tuple[float, ...] = "as_written"
+
+    @classmethod
+    def of(cls, value) -> ArmDescription:
+        """From a shipped name or a path (the description as written), a dict of the fields (``KEYS``),
+        its JSON text, or an ``ArmDescription``; ``InputError`` in one line for anything else."""
+        if isinstance(value, ArmDescription):
+            return value
+        if isinstance(value, str) and value.lstrip().startswith("{"):
+            value = json.loads(value)
+        if not isinstance(value, dict):
+            return cls(source=str(value))
+        unknown = sorted(set(value) - set(KEYS))
+        if unknown:
+            raise InputError(f"robot description: unknown key(s) {', '.join(unknown)}; known: {', '.join(KEYS)}")
+        remove = value.get("remove") or ()
+        remove = (remove,) if isinstance(remove, str) else tuple(str(b) for b in remove)
+        tool = value.get("tool")
+        return cls(source=str(value.get("source", "franka_panda")), flange=value.get("flange"), remove=remove,
+                   tool=None if tool is None else payload_row(tool),
+                   armature=_joint_setting(value.get("armature", "as_written"), "armature"),
+                   damping=_joint_setting(value.get("damping", "as_written"), "damping"))
+
+    @property
+    def as_written(self) -> bool:
+        """Whether this is the description file itself, unchanged."""
+        return self == ArmDescription(source=self.source)
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["remove"] = list(self.remove)
+        for key in ("tool", "armature", "damping"):
+            if isinstance(out[key], tuple):
+                out[key] = list(out[key])
+        return out
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    def config(self):
+        """What a configuration file says: the source's name alone for the description as written."""
+        return self.source if self.as_written else self.to_dict()
+
+    def __str__(self) -> str:
+        changes = [f"{k}={v}" for k, v in self.to_dict().items()
+                   if k != "source" and v not in (None, [], "as_written")]
+        return self.source + (f" ({', '.join(changes)})" if changes else "")
+
+    # ------------------------------------------------------------------ the compiled model
+    def compile(self):
+        """The ``mujoco.MjModel`` of the robot: the description with this one's changes, a massless
+        ``payload`` body at the flange and the ``tool`` there; ``InputError`` in one line naming what
+        the description lacks."""
+        mujoco = _mujoco()
+        path = description_path(self.source)
+        try:
+            spec = mujoco.MjSpec.from_file(str(path))
+        except ValueError as err:
+            lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+            where = f" ({'; '.join(lines[1:])})" if len(lines) > 1 else ""
+            raise InputError(f"robot description {path}: {lines[0] if lines else err}{where}") from None
+        spec.compiler.fusestatic = False  # keep a URDF's fixed frames (its flange link) as bodies
+        names = [b.name for b in spec.bodies]
+        for name in self.remove:
+            body = spec.body(name) if name in names else None
+            if body is None or name == "world":
+                raise InputError(f"robot description {path}: no body '{name}' to remove (bodies: "
+                                 f"{', '.join(n for n in names if n != 'world')})")
+            spec.delete(body)
+        names = [b.name for b in spec.bodies]
+        flange = self._flange(spec, names, path)
+        if PAYLOAD_BODY in names and flange is None:
+            payload = spec.body(PAYLOAD_BODY)  # the shipped descriptions' own
+        else:
+            if PAYLOAD_BODY in names:
+                raise InputError(f"robot description {path} has a body '{PAYLOAD_BODY}' and a flange "
+                                 f"'{self.flange}': the payload attaches at one of them (leave out flange)")
+            parent, pos, quat = flange if flange is not None else (self._leaf(spec, path), None, None)
+            payload = parent.add_body(name=PAYLOAD_BODY)
+            if pos is not None:
+                payload.pos, payload.quat = pos, quat
+            payload.mass, payload.inertia, payload.explicitinertial = 0.0, [0.0, 0.0, 0.0], True
+        if self.tool is not None:
+            tool = payload.parent.add_body(name=TOOL_BODY, pos=payload.pos, quat=payload.quat)
+            row = self.tool
+            tool.mass, tool.ipos, tool.explicitinertial = row[0], list(row[1:4]), True
+            if len(row) == 10 and any(row[4:]):  # about its centre of mass, flange axes (MuJoCo's fullinertia order)
+                tool.fullinertia = list(row[4:])
+            else:  # a point mass
+                tool.inertia = [0.0, 0.0, 0.0]
+        for key in ("armature", "damping"):
+            setting = getattr(self, key)
+            if setting == "as_written":
+                continue
+            joints = [j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_HINGE]
+            values = (0.0,) * len(joints) if setting == "zero" else setting
+            if len(values) != len(joints):
+                raise InputError(f"robot description {path}: {key} has {len(values)} values for {len(joints)} joints")
+            for joint, v in zip(joints, values, strict=True):
+                # damping is MuJoCo's polynomial (linear coefficient first): the value is viscous, N m s/rad
+                setattr(joint, key, float(v) if key == "armature" else [float(v), 0.0, 0.0])
+        try:
+            return spec.compile()
+        except ValueError as err:
+            raise InputError(f"robot description {path} as changed ({self}): {str(err).splitlines()[0]}") from None
+
+    def _flange(self, spec, names: list[str], path):
+        """``(body, pos, quat)`` where the payload attaches for a named flange (a body: its origin; a
+        site: its frame in its body), None where none is named."""
+        if self.flange is None:
+            return None
+        if self.flange in names:
+            return spec.body(self.flange), None, None
+        site = spec.site(self.flange)
+        if site is None:
+            sites = [s.name for s in spec.sites if s.name]
+            raise InputError(f"robot description {path}: no body or site '{self.flange}' for the flange (bodies: "
+                             f"{', '.join(n for n in names if n != 'world')}"
+                             + (f"; sites: {', '.join(sites)})" if sites else ")"))
+        return site.parent, list(site.pos), list(site.quat)
+
+    @staticmethod
+    def _leaf(spec, path):
+        """The last body of the chain (the default flange): the deepest body, which must be unique."""
+        def depth(body):
+            n = 0
+            while body.name != "world":
+                body, n = body.parent, n + 1
+            return n
+
+        bodies = [b for b in spec.bodies if b.name != "world"]
+        if not bodies:
+            raise InputError(f"robot description {path} has no bodies")
+        deepest = max(depth(b) for b in bodies)
+        leaves = [b for b in bodies if depth(b) == deepest]
+        if len(leaves) > 1:
+            raise InputError(f"robot description {path}: name the flange (a body or site where payloads attach); "
+                             f"the chain ends in {', '.join(b.name for b in leaves)}")
+        return leaves[0]

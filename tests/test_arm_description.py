@@ -1,0 +1,98 @@
+"""The robot description as the robot you have (``lnn_torch.robots.description``): bodies removed, a
+tool carried, armature and damping as written, zero or given, a URDF's flange link, and refusals."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco")
+
+from lnn_torch.errors import InputError  # noqa: E402
+from lnn_torch.robots.description import ArmDescription  # noqa: E402
+from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
+
+URDF = """<robot name="two">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>
+  </inertial></link>
+  <link name="l1"><inertial><mass value="2"/><origin xyz="0 0 0.2"/>
+    <inertia ixx="0.02" iyy="0.03" izz="0.015" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="l2"><inertial><mass value="1.5"/><origin xyz="0.1 0 0.1"/>
+    <inertia ixx="0.015" iyy="0.02" izz="0.015" ixy="0.001" ixz="0" iyz="0"/></inertial></link>
+  <link name="tool0"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.4"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>
+  <joint name="flange" type="fixed"><parent link="l2"/><child link="tool0"/><origin xyz="0.3 0 0"/></joint>
+</robot>
+"""
+
+
+def states(arm, n=12, seed=0):
+    rng = np.random.default_rng(seed)
+    return arm.sample_q(rng, n), rng.normal(size=(n, arm.dof)), rng.normal(size=(n, arm.dof))
+
+
+def test_the_hand_removed_and_carried_back_as_a_tool_is_the_arm_as_written():
+    """Removing the Panda's hand and carrying the same rigid body as a tool (its mass, centre of mass
+    and inertia written in the flange frame: the hand's frame is turned by the description's quaternion,
+    about -45 deg about the flange's z) gives the description's own dynamics; without the tool the
+    hand's 0.73 kg is gone."""
+    shipped = MujocoArm("franka_panda")
+    w, z = np.array([0.9238795, -0.3826834]) / math.hypot(0.9238795, 0.3826834)  # as written, normalised
+    c, s = w * w - z * z, 2 * w * z
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    com = R @ np.array([-0.01, 0, 0.03])
+    inertia = R @ np.diag([0.001, 0.0025, 0.0017]) @ R.T
+    tool = [0.73, *com, inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    carried = MujocoArm({"source": "franka_panda", "remove": ["hand"], "tool": tool})
+    bare = MujocoArm({"source": "franka_panda", "remove": ["hand"]})
+    q, qd, qdd = states(shipped)
+    torch.testing.assert_close(carried.mass_matrix(q), shipped.mass_matrix(q), rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(carried.inverse(q, qd, qdd), shipped.inverse(q, qd, qdd), rtol=1e-12, atol=1e-12)
+    assert float((shipped.gravity_torque(q) - bare.gravity_torque(q)).abs().max()) > 0.5
+    assert sum(bare.model.body_mass) == pytest.approx(sum(shipped.model.body_mass) - 0.73, abs=1e-12)
+
+
+def test_armature_and_damping_as_written_zero_or_given():
+    written = MujocoArm("franka_panda")
+    zero = MujocoArm({"source": "franka_panda", "armature": "zero", "damping": "zero"})
+    given = MujocoArm({"source": "franka_panda", "armature": [0.2] * 7, "damping": [0.5] * 7})
+    assert written.armature.tolist() == [0.1] * 7 and written.damping.tolist() == [1.0] * 7
+    assert zero.armature.tolist() == [0.0] * 7 and zero.damping.tolist() == [0.0] * 7
+    assert given.armature.tolist() == [0.2] * 7 and given.damping.tolist() == [0.5] * 7
+    q, qd, _ = states(written)
+    # M differs by the armature on its diagonal exactly; the passive force is -damping qd
+    diff = written.mass_matrix(q) - zero.mass_matrix(q)
+    torch.testing.assert_close(diff, 0.1 * torch.eye(7, dtype=torch.float64).expand_as(diff), rtol=0, atol=1e-14)
+    torch.testing.assert_close(given.passive(qd), -0.5 * torch.as_tensor(qd), rtol=0, atol=0)
+
+
+def test_a_urdf_keeps_its_flange_link_and_takes_payloads_there(tmp_path):
+    path = tmp_path / "two.urdf"
+    path.write_text(URDF)
+    arm = MujocoArm({"source": str(path), "flange": "tool0"})
+    assert arm.joint_names == ("j1", "j2") and arm.body_names[arm.model.body_parentid[arm.payload_id]] == "tool0"
+    # 2 kg at the flange, 0.3 m along l2's x: holding it at q = 0 takes m g x at joint 2 (axis y)
+    held = arm.gravity_torque(np.zeros((1, 2)), [2.0, 0, 0, 0]) - arm.gravity_torque(np.zeros((1, 2)))
+    torch.testing.assert_close(held, torch.tensor([[0.0, -2.0 * 9.81 * 0.3]], dtype=torch.float64), rtol=0,
+                               atol=1e-12)
+    assert path.read_text() == URDF  # never edited
+
+
+def test_descriptions_round_trip_and_bad_ones_are_refused_in_one_line():
+    d = ArmDescription.of({"source": "franka_panda", "remove": "hand", "armature": "zero", "tool": [1, 0, 0, 0.1]})
+    assert ArmDescription.of(d.to_json()) == d and ArmDescription.of(d.to_dict()) == d
+    assert ArmDescription.of("franka_panda").as_written and not d.as_written
+    assert ArmDescription.of("franka_panda").config() == "franka_panda"
+    assert str(d) == "franka_panda (remove=['hand'], tool=[1.0, 0.0, 0.0, 0.1], armature=zero)"
+    for bad, match in (({"source": "franka_panda", "remove": ["hands"]}, "no body 'hands' to remove"),
+                       ({"source": "franka_panda", "armature": [1, 2]}, "armature has 2 values for 7 joints"),
+                       ({"source": "franka_panda", "armature": "learn"}, "armature must be 'as_written', 'zero'"),
+                       ({"source": "franka_panda", "tool": [1, 0]}, "tool must be"),
+                       ({"source": "franka_panda", "flange": "link7"}, "has a body 'payload' and a flange"),
+                       ({"sourse": "franka_panda"}, "unknown key")):
+        with pytest.raises(InputError, match=match):
+            ArmDescription.of(bad).compile()
