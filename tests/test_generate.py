@@ -1,6 +1,9 @@
 """Dataset generation: accuracy against DOP853, conservation, reproducibility, schema, refusals."""
 
+import copy
+import dataclasses
 import json
+import pickle
 import subprocess
 import sys
 
@@ -12,7 +15,7 @@ import torch
 from lnn_torch.cli import main
 from lnn_torch.data import DatasetFileError, DatasetSpec, generate_arrays, generate_dataset, read_dataset
 from lnn_torch.data.generate import sample_initial_conditions
-from lnn_torch.systems import InputError
+from lnn_torch.systems import InputError, get_system
 
 from .conftest import dop853_reference
 
@@ -191,3 +194,176 @@ def test_spec_validation():
         DatasetSpec(duration=1.0, dt=0.3)
     with pytest.raises(InputError, match="targets"):
         DatasetSpec(targets="magic")
+
+
+# ---------------------------------------------------------------------------- one recorder, one scene
+# trajectory 2 of DatasetSpec(scene, scene_config, num_trajectories=3, duration=0.1, seed=3): its parameters
+# and its last sample, as the generator before the recorder refactor wrote them (commit 7b003fd). The
+# parameters are seeded draws (exact on every platform); the states are float64 integrations, equal here
+# to the last bit, within 1e-10 wherever libm or the engine rounds differently. A change of the seeding or
+# of the order of the draws moves them by O(1).
+FINGERPRINTS = {
+    ("double_pendulum", ""): {
+        "params": [0.897008362769448, 0.24727169655774434, 1.925769876575321, 2.07561095542777],
+        "q": [-0.14602672430007427, -1.147425835486757], "qd": [-0.28840973045918933, 0.6521656773508495],
+        "qdd": [0.11584375686342117, 4.316083186036731], "energy": -23.153135988002564},
+    ("actuated_double_pendulum", ""): {
+        "params": [0.42224593794740944, 0.43783132176957135, 0.2932518069613928, 0.27698249224255045,
+                   0.13803674628309345, 0.036979492699336966, 0.010718798686421734, 0.04661918921755773,
+                   0.0023721386706823944, 0.005131741185733579, 0.11569261935514089],
+        "q": [0.9035495596037314, -0.266114677984923], "qd": [0.22099007302547097, -2.3209727433683764],
+        "qdd": [-34.267545248005014, 84.22845404255668], "tau": [0.5257072676546769, 0.18098966229006927],
+        "energy": -1.9483741752339698},
+    ("chain_pendulum", '{"num_links": 3}'): {
+        "params": [0.897008362769448, 0.7906169511014272, 0.8586991860988125, 0.9445210077734176,
+                   0.7314418152825397, 0.5604680000712116],
+        "q": [-0.38661446732444904, 0.1595476610041093, 0.677713776393485],
+        "qd": [0.34014631619442093, -1.5724318009944291, -0.43291776516263963],
+        "qdd": [9.488791535268762, -9.120642748769598, -10.16006458042471], "energy": -36.31188667384734},
+    ("pendulum", ""): {
+        "params": [0.5834222673027853, 0.6418674566358925], "q": [1.3616889414916664], "qd": [-0.7203657046783283],
+        "qdd": [-14.950601937064539], "energy": -0.700234297720389},
+    ("mass_spring", ""): {
+        "params": [0.5834222673027853, 0.8310240654837492], "q": [0.9365064985972382], "qd": [0.6496260523633711],
+        "qdd": [-1.3339556637325358], "energy": 0.487528695218731},
+    ("relativistic_particle", ""): {
+        "params": [0.06112296897370471], "q": [-0.7588508699955363], "qd": [0.5208260738453114],
+        "qdd": [0.017964104412396483], "energy": 0.31100053010622586},
+    ("robot_arm", ""): {
+        "params": [0.16684453460557058, -0.04054216955760717, 0.04325180696139283, 0.08890420155468354],
+        "q": [-0.06790929267219714, -0.6451411720930407, -0.5938832595036136, -1.31565917885153, 0.9672403222436765,
+              0.8130541055445445, -1.2822161326997958],
+        "qd": [-0.28573923877773544, 0.3852739548893259, -0.4803030534594353, 0.13676602742763466,
+               0.3328346575456984, 0.09075654739453394, -0.3028138133049816],
+        "qdd": [1.2147683376564786, 2.3137268219681624, 0.08897704016601171, -0.22548150419174817,
+                -2.3095713437415, 3.1133467632901652, -1.1233712457003124],
+        "tau": [1.8766316777708627, 14.62428153851713, 8.011367735626472, 7.410897001707067, 1.870238500517893,
+                2.8147650111329097, -0.48539955044583055],
+        "energy": 101.79999731636},
+    ("robot_arm", '{"encoder_noise": 0.001, "perturbation": 2}'): {
+        "params": [0.16684453460557058, -0.04054216955760717, 0.04325180696139283, 0.08890420155468354],
+        "q": [-0.06662540460708472, -0.6441818623517724, -0.5925464259188162, -1.312915527961046, 0.970312869494836,
+              0.8164503726624899, -1.2818170833325637],
+        "qd": [-0.28067352428896175, 0.38490274194657204, -0.4674649818272953, 0.1568986477919968,
+               0.35289527692031736, 0.1108366589450026, -0.2953174595959421],
+        "qdd": [0.6223545019021558, 2.378046529291059, -0.018861870412060888, -0.8420517326484047,
+                -3.212065014759708, 2.528032199528475, -1.2760549269462578],
+        "tau": [1.7158654589686326, 14.847773314289064, 6.3799933711982915, 6.042638208137348, 1.3541431290691834,
+                2.536091094479163, -0.5031476255526459],
+        "energy": 96.25320072954047},
+}
+
+
+@pytest.mark.parametrize("scene, config", list(FINGERPRINTS), ids=lambda x: x or "default")
+def test_every_scene_records_the_trajectories_it_always_recorded(scene, config):
+    """The shipped models and the README's figures were trained and measured on these datasets."""
+    if scene == "robot_arm":
+        pytest.importorskip("mujoco")
+    spec = DatasetSpec(scene=scene, scene_config=json.loads(config or "{}"), num_trajectories=3, duration=0.1, seed=3)
+    arrays = generate_arrays(spec, indices=[2])
+    expected = FINGERPRINTS[scene, config]
+    np.testing.assert_array_equal(arrays["params"][0], expected["params"])
+    for key in ("q", "qd", "qdd", "tau", "energy"):
+        if key in expected:
+            np.testing.assert_allclose(arrays[key][0, -1], expected[key], rtol=1e-10, atol=1e-12, err_msg=key)
+    assert ("tau" in arrays) == ("tau" in expected)
+
+
+def test_the_closed_form_recorder_is_the_seeded_draws_integrated():
+    """Against the recipe written out here: trajectory i's generator is the seed sequence (seed, i);
+    it draws the parameters, the state, then the inputs; the closed form is integrated with them; the
+    targets and the energy are the scene's at the integrated states. Equal to the last bit."""
+    from lnn_torch.excitation import sample
+    from lnn_torch.ground_truth import integrate_ground_truth
+
+    spec = small_spec(scene="actuated_double_pendulum", num_trajectories=4, duration=0.2)
+    system = spec.system
+    t = np.arange(spec.num_points) * spec.dt
+    drawn = []
+    for i in (3, 1):
+        rng = np.random.default_rng(np.random.SeedSequence(spec.seed, spawn_key=(i,)))
+        params = system.sample_params(rng, 1)[0]
+        q0, qd0 = system.sample_state(rng, 1)
+        drawn.append((params, q0[0], qd0[0], sample(spec.input_signal(), rng, t, system.num_inputs)))
+    params, q0, qd0, tau = (torch.from_numpy(np.array(x)) for x in zip(*drawn, strict=True))
+    q, qd, steps, work = integrate_ground_truth(system, q0, qd0, params, spec.dt, spec.num_points - 1, spec.integrator,
+                                                spec.substeps, spec.energy_tol, spec.adaptive_tol, tau=tau[:, :-1],
+                                                return_work=True)
+    p_b = params[:, None].expand(-1, len(t), -1)
+    arrays = generate_arrays(spec, indices=[3, 1])
+    expected = {"t": t, "q": q, "qd": qd, "params": params, "tau": tau, "work": work, "integrator_steps": steps,
+                "qdd": system.acceleration(q, qd, p_b, tau), "energy": system.energy(q, qd, p_b)}
+    assert sorted(arrays) == sorted(expected)
+    for key, value in expected.items():
+        np.testing.assert_array_equal(arrays[key], np.asarray(value), err_msg=key)
+
+
+def test_a_dataset_builds_its_scene_once(tmp_path, monkeypatch):
+    import lnn_torch.data.spec as spec_module
+
+    built = []
+    monkeypatch.setattr(spec_module, "get_system", lambda *a, **k: built.append(a) or get_system(*a, **k))
+    spec = small_spec(scene="actuated_double_pendulum", num_trajectories=3, duration=0.1)
+    generate_dataset(spec, tmp_path / "d.h5", splits=("train",))
+    assert built == [("actuated_double_pendulum",)]
+
+
+def test_the_spec_keeps_its_scene_out_of_its_fields():
+    """Equality, asdict/JSON, pickles and copies (Lightning's saved hyper-parameters) see the fields
+    only; a changed scene configuration builds the scene again."""
+    spec = small_spec(duration=0.5)
+    scene = spec.system
+    assert spec.system is scene and spec == small_spec(duration=0.5)
+    assert sorted(json.loads(spec.to_json())) == sorted(f.name for f in dataclasses.fields(DatasetSpec))
+    copies = (pickle.loads(pickle.dumps(spec)), copy.deepcopy(spec), copy.copy(spec))
+    assert all("_scene" not in vars(other) for other in copies)  # built again when asked for
+    for other in (*copies, DatasetSpec.from_json(spec.to_json())):
+        assert other == spec and other.system is not scene and other.system.config() == scene.config()
+    assert len(pickle.dumps(spec)) < 1000
+    spec.scene_config = {"l1_range": [1.0, 1.5]}
+    assert spec.system is not scene and spec.system.config()["l1_range"] == [1.0, 1.5]
+
+
+@pytest.mark.parametrize("scene", ["double_pendulum", "robot_arm"])
+def test_one_progress_bar_counts_every_sample_interval(scene, monkeypatch):
+    if scene == "robot_arm":
+        pytest.importorskip("mujoco")
+    import lnn_torch.data.generate as generate
+
+    bars = []
+
+    class Bar:
+        def __init__(self, total, **kw):
+            self.total, self.done, self.closed = total, 0, False
+            bars.append(self)
+
+        def update(self, n=1):
+            self.done += n
+
+        def close(self):
+            self.closed = True
+
+    monkeypatch.setattr(generate, "tqdm", Bar)
+    spec = small_spec(scene=scene, num_trajectories=3, duration=0.1)
+    generate_arrays(spec, indices=[0, 2], progress=True)
+    assert len(bars) == 1 and bars[0].total == bars[0].done == 2 * 20 and bars[0].closed
+
+
+def test_cli_substeps_default_to_the_scenes(tmp_path):
+    """``lnn-torch generate`` without ``--substeps`` takes the scene's (8 for the actuated pendulum, as a
+    configuration's ``DatasetSpec`` does); given, its own."""
+    for extra, expected in (([], 8), (["--substeps", "2"], 2)):
+        out = tmp_path / f"d{expected}.h5"
+        argv = ["generate", "--scene", "actuated_double_pendulum", "-n", "2", "--duration", "0.05", "--no-progress",
+                "-o", str(out)]
+        assert main(argv + extra) == 0
+        ds = read_dataset(out)
+        assert ds.attrs["substeps"] == expected and DatasetSpec.from_json(ds.attrs["spec"]).substeps == expected
+
+
+def test_the_physics_layers_do_not_import_the_data_layer():
+    """Scenes, robots and recorders (layer 1) never import ``lnn_torch.data`` (layer 3)."""
+    code = ("import sys, lnn_torch.systems, lnn_torch.robots.recording, lnn_torch.recording; "
+            "print(sorted(m for m in sys.modules if m.startswith('lnn_torch.data')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr

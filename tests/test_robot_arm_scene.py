@@ -87,7 +87,8 @@ def test_batch_dimensions_dtype_and_device_are_kept(system):
     shaped = [x.reshape(2, 3, -1).float() for x in (q, qd, params, tau)]
     out = system.acceleration(*shaped)
     assert out.shape == (2, 3, 7) and out.dtype == torch.float32
-    torch.testing.assert_close(out.reshape(6, 7).double(), system.acceleration(q, qd, params, tau), rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(out.reshape(6, 7).double(), system.acceleration(q, qd, params, tau), rtol=1e-5,
+                               atol=1e-4)
     assert system.mass_matrix(shaped[0], shaped[2]).shape == (2, 3, 7, 7)
     assert system.energy(shaped[0], shaped[1], shaped[2]).shape == (2, 3)
     single = system.acceleration(q[0], qd[0], params[0], tau[0])
@@ -208,7 +209,8 @@ def test_the_recorded_accelerations_energy_and_power_balance_are_the_scenes(reco
     params = a["params"][:, None].expand(-1, a["q"].shape[1], -1)
     torch.testing.assert_close(a["qdd"], system.acceleration(a["q"], a["qd"], params, a["tau"]), rtol=0, atol=1e-10)
     torch.testing.assert_close(a["energy"], system.energy(a["q"], a["qd"], params), rtol=0, atol=1e-10)
-    residual = (a["energy"] - a["energy"][:, :1] - a["work"].sum(-1)).abs().max() / system.energy_scale(a["params"]).min()
+    residual = ((a["energy"] - a["energy"][:, :1] - a["work"].sum(-1)).abs().max()
+                / system.energy_scale(a["params"]).min())
     assert residual < 1e-9  # measured 1.2e-12 (RK4 at h = 1.25 ms, corrected trapezoidal work)
     assert json.loads(f.attrs["tolerances"])["max_power_balance_residual_rel"] < 1e-9
     # the damper dissipates, the torques do work
@@ -235,6 +237,55 @@ def test_generation_is_seeded_per_trajectory():
     np.testing.assert_array_equal(sub["q"][0], full["q"][2])
     np.testing.assert_array_equal(sub["params"][0], full["params"][2])
     assert not np.array_equal(full["params"][0], full["params"][1])
+
+
+def test_the_recording_is_the_seeded_tracking_experiment():
+    """Against the recipe written out here, on arms of its own: trajectory i's generator is the seed
+    sequence (seed, i); it draws the payload, the reference, then the encoder noise; the experiment is
+    ``record_tracking`` with the nominal arm's computed-torque controller. Equal to the last bit."""
+    from lnn_torch.robots.tracking import ComputedTorque, record_tracking
+
+    spec = DatasetSpec(scene="robot_arm", scene_config={"encoder_noise": 1e-3, "perturbation": 3},
+                       num_trajectories=3, duration=0.2, seed=5)
+    scene = get_system("robot_arm", encoder_noise=1e-3, perturbation=3)
+    velocity, torque = scene.joint_limits()
+    t = np.arange(spec.num_points) * spec.dt
+    low, high = scene.arm.joint_range.numpy().T
+    nominal = MujocoArm()
+    rng = np.random.default_rng(np.random.SeedSequence(5, spawn_key=(1,)))
+    payload = scene.sample_params(rng, 1)[0]
+    reference = sample_reference(rng, low, high, 0.5 * velocity, 0.2, 5, 0.2)
+    reference, _ = within_torque(reference, t, lambda *a: nominal.inverse(*a).numpy(), 0.6 * torque)
+    noise = rng.normal(0.0, 1e-3, (len(t), 7))
+    rec = record_tracking(MujocoArm(perturbation=3), payload, ComputedTorque.with_bandwidth(nominal, 20.0, torque),
+                          reference, t, 4, noise)
+    arrays = generate_arrays(spec, indices=[1])
+    params = torch.from_numpy(payload)[None].expand(len(t), -1)
+    expected = {"t": t, "q": rec["q_measured"], "qd": rec["qd"], "qdd": rec["qdd"], "tau": rec["tau"],
+                "params": payload, "work": rec["work"], "q_ref": rec["q_ref"],
+                "energy": scene.energy(torch.from_numpy(rec["q"]), torch.from_numpy(rec["qd"]), params).numpy(),
+                "integrator_steps": [(len(t) - 1) * 4]}
+    assert sorted(arrays) == sorted(expected)
+    for key, value in expected.items():
+        np.testing.assert_array_equal(arrays[key] if key == "t" else arrays[key][0], value, err_msg=key)
+    assert np.abs(rec["q_measured"] - rec["q"]).max() > 1e-4  # the noise is in q, not in the energy's states
+
+
+def test_a_dataset_loads_the_arms_description_once(tmp_path, monkeypatch):
+    """The arm and the controller's nominal model: two engine instances per dataset, however many
+    times the specification, its validation, the recorder and the file attributes ask for the scene."""
+    loaded = []
+    init = MujocoArm.__init__
+
+    def counting(self, *args, **kwargs):
+        loaded.append(kwargs.get("perturbation"))
+        init(self, *args, **kwargs)
+
+    monkeypatch.setattr(MujocoArm, "__init__", counting)
+    spec = DatasetSpec(scene="robot_arm", scene_config={"perturbation": 4}, num_trajectories=2, duration=0.05,
+                       split=(0.5, 0.5, 0.0))
+    generate_dataset(spec, tmp_path / "arm.h5")
+    assert loaded == [4, None]  # the perturbed arm, then the nominal description
 
 
 def test_lnn_torch_generate_writes_a_perturbed_arm(tmp_path):
@@ -272,11 +323,13 @@ def test_the_perturbed_arm_differs_from_its_description_and_is_reproducible():
         assert 0.8 <= ratio <= 1.2 and ratio != 1
         assert np.abs(np.subtract(*body["com"][::-1])).max() <= 0.01
         I = np.array(body["principal_inertia"][1])
-        assert (0.7 <= I / np.array(body["principal_inertia"][0])).all() and (I / body["principal_inertia"][0] <= 1.3).all()
+        scale = I / np.array(body["principal_inertia"][0])
+        assert (0.7 <= scale).all() and (scale <= 1.3).all()
         assert (I > 0).all() and (I <= I.sum() - I).all()
     damping = np.array([j["damping"] for j in report["joints"].values()])
     assert ((damping[:, 1] / damping[:, 0] >= 0.5) & (damping[:, 1] / damping[:, 0] <= 2.0)).all()
-    assert a.model.body_mass[a.payload_id] == 0 and nominal.perturbation_report()["bodies"]["link3"]["mass"][0] == 3.228604
+    assert a.model.body_mass[a.payload_id] == 0
+    assert nominal.perturbation_report()["bodies"]["link3"]["mass"][0] == 3.228604
     q = nominal.sample_q(np.random.default_rng(0), 4)
     torch.testing.assert_close(a.mass_matrix(q), b.mass_matrix(q), rtol=0, atol=0)
     assert (a.mass_matrix(q) - nominal.mass_matrix(q)).abs().max() > 1e-3
@@ -364,7 +417,8 @@ def test_a_bad_description_is_refused_in_one_line(tmp_path, edit, message):
 
 def test_a_payload_out_of_limits_a_wrong_dof_or_bad_options_are_refused_in_one_line(system, tmp_path):
     q, qd, params, tau = _batch(system, n=2)
-    moon = _description(tmp_path, PANDA.replace('<option integrator="RK4" />', '<option integrator="RK4" gravity="0 0 -1.62" />'))
+    moon = _description(tmp_path, PANDA.replace('<option integrator="RK4" />',
+                                                '<option integrator="RK4" gravity="0 0 -1.62" />'))
     cases = [
         (lambda: system.acceleration(q[:, :6], qd[:, :6], params, tau[:, :6]), r"q must have shape \(\*batch, 7\)"),
         (lambda: system.acceleration(q, qd, params, tau[:, :6]), r"tau must have shape \(2, 7\)"),

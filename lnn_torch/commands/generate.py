@@ -41,7 +41,9 @@ def _generate_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", type=float, nargs=3, default=(0.8, 0.1, 0.1), metavar=("TRAIN", "VAL", "TEST"),
                    help="fractions of the trajectories (default: 0.8 0.1 0.1)")
     p.add_argument("--integrator", default="rk8", help="fixed-step integrator for the ground truth")
-    p.add_argument("--substeps", type=int, default=1, help="integrator steps per sampling interval")
+    p.add_argument("--substeps", type=int, default=None,
+                   help="integrator steps per sampling interval (default: the scene's ground_truth_substeps: 1, "
+                        "8 for actuated_double_pendulum, 4 for robot_arm)")
     p.add_argument("--targets", choices=("analytic", "finite_difference"), default="analytic",
                    help="qdd targets: closed form (default) or finite differences of qd")
     p.add_argument("--output", "-o", default=None, help="output file (default: data/<scene>.h5)")

@@ -1,4 +1,6 @@
-"""Ground-truth dataset generation: seeded, vectorised over trajectories, float64."""
+"""Dataset generation around a scene's recorder (``lnn_torch.recording``): here alone the seeding (one
+generator per trajectory, ``trajectory_rng``), the progress, the targets, the energy, the arrays, the
+split and every file attribute; float64 throughout."""
 
 from __future__ import annotations
 
@@ -10,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from .. import __version__
 from ..errors import InputError
-from ..excitation import sample
-from ..ground_truth import integrate_ground_truth, relative_residual
+from ..ground_truth import relative_residual
+from ..recording import Recording, sample_conditions
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
 
@@ -30,21 +33,10 @@ def sample_initial_conditions(spec: DatasetSpec, indices=None, inputs: bool = Fa
     """Parameters and initial states of the given trajectories (default: all), float64 arrays; with
     ``inputs``, also each trajectory's input signal ``(N, num_points, n_u)`` (``lnn_torch.excitation``;
     drawn after the state from the same generator, so parameters and states do not depend on it)."""
-    system = spec.build_system()
     indices = range(spec.num_trajectories) if indices is None else indices
     t = np.arange(spec.num_points) * spec.dt
-    excitation = spec.input_signal() if inputs else None
-    params, q0, qd0, tau = [], [], [], []
-    for i in indices:
-        rng = trajectory_rng(spec.seed, i)
-        params.append(system.sample_params(rng, 1)[0])
-        q, qd = system.sample_state(rng, 1)
-        q0.append(q[0])
-        qd0.append(qd[0])
-        if inputs:
-            tau.append(sample(excitation, rng, t, system.num_inputs))
-    out = (np.array(params), np.array(q0), np.array(qd0))
-    return (*out, np.array(tau).reshape(len(q0), spec.num_points, system.num_inputs)) if inputs else out
+    return sample_conditions(spec.system, [trajectory_rng(spec.seed, i) for i in indices], t,
+                             spec.input_signal() if inputs else None)
 
 
 def split_indices(spec: DatasetSpec) -> dict:
@@ -62,50 +54,54 @@ def split_indices(spec: DatasetSpec) -> dict:
 
 
 def generate_arrays(spec: DatasetSpec, indices=None, progress: bool = False) -> dict:
-    """Integrate the given trajectories of ``spec`` (default: all). Returns float64 numpy arrays,
-    including ``integrator_steps`` (N,): steps each trajectory took (``integrate_ground_truth``), and
-    for an actuated scene the inputs ``tau (N, T, n_u)`` (input k acts on ``[t_k, t_{k+1})``). A scene
-    that records its data its own way (``System.generate_trajectories``) returns them instead."""
-    system = spec.build_system()
-    own = system.generate_trajectories(spec, indices, progress)
-    if own is not None:
-        return own
-    actuated = system.num_inputs > 0
-    sampled = sample_initial_conditions(spec, indices, inputs=actuated)
-    params, q0, qd0 = (torch.from_numpy(a) for a in sampled[:3])
-    tau = torch.from_numpy(sampled[3]) if actuated else None
-    system.check_params(params)
-    system.check_state(q0, qd0)
-    steps = spec.num_points - 1
+    """Record the given trajectories of ``spec`` (default: all) with its scene's recorder
+    (``System.recorder``: the closed form integrated by ``integrate_ground_truth``, or the robot arm's
+    tracking experiment). Returns float64 numpy arrays ``t (T,)``, ``q``, ``qd``, ``qdd`` ``(N, T,
+    dof)``, ``params (N, P)``, ``energy (N, T)`` (J, of the true motion) and ``integrator_steps (N,)``
+    (the steps each trajectory took); with forces the work ``(N, T, 2)`` of the inputs and of friction
+    (J), for an actuated scene the inputs ``tau (N, T, n_u)`` (input k acts on ``[t_k, t_{k+1})``), and
+    the scene's own arrays (``robot_arm``: ``q_ref``)."""
+    return _record(spec, indices, progress)[0]
+
+
+def _record(spec: DatasetSpec, indices, progress: bool) -> tuple[dict, Recording]:
+    """The arrays of ``generate_arrays`` and the recorder's ``Recording`` (how it recorded them).
+
+    Here alone: the seeding (one generator per trajectory), the progress bar, the targets (the
+    recorder's measured accelerations or the scene's closed form, or finite differences of ``qd``),
+    the energy (of the true motion) and the arrays."""
+    system = spec.system
+    recorder = system.recorder(spec)
+    indices = list(range(spec.num_trajectories)) if indices is None else [int(i) for i in indices]
+    rngs = [trajectory_rng(spec.seed, i) for i in indices]
     bar = None
     if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=steps, desc=f"generate {spec.scene}", unit="step", file=sys.stderr, mininterval=1.0)
+        bar = tqdm(total=len(indices) * (spec.num_points - 1), desc=f"generate {spec.scene}", unit="step",
+                   unit_scale=True, file=sys.stderr, mininterval=1.0)
     try:
-        with torch.no_grad():
-            q, qd, n_steps, work = integrate_ground_truth(
-                system, q0, qd0, params, spec.dt, steps, spec.integrator, spec.substeps, spec.energy_tol,
-                spec.adaptive_tol, callback=(lambda i: bar.update(1)) if bar else None, indices=indices,
-                tau=None if tau is None else tau[:, :-1], return_work=True)
+        rec = recorder.record(rngs, indices, advance=bar.update if bar else None)
     finally:
         if bar:
             bar.close()
     with torch.no_grad():
-        p_b = params[:, None, :].expand(-1, q.shape[1], -1)
-        if spec.targets == "analytic":
-            qdd = system.acceleration(q, qd, p_b, tau)
+        q_true = torch.from_numpy(rec.q if rec.q_true is None else rec.q_true)
+        qd, params = torch.from_numpy(rec.qd), torch.from_numpy(rec.params)
+        p_b = params[:, None, :].expand(-1, q_true.shape[1], -1)
+        if spec.targets == "finite_difference":
+            qdd = np.gradient(rec.qd, spec.dt, axis=1, edge_order=2)
+        elif rec.qdd is not None:
+            qdd = rec.qdd
         else:
-            qdd = torch.from_numpy(np.gradient(qd.numpy(), spec.dt, axis=1, edge_order=2))
-        energy = system.energy(q, qd, p_b)
-    t = np.arange(spec.num_points) * spec.dt
-    out = {"t": t, "q": q.numpy(), "qd": qd.numpy(), "qdd": qdd.numpy(), "params": params.numpy(),
-           "energy": energy.numpy(), "integrator_steps": n_steps.numpy()}
-    if system.has_forces:
-        out["work"] = work.numpy()
-    if tau is not None:
-        out["tau"] = tau.numpy()
-    return out
+            qdd = system.acceleration(q_true, qd, p_b, None if rec.tau is None else torch.from_numpy(rec.tau)).numpy()
+        energy = system.energy(q_true, qd, p_b).numpy()
+    out = {"t": np.arange(spec.num_points) * spec.dt, "q": rec.q, "qd": rec.qd, "qdd": qdd, "params": rec.params,
+           "energy": energy, "integrator_steps": rec.steps}
+    if rec.work is not None:
+        out["work"] = rec.work
+    if rec.tau is not None:
+        out["tau"] = rec.tau
+    out.update(rec.arrays)
+    return out, rec
 
 
 def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = False, progress: bool = False,
@@ -138,16 +134,15 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         torch.set_num_threads(num_threads)
     try:
         start = time.perf_counter()
-        arrays = generate_arrays(spec, indices, progress=progress)
+        arrays, rec = _record(spec, indices, progress)
         elapsed = time.perf_counter() - start
     finally:
         torch.set_num_threads(old_threads)
-    system = spec.build_system()
+    system = spec.system
     energy, params = (torch.from_numpy(arrays[k]) for k in ("energy", "params"))
     work = torch.from_numpy(arrays["work"]).sum(-1) if "work" in arrays else torch.zeros_like(energy)
     residual = float(relative_residual(energy, work, system.energy_scale(params)).max())
     refined = int((arrays["integrator_steps"] != (spec.num_points - 1) * spec.substeps).sum())
-    check = "power-balance residual |E(t) - E(0) - W(t)|" if system.has_forces else "energy drift"
     attrs = {
         "scene": spec.scene,
         "scene_json": json.dumps(system.describe(), sort_keys=True),
@@ -160,16 +155,12 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "param_names": json.dumps(list(system.param_names)),
         "spec": spec.to_json(),
         "seed": int(spec.seed),
-        "integrator": spec.integrator,
+        "integrator": rec.integrator,
         "substeps": int(spec.substeps),
         "tolerances": json.dumps({
-            "method": f"fixed-step {spec.integrator}, h = dt / substeps = {spec.dt / spec.substeps:g} s; trajectories "
-                      f"whose relative {check} exceeds {spec.energy_tol:g} of the energy scale are integrated again "
-                      f"with adaptive DOP853 steps (rtol = atol = {spec.adaptive_tol:g}; ten, then a hundred times "
-                      "tighter for those that still exceed it)",
-            "check": check,
-            "energy_tol": spec.energy_tol,
-            "adaptive_tol": spec.adaptive_tol,
+            "method": rec.method,
+            "check": rec.check,
+            **rec.tolerances,
             "refined_trajectories": refined,
             ("max_power_balance_residual_rel" if system.has_forces else "max_energy_drift_rel"): residual,
         }),
@@ -182,8 +173,8 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
         "package_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "generation_seconds": elapsed,
+        **rec.attrs,
     }
-    attrs.update(system.generation_attrs(spec, arrays, residual))
     if indices is not None:
         arrays["trajectory_index"] = indices
         attrs["subset"] = json.dumps(list(splits))

@@ -10,6 +10,8 @@ from ..errors import InputError
 from ..integrators import METHODS
 from ..systems import System, get_system
 
+_SCENE = "_scene"  # the instance attribute holding ((scene, scene_config as JSON), the built scene)
+
 
 @dataclass
 class DatasetSpec:
@@ -36,6 +38,10 @@ class DatasetSpec:
         excitation: the input signals of an actuated scene (``lnn_torch.excitation``); empty: the
             scene's ``default_excitation()``. Refused for a scene without inputs, and by a scene whose
             inputs come from its own recording (``robot_arm``: a tracking controller's torques).
+
+    The scene is built once (``system``, cached outside the fields: equality, ``asdict``,
+    ``to_json``, pickling and copies see the fields only), and again only if ``scene`` or
+    ``scene_config`` change.
     """
 
     scene: str = "double_pendulum"
@@ -53,28 +59,43 @@ class DatasetSpec:
     excitation: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        self.scene_config = dict(self.scene_config or {})
+        self.excitation = dict(self.excitation or {})
         if self.substeps is None:
-            self.substeps = getattr(self.build_system(), "ground_truth_substeps", 1)
+            self.substeps = getattr(self.system, "ground_truth_substeps", 1)
         try:  # values from command lines and YAML may arrive as strings
-            self.num_trajectories, self.seed, self.substeps = int(self.num_trajectories), int(self.seed), int(self.substeps)
+            self.num_trajectories, self.seed = int(self.num_trajectories), int(self.seed)
+            self.substeps = int(self.substeps)
             self.duration, self.dt = float(self.duration), float(self.dt)
             self.energy_tol, self.adaptive_tol = float(self.energy_tol), float(self.adaptive_tol)
             self.split = tuple(float(x) for x in self.split)
         except (TypeError, ValueError) as err:
             raise InputError(f"dataset spec: {err}") from None
-        self.scene_config = dict(self.scene_config or {})
-        self.excitation = dict(self.excitation or {})
         self.validate()
 
     @property
     def num_points(self) -> int:
         return int(round(self.duration / self.dt)) + 1
 
+    @property
+    def system(self) -> System:
+        """The scene of this specification, built on first use and kept (a robot arm's description is
+        loaded once per dataset); built again only where ``scene`` or ``scene_config`` changed."""
+        key = (self.scene, json.dumps(self.scene_config, sort_keys=True, default=repr))
+        cached = self.__dict__.get(_SCENE)
+        if cached is None or cached[0] != key:
+            cached = self.__dict__[_SCENE] = (key, get_system(self.scene, **self.scene_config))
+        return cached[1]
+
     def build_system(self) -> System:
+        """A new instance of the scene (``system`` is the specification's own, built once)."""
         return get_system(self.scene, **self.scene_config)
 
+    def __getstate__(self) -> dict:  # pickles and copies carry the fields, not the built scene
+        return {k: v for k, v in self.__dict__.items() if k != _SCENE}
+
     def validate(self) -> None:
-        system = self.build_system()  # unknown scene / bad ranges raise InputError
+        system = self.system  # unknown scene / bad ranges raise InputError
         if not system.closed_form:
             raise InputError(f"scene '{self.scene}' has no closed form and cannot be generated: import its recordings "
                              "(lnn-torch import) and point data.path at the file")
@@ -104,11 +125,11 @@ class DatasetSpec:
 
     def input_signal(self) -> dict:
         """The excitation of the inputs (the scene's default when the spec names none), validated."""
-        return self.build_system().input_signal(self.excitation)
+        return self.system.input_signal(self.excitation)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
 
     @classmethod
-    def from_json(cls, text: str) -> "DatasetSpec":
+    def from_json(cls, text: str) -> DatasetSpec:
         return cls(**json.loads(text))

@@ -35,7 +35,7 @@ class ComputedTorque:
     torque_limit: np.ndarray
 
     @classmethod
-    def with_bandwidth(cls, nominal: MujocoArm, bandwidth: float, torque_limit) -> "ComputedTorque":
+    def with_bandwidth(cls, nominal: MujocoArm, bandwidth: float, torque_limit) -> ComputedTorque:
         """Critically damped gains of bandwidth ``w`` rad/s: ``Kp = w^2``, ``Kd = 2 w``."""
         return cls(nominal, bandwidth**2, 2 * bandwidth, np.asarray(torque_limit, dtype=np.float64))
 

@@ -24,6 +24,7 @@ import torch
 from ..errors import InputError  # also importable from here, where it was first defined
 from ..excitation import validate as validate_excitation
 from ..forces import check_inputs, dissipative_force, identity_or_none, input_force
+from ..recording import ClosedFormRecorder
 
 GRAVITY = 9.81  # m/s^2, the one gravity constant of the project
 PARAM_KINDS = ("positive", "nonnegative", "real")  # see ``System.param_kinds``
@@ -76,8 +77,8 @@ def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
         return
     # one reduction: the smallest value of each parameter (NaN propagates and is refused too)
     lowest = params.reshape(-1, len(kinds)).amin(0).tolist()
-    bad_pos = [n for n, k, v in zip(names, kinds, lowest) if k == "positive" and not v > 0]
-    bad_neg = [n for n, k, v in zip(names, kinds, lowest) if k == "nonnegative" and not v >= 0]
+    bad_pos = [n for n, k, v in zip(names, kinds, lowest, strict=True) if k == "positive" and not v > 0]
+    bad_neg = [n for n, k, v in zip(names, kinds, lowest, strict=True) if k == "nonnegative" and not v >= 0]
     if bad_pos:
         raise InputError(f"{where}: parameters must be positive; non-positive values in {bad_pos}")
     if bad_neg:
@@ -90,6 +91,16 @@ class System(abc.ABC):
     Subclasses set the class attributes and implement the closed-form physics. The sampler
     configuration is given to ``__init__`` and reported by ``config()`` so that a dataset file can
     record it and rebuild the same scene.
+
+    Datasets: ``recorder(spec)`` hands the dataset generator (``lnn_torch.data.generate``) an object
+    with one method, ``record(rngs, indices, advance=None) -> lnn_torch.recording.Recording``. The
+    generator alone seeds (one generator per trajectory, ``trajectory_rng(seed, index)``, each
+    trajectory drawing from its own only, in a fixed order), and alone does the progress, the targets,
+    the energy, the arrays, the split and every file attribute; the recorder returns the raw motion
+    (``q`` as recorded, the true ``q`` where it differs, ``qd``, inputs, parameters, integrator steps,
+    work, scene-specific arrays) and says how it recorded it. Default: the closed form integrated
+    (``ClosedFormRecorder``); ``robot_arm``: a tracking experiment on the engine
+    (``lnn_torch.robots.recording.TrackingRecorder``).
     """
 
     name: str = ""
@@ -186,20 +197,13 @@ class System(abc.ABC):
         when empty; ``lnn_torch.excitation``): what generation uses and the file records."""
         return validate_excitation(excitation or self.default_excitation(), self.num_inputs)
 
-    # ------------------------------------------------------------------ data generation (optional)
-    def generate_trajectories(self, spec, indices=None, progress: bool = False) -> dict | None:
-        """A scene that records its data its own way (an engine-backed arm tracking a reference)
-        returns the arrays of ``lnn_torch.data.generate_arrays`` for the trajectories ``indices`` of
-        ``spec`` (default all), each seeded by ``trajectory_rng(spec.seed, index)``; None (default):
-        the generic path (the closed form integrated by ``integrate_ground_truth``, inputs from the
-        spec's excitation)."""
-        return None
-
-    def generation_attrs(self, spec, arrays: dict, residual: float) -> dict:
-        """File attributes that replace ``generate_dataset``'s defaults for data the scene recorded
-        itself (its integrator and method, stated honestly; ``residual`` the largest relative
-        power-balance residual); default none."""
-        return {}
+    # ------------------------------------------------------------------ data generation
+    def recorder(self, spec):
+        """The recorder of this scene's datasets for the specification ``spec`` (class docstring;
+        ``lnn_torch.recording``). Default: ``ClosedFormRecorder``, the closed form integrated by
+        ``integrate_ground_truth``, inputs from the spec's excitation; a scene that records its data
+        another way (an engine-backed arm tracking a reference) returns its own."""
+        return ClosedFormRecorder(self, spec)
 
     @property
     def coord_units(self) -> tuple[str, ...]:

@@ -23,16 +23,13 @@ False``): tensors go to the engine and come back in the input's dtype and device
 ``perturbation=seed``: the arm is not its description (masses, centres of mass, inertias, armature and
 damping perturbed, seeded; ``MujocoArm``); the payload stays the parameter.
 
-Data (``generate_trajectories``, used by ``lnn-torch generate`` and ``generate_dataset``): per
-trajectory (seeded by ``(spec.seed, index)``: the payload first, then the reference, then the encoder
-noise) a Fourier-series joint reference (``lnn_torch.robots.reference``: ``harmonics`` harmonics of
-``base_frequency``, kept ``joint_margin`` rad inside the joint ranges, below ``velocity_fraction`` of
-the joint velocity limits and, by the nominal inverse dynamics, below ``torque_fraction`` of the
-torque limits), tracked by a computed-torque controller on the nominal description without payload
-knowledge, evaluated at the sample rate 1/dt, its torques clipped to the limits and held over each
-sample interval; the engine integrates with RK4 at dt / substeps (``lnn_torch.robots.tracking``).
-Recorded: ``q`` as the encoders measure it (plus N(0, encoder_noise^2) rad), ``qd``, ``tau``, ``qdd``
-(the engine's at the true state and the held torque, or finite differences of ``qd``), the true
+Data (``recorder``: ``lnn_torch.robots.recording.TrackingRecorder``, used by ``lnn-torch generate`` and
+``generate_dataset``): per trajectory (seeded by ``(spec.seed, index)``: the payload first, then the
+reference, then the encoder noise) a Fourier-series joint reference tracked by a computed-torque
+controller on the nominal description without payload knowledge, at the sample rate 1/dt, its torques
+clipped to the limits and held over each sample interval; the engine integrates with RK4 at dt /
+substeps. Recorded: ``q`` as the encoders measure it (plus N(0, encoder_noise^2) rad), ``qd``, ``tau``,
+``qdd`` (the engine's at the true state and the held torque, or finite differences of ``qd``), the true
 energy and the work of the torques and of the damper, and the reference ``q_ref``.
 The spec's ``excitation`` must stay empty: the inputs are the controller's (options above, in the
 scene configuration); the file records them as the excitation.
@@ -40,21 +37,21 @@ scene configuration); the file records them as the excitation.
 
 from __future__ import annotations
 
-import json
 import math
-import sys
 
 import numpy as np
 import torch
 
-from ..errors import GenerationError, InputError
+from ..errors import InputError
+from ..robots import DESCRIPTIONS, LIMITS
+from ..robots.mujoco_arm import MujocoArm
+from ..robots.recording import TrackingRecorder
 from .base import System, as_range
 
 PARAM_NAMES = ("payload_mass", "payload_x", "payload_y", "payload_z")
 MASS_LIMIT = (0.0, 10.0)  # kg: the payloads check_params accepts
 OFFSET_LIMIT = 0.25  # m: |x|, |y|, |z| of the payload in the flange frame
 SCALE_SAMPLES = 256  # configurations (seed 0) over which energy_scale takes the potential's range
-MAX_BANDWIDTH_DT = 0.5  # the controller's bandwidth times dt: beyond, the sampled loop is near instability
 
 
 class RobotArm(System):
@@ -90,20 +87,19 @@ class RobotArm(System):
                  base_frequency: float = 0.2, harmonics: int = 5, velocity_fraction: float = 0.5,
                  torque_fraction: float = 0.6, joint_margin: float = 0.2, bandwidth: float = 20.0,
                  encoder_noise: float = 0.0, velocity_limits=None, torque_limits=None) -> None:
-        from ..robots import DESCRIPTIONS, LIMITS
-        from ..robots.mujoco_arm import MujocoArm
-
         self.description = str(description)
-        if perturbation is not None and (isinstance(perturbation, bool) or not isinstance(perturbation, (int, np.integer))):
+        integer = isinstance(perturbation, (int, np.integer)) and not isinstance(perturbation, bool)
+        if perturbation is not None and not integer:
             raise InputError(f"robot_arm: perturbation must be None or an integer seed, got {perturbation!r}")
         self.perturbation = None if perturbation is None else int(perturbation)
         self.arm = MujocoArm(self.description, perturbation=self.perturbation)
         if not torch.allclose(self.arm.gravity, torch.tensor([0.0, 0.0, -self.gravity], dtype=torch.float64)):
-            raise InputError(f"robot_arm: description {self.description} has gravity {self.arm.gravity.tolist()} m/s^2; "
-                             f"the project's is (0, 0, -{self.gravity}) (leave the description's <option gravity> out)")
+            raise InputError(f"robot_arm: description {self.description} has gravity {self.arm.gravity.tolist()} "
+                             f"m/s^2; the project's is (0, 0, -{self.gravity}) (leave the description's <option "
+                             "gravity> out)")
         self._nominal = None
         self.ranges = {name: as_range(value, name) for name, value in
-                       zip(PARAM_NAMES, (payload_mass, payload_x, payload_y, payload_z))}
+                       zip(PARAM_NAMES, (payload_mass, payload_x, payload_y, payload_z), strict=True)}
         for name, r in self.ranges.items():
             low, high = MASS_LIMIT if name == "payload_mass" else (-OFFSET_LIMIT, OFFSET_LIMIT)
             if r.low < low or r.high > high:
@@ -123,7 +119,8 @@ class RobotArm(System):
                 raise InputError(f"robot_arm: {key} must be a number >= 0, got {value!r}")
         self.base_frequency, self.harmonics = float(base_frequency), int(harmonics)
         self.velocity_fraction, self.torque_fraction = float(velocity_fraction), float(torque_fraction)
-        self.joint_margin, self.bandwidth, self.encoder_noise = float(joint_margin), float(bandwidth), float(encoder_noise)
+        self.joint_margin, self.bandwidth = float(joint_margin), float(bandwidth)
+        self.encoder_noise = float(encoder_noise)
         known = LIMITS.get(self.description, {}) if self.description in DESCRIPTIONS else {}
         self.velocity_limits = self._limits(velocity_limits, known.get("velocity"), "velocity_limits", "rad/s")
         self.torque_limits = self._limits(torque_limits, known.get("torque"), "torque_limits", "N m")
@@ -148,9 +145,9 @@ class RobotArm(System):
         return value
 
     def _conventions(self) -> str:
-        ranges = ", ".join(f"{n} [{lo:.4f}, {hi:.4f}]" for n, (lo, hi) in zip(self.arm.joint_names,
-                                                                             self.arm.joint_range.tolist()))
-        outside = [n for n, (lo, hi) in zip(self.arm.joint_names, self.arm.joint_range.tolist()) if not lo <= 0 <= hi]
+        joints = list(zip(self.arm.joint_names, self.arm.joint_range.tolist(), strict=True))
+        ranges = ", ".join(f"{n} [{lo:.4f}, {hi:.4f}]" for n, (lo, hi) in joints)
+        outside = [n for n, (lo, hi) in joints if not lo <= 0 <= hi]
         zero = (f"q = 0 is its zero configuration (outside the range of {', '.join(outside)})" if outside
                 else "q = 0 is its zero configuration")
         arm = f"description {self.description}" + ("" if self.perturbation is None
@@ -181,8 +178,6 @@ class RobotArm(System):
         """The arm as its description gives it, without payload: the controller's model (its own
         engine instance, so that the controller and the simulated arm never load each other's payload)."""
         if self._nominal is None:
-            from ..robots.mujoco_arm import MujocoArm
-
             self._nominal = MujocoArm(self.description)
         return self._nominal
 
@@ -362,114 +357,10 @@ class RobotArm(System):
                 "velocity_fraction": self.velocity_fraction, "torque_fraction": self.torque_fraction,
                 "joint_margin": self.joint_margin, "bandwidth": self.bandwidth}
 
-    def generate_trajectories(self, spec, indices=None, progress: bool = False) -> dict:
-        """The recorded experiments of ``spec`` (module docstring; default: all of its trajectories):
-        the arrays of ``lnn_torch.data.generate_arrays`` (``t``, ``q``, ``qd``, ``qdd``, ``tau``,
-        ``params``, ``energy``, ``integrator_steps``, ``work``) and ``q_ref (N, T, dof)``, float64.
-        Raises ``GenerationError`` naming a trajectory whose arm left its joint ranges."""
-        from ..data.generate import trajectory_rng
-        from ..robots.reference import sample_reference, within_torque
-        from ..robots.tracking import ComputedTorque, record_tracking
-
-        velocity, torque = self.joint_limits()
-        if self.bandwidth * spec.dt > MAX_BANDWIDTH_DT:
-            raise InputError(f"{self.name}: the controller's bandwidth {self.bandwidth:g} rad/s is too high for its "
-                             f"sample interval dt = {spec.dt:g} s (bandwidth x dt must be <= {MAX_BANDWIDTH_DT}): "
-                             "lower bandwidth or dt")
-        indices = list(range(spec.num_trajectories)) if indices is None else [int(i) for i in indices]
-        t = np.arange(spec.num_points) * spec.dt
-        controller = ComputedTorque.with_bandwidth(self.nominal, self.bandwidth, torque)
-        low, high = self.arm.joint_range.numpy().T
-
-        def nominal_inverse(q, qd, qdd):
-            return self.nominal.inverse(q, qd, qdd).numpy()
-
-        rows, params = [], []
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(indices), desc=f"generate {self.name}", unit="trajectory", file=sys.stderr,
-                       mininterval=1.0)
-        try:
-            for i in indices:
-                rng = trajectory_rng(spec.seed, i)
-                payload = self.sample_params(rng, 1)[0]
-                reference = sample_reference(rng, low, high, self.velocity_fraction * velocity, self.base_frequency,
-                                             self.harmonics, self.joint_margin)
-                reference, _ = within_torque(reference, t, nominal_inverse, self.torque_fraction * torque)
-                noise = rng.normal(0.0, self.encoder_noise, (len(t), self.dof)) if self.encoder_noise else None
-                rec = record_tracking(self.arm, payload, controller, reference, t, spec.substeps, noise)
-                outside = ~((rec["q"] >= low) & (rec["q"] <= high)).all(0) | ~np.isfinite(rec["q"]).all(0)
-                if outside.any():
-                    j = int(np.flatnonzero(outside)[0])
-                    error = float(np.abs(rec["q"] - rec["q_ref"]).max())
-                    raise GenerationError(f"{self.name}: trajectory {i} leaves the range of {self.coord_names[j]} "
-                                          f"(tracking error up to {error:.3g} rad): lower velocity_fraction or raise "
-                                          "joint_margin or bandwidth")
-                rows.append(rec)
-                params.append(payload)
-                if bar:
-                    bar.update(1)
-        finally:
-            if bar:
-                bar.close()
-        stack = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
-        params = np.array(params)
-        with torch.no_grad():
-            q_true, qd = torch.from_numpy(stack["q"]), torch.from_numpy(stack["qd"])
-            energy = self.energy(q_true, qd, torch.from_numpy(params)[:, None, :].expand(-1, len(t), -1)).numpy()
-        if spec.targets == "analytic":
-            qdd = stack["qdd"]
-        else:
-            qdd = np.gradient(stack["qd"], spec.dt, axis=1, edge_order=2)
-        return {"t": t, "q": stack["q_measured"], "qd": stack["qd"], "qdd": qdd, "tau": stack["tau"],
-                "params": params, "energy": energy,
-                "integrator_steps": np.full(len(indices), (len(t) - 1) * spec.substeps, dtype=np.int64),
-                "work": stack["work"], "q_ref": stack["q_ref"]}
-
-    def generation_attrs(self, spec, arrays: dict, residual: float) -> dict:
-        """The file attributes that say how ``generate_trajectories`` recorded the data: the engine's
-        integrator, the power-balance check, the experiment (controller, gains, rates, reference,
-        noise, tracking) and the arm (description, perturbation)."""
-        import mujoco
-
-        _, torque = self.joint_limits()
-        h = spec.dt / spec.substeps
-        clipped = np.isclose(np.abs(arrays["tau"]), torque, rtol=0, atol=1e-12).any(-1)
-        tracking = float(np.abs(arrays["q"] - arrays["q_ref"]).max())
-        method = (f"MuJoCo {mujoco.__version__} RK4 (mj_RungeKutta), h = dt / substeps = {h:g} s, joint limits and "
-                  "contacts off; the spec's integrator, energy_tol and adaptive_tol do not apply")
-        return {
-            "integrator": "mujoco_rk4",
-            "tolerances": json.dumps({
-                "method": method,
-                "check": "power-balance residual |E(t) - E(0) - W(t)| over the energy scale, at the true states; W "
-                         "the work of the torques and of the damper, by the corrected trapezoidal rule per RK4 step",
-                "refined_trajectories": 0,
-                "max_power_balance_residual_rel": residual,
-            }),
-            "recording": json.dumps({
-                "controller": "computed torque on the nominal description without payload: tau = clip(ID_nom(q_m, "
-                              "qd, qdd_ref + Kp (q_ref - q_m) + Kd (qd_ref - qd)), +-torque_limits), ID_nom = M v + "
-                              "bias + D qd; q_m the measured angles",
-                "kp": self.bandwidth**2, "kd": 2 * self.bandwidth, "bandwidth_rad_s": self.bandwidth,
-                "control_rate_hz": 1 / spec.dt, "hold": "zero-order: tau_k on [t_k, t_k+1)",
-                "integration": method, "substeps": int(spec.substeps),
-                "reference": {"kind": "fourier_series", "base_frequency_hz": self.base_frequency,
-                              "harmonics": self.harmonics, "joint_margin_rad": self.joint_margin,
-                              "velocity_fraction": self.velocity_fraction, "torque_fraction": self.torque_fraction},
-                "limits": {"velocity_rad_s": list(self.velocity_limits), "torque_n_m": list(self.torque_limits)},
-                "encoder_noise_rad": self.encoder_noise,
-                "recorded": "q: measured (true + encoder noise); qd: true; tau: commanded = applied; qdd: "
-                            + ("the engine's at the true state and tau" if spec.targets == "analytic"
-                               else "central differences of qd") + "; energy, work: true; q_ref: the reference",
-                "max_tracking_error_rad": tracking,
-                "clipped_sample_fraction": float(clipped.mean()),
-            }),
-            "robot": json.dumps({"description": self.description, "path": str(self.arm.path),
-                                 "mujoco_version": mujoco.__version__, "perturbation": self.arm.perturbation_report()}),
-        }
+    def recorder(self, spec) -> TrackingRecorder:
+        """The tracking experiment that records this arm's datasets (module docstring;
+        ``lnn_torch.robots.recording``): this scene's arm and nominal model, loaded once."""
+        return TrackingRecorder(self, spec)
 
 
 def _span(values: torch.Tensor) -> torch.Tensor:
