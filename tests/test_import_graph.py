@@ -15,7 +15,7 @@ LAYERS = [
     ("foundations", ["errors", "perf", "config_files", "pretrained", "checkpoint_format", "integrators", "dynamics",
                      "forces", "excitation", "metrics", "report", "data.trajectories", "data.derivatives",
                      "networks.normalization", "networks._kernels"]),
-    ("physics", ["robots", "robots.*", "systems", "systems.*", "ground_truth", "identified"]),
+    ("physics", ["robots", "robots.*", "systems", "systems.*", "ground_truth", "recording", "identified"]),
     ("models", ["networks", "networks.*"]),
     ("data", ["data.spec", "data.generate", "data.hdf5", "data.importer", "data.cache"]),
     ("use", ["losses", "optim", "training_pass", "evaluation", "evaluation.*", "plots", "stability", "identification",
