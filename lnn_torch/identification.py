@@ -42,6 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .data.derivatives import estimate as estimate_from_positions
+from .data.derivatives import settings as derivative_settings
 from .errors import InputError
 from .losses import shooting_residuals
 
@@ -479,19 +481,17 @@ def position_noise(q: np.ndarray) -> float:
 
 def estimate_derivatives(q: torch.Tensor, dt: float, qd: torch.Tensor | None = None, qdd: torch.Tensor | None = None,
                          derivative: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Velocities and accelerations ``(N, T, dof)`` (rad/s or m/s, and per s) of observed positions
-    ``q (N, T, dof)`` sampled every ``dt`` s: those given, else estimated (``derivative``: settings of
-    ``lnn_torch.data.derivatives``; None: chosen from each observation's noise, ``SMOOTH`` or ``NOISY``).
-    A given ``qd`` is used by the estimate of ``qdd``."""
-    from .data import derivatives
-
+    """Velocities and accelerations ``(N, T, dof)`` (rad/s and rad/s², or m/s and m/s²) of observed
+    positions ``q (N, T, dof)`` sampled every ``dt`` s: those given, else estimated (``derivative``:
+    settings of ``lnn_torch.data.derivatives``; None: chosen from each observation's noise, ``SMOOTH`` or
+    ``NOISY``). A given ``qd`` is used by the estimate of ``qdd``."""
     if qd is not None and qdd is not None:
         return qd, qdd
     est = []
     for i in range(len(q)):
         choice = derivative or (SMOOTH if position_noise(q[i].numpy()) < NOISE_FREE else NOISY)
-        s = derivatives.settings({**choice, "use_measured_velocity": qd is not None})
-        est.append(derivatives.estimate(q[i].numpy(), dt, s, None if qd is None else qd[i].numpy()))
+        s = derivative_settings({**choice, "use_measured_velocity": qd is not None})
+        est.append(estimate_from_positions(q[i].numpy(), dt, s, None if qd is None else qd[i].numpy()))
     return (qd if qd is not None else torch.as_tensor(np.stack([e[0] for e in est])),
             qdd if qdd is not None else torch.as_tensor(np.stack([e[1] for e in est])))
 
