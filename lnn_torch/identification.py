@@ -42,6 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .data.derivatives import estimate as estimate_from_positions
+from .data.derivatives import settings as derivative_settings
 from .errors import InputError
 from .losses import shooting_residuals
 
@@ -159,7 +161,7 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
                          "need >= 21 points at a constant step)")
     if system.num_inputs and tau is None:
         raise InputError(f"scene '{system.name}' is actuated: the observation's inputs tau are needed")
-    qd, qdd = _derivatives(q, dt, qd, qdd, derivative)
+    qd, qdd = estimate_derivatives(q, dt, qd, qdd, derivative)
     accel_stride = accel_stride or max(1, q.shape[1] // 200)
     low, high = bounds if bounds is not None else default_bounds(model, system)
     space = _Space(system.kinds, torch.as_tensor(low), torch.as_tensor(high))
@@ -302,9 +304,9 @@ def _lbfgs(fn, u, iterations: int = 60):
 
 def _gauss_newton(residuals, u, h: float, iterations: int = 6):
     """Polish ``u (N, 1, P)`` by Gauss-Newton steps on ``residuals(u) -> (N, 1, n)`` of a float64 model
-    (Jacobian by central differences of step ``h``), each observation's step kept only where it lowers its loss: where the
-    residuals vanish at the optimum (noise-free data, the exact model) this reaches it to round-off,
-    which L-BFGS on the squared loss (its changes below 1e-16) does not."""
+    (Jacobian by central differences of step ``h``), each observation's step kept only where it lowers its
+    loss: where the residuals vanish at the optimum (noise-free data, the exact model) this reaches it to
+    round-off, which L-BFGS on the squared loss (its changes below 1e-16) does not."""
     with torch.no_grad():
         r = residuals(u)
         loss = r.pow(2).sum(-1)
@@ -386,7 +388,8 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
         k = E.shape[1]
         A_inv = torch.linalg.pinv(J_red.T @ J_red)
         blocks = objectives.blocks[kind]
-        scores = torch.zeros(int(blocks.max()) + 1, J_red.shape[1], dtype=x.dtype).index_add_(0, blocks, J_red * r[:, None])
+        scores = torch.zeros(int(blocks.max()) + 1, J_red.shape[1], dtype=x.dtype).index_add_(0, blocks,
+                                                                                              J_red * r[:, None])
         cov_red = A_inv @ (scores.T @ scores) @ A_inv * (len(scores) / max(len(scores) - 1, 1))
         cov = E @ cov_red[:k, :k] @ E.T
         params = space.params(xi)
@@ -399,12 +402,13 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
             std_q = math.sqrt(abs(float(c @ cov @ c))) if identifiable else None
             quantities[qname] = {"value": value, "rel_std" if logarithmic else "std": std_q,
                                  "identifiable": identifiable,
-                                 "coefficients": {p: float(v) for p, v in zip(names, c) if v != 0}}
-        unidentifiable = [{"direction": {p: round(float(v), 3) for p, v in zip(names, eigvec[:, j]) if abs(v) > 0.05},
+                                 "coefficients": {p: float(v) for p, v in zip(names, c, strict=True) if v != 0}}
+        unidentifiable = [{"direction": {p: round(float(v), 3) for p, v in zip(names, eigvec[:, j], strict=True)
+                                         if abs(v) > 0.05},
                            "std": float(std[j])} for j in torch.nonzero(flat)[:, 0].tolist()]
         edge = ((xi - space.centre).abs() > 0.999 * space.half.abs()) & ~_flat_members(eigvec[:, flat])
-        out.append({"params": {p: float(v) for p, v in zip(names, params)}, "quantities": quantities,
-                    "at_bound": [p for p, e in zip(names, edge) if e],
+        out.append({"params": {p: float(v) for p, v in zip(names, params, strict=True)}, "quantities": quantities,
+                    "at_bound": [p for p, e in zip(names, edge, strict=True) if e],
                     "unidentifiable": unidentifiable, "residual_rms": {kind: float(r.pow(2).mean().sqrt())},
                     "x": xi, "covariance": cov})
     return out
@@ -434,8 +438,8 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     """
     t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
     dt = float(t[1] - t[0])
-    qd, qdd = _derivatives(q[None], dt, None if qd is None else qd[None], None if qdd is None else qdd[None],
-                           derivative)
+    qd, qdd = estimate_derivatives(q[None], dt, None if qd is None else qd[None],
+                                   None if qdd is None else qdd[None], derivative)
     e = min(EDGE, q.shape[0] // 10)  # as the acceleration fit: the ends left out
     cut = slice(e, q.shape[0] - e)
     form = system.linear_regressor(q[cut], qd[0, cut], qdd[0, cut], None if tau is None else tau[cut])
@@ -454,7 +458,7 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     jac = torch.func.jacrev(quantities)(phi)
     std = (jac @ cov @ jac.T).diagonal().clamp_min(0).sqrt()
     return {name: {"value": float(v), "rel_std": float(s / v.abs())}
-            for name, v, s in zip(system.identifiable_quantities(), values, std)}
+            for name, v, s in zip(system.identifiable_quantities(), values, std, strict=True)}
 
 
 # default derivative estimates, chosen per observation from its noise: a short quartic Savitzky-Golay
@@ -475,17 +479,21 @@ def position_noise(q: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e[SMOOTH["window"]:-SMOOTH["window"]] ** 2) / max(1 - h, 1e-6)))
 
 
-def _derivatives(q, dt, qd, qdd, derivative):
-    """``(N, T, dof)`` velocities and accelerations: those given, else estimated (``derivative``:
-    settings of ``lnn_torch.data.derivatives``; None: chosen from each observation's noise)."""
-    from .data import derivatives
-
+def estimate_derivatives(q: torch.Tensor, dt: float, qd: torch.Tensor | None = None, qdd: torch.Tensor | None = None,
+                         derivative: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Velocities and accelerations ``(N, T, dof)`` (rad/s and rad/s², or m/s and m/s²) of observed
+    positions ``q (N, T, dof)`` sampled every ``dt`` s: those given, else estimated (``derivative``:
+    settings of ``lnn_torch.data.derivatives``; None: chosen from each observation's noise, ``SMOOTH`` or
+    ``NOISY``). A given ``qd`` is used by the estimate of ``qdd``."""
     if qd is not None and qdd is not None:
         return qd, qdd
     est = []
     for i in range(len(q)):
         choice = derivative or (SMOOTH if position_noise(q[i].numpy()) < NOISE_FREE else NOISY)
-        s = derivatives.settings({**choice, "use_measured_velocity": qd is not None})
-        est.append(derivatives.estimate(q[i].numpy(), dt, s, None if qd is None else qd[i].numpy()))
+        s = derivative_settings({**choice, "use_measured_velocity": qd is not None})
+        est.append(estimate_from_positions(q[i].numpy(), dt, s, None if qd is None else qd[i].numpy()))
     return (qd if qd is not None else torch.as_tensor(np.stack([e[0] for e in est])),
             qdd if qdd is not None else torch.as_tensor(np.stack([e[1] for e in est])))
+
+
+_derivatives = estimate_derivatives  # the former private name, kept for callers

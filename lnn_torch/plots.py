@@ -1,17 +1,46 @@
 """Matplotlib figures (headless): the figures the evaluation sections present (trajectories, energy,
-error growth, friction, free decay, frames)."""
+error growth, friction, free decay, frames), and their assembly for the writers: ``section_figures``
+(titled builders by PNG name or logger tag, for ``lnn-torch evaluate`` and training's TensorBoard
+logging) and ``evaluation_plots`` (the PNG files).
+
+matplotlib is imported at the first figure drawn, not with this module: the evaluation sections name
+their figures here, and a user who draws none (training without a logger, the physics) never loads it.
+"""
 
 from __future__ import annotations
 
-import matplotlib
+import functools
+from collections.abc import Callable
+from pathlib import Path
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
+import torch
+
+from .metrics import coordinate_error
+
+
+@functools.cache
+def _pyplot():
+    """``matplotlib.pyplot`` on the headless Agg backend, imported at the first figure (matplotlib
+    is heavy and optional for the physics: imported in the function)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def __getattr__(name: str):
+    """``plots.plt``: pyplot on the Agg backend, imported when first asked for (``from lnn_torch.plots
+    import plt``, as ``lnn-torch simulate`` draws its figure)."""
+    if name == "plt":
+        return _pyplot()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def trajectory_figure(q_true: torch.Tensor, q_pred: torch.Tensor, dt: float, names, units=None):
     """Predicted vs true coordinates of one trajectory: ``(T, dof)`` each; ``units`` per coordinate."""
+    plt = _pyplot()
     t = torch.arange(q_true.shape[0]) * dt
     units = units or [""] * len(names)
     fig, axes = plt.subplots(q_true.shape[1], 1, figsize=(7, 2.2 * q_true.shape[1]), sharex=True, squeeze=False)
@@ -31,6 +60,7 @@ def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: t
     """Snapshots of one trajectory, true against model: ``q (T, dof)``, ``params (P,)``. The bodies
     (``System.positions``, any number of links) are drawn as a chain from the origin. None for a
     scene that is not drawn."""
+    plt = _pyplot()
     T = q_true.shape[0]
     frames = [int(i) for i in torch.linspace(0, T - 1, num_frames)]
     params = params[None].expand(T, -1)
@@ -40,7 +70,7 @@ def frames_figure(system, q_true: torch.Tensor, q_model: torch.Tensor, params: t
     finite = torch.isfinite(xy_model)
     reach = 1.1 * float(torch.cat([xy_true.abs().flatten(), xy_model[finite].abs().flatten()]).max())
     fig, axes = plt.subplots(1, num_frames, figsize=(2.2 * num_frames, 2.6))
-    for ax, k in zip(axes, frames):
+    for ax, k in zip(axes, frames, strict=True):
         for xy, style, label in ((xy_true[k], "k-o", "true"), (xy_model[k], "C1--o", "model")):
             chain = torch.cat([torch.zeros(1, 2, dtype=xy.dtype), xy])  # from the origin through every body
             ax.plot(chain[:, 0], chain[:, 1], style, ms=4, label=label)
@@ -66,6 +96,7 @@ def _solid_and_dashed(ax, x, true, model, curves: int = 6) -> None:
 
 def drift_figure(drift: torch.Tensor, dt: float, forces: bool):
     """Median and max over rollouts ``(B, T)`` of the true-energy drift (power-balance error with forces)."""
+    plt = _pyplot()
     t = torch.arange(drift.shape[1]) * dt
     fig, ax = plt.subplots(figsize=(7, 2.8))
     ax.plot(t, drift.median(0).values, label="median")
@@ -84,8 +115,7 @@ def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturb
                         unit: str = "rad"):
     """Median coordinate error over rollouts ``(B, T, dof)`` against time, with the exact system
     started ``perturbation`` off (``q_exact``, or None) for the predictability limit."""
-    from .metrics import coordinate_error
-
+    plt = _pyplot()
     t = torch.arange(q_true.shape[1]) * dt
 
     def err(q):
@@ -108,6 +138,7 @@ def error_growth_figure(q_true, q_model, q_exact, dt: float, angle_mask, perturb
 def friction_figure(fa: dict):
     """True (solid) and learned (dashed) friction torque against each joint's rate: ``fa`` holds
     ``rates (R,)``, ``true`` and ``learned`` ``(B, R, n_j)``."""
+    plt = _pyplot()
     n_j = fa["true"].shape[-1]
     fig, axes = plt.subplots(1, n_j, figsize=(4.2 * n_j, 3.2), squeeze=False)
     for j, ax in enumerate(axes[0]):
@@ -121,6 +152,7 @@ def friction_figure(fa: dict):
 
 def decay_figure(da: dict):
     """Free decay: the true energy (solid) and the model's own (dashed), ``E_true``, ``E_model (B, T)``."""
+    plt = _pyplot()
     t_d = torch.arange(da["E_true"].shape[1]) * da["dt"]
     fig, ax = plt.subplots(figsize=(7, 2.8))
     _solid_and_dashed(ax, t_d, da["E_true"], da["E_model"])
@@ -131,15 +163,31 @@ def decay_figure(da: dict):
     return fig
 
 
+def section_figures(result: dict, tags: bool = False, case: str | None = None) -> dict[str, Callable[[dict], object]]:
+    """PNG name (with ``tags``: the figure's logger tag) -> figure builder ``fn(result)`` over the
+    computed sections of ``result`` (``lnn_torch.evaluation.evaluate_model``: each section's
+    ``SectionResult.figures`` and ``tags``). Each figure is titled with the model, the scene and
+    ``case`` (e.g. "test split"); its own axes say what it shows."""
+    title = f"{result.get('variant', 'model')} on {result.get('scene', '?')}" + (f", {case}" if case else "")
+
+    def titled(build):
+        def draw(res: dict):
+            fig = build(res)
+            if fig is not None:
+                fig.suptitle(title, fontsize=10)
+                fig.tight_layout()
+            return fig
+        return draw
+
+    return {(s.tags.get(k, k.removesuffix(".png")) if tags else k): titled(v)
+            for s in result.get("_sections", {}).values() for k, v in s.figures.items()}
+
+
 def evaluation_plots(result: dict, output_dir, system=None) -> list:
     """Every figure the computed sections of ``result`` (``lnn_torch.evaluation.evaluate_model``)
     present, saved as PNG in ``output_dir`` (a section's figure may be None: not drawn for this
     scene). Returns the PNG paths. ``system`` is not needed (the sections know their scene); kept
     for callers."""
-    from pathlib import Path
-
-    from .evaluation import section_figures
-
     output_dir = Path(output_dir)
     paths = []
     split = result.get("split")
@@ -149,5 +197,5 @@ def evaluation_plots(result: dict, output_dir, system=None) -> list:
             continue
         paths.append(output_dir / name)
         fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        _pyplot().close(fig)
     return paths

@@ -10,10 +10,10 @@ import math
 from collections.abc import Iterable, Sequence
 
 
-def pct(x: float, digits: int = 3) -> str:
-    """A fraction as a percentage with ``digits`` significant digits (``0.0007`` -> ``0.07 %``);
-    ``n/a`` for NaN."""
-    return "n/a" if x != x else f"{100 * x:.{digits}g} %"
+def pct(x: float, digits: int = 3, signed: bool = False) -> str:
+    """A fraction as a percentage with ``digits`` significant digits (``0.0007`` -> ``0.07 %``;
+    ``signed``: with its sign, ``+0.07 %``); ``n/a`` for NaN."""
+    return "n/a" if x != x else f"{100 * x:{'+' if signed else ''}.{digits}g} %"
 
 
 def number(x: float, fmt: str = ".4g") -> str:
@@ -38,14 +38,25 @@ def quartile_cell(d: dict, cap: float) -> str:
     return f"{time_cell(d['median'], cap)} [{time_cell(d['q25'], cap)}, {time_cell(d['q75'], cap)}]"
 
 
-def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
-    """A Markdown table: ``header`` cells, then each row's cells (``str()`` of each; a ``|`` inside a
-    cell is escaped). Rows shorter than the header are padded with empty cells."""
-    def line(cells):
-        cells = [str(c).replace("|", "\\|") for c in cells]
-        return "| " + " | ".join(cells + [""] * (len(header) - len(cells))) + " |"
+def table_row(cells: Iterable[object]) -> str:
+    """One Markdown table row: ``| a | b |`` of the cells as given (``str()`` of each, no escaping;
+    an empty cell is ``| |``)."""
+    return "|" + "".join(f" {c} |" if str(c) else " |" for c in cells)
 
-    return "\n".join([line(header), "|" + "---|" * len(header), *(line(r) for r in rows)])
+
+def table_header(header: Sequence[object]) -> list[str]:
+    """The two lines that open a Markdown table: the ``header`` cells and the ``|---|`` rule under them."""
+    return [table_row(header), "|" + "---|" * len(header)]
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]], escape: bool = True) -> str:
+    """A Markdown table: ``header`` cells, then each row's cells (``str()`` of each; with ``escape``, a
+    ``|`` inside a cell is escaped, ``\\|``). Rows shorter than the header are padded with empty cells."""
+    def line(cells):
+        cells = [str(c).replace("|", "\\|") if escape else str(c) for c in cells]
+        return table_row(cells + [""] * (len(header) - len(cells)))
+
+    return "\n".join([*table_header(header), *(line(r) for r in rows)])
 
 
 def scalar_rows(values: dict) -> list[str]:
@@ -58,5 +69,5 @@ def scalar_rows(values: dict) -> list[str]:
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, v in items:
             if isinstance(v, (int, float)) and not isinstance(v, bool):
-                rows.append(f"| {key if sub is None else f'{key} ({sub})'} | {v:.4g} |")
+                rows.append(table_row([key if sub is None else f"{key} ({sub})", f"{v:.4g}"]))
     return rows

@@ -25,6 +25,9 @@ import torch
 
 from .errors import InputError, UntrustedParameterWarning
 from .metrics import condition_numbers, energy_drift
+from .networks.capabilities import MASS_MATRIX, capabilities_of
+from .networks.normalization import Normalizer
+from .report import pct, table_header, table_row
 
 
 @dataclass
@@ -77,9 +80,6 @@ def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps
 
 def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
     """Largest condition number of the learned mass matrix over rollout states (structured models)."""
-    from .evaluation import capabilities_of
-    from .networks.base import MASS_MATRIX
-
     if MASS_MATRIX not in capabilities_of(model):
         return None
     B, T, dof = q.shape
@@ -139,23 +139,22 @@ def _by_case(results: dict[str, list[dict]]):
 
 
 def stability_markdown(results: dict[str, list[dict]]) -> str:
-    """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M)."""
-    lines = ["| case | model | non-finite rollouts | max true-energy drift | max cond(M) |", "|---|---|---|---|---|"]
+    """A Markdown table: one row per (case, model) with non-finite fraction, max drift and cond(M).
+    Case names and refusals are written as they are (the shipped reports' text: a ``|`` in them is
+    not escaped)."""
+    lines = table_header(["case", "model", "non-finite rollouts", "max true-energy drift", "max cond(M)"])
     clamped = False
     for case, row_of in _by_case(results):
         for name, r in row_of.items():
             if "error" in r:
-                lines.append(f"| {case} | {name} | refused: {r['error']} | - | - |")
+                lines.append(table_row([case, name, f"refused: {r['error']}", "-", "-"]))
                 continue
             cond = r.get("max_cond")
-            cond_s = "-" if cond is None else f"{cond:.3g}"
             mark = " *" if "untrusted_parameters" in r else ""
             clamped |= bool(mark)
-            lines.append(f"| {case}{mark} | {name} | {100 * r['non_finite_fraction']:.3g} % | "
-                         f"{r['max_energy_drift']:.2e} | {cond_s} |")
+            lines.append(table_row([case + mark, name, pct(r["non_finite_fraction"]), f"{r['max_energy_drift']:.2e}",
+                                    "-" if cond is None else f"{cond:.3g}"]))
     if clamped:
-        from .networks.normalization import Normalizer
-
         lines += ["", f"\\* parameters beyond the model's trusted range ({Normalizer.TRUST:g} standard deviations of "
                       "its training parameters): the model is conditioned on the nearest trusted values."]
     return "\n".join(lines)
@@ -165,7 +164,7 @@ def stability_pivot(results: dict[str, list[dict]]) -> str:
     """The same results as a Markdown grid: one row per case, one column per model; each cell is the
     max true-energy drift, with the non-finite fraction where it is not 0 and cond(M) where known."""
     names = list(results)
-    lines = ["| case | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    lines = table_header(["case", *names])
     for case, row_of in _by_case(results):
         cells = []
         for r in row_of.values():
@@ -178,5 +177,5 @@ def stability_pivot(results: dict[str, list[dict]]) -> str:
             if r["non_finite_fraction"] > 0:
                 cell += f", **{100 * r['non_finite_fraction']:.0f} % non-finite**"
             cells.append(cell)
-        lines.append(f"| {case.replace('|', '&#124;')} | " + " | ".join(cells) + " |")
+        lines.append(table_row([case.replace("|", "&#124;"), *cells]))
     return "\n".join(lines)

@@ -8,15 +8,15 @@ import torch
 
 import lnn_torch
 from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
-from lnn_torch.evaluation import SECTIONS, ClosedForm, evaluate_model, section
-from lnn_torch.ground_truth import reference_rollout
+from lnn_torch.evaluation import REPORT_SECTIONS, SECTIONS, evaluate_model, report_sections, section
+from lnn_torch.ground_truth import ClosedForm, reference_rollout
 from lnn_torch.systems import get_system
-
 
 
 @pytest.fixture(scope="module")
 def trajectories(tmp_path_factory):
-    path = generate_dataset(DatasetSpec(num_trajectories=20, duration=2.0, seed=4), tmp_path_factory.mktemp("d") / "d.h5")
+    path = generate_dataset(DatasetSpec(num_trajectories=20, duration=2.0, seed=4),
+                            tmp_path_factory.mktemp("d") / "d.h5")
     return read_dataset(path).trajectories("train")
 
 
@@ -100,6 +100,61 @@ def test_validation_logs_what_evaluate_model_computes(tmp_path):
 
 
 # ---------------------------------------------------------------------------- registry
+def test_the_report_order_is_the_registration_order():
+    """The package registers its sections module by module (accelerations, rollouts, structure,
+    horizons, cases): the report keeps the order it has always had."""
+    assert report_sections() == REPORT_SECTIONS == (
+        "accelerations", "rollouts", "energy", "predictability", "mass_matrix", "torques", "friction", "free_decay",
+        "horizons", "ood", "stability")
+    assert tuple(SECTIONS)[: len(REPORT_SECTIONS)] == REPORT_SECTIONS
+
+
+def test_the_former_names_are_still_importable_from_evaluation():
+    """``lnn_torch.evaluation`` was one module: its public names (the model helpers, ``ClosedForm``,
+    the figure assembly, the metrics) are still importable from the package, and are the same objects
+    as in their homes."""
+    import lnn_torch.evaluation as evaluation
+    from lnn_torch import ground_truth, metrics, plots
+    from lnn_torch.networks import calls, capabilities
+
+    homes = {ground_truth: ("ClosedForm", "reference_rollout"), plots: ("section_figures",),
+             calls: ("counting_failures", "model_accelerations", "model_rollout"),
+             capabilities: ("capabilities_of", "missing", "ENERGY", "FRICTION", "INVERSE_DYNAMICS", "MASS_MATRIX"),
+             metrics: ("acceleration_errors", "condition_numbers", "divergence_time", "energy_drift",
+                       "normalized_rmse", "power_balance_error", "quartiles", "relative_l2", "scaled_matrix_error")}
+    for home, names in homes.items():
+        for name in names:
+            assert getattr(evaluation, name) is getattr(home, name), name
+    for name in ("DEFAULT_SECTIONS", "EvalContext", "SectionResult", "section_logs", "skip", "Trajectories"):
+        assert hasattr(evaluation, name), name
+    assert set(evaluation.__all__) <= set(dir(evaluation))
+
+
+def test_importing_the_evaluation_loads_no_matplotlib():
+    """The sections name their figures in ``lnn_torch.plots``; matplotlib is imported only when a
+    figure is drawn (physics-only users and training without a logger never load it)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, lnn_torch.evaluation, lnn_torch.stability, lnn_torch.plots; "
+            "assert 'matplotlib' not in sys.modules, 'matplotlib imported'; "
+            "from lnn_torch.plots import plt; assert plt.get_backend().lower() == 'agg'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_evaluation_plots_and_stability_do_not_import_each_other_in_a_circle():
+    """``plots`` and ``stability`` sit beside the evaluation and import only lower layers; the
+    evaluation's sections import them (the cycle evaluation <-> plots <-> stability is gone)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(lnn_torch.__file__).parent
+    for module in ("plots.py", "stability.py", "metrics.py", "report.py"):
+        tree = ast.parse((root / module).read_text())
+        imported = {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+        imported |= {a.name for node in ast.walk(tree) if isinstance(node, ast.Import) for a in node.names}
+        assert not any("evaluation" in name for name in imported), (module, imported)
+        assert not ({"stability", "plots"} - {module[:-3]}) & {name.lstrip(".") for name in imported}, module
 
 
 # ---------------------------------------------------------------------------- scenes own their cases

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch.evaluation import ClosedForm
-from lnn_torch.ground_truth import reference_rollout
+from lnn_torch.ground_truth import ClosedForm, reference_rollout
 from lnn_torch.identification import identify, identify_batch, least_squares_reference
 from lnn_torch.systems import get_system
 from lnn_torch.systems.base import InputError

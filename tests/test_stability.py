@@ -16,12 +16,13 @@ import torch
 from lnn_torch.data import DatasetSpec, GenerationError, generate_arrays
 from lnn_torch.data.generate import integrate_ground_truth
 from lnn_torch.dynamics import SingularHessianError
-from lnn_torch.evaluation import ClosedForm, model_rollout
-from lnn_torch.metrics import energy_drift
+from lnn_torch.ground_truth import ClosedForm
 from lnn_torch.integrators import rollout
 from lnn_torch.losses import energy_variance
+from lnn_torch.metrics import energy_drift
 from lnn_torch.networks import VARIANTS, build_model
 from lnn_torch.networks.base import wrap_angle
+from lnn_torch.networks.calls import model_rollout
 from lnn_torch.stability import hard_cases, run_hard_cases
 from lnn_torch.systems import InputError, get_system
 
@@ -70,7 +71,7 @@ def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
     NaN; evaluations (``counting_failures``) count such trajectories instead of aborting. (The
     rollout raising at a singular state is pinned down by test_singular_hessian_policy_...)"""
     from lnn_torch.dynamics import SingularHessianError
-    from lnn_torch.evaluation import counting_failures
+    from lnn_torch.networks.calls import counting_failures
 
     model = fresh_model("lnn")
     cases = hard_cases(DP, num=3, num_steps=60)

@@ -224,7 +224,8 @@ def test_relativistic_particle_rejects_superluminal_states():
 def test_generic_modules_name_no_scene():
     """Evaluation, stability and plots take cases, drawings and time steps from the scene and the
     data: no scene names, and no fixed dof or time step in them."""
-    for module in ("evaluation.py", "stability.py", "plots.py", "metrics.py", "commands/evaluate.py"):
+    evaluation = [f"evaluation/{p.name}" for p in (ROOT / "lnn_torch" / "evaluation").glob("*.py")]
+    for module in (*evaluation, "stability.py", "plots.py", "metrics.py", "commands/evaluate.py"):
         text = (ROOT / "lnn_torch" / module).read_text()
         for name in ("double_pendulum", "chain_pendulum", "mass_spring", "relativistic", "OOD_CASES",
                      "reshape(-1, 2)", "m2/m1"):

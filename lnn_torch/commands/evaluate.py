@@ -39,6 +39,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ..report import table_header
+
 
 def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
     """metrics.json, report.md and PNG plots: the header, then what each computed section presents
@@ -54,7 +56,7 @@ def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
     lines = [f"# Evaluation: {clean['variant']} on {clean.get('data', '?')} ({clean.get('split', '?')} split, "
              f"{clean['num_trajectories']} trajectories)", "",
              f"Rollouts: {clean['integrator']}, dt = {clean['dt']:g} s, horizon {clean['horizon_s']:g} s.", "",
-             "| metric | value |", "|---|---|"]
+             *table_header(["metric", "value"])]
     for s in sections:
         lines += s.rows
     for s in sections:
@@ -77,7 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--horizon", type=float, default=15.0, help="rollout length, s")
     ap.add_argument("--max-trajectories", type=int, default=None)
     ap.add_argument("--stability-seconds", type=float, default=5.0, help="horizon of the hard cases (0: skip them)")
-    ap.add_argument("--long-horizon-steps", type=int, default=100_000, help="RK4 steps of the long-horizon case (0: skip)")
+    ap.add_argument("--long-horizon-steps", type=int, default=100_000,
+                    help="RK4 steps of the long-horizon case (0: skip)")
     ap.add_argument("--output-dir", "-o", default=None, help="default: <checkpoint folder>/../evaluation")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--compile", action="store_true",

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..report import number, pct, table_header, table_row
 
 
 @dataclass
@@ -102,10 +103,10 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         t = np.arange(length) * tr.dt
         truth = None
         if f.attrs["scene"] == system.name and not f.measured and tr.params.shape[1] == system.num_params:
-            truth = {p: float(v) for p, v in zip(system.param_names, tr.params[j].double())}
+            truth = {p: float(v) for p, v in zip(system.param_names, tr.params[j].double(), strict=True)}
         source = f"{path} (split {split}, trajectory {trajectory}, file index {int(index[j])})"
     elif name.endswith((".csv", ".csv.gz")):
-        from ..data.importer import _read_csv
+        from ..data.importer import read_csv_columns
 
         coordinates = list(coordinates or system.coord_names)
         if len(coordinates) != system.dof:
@@ -114,7 +115,7 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         if system.num_inputs:
             inputs = list(inputs or system.input_names)
         cols = [time, *coordinates, *(velocities or []), *(inputs or [])]
-        data = _read_csv(path, cols)
+        data = read_csv_columns(path, cols)
         t, q = data[:, 0], data[:, 1:1 + system.dof]
         qd = data[:, 1 + system.dof:1 + 2 * system.dof] if velocities else None
         tau = data[:, 1 + system.dof * (2 if velocities else 1):] if inputs else None
@@ -159,7 +160,7 @@ def main(argv: list[str]) -> int:
     # the same fit on the scene's own equations (the ceiling), where torch can differentiate them (an
     # engine-backed scene such as robot_arm has its least-squares reference instead)
     if system.closed_form and getattr(system, "differentiable", True):
-        from ..evaluation import ClosedForm
+        from ..ground_truth import ClosedForm
 
         exact = identify(ClosedForm(system), system, obs.t, q, obs.qd, obs.tau, obs.qdd, method=args.method,
                          starts=args.starts, steps=args.steps, window=args.window, seed=args.seed)
@@ -205,31 +206,29 @@ def markdown(report: dict, system) -> str:
     lines = [f"# Identification: {report['scene']}", "",
              f"Recording: {report['recording']}; {report['observation']['seconds']:.3g} s "
              f"({report['observation']['points']} points), used: {report['observation']['used']}"
-             + (f", position noise added: {report['observation']['noise_added']:g}" if report["observation"]["noise_added"]
-                else "") + ".",
+             + (f", position noise added: {report['observation']['noise_added']:g}"
+                if report["observation"]["noise_added"] else "") + ".",
              f"Model: {report['checkpoint']}; method {report['method']}, {report['starts']} starts, "
              f"{report['seconds']:.1f} s.", "",
-             "| quantity | estimate | ± 1 std (noise, given the model) | same fit, true equations | linear least squares, "
-             "true equations |"
-             + (" truth | error |" if truth else ""),
-             "|---|---|---|---|---|" + ("---|---|" if truth else "")]
+             *table_header(["quantity", "estimate", "± 1 std (noise, given the model)", "same fit, true equations",
+                            "linear least squares, true equations", *(("truth", "error") if truth else ())])]
     for name, qv in report["quantities"].items():
         if not qv["identifiable"]:
             est, std = "not identifiable", "–"
         else:
-            est = f"{qv['value']:.5g}" + _unit(qv["coefficients"], system)
-            std = (f"{100 * qv['rel_std']:.2g} %" if "rel_std" in qv else f"{qv['std']:.2g}")
-        ref = f"{ls[name]['value']:.5g} ± {100 * ls[name]['rel_std']:.2g} %" if name in ls else "–"
-        same = f"{exact[name]['value']:.5g}" if name in exact else "–"
-        row = f"| {name} | {est} | {std} | {same} | {ref} |"
+            est = number(qv["value"], ".5g") + _unit(qv["coefficients"], system)
+            std = pct(qv["rel_std"], 2) if "rel_std" in qv else number(qv["std"], ".2g")
+        ref = f"{number(ls[name]['value'], '.5g')} ± {pct(ls[name]['rel_std'], 2)}" if name in ls else "–"
+        same = number(exact[name]["value"], ".5g") if name in exact else "–"
+        cells = [name, est, std, same, ref]
         if truth:
             c = qv["coefficients"]
             true = float(np.exp(sum(v * np.log(truth[p]) for p, v in c.items()))) if "rel_std" in qv else \
                 sum(v * truth[p] for p, v in c.items())
-            err = f"{100 * (qv['value'] / true - 1):+.3g} %" if qv["identifiable"] and "rel_std" in qv else \
-                (f"{qv['value'] - true:+.3g}" if qv["identifiable"] else "–")
-            row += f" {true:.5g} | {err} |"
-        lines.append(row)
+            err = pct(qv["value"] / true - 1, signed=True) if qv["identifiable"] and "rel_std" in qv else \
+                (number(qv["value"] - true, "+.3g") if qv["identifiable"] else "–")
+            cells += [number(true, ".5g"), err]
+        lines.append(table_row(cells))
     lines.append("")
     for d in report["unidentifiable"]:
         combo = " ".join(f"{v:+.2f} log {p}" for p, v in d["direction"].items())
@@ -237,8 +236,8 @@ def markdown(report: dict, system) -> str:
                      f"{d['std']:.3g} in log units would exceed the search box); the parameters moving along it "
                      "get no number.")
     if report["at_bound"]:
-        lines.append(f"On the edge of the search box (the model's training distribution): {', '.join(report['at_bound'])}; "
-                     "the truth may lie outside what the model was trained on.")
+        lines.append("On the edge of the search box (the model's training distribution): "
+                     f"{', '.join(report['at_bound'])}; the truth may lie outside what the model was trained on.")
     lines.append("The ± column is the statistical uncertainty of the fit given the model: the model's own error is "
                  "not in it" + (" (compare the same fit on the true equations)." if exact else "."))
     rms = ", ".join(f"{k} {v:.3g}" for k, v in report["residual_rms"].items())
@@ -255,11 +254,11 @@ def _plot(module, system, obs: Observation, q_used, result, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..identification import _derivatives
+    from ..identification import estimate_derivatives
 
     dt = float(obs.t[1] - obs.t[0])
     q = torch.as_tensor(q_used, dtype=torch.float64)
-    qd, _ = _derivatives(q[None], dt, None if obs.qd is None else torch.as_tensor(obs.qd)[None], None, None)
+    qd, _ = estimate_derivatives(q[None], dt, None if obs.qd is None else torch.as_tensor(obs.qd)[None])
     params = torch.tensor([list(result.params.values())], dtype=torch.float64)
     tau = None if obs.tau is None else torch.as_tensor(obs.tau[None, :-1])
     with torch.no_grad():

@@ -104,8 +104,9 @@ class ImportSpec:
                           conventions=self.conventions, label=self.label)
 
 
-def _read_csv(path: Path, columns: list[str]) -> np.ndarray:
-    """The named columns of a CSV as float64 ``(rows, len(columns))``; errors name the file and line."""
+def read_csv_columns(path: Path, columns: list[str]) -> np.ndarray:
+    """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; comment lines starting
+    with ``#`` before the header) as float64 ``(rows, len(columns))``; errors name the file and line."""
     if not path.exists():
         raise InputError(f"{path}: no such file")
     import gzip
@@ -119,6 +120,9 @@ def _read_csv(path: Path, columns: list[str]) -> np.ndarray:
         raise InputError(f"{path}: not a text CSV file (undecodable bytes)") from None
     except OSError as err:  # gzip.BadGzipFile, ...
         raise InputError(f"{path}: cannot read it ({err})") from None
+
+
+_read_csv = read_csv_columns  # the former private name, kept for callers
 
 
 def _parse_csv(path: Path, opener, columns: list[str]) -> np.ndarray:
@@ -141,8 +145,9 @@ def _parse_csv(path: Path, opener, columns: list[str]) -> np.ndarray:
             try:
                 values = [float(row[i]) for i in index]
             except (ValueError, IndexError):
-                raise InputError(f"{path}: line {line}: a value of {', '.join(columns)} is missing or not a number") from None
-            bad = [c for c, v in zip(columns, values) if not math.isfinite(v)]
+                raise InputError(f"{path}: line {line}: a value of {', '.join(columns)} is missing or not a "
+                                 "number") from None
+            bad = [c for c, v in zip(columns, values, strict=True) if not math.isfinite(v)]
             if bad:
                 raise InputError(f"{path}: line {line}: NaN or Inf in column {bad[0]!r}")
             rows.append(values)
@@ -217,7 +222,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     unit = np.where(angle, ANGLE_UNITS[spec.angle_units], 1.0)
     records, medians = [], []
     for f in files:
-        raw = _read_csv(f, columns)
+        raw = read_csv_columns(f, columns)
         t = raw[:, 0]
         medians.append(_checked_time(f, t, spec.max_gap))
         records.append(raw)
@@ -250,7 +255,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     settings = {k: v for k, v in asdict(spec).items()}
     settings["dt"] = dt
     provenance = {"sources": [{"file": f.name, "sha256": hashlib.sha256(f.read_bytes()).hexdigest(), "rows": len(r),
-                               "resampled_points": L} for f, r, L in zip(files, records, lengths)],
+                               "resampled_points": L} for f, r, L in zip(files, records, lengths, strict=True)],
                   "resampling": f"every column linearly interpolated onto t_0 + k dt, dt = {dt:g} s (median interval "
                                 f"of the first recording {medians[0]:.4g} s)", "settings": settings}
     units = {"t": "s", "q": list(system.coord_units), "qd": [u + "/s" for u in system.coord_units],
