@@ -47,7 +47,8 @@ class PredictionWriter(BasePredictionWriter):
         else:
             path = self._path(trainer)
         if path.exists() and not self.overwrite:
-            raise FileExistsError(f"{path} exists; refusing to overwrite it (set overwrite: true on the PredictionWriter)")
+            raise FileExistsError(f"{path} exists; refusing to overwrite it (set overwrite: true on the "
+                                  "PredictionWriter)")
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, **arrays)
         self.path = path
@@ -229,7 +230,7 @@ class EvaluationFigures(L.Callback):
 def _log_figures(loggers, result: dict, step: int) -> None:
     import matplotlib.pyplot as plt
 
-    from .evaluation import section_figures
+    from .plots import section_figures
 
     for tag, build in section_figures(result, tags=True, case=f"val split, step {step}").items():
         fig = build(result)

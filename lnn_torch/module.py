@@ -2,7 +2,7 @@
 optimiser and the schedule. The losses are pure functions (``lnn_torch.losses``: one batch is one call
 of ``acceleration_batch_loss`` or ``trajectory_batch_loss``); skipping non-finite steps, TensorBoard's
 HParams and figures are callbacks (``lnn_torch.callbacks``, added by ``configure_callbacks``);
-validation and test are ``lnn_torch.evaluation.evaluate_model`` on a whole split, its scalars logged.
+validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split, its scalars logged.
 ``load_model`` reads a checkpoint (the format: ``lnn_torch.checkpoint_format``).
 """
 
@@ -11,27 +11,15 @@ from __future__ import annotations
 import lightning as L
 import torch
 
+from . import checkpoint_format as ckpt
 from .callbacks import EvaluationFigures, HParamsSummary, SkipNonFiniteSteps, writes_logs
-from .checkpoint_format import (
-    PRETRAINED,
-    READ_ERRORS,
-    old_default_widths,
-    read_checkpoint,
-    record_widths,
-    resolve,
-    stamp,
-    unreadable,
-    without_old_checkpoint_defaults,
-)
 from .errors import InputError
-from .evaluation import DEFAULT_SECTIONS, evaluate_model, section_logs
+from .evaluation import evaluate_split, section_logs
 from .identification import identify
 from .losses import acceleration_batch_loss, trajectory_batch_loss
-from .networks import build_model
-from .networks import model_options as model_options_of
+from .networks import build_model, registry
 from .networks.calls import model_accelerations
 from .networks.capabilities import ENERGY
-from .networks.registry import refuse_conflicts
 from .optim import configure_optimizer, training_progress
 from .perf import configure_cpu
 from .systems import get_system
@@ -92,8 +80,8 @@ class LNNModule(L.LightningModule):
         options = dict(hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
                        potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
                        hnn_coordinates=hnn_coordinates, **(model_options or {}))
-        options = without_old_checkpoint_defaults(options, model_options_of(variant))
-        refuse_conflicts(variant, self.system, options, energy_weight=energy_weight, torque_weight=torque_weight)
+        options = ckpt.without_old_checkpoint_defaults(options, registry.model_options(variant))
+        registry.refuse_conflicts(variant, self.system, options, energy_weight, torque_weight)
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
@@ -107,12 +95,12 @@ class LNNModule(L.LightningModule):
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The model's widths even where left to the variant's default, and the package's stamp."""
-        record_widths(checkpoint, self.model)
-        stamp(checkpoint)
+        ckpt.record_widths(checkpoint, self.model)
+        ckpt.stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """A checkpoint that recorded no widths was trained with the variant's old default widths."""
-        old = old_default_widths(self.hparams)
+        old = ckpt.old_default_widths(self.hparams)
         if old is not None:
             self.hparams.hidden_dims = list(old)
             self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
@@ -141,8 +129,7 @@ class LNNModule(L.LightningModule):
         return self.model.inverse_dynamics(q, qd, qdd, params)
 
     def identify(self, t, q, qd=None, tau=None, qdd=None, **options):
-        """The physical parameters that make this model best explain ONE observed trajectory (SI:
-        ``t (T,)``, ``q (T, dof)``, optional ``qd``, ``tau``, ``qdd``): ``lnn_torch.identification.identify``."""
+        """The parameters that best explain ONE observed trajectory: ``lnn_torch.identification.identify``."""
         return identify(self.model, self.system, t, q, qd, tau, qdd, **options)
 
     # ------------------------------------------------------------------ set-up
@@ -218,23 +205,17 @@ class LNNModule(L.LightningModule):
 
     # ------------------------------------------------------------------ evaluation
     def _evaluate(self, batch: dict, prefix: str) -> None:
-        """``evaluate_model`` on a whole split (the DataModule's one evaluation item), its scalars logged
-        as ``{prefix}/...``; a validation's result kept in ``evaluation`` for its figures
+        """``evaluation.evaluate_split`` of the split (the DataModule's one item), its scalars logged as
+        ``{prefix}/...``; a validation's result with rollouts kept in ``evaluation`` for its figures
         (``callbacks.EvaluationFigures``). Every rank evaluates the same data (identical results)."""
         hp = self.hparams
         n = hp.val_rollouts if prefix == "val" else hp.get("test_rollouts", -1)
-        options = dict(thresholds=(hp.val_threshold,), accel_stride=int(batch["accel_stride"]))
-        if self.system.closed_form:
-            sections = DEFAULT_SECTIONS if n != 0 else ("accelerations",)
-            options.update(horizon=hp.val_rollout_seconds, num_rollouts=n if n > 0 else None)
-        else:  # measured recordings: open-loop horizons from many start points
-            sections = ("accelerations", "horizons")
-            options.update(horizons=(0.1, 0.5, hp.val_rollout_seconds))
-        result = evaluate_model(self.model, self.system, batch["trajectories"], sections=sections, **options)
+        result = evaluate_split(self.model, self.system, batch["trajectories"], num_rollouts=n,
+                                seconds=hp.val_rollout_seconds, threshold=hp.val_threshold,
+                                accel_stride=int(batch["accel_stride"]))
         for name, value in section_logs(result).items():
             self.log(f"{prefix}/{name}", float(value), batch_size=1, sync_dist=True, prog_bar=name == "acc_rel_err")
-        figures = prefix == "val" and self.system.closed_form and n != 0
-        self.evaluation = result if figures else None
+        self.evaluation = result if prefix == "val" and self.system.closed_form and n != 0 else None
 
     def validation_step(self, batch, batch_idx):
         self._evaluate(batch, "val")
@@ -252,18 +233,18 @@ def load_model(source, map_location="cpu") -> LNNModule:
     """The ``LNNModule`` of a checkpoint path or ``pretrained:<name>``, in evaluation mode (SI units in
     and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
     lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
-    path = resolve(source)
-    read_checkpoint(path)
+    path = ckpt.resolve(source)
+    ckpt.read_checkpoint(path)
     try:
         model = LNNModule.load_from_checkpoint(path, map_location=map_location)
     except InputError:
         raise
-    except READ_ERRORS as err:
-        raise unreadable(path, err) from None
+    except ckpt.READ_ERRORS as err:
+        raise ckpt.unreadable(path, err) from None
     model.eval()
     return model
 
 
 def load_pretrained(name: str = "double_pendulum", map_location="cpu") -> LNNModule:
     """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out)."""
-    return load_model(f"{PRETRAINED}{name}", map_location)
+    return load_model(f"{ckpt.PRETRAINED}{name}", map_location)
