@@ -30,6 +30,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--coordinates", nargs="+", default=None, help="coordinate columns")
     ap.add_argument("--velocities", nargs="+", default=None, help="measured velocity columns (optional)")
     ap.add_argument("--inputs", nargs="+", default=None, help="input columns, e.g. motor torques in N m (optional)")
+    ap.add_argument("--currents", nargs="+", default=None, help="motor current columns (A), instead of --inputs")
+    ap.add_argument("--drive-gains", nargs="+", type=float, default=None, help="N m per A, one per current column")
+    ap.add_argument("--robot", default=None, help="a robot arm's description (shipped name or MJCF/URDF path); "
+                    "bodies removed, tool, armature and damping in the config's robot")
     ap.add_argument("--coord-names", nargs="+", default=None)
     ap.add_argument("--input-names", nargs="+", default=None)
     ap.add_argument("--angle-mask", nargs="+", type=int, default=None, help="1 for an angle coordinate, 0 for a length")
@@ -59,6 +63,7 @@ def spec_from_args(args):
 
         fields = read_config(args.config, "import config")
     flags = {"time": args.time, "coordinates": args.coordinates, "velocities": args.velocities, "inputs": args.inputs,
+             "currents": args.currents, "drive_gains": args.drive_gains, "robot": args.robot,
              "coord_names": args.coord_names, "input_names": args.input_names,
              "angle_mask": None if args.angle_mask is None else [bool(a) for a in args.angle_mask],
              "angle_units": args.angle_units, "conventions": args.conventions,
@@ -87,7 +92,7 @@ def spec_from_args(args):
 
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
-    from ..data.importer import import_recordings
+    from ..data.importer import import_recordings, resampling_report
 
     args = _parser().parse_args(argv)
     files = sorted({f for pattern in args.files for f in (glob.glob(pattern) or [pattern])})
@@ -96,5 +101,7 @@ def main(argv: list[str]) -> int:
     f = read_dataset(path)
     names = json.loads(f.attrs["recordings"])
     splits = "; ".join(f"{k}: {', '.join(names[i] for i in v)}" for k, v in f.splits.items())
+    for line in resampling_report(json.loads(f.attrs["provenance"])):
+        print(line)
     print(f"wrote {path} ({f.num_trajectories} recordings, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
     return 0

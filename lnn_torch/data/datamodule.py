@@ -41,15 +41,18 @@ class _Source:
     """Arrays of a set of trajectories: in memory, or read lazily with one h5py handle per process.
 
     ``targets``: derivative settings (``derivatives.settings``): velocities and accelerations are
-    then estimated from the recorded signals, in memory, over each trajectory's own length."""
+    then estimated from the recorded signals, in memory, over each trajectory's own length. Entries
+    that are time windows of a recording (the file's ``windows``) are cut to their window after that
+    (the filters saw the recording around it)."""
 
     def __init__(self, file: TrajectoryFile, indices: np.ndarray, in_memory: bool, dtype: torch.dtype,
                  targets: dict | None = None, smooth_inputs: bool = False) -> None:
         self.file, self.indices, self.dtype = file, np.asarray(indices), dtype
-        self.in_memory = in_memory or targets is not None or "qdd" not in self._names()
+        names = self._names()
+        self.in_memory = in_memory or targets is not None or "qdd" not in names or "windows" in names
         self.fields = FIELDS + (("tau",) if file.num_inputs else ())
         self.params = torch.as_tensor(file.read("params")[self.indices], dtype=dtype)
-        self.lengths = (np.asarray(file.read("lengths"))[self.indices] if "lengths" in self._names()
+        self.lengths = (np.asarray(file.read("lengths"))[self.indices] if "lengths" in names
                         else np.full(len(self.indices), file.num_points))
         self._arrays = None
         self._handle, self._pid = None, None
@@ -68,7 +71,21 @@ class _Source:
                 for j, n in enumerate(self.lengths):
                     tau[j, :n] = derivatives.smooth_inputs(tau[j, :n], file.dt, targets)
                 arrays["tau"] = tau
+            if "windows" in names:
+                arrays = self._cut(arrays, np.asarray(file.read("windows"))[self.indices])
             self._arrays = {k: torch.as_tensor(v, dtype=dtype) for k, v in arrays.items()}
+
+    def _cut(self, arrays: dict, windows: np.ndarray) -> dict:
+        """Each entry cut to its window ``[a, b)`` of its points, NaN after; ``lengths`` follow."""
+        out = {}
+        for k, v in arrays.items():
+            v = np.asarray(v, dtype=np.float64)
+            cut = np.full_like(v, np.nan)
+            for j, (a, b) in enumerate(windows):
+                cut[j, : b - a] = v[j, a:b]
+            out[k] = cut
+        self.lengths = (windows[:, 1] - windows[:, 0]).astype(self.lengths.dtype)
+        return out
 
     def _names(self) -> set:
         with self.file.open() as f:

@@ -18,6 +18,8 @@ name               shape            meaning
 ``splits/train``   ``(n_train,)``   trajectory indices of the training split (also ``val``, ``test``)
 ``trajectory_index`` ``(N,)``       each trajectory's index in the full specification (files of some splits only)
 ``q_ref``          ``(N, T, dof)``  the reference a tracking controller followed (``robot_arm``; optional)
+``windows``        ``(N, 2)``       imported time windows: each entry's own points ``[a, b)``; the rest is
+                                    context for derivative filters, cut after them (optional)
 =================  ===============  =====================================================
 
 Root attributes: ``format``, ``format_version``, ``scene``, ``scene_json`` (the scene's full
@@ -31,7 +33,9 @@ input matrix, excitation, hold), ``package_version``, ``created``, ``complete`` 
 perturbation; ``energy`` and ``work`` are then those of the true motion, ``q`` may carry encoder noise). Files written before
 ``tau`` existed read as unactuated. Imported recordings (``lnn-torch import``; attribute
 ``measured``) have no ``qdd`` and no ``energy`` (nothing is known but the measurements), a scene
-``measured`` without parameters, ``lengths``, ``recordings`` and ``provenance``.
+``measured`` (with each recording's known parameters, if any, and a robot arm's description),
+``lengths``, ``recordings`` (the entries' names: recordings or time windows) and ``provenance``
+(sources, checksums, each recording's timing and what resampling did, every setting).
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "params")  # every file
 SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
-OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index", "q_ref")
+OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index", "q_ref", "windows")
 SPLITS = ("train", "val", "test")
 
 

@@ -2,14 +2,27 @@
 
 Each recording is resampled onto a uniform grid: every column (coordinates, velocities, inputs) is
 linearly interpolated at ``t_0 + k dt`` from the first time stamp to the last (``dt`` defaults to
-the median sampling interval, rounded to 0.1 ms). Units are converted to SI (degrees to radians
-for angle coordinates and their velocities). Recordings keep their own lengths: the file pads them
-with NaN and records ``lengths``. The split is by recording: named by the user, or seeded fractions.
+the median sampling interval, rounded to 0.1 ms). Irregular stamps and gaps are repaired this way and
+reported (``resampling_report``: the intervals, the gaps above twice the median, the largest); only a
+gap longer than ``max_gap`` (default 25 median intervals) is refused, with the number and size of such
+gaps. Units are converted to SI (degrees to radians for angle coordinates and their velocities; motor
+currents times known drive gains to N m). Recordings keep their own lengths: the file pads them with
+NaN and records ``lengths``.
+
+The split is by recording (named by the user, or seeded fractions) or by time window inside a
+recording (``"run[0.5:10.5]"``: its samples at 0.5 s <= t < 10.5 s of its time column): each window is
+an entry of its own, stored with up to ``window_context`` s of the recording on each side for the
+derivative filters and its own span in ``windows`` (the DataModule cuts each entry to its window after
+estimating derivatives). Windows of different splits may not overlap.
+
+Known parameters per recording (``parameters``: e.g. the payload a robot arm carried in each, or a
+named tool) are stored with each entry, and a robot arm's description (``robot``) with the scene:
+models condition on the parameters as on a simulated scene's, a grey box reads the description.
 
 Refused, with one line naming the file and the line of the CSV, before anything is written: a
 missing column, a time that does not increase (or repeats), a NaN or unreadable value, a gap longer
 than ``max_gap``, an existing output (unless ``overwrite``). The file records the provenance:
-source names, SHA-256 checksums and every setting.
+source names, SHA-256 checksums, the resampling report and every setting.
 """
 
 from __future__ import annotations
@@ -18,6 +31,7 @@ import csv
 import hashlib
 import json
 import math
+import re
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -30,6 +44,9 @@ from ..systems import get_system
 from .hdf5 import check_writable, write_dataset
 
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
+ARM_PARAMS = ("payload_mass", "payload_x", "payload_y", "payload_z", "payload_ixx", "payload_iyy", "payload_izz",
+              "payload_ixy", "payload_ixz", "payload_iyz")
+MAX_GAP_INTERVALS = 25  # the default max_gap, in median sampling intervals
 
 
 @dataclass
@@ -41,7 +58,9 @@ class ImportSpec:
         time: the column of time stamps, s.
         velocities: the columns of measured velocities (None: not measured).
         inputs: the columns of the inputs, e.g. measured motor torques in N m (None: unactuated).
-        coord_names, input_names: names (default ``q1..``, ``tau1..``).
+        currents: instead of ``inputs``, motor current columns (A), turned into torques by ``drive_gains``
+            (N m per A, one per input: the motor constant times the gear ratio).
+        coord_names, input_names: names (default ``q1..``, ``tau1..``; a robot arm's: its joints').
         angle_mask: which coordinates are angles (default all).
         angle_units: ``rad`` or ``deg`` for the angle coordinates and their velocities.
         conventions: the angle convention in words (recorded; e.g. joint-relative angles).
@@ -50,10 +69,20 @@ class ImportSpec:
         input_matrix: ``(dof, n_u)`` (default: input ``j`` acts on coordinate ``j``).
         friction: models of the system learn joint friction; ``joint_map``: the joint rates
             ``D qd`` it acts on (default identity); ``coulomb_velocity``: its smoothing, rad/s.
+        robot: a robot arm's description as the robot it is (``lnn_torch.robots.description``: a shipped
+            name, an MJCF/URDF path, or ``{source, flange, remove, tool, armature, damping}``); the
+            coordinates are then its joints in its order (``coord_names`` its joint names).
+        parameters: known parameters per recording: ``{"names": [...], "units": [...], "kinds": [...],
+            "values": {recording: [...] or a tool's name}, "tools": {name: [...]}}``; for a robot arm
+            the names default to the payload at its flange, ``payload_mass, payload_x, payload_y,
+            payload_z`` (kg, m; ten values with the inertia about the centre of mass). A recording
+            without values carries zeros (no payload).
         dt: resampling interval, s (default: the median interval of the first recording, rounded).
-        max_gap: the longest interval between two time stamps accepted, s (default 5 x the median).
-        split: ``{"train": [...], "val": [...], "test": [...]}`` recording names (file stems), or
-            three fractions (seeded by ``seed``).
+        max_gap: the longest interval between two time stamps accepted, s (default 25 x the median).
+        split: ``{"train": [...], "val": [...], "test": [...]}`` of recording names (file stems) or time
+            windows ``"name[start:end]"`` (s of its time column; an end may be left out), or three
+            fractions of the recordings (seeded by ``seed``).
+        window_context: seconds of the recording kept on each side of a time window (for filters).
         label: the system's name (recorded).
     """
 
@@ -61,6 +90,8 @@ class ImportSpec:
     time: str = "time"
     velocities: list[str] | None = None
     inputs: list[str] | None = None
+    currents: list[str] | None = None
+    drive_gains: list[float] | None = None
     coord_names: list[str] | None = None
     input_names: list[str] | None = None
     angle_mask: list[bool] | None = None
@@ -71,9 +102,12 @@ class ImportSpec:
     friction: bool = True
     joint_map: list[list[float]] | None = None
     coulomb_velocity: float = 0.02
+    robot: dict | str | None = None
+    parameters: dict | None = None
     dt: float | None = None
     max_gap: float | None = None
     split: dict | list = field(default_factory=lambda: [0.7, 0.15, 0.15])
+    window_context: float = 0.5
     seed: int = 0
     label: str = "measured"
 
@@ -84,8 +118,24 @@ class ImportSpec:
         for name, cols in (("velocities", self.velocities), ("coord_names", self.coord_names)):
             if cols is not None and len(cols) != dof:
                 raise InputError(f"import: {name} needs {dof} entries (one per coordinate), got {len(cols)}")
-        if self.inputs is not None and self.input_names is not None and len(self.input_names) != len(self.inputs):
-            raise InputError(f"import: input_names needs {len(self.inputs)} entries, got {len(self.input_names)}")
+        if self.inputs is not None and self.currents is not None:
+            raise InputError("import: give inputs (torques) or currents (with drive_gains), not both")
+        if self.currents is not None:
+            gains = self.drive_gains
+            if gains is None or len(gains) != len(self.currents):
+                raise InputError(f"import: currents need drive_gains, one per current column ({len(self.currents)}; "
+                                 "N m per A)")
+            if not all(math.isfinite(float(g)) and float(g) != 0 for g in gains):
+                raise InputError(f"import: drive_gains must be finite and non-zero, got {list(gains)}")
+        elif self.drive_gains is not None:
+            raise InputError("import: drive_gains go with currents (motor current columns)")
+        n_u = len(self.input_columns)
+        if self.input_names is not None and len(self.input_names) != n_u:
+            raise InputError(f"import: input_names needs {n_u} entries, got {len(self.input_names)}")
+        if not (math.isfinite(self.window_context) and self.window_context >= 0):
+            raise InputError(f"import: window_context must be >= 0 s, got {self.window_context}")
+        if self.robot is not None:
+            self._arm_joints()
         if self.angle_units not in ANGLE_UNITS:
             raise InputError(f"import: angle_units must be one of {', '.join(ANGLE_UNITS)}, got '{self.angle_units}'")
         for name in ("dt", "max_gap"):
@@ -93,15 +143,94 @@ class ImportSpec:
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise InputError(f"import: {name} must be positive, got {value}")
 
-    def system(self):
-        """The ``MeasuredSystem`` these recordings declare."""
+    @property
+    def input_columns(self) -> list[str]:
+        return list(self.inputs or self.currents or [])
+
+    def _arm_joints(self) -> tuple[str, ...]:
+        """The joint names of the ``robot`` description (its coordinates, in order), checked against the
+        coordinate columns and names."""
+        from ..robots.mujoco_arm import MujocoArm
+
+        joints = MujocoArm(self.robot).joint_names
+        if len(joints) != len(self.coordinates):
+            raise InputError(f"import: robot {self.robot} has {len(joints)} joints ({', '.join(joints)}); "
+                             f"{len(self.coordinates)} coordinate columns are named")
+        if self.coord_names is not None and tuple(self.coord_names) != joints:
+            raise InputError(f"import: coord_names {list(self.coord_names)} are not the joints of robot "
+                             f"{self.robot} in its order ({', '.join(joints)}): list the coordinate columns in "
+                             "the joints' order and name them so")
+        return joints
+
+    def parameter_table(self, names: list[str]) -> tuple[dict, np.ndarray]:
+        """``(declaration, values (N, P))``: the parameters' names, units and kinds, and each recording's
+        values (a tool's by its name; zeros for a recording without values)."""
+        if not self.parameters:
+            return {"names": [], "units": [], "kinds": []}, np.zeros((len(names), 0))
+        spec = dict(self.parameters)
+        unknown = sorted(set(spec) - {"names", "units", "kinds", "values", "tools"})
+        if unknown:
+            raise InputError(f"import: parameters take names, units, kinds, values and tools, got {', '.join(unknown)}")
+        values, tools = dict(spec.get("values") or {}), dict(spec.get("tools") or {})
+        rows = {}
+        for rec, value in values.items():
+            if rec not in names:
+                raise InputError(f"import: parameters given for an unknown recording {rec!r} (recordings: "
+                                 f"{', '.join(names)})")
+            if isinstance(value, str):
+                if value not in tools:
+                    raise InputError(f"import: recording {rec!r} names tool {value!r}, which parameters.tools does "
+                                     f"not define ({', '.join(tools) or 'none'})")
+                value = tools[value]
+            rows[rec] = [float(v) for v in value]
+        width = {len(r) for r in rows.values()}
+        if len(width) > 1:
+            raise InputError(f"import: every recording's parameters need the same number of values, got "
+                             f"{sorted(width)}")
+        if self.robot is not None:
+            P = width.pop() if width else 4
+            default = list(ARM_PARAMS[:P]) if P in (4, 10) else None
+            units = ["kg", "m", "m", "m"] + ["kg m^2"] * 6
+            kinds = ["nonnegative", "real", "real", "real"] + ["real"] * 6
+            names_p = spec.get("names", default)
+            if names_p is None:
+                raise InputError(f"import: a robot arm's parameters are its payload: 4 values (mass, centre of "
+                                 f"mass) or 10 (and the inertia); got {P}")
+            decl = {"names": list(names_p), "units": list(spec.get("units", units[:P])),
+                    "kinds": list(spec.get("kinds", kinds[:P]))}
+        else:
+            P = width.pop() if width else len(spec.get("names", []))
+            decl = {"names": list(spec.get("names", [f"p{i + 1}" for i in range(P)])),
+                    "units": list(spec.get("units", [""] * P)), "kinds": list(spec.get("kinds", ["real"] * P))}
+        if any(len(decl[k]) != P for k in decl):
+            raise InputError(f"import: parameters names, units and kinds need {P} entries each (the values' count)")
+        table = np.zeros((len(names), P))
+        for i, rec in enumerate(names):
+            if rec in rows:
+                table[i] = rows[rec]
+        if not np.isfinite(table).all():
+            raise InputError("import: a parameter value is NaN or Inf")
+        return decl, table
+
+    def system(self, parameters: dict | None = None):
+        """The ``MeasuredSystem`` these recordings declare (``parameters``: the declaration of
+        ``parameter_table``)."""
         dof = len(self.coordinates)
-        n_u = len(self.inputs or [])
-        return get_system("measured", dof=dof, angle_mask=self.angle_mask, coord_names=self.coord_names,
+        n_u = len(self.input_columns)
+        coord_names = self.coord_names
+        description = None
+        if self.robot is not None:
+            from ..robots.description import ArmDescription
+
+            coord_names = list(self._arm_joints())
+            description = ArmDescription.of(self.robot).config()
+        decl = parameters or {}
+        return get_system("measured", dof=dof, angle_mask=self.angle_mask, coord_names=coord_names,
                           input_names=self.input_names or [f"tau{i + 1}" for i in range(n_u)],
                           input_matrix=self.input_matrix, friction=self.friction, joint_map=self.joint_map,
                           coulomb_velocity=self.coulomb_velocity, angle_combinations=self.angle_combinations,
-                          conventions=self.conventions, label=self.label)
+                          conventions=self.conventions, label=self.label, param_names=decl.get("names", ()),
+                          param_units=decl.get("units"), param_kinds=decl.get("kinds"), description=description)
 
 
 def read_csv_columns(path: Path, columns: list[str]) -> np.ndarray:
@@ -156,8 +285,11 @@ def _parse_csv(path: Path, opener, columns: list[str]) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64)
 
 
-def _checked_time(path: Path, t: np.ndarray, max_gap: float | None) -> float:
-    """Raise for a time that does not increase or a gap beyond ``max_gap``; returns the median interval."""
+def _checked_time(path: Path, t: np.ndarray, max_gap: float | None) -> dict:
+    """Raise for a time that does not increase or gaps beyond ``max_gap`` (default ``MAX_GAP_INTERVALS``
+    median intervals; the count and the largest named); else the recording's timing: samples,
+    duration, median, smallest and largest interval, and the gaps above twice the median (count,
+    largest, their total), which resampling interpolates across."""
     steps = np.diff(t)
     bad = np.nonzero(steps <= 0)[0]
     if bad.size:
@@ -165,31 +297,104 @@ def _checked_time(path: Path, t: np.ndarray, max_gap: float | None) -> float:
         what = "repeats" if steps[i] == 0 else "decreases"
         raise InputError(f"{path}: line {i + 3}: time {what} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
     median = float(np.median(steps))
-    limit = max_gap if max_gap is not None else 5 * median
+    limit = max_gap if max_gap is not None else MAX_GAP_INTERVALS * median
     gaps = np.nonzero(steps > limit)[0]
     if gaps.size:
         i = int(gaps[0])
+        more = f" ({gaps.size} such gaps, the largest {steps.max():.4g} s)" if gaps.size > 1 else ""
         raise InputError(f"{path}: line {i + 3}: a gap of {steps[i]:.4g} s after t = {t[i]:.6g} s exceeds max_gap "
-                         f"{limit:.4g} s")
-    return median
+                         f"{limit:.4g} s{more}: too long to interpolate across (split the recording there, or "
+                         "raise max_gap)")
+    long = steps[steps > 2 * median]
+    return {"samples": len(t), "duration_s": float(t[-1] - t[0]), "median_interval_s": median,
+            "min_interval_s": float(steps.min()), "max_interval_s": float(steps.max()),
+            "gaps": int(long.size), "largest_gap_s": float(long.max()) if long.size else 0.0,
+            "gap_seconds": float(long.sum()), "max_gap_s": float(limit)}
 
 
-def _split(names: list[str], split, seed: int) -> dict:
-    if isinstance(split, dict):
-        known = set(names)
-        out = {}
-        for part in ("train", "val", "test"):
-            chosen = list(split.get(part, []))
-            unknown = [n for n in chosen if n not in known]
-            if unknown:
-                raise InputError(f"split: unknown recording(s) {', '.join(unknown)} (recordings: {', '.join(names)})")
-            out[part] = np.array(sorted(names.index(n) for n in chosen), dtype=np.int64)
-        used = np.concatenate(list(out.values()))
-        if len(np.unique(used)) != len(used):
-            raise InputError("split: a recording is named in more than one split")
-        if not len(out["train"]):
-            raise InputError("split: no training recording")
-        return out
+def resampling_report(provenance: dict) -> list[str]:
+    """One line per recording of what the import did to its timing (from the file's ``provenance``)."""
+    lines = []
+    for src in provenance.get("sources", []):
+        timing = src.get("timing")
+        if not timing:
+            continue
+        gaps = (f"{timing['gaps']} gaps over twice the median interval (largest {1e3 * timing['largest_gap_s']:.3g} "
+                f"ms, {1e3 * timing['gap_seconds']:.3g} ms in all) interpolated across" if timing["gaps"]
+                else "no gaps")
+        lines.append(f"{src['file']}: {timing['samples']} samples over {timing['duration_s']:.4g} s, intervals "
+                     f"{1e3 * timing['min_interval_s']:.3g}-{1e3 * timing['max_interval_s']:.3g} ms (median "
+                     f"{1e3 * timing['median_interval_s']:.3g} ms); {gaps}; resampled to "
+                     f"{src['resampled_points']} points")
+    return lines
+
+
+WINDOW = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<start>[^:\]]*):(?P<end>[^\]]*)\]$")
+
+
+def _entries(names: list[str], split, seed: int, durations: list[float]) -> tuple[list[tuple], dict]:
+    """The dataset's entries ``(recording index, start s or None, end s or None, name)`` and the split
+    over them: whole recordings (named, or seeded fractions), or time windows ``name[start:end]``."""
+    if not isinstance(split, dict) or not any(WINDOW.match(str(item).strip()) for items in split.values()
+                                              for item in (items or [])):
+        entries = [(i, None, None, n) for i, n in enumerate(names)]  # every recording, in the files' order
+        return entries, _by_name(names, split) if isinstance(split, dict) else _fractions(names, split, seed)
+    entries, out = [], {}
+    for part in ("train", "val", "test"):
+        out[part] = []
+        for item in split.get(part, []) or []:
+            m = WINDOW.match(str(item).strip())
+            name = m["name"].strip() if m else str(item)
+            if name not in names:
+                raise InputError(f"split: unknown recording {name!r} (recordings: {', '.join(names)})")
+            i = names.index(name)
+            start = end = None
+            if m:
+                try:
+                    start = float(m["start"]) if m["start"].strip() else None
+                    end = float(m["end"]) if m["end"].strip() else None
+                except ValueError:
+                    raise InputError(f"split: window {item!r}: start and end must be seconds") from None
+                if start is not None and end is not None and end <= start:
+                    raise InputError(f"split: window {item!r} ends before it starts")
+            entry = (i, start, end, str(item).strip() if m else name)
+            if entry in entries:
+                raise InputError(f"split: {entry[3]!r} is named twice")
+            out[part].append(len(entries))
+            entries.append(entry)
+    if not out["train"]:
+        raise InputError("split: no training recording")
+    for a in range(len(entries)):  # entries of different splits may not share any time of a recording
+        for b in range(a + 1, len(entries)):
+            (i, s0, e0, n0), (j, s1, e1, n1) = entries[a], entries[b]
+            part_a = next(p for p, idx in out.items() if a in idx)
+            part_b = next(p for p, idx in out.items() if b in idx)
+            lo0, hi0 = s0 or 0.0, durations[i] if e0 is None else e0
+            lo1, hi1 = s1 or 0.0, durations[j] if e1 is None else e1
+            if i == j and part_a != part_b and lo0 < hi1 and lo1 < hi0:
+                raise InputError(f"split: {n0!r} ({part_a}) and {n1!r} ({part_b}) overlap: a held-out window must "
+                                 "not share samples with training")
+    return entries, {k: np.asarray(v, dtype=np.int64) for k, v in out.items()}
+
+
+def _by_name(names: list[str], split: dict) -> dict:
+    known = set(names)
+    out = {}
+    for part in ("train", "val", "test"):
+        chosen = list(split.get(part, []) or [])
+        unknown = [n for n in chosen if n not in known]
+        if unknown:
+            raise InputError(f"split: unknown recording(s) {', '.join(unknown)} (recordings: {', '.join(names)})")
+        out[part] = np.array(sorted(names.index(n) for n in chosen), dtype=np.int64)
+    used = np.concatenate(list(out.values()))
+    if len(np.unique(used)) != len(used):
+        raise InputError("split: a recording is named in more than one split")
+    if not len(out["train"]):
+        raise InputError("split: no training recording")
+    return out
+
+
+def _fractions(names: list[str], split, seed: int) -> dict:
     fractions = [float(x) for x in split]
     if len(fractions) != 3 or any(f < 0 for f in fractions) or abs(sum(fractions) - 1) > 1e-9:
         raise InputError(f"split must be three fractions summing to 1 or a dict of recording names, got {split!r}")
@@ -215,58 +420,84 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     if len(set(stems)) != len(stems):
         raise InputError(f"import: recording names (file names before the first dot) must be unique: {stems}")
     output = check_writable(output, overwrite)  # before any work
-    system = spec.system()
+    decl, param_table = spec.parameter_table(stems)
+    system = spec.system(decl)
     dof, n_u = system.dof, system.num_inputs
-    columns = [spec.time, *spec.coordinates, *(spec.velocities or []), *(spec.inputs or [])]
+    columns = [spec.time, *spec.coordinates, *(spec.velocities or []), *spec.input_columns]
     angle = np.array(system.angle_mask)
     unit = np.where(angle, ANGLE_UNITS[spec.angle_units], 1.0)
-    records, medians = [], []
+    gains = np.asarray(spec.drive_gains, dtype=np.float64) if spec.currents else np.ones(n_u)
+    records, timing = [], []
     for f in files:
         raw = read_csv_columns(f, columns)
-        t = raw[:, 0]
-        medians.append(_checked_time(f, t, spec.max_gap))
+        timing.append(_checked_time(f, raw[:, 0], spec.max_gap))
         records.append(raw)
-    dt = spec.dt or round(medians[0], 4) or medians[0]
-    resampled, lengths = [], []
+    dt = spec.dt or round(timing[0]["median_interval_s"], 4) or timing[0]["median_interval_s"]
+    resampled = []
     for raw in records:
         t = raw[:, 0]
         grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
-        cols = np.stack([np.interp(grid, t, raw[:, j]) for j in range(1, raw.shape[1])], -1)
-        resampled.append(cols)
-        lengths.append(len(grid))
-    T = max(lengths)
-    N = len(files)
-    q = np.full((N, T, dof), np.nan)
-    qd = np.full((N, T, dof), np.nan)
+        resampled.append(np.stack([np.interp(grid, t, raw[:, j]) for j in range(1, raw.shape[1])], -1))
+    entries, splits = _entries(stems, spec.split, spec.seed, [len(r) * dt for r in resampled])
+    pieces, windows = [], []
+    context = int(round(spec.window_context / dt))
+    for i, start, end, name in entries:
+        L = len(resampled[i])
+        if start is None and end is None:
+            pieces.append((i, 0, L))
+            windows.append((0, L))
+            continue
+        a = 0 if start is None else int(np.ceil(start / dt - 1e-9))
+        b = L if end is None else min(L, int(np.ceil(end / dt - 1e-9)))  # [start, end): no sample in two windows
+        if b - a < 2:
+            raise InputError(f"split: window {name!r} holds fewer than two samples of {stems[i]} "
+                             f"({L * dt:.4g} s long)")
+        lo, hi = max(0, a - context), min(L, b + context)
+        pieces.append((i, lo, hi))
+        windows.append((a - lo, b - lo))
+    lengths = [hi - lo for _, lo, hi in pieces]
+    T, N = max(lengths), len(pieces)
+    q, qd = np.full((N, T, dof), np.nan), np.full((N, T, dof), np.nan)
     tau = np.full((N, T, n_u), np.nan) if n_u else None
-    for i, cols in enumerate(resampled):
-        L = lengths[i]
-        q[i, :L] = cols[:, :dof] * unit
-        k = dof
+    for k, (i, lo, hi) in enumerate(pieces):
+        cols = resampled[i][lo:hi]
+        L = hi - lo
+        q[k, :L] = cols[:, :dof] * unit
+        c = dof
         if spec.velocities:
-            qd[i, :L] = cols[:, k:k + dof] * unit
-            k += dof
+            qd[k, :L] = cols[:, c:c + dof] * unit
+            c += dof
         if n_u:
-            tau[i, :L] = cols[:, k:k + n_u]
-    arrays = {"t": dt * np.arange(T), "q": q, "qd": qd, "params": np.zeros((N, 0)),
+            tau[k, :L] = cols[:, c:c + n_u] * gains
+    arrays = {"t": dt * np.arange(T), "q": q, "qd": qd, "params": param_table[[i for i, _, _ in pieces]],
               "lengths": np.asarray(lengths, dtype=np.int64)}
+    if any(w != (0, n) for w, n in zip(windows, lengths, strict=True)):
+        arrays["windows"] = np.asarray(windows, dtype=np.int64)
     if n_u:
         arrays["tau"] = tau
     settings = {k: v for k, v in asdict(spec).items()}
     settings["dt"] = dt
     provenance = {"sources": [{"file": f.name, "sha256": hashlib.sha256(f.read_bytes()).hexdigest(), "rows": len(r),
-                               "resampled_points": L} for f, r, L in zip(files, records, lengths, strict=True)],
+                               "resampled_points": len(res), "timing": tm}
+                              for f, r, res, tm in zip(files, records, resampled, timing, strict=True)],
                   "resampling": f"every column linearly interpolated onto t_0 + k dt, dt = {dt:g} s (median interval "
-                                f"of the first recording {medians[0]:.4g} s)", "settings": settings}
+                                f"of the first recording {timing[0]['median_interval_s']:.4g} s)", "settings": settings,
+                  "entries": [{"name": name, "recording": stems[i], "from_s": lo * dt, "to_s": (hi - 1) * dt,
+                               "window": list(w)} for (i, _, _, name), (_, lo, hi), w
+                              in zip(entries, pieces, windows, strict=True)]}
+    if spec.currents:
+        provenance["inputs"] = {"from": "motor currents (A) times drive_gains (N m per A)", "columns": spec.currents,
+                                "drive_gains": [float(g) for g in gains]}
     units = {"t": "s", "q": list(system.coord_units), "qd": [u + "/s" for u in system.coord_units],
-             "params": [], "tau": ["N m"] * n_u}
+             "params": list(system.param_units), "tau": ["N m"] * n_u}
     attrs = {"scene": system.name, "scene_json": json.dumps(system.describe(), sort_keys=True),
              "conventions": system.conventions, "units": json.dumps(units), "gravity": float("nan"),
-             "param_names": json.dumps([]), "measured": True, "velocities_measured": bool(spec.velocities),
-             "recordings": json.dumps(stems), "provenance": json.dumps(provenance), "targets": "none (measured)",
+             "param_names": json.dumps(list(system.param_names)), "measured": True,
+             "velocities_measured": bool(spec.velocities), "recordings": json.dumps([e[3] for e in entries]),
+             "provenance": json.dumps(provenance), "targets": "none (measured)",
              "package_version": __version__, "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     if n_u:
         attrs["inputs"] = json.dumps({"names": list(system.input_names), "units": ["N m"] * n_u,
                                       "input_matrix": system.input_matrix().tolist(),
                                       "hold": "measured; linearly interpolated onto the grid, held over each step"})
-    return write_dataset(output, arrays, _split(stems, spec.split, spec.seed), attrs, overwrite=overwrite)
+    return write_dataset(output, arrays, splits, attrs, overwrite=overwrite)

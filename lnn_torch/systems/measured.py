@@ -11,7 +11,13 @@ what a model needs to know (``lnn-torch import`` writes the declaration into the
 * inputs: their names and the input matrix ``B (dof, n_u)`` (motor torques at joints: columns of the
   identity);
 * dissipation: joint friction (``friction``) on the joint rates ``joint_map @ qd`` with the Coulomb
-  smoothing velocity ``coulomb_velocity``; the coefficients are learned.
+  smoothing velocity ``coulomb_velocity``; the coefficients are learned;
+* known parameters per recording (``param_names``, ``param_units``, ``param_kinds``): e.g. the payload a
+  robot arm carried in each recording (mass, centre of mass, inertia in the flange frame), stored in
+  the dataset beside each recording, so that a model conditions on them as on a simulated scene's;
+* ``description``: for a robot arm, its robot description as the robot it is
+  (``lnn_torch.robots.description.ArmDescription``: source, flange, bodies removed, tool, armature,
+  damping), which a grey-box model reads; the coordinates are then its joints, in its order.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import math
 import torch
 
 from ..errors import InputError
-from .base import System
+from .base import PARAM_KINDS, System
 
 
 class MeasuredSystem(System):
@@ -31,7 +37,8 @@ class MeasuredSystem(System):
 
     def __init__(self, dof: int, angle_mask=None, coord_names=None, input_names=(), input_matrix=None,
                  friction: bool = True, joint_map=None, coulomb_velocity: float = 0.02, angle_combinations=None,
-                 conventions: str = "", label: str = "measured") -> None:
+                 conventions: str = "", label: str = "measured", param_names=(), param_units=None, param_kinds=None,
+                 description=None) -> None:
         try:
             dof = int(dof)
         except (TypeError, ValueError):
@@ -45,7 +52,8 @@ class MeasuredSystem(System):
             raise InputError(f"measured system: angle_mask and coord_names need {dof} entries each")
         self.input_names = tuple(input_names or ())
         n_u = len(self.input_names)
-        B = torch.eye(dof, dtype=torch.float64)[:, :n_u] if input_matrix is None else torch.tensor(input_matrix, dtype=torch.float64)
+        B = (torch.eye(dof, dtype=torch.float64)[:, :n_u] if input_matrix is None
+             else torch.tensor(input_matrix, dtype=torch.float64))
         if n_u and B.shape != (dof, n_u):
             raise InputError(f"measured system: input_matrix must be ({dof}, {n_u}), got {tuple(B.shape)}")
         self._B = B if n_u else None
@@ -62,7 +70,17 @@ class MeasuredSystem(System):
             raise InputError(f"measured system: angle_combinations must be rows of {dof} coefficients")
         self.conventions = conventions or "measured coordinates (no convention declared)"
         self.label = label
-        self.param_names, self.param_units = (), ()
+        self.param_names = tuple(str(n) for n in (param_names or ()))
+        P = len(self.param_names)
+        self.param_units = tuple(param_units) if param_units is not None else ("",) * P
+        kinds = tuple(param_kinds) if param_kinds is not None else ("real",) * P
+        if len(self.param_units) != P or len(kinds) != P:
+            raise InputError(f"measured system: param_units and param_kinds need {P} entries (one per parameter)")
+        bad = [k for k in kinds if k not in PARAM_KINDS]
+        if bad:
+            raise InputError(f"measured system: param_kinds must be among {', '.join(PARAM_KINDS)}, got {bad[0]!r}")
+        self.param_kinds = kinds
+        self.description = description
 
     def config(self) -> dict:
         return {"dof": self.dof, "angle_mask": list(self.angle_mask), "coord_names": list(self.coord_names),
@@ -70,7 +88,9 @@ class MeasuredSystem(System):
                 "input_matrix": None if self._B is None else self._B.tolist(), "friction": self.friction,
                 "joint_map": self._D.tolist(), "coulomb_velocity": self.coulomb_velocity,
                 "angle_combinations": None if self._combos is None else self._combos.tolist(),
-                "conventions": self.conventions, "label": self.label}
+                "conventions": self.conventions, "label": self.label, "param_names": list(self.param_names),
+                "param_units": list(self.param_units), "param_kinds": list(self.param_kinds),
+                "description": self.description}
 
     # ------------------------------------------------------------------ declared forces
     def angle_combinations(self):

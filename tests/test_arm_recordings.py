@@ -1,0 +1,115 @@
+"""Robot-arm recordings as a lab has them (``lnn_torch.data.importer``): irregular stamps and gaps
+repaired and reported, time windows of one recording as the split, known parameters per recording
+(a payload or a named tool), motor currents with drive gains, the robot's description with the scene."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lnn_torch.data import read_dataset
+from lnn_torch.data.datamodule import TrajectoryDataModule
+from lnn_torch.data.importer import ImportSpec, import_recordings, resampling_report
+from lnn_torch.errors import InputError
+
+from .test_recordings import write_csv
+
+TARGETS = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": False}
+
+
+def signals(t: np.ndarray, phase: float = 0.0) -> dict:
+    """Smooth two-joint motion (rad) and torques (N m) at times ``t``."""
+    return {"time": t, "a": np.sin(1.3 * t + phase), "b": 0.5 * np.cos(2.1 * t + phase),
+            "ta": np.cos(0.7 * t), "tb": np.sin(0.9 * t + phase)}
+
+
+def spec(**kw) -> ImportSpec:
+    return ImportSpec(**{"coordinates": ["a", "b"], "inputs": ["ta", "tb"], **kw})
+
+
+def test_gaps_are_resampled_and_reported_and_only_a_gap_too_long_is_refused(tmp_path):
+    t = np.arange(0, 4, 0.001)
+    t = np.delete(t, np.r_[1000:1008, 2500:2504])  # two gaps: 9 ms and 5 ms at 1 ms sampling
+    path = write_csv(tmp_path / "run.csv", signals(t))
+    out = import_recordings([path], tmp_path / "run.h5", spec(split=[1.0, 0.0, 0.0]))
+    (line,) = resampling_report(json.loads(read_dataset(out).attrs["provenance"]))
+    assert "2 gaps over twice the median interval (largest 9 ms, 14 ms in all) interpolated across" in line
+    assert read_dataset(out).num_points == 4000  # the whole span on the 1 ms grid
+    t2 = np.delete(t, np.r_[3000:3030])  # a 31 ms gap: more than 25 median intervals
+    with pytest.raises(InputError, match=r"a gap of 0.031 s .* exceeds max_gap 0.025 s: too long to interpolate"):
+        import_recordings([write_csv(tmp_path / "long.csv", signals(t2))], tmp_path / "long.h5",
+                          spec(split=[1.0, 0.0, 0.0]))
+
+
+def test_time_windows_are_entries_cut_after_the_filters_saw_the_recording_around_them(tmp_path):
+    """A recording split into windows: its samples are the whole recording's at the same times, and its
+    derivative estimates equal those of the whole recording there to the filter's edge effect beyond
+    the 0.5 s of context (measured: 2.1e-6 of the largest velocity, 5.7e-5 of the largest
+    acceleration); overlapping windows of two splits are refused."""
+    t = np.arange(0, 12, 0.002)
+    path = write_csv(tmp_path / "run.csv", signals(t))
+    whole = import_recordings([path], tmp_path / "whole.h5", spec(split={"train": ["run"]}))
+    split = {"train": ["run[1:6]"], "val": ["run[6:8]"], "test": ["run[8.5:11]"]}
+    windows = import_recordings([path], tmp_path / "win.h5", spec(split=split))
+    full = TrajectoryDataModule(path=str(whole), targets=TARGETS).trajectories("train")
+    dm = TrajectoryDataModule(path=str(windows), targets=TARGETS)
+    for part, (start, end) in zip(("train", "val", "test"), ((1, 6), (6, 8), (8.5, 11)), strict=True):
+        data = dm.trajectories(part)
+        a, b = round(start / 0.002), round(end / 0.002)
+        assert int(data.lengths[0]) == b - a
+        for key, tol in (("q", 0.0), ("tau", 0.0), ("qd", 1e-5), ("qdd", 2e-4)):
+            got, ref = getattr(data, key)[0, : b - a], getattr(full, key)[0, a:b]
+            torch.testing.assert_close(got, ref, rtol=0, atol=tol * float(ref.abs().max()))
+    names = json.loads(read_dataset(windows).attrs["recordings"])
+    assert names == ["run[1:6]", "run[6:8]", "run[8.5:11]"]
+    with pytest.raises(InputError, match=r"'run\[5:8\]' \(val\) overlap"):
+        import_recordings([path], tmp_path / "bad.h5", spec(split={"train": ["run[1:6]"], "val": ["run[5:8]"]}))
+    with pytest.raises(InputError, match="unknown recording 'walk'"):
+        import_recordings([path], tmp_path / "bad.h5", spec(split={"train": ["walk[1:6]"]}))
+
+
+def test_parameters_per_recording_and_named_tools_are_stored_with_each_entry(tmp_path):
+    t = np.arange(0, 3, 0.002)
+    files = [write_csv(tmp_path / f"{name}.csv", signals(t, k)) for k, name in enumerate(("empty", "box", "grip"))]
+    params = {"values": {"box": [1.5, 0.0, 0.01, 0.05], "grip": "gripper"},
+              "tools": {"gripper": [0.8, 0.0, 0.0, 0.03]}}
+    out = import_recordings(files, tmp_path / "p.h5", spec(robot=None, parameters={**params, "names": list("mxyz")},
+                                                           split={"train": ["empty", "box"], "test": ["grip"]}))
+    f = read_dataset(out)
+    np.testing.assert_array_equal(np.asarray(f.read("params")), [[0, 0, 0, 0], [1.5, 0, 0.01, 0.05], [0.8, 0, 0, 0.03]])
+    assert json.loads(f.attrs["param_names"]) == list("mxyz")
+    with pytest.raises(InputError, match="unknown recording 'boxes'"):
+        import_recordings(files, tmp_path / "q.h5", spec(parameters={"values": {"boxes": [1, 0, 0, 0]}}))
+    with pytest.raises(InputError, match="names tool 'hand', which parameters.tools does not define"):
+        import_recordings(files, tmp_path / "q.h5", spec(parameters={"values": {"box": "hand"}}))
+
+
+def test_motor_currents_times_drive_gains_are_the_torques(tmp_path):
+    t = np.arange(0, 2, 0.002)
+    cols = signals(t)
+    cols["ia"], cols["ib"] = cols["ta"] / 2.5, cols["tb"] / -0.4
+    path = write_csv(tmp_path / "run.csv", cols)
+    torques = import_recordings([path], tmp_path / "t.h5", spec(split=[1.0, 0.0, 0.0]))
+    currents = import_recordings([path], tmp_path / "i.h5", spec(inputs=None, currents=["ia", "ib"],
+                                                                drive_gains=[2.5, -0.4], split=[1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(read_dataset(currents).read("tau"), read_dataset(torques).read("tau"), rtol=1e-12)
+    with pytest.raises(InputError, match="currents need drive_gains"):
+        spec(inputs=None, currents=["ia", "ib"])
+
+
+def test_a_robot_arms_recording_names_its_joints_and_carries_its_description(tmp_path):
+    pytest.importorskip("mujoco")
+    t = np.arange(0, 2, 0.002)
+    cols = {"time": t, **{f"q{j}": 0.1 * np.sin(t + j) for j in range(7)}, **{f"u{j}": np.cos(t) for j in range(7)}}
+    path = write_csv(tmp_path / "arm.csv", cols)
+    robot = {"source": "franka_panda", "remove": ["hand"], "armature": "zero"}
+    out = import_recordings([path], tmp_path / "arm.h5", ImportSpec(
+        coordinates=[f"q{j}" for j in range(7)], inputs=[f"u{j}" for j in range(7)], robot=robot,
+        parameters={"values": {"arm": [0.5, 0, 0, 0.1]}}, split=[1.0, 0.0, 0.0]))
+    scene = json.loads(read_dataset(out).attrs["scene_json"])
+    assert scene["coord_names"] == [f"joint{j}" for j in range(1, 8)]
+    assert scene["config"]["description"]["remove"] == ["hand"]
+    assert scene["param_names"] == ["payload_mass", "payload_x", "payload_y", "payload_z"]
+    with pytest.raises(InputError, match="are not the joints of robot"):
+        ImportSpec(coordinates=[f"q{j}" for j in range(7)], robot="franka_panda", coord_names=list("abcdefg"))
