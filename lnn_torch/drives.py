@@ -1,0 +1,125 @@
+"""Drive models of a robot's joints: the friction a joint's motor works against, as a function of the
+joint's rate ``v`` (rad/s), one set of coefficients per joint, in SI (N m).
+
+    f(v) = b v + c tanh(v / v_c) + o + s tanh(v / v_c) exp(-(v / v_s)^2)
+           + phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2 phi3)]
+
+Each term is a *form* a model may have (``DriveModel.forms``):
+
+==========  ===========================================  =====================================================
+form        coefficients                                 passive (``f(v) v >= 0``)?
+==========  ===========================================  =====================================================
+viscous     ``b`` (N m s/rad)                            yes for ``b >= 0``
+coulomb     ``c`` (N m), smoothed over ``v_c``           yes for ``c >= 0``
+offset      ``o`` (N m): an asymmetry, a torque sensor's  **no**: a constant torque, not a friction; it can
+            offset or a gravity-compensation error         put energy in (it is reported as such)
+stribeck    ``s`` (N m): breakaway above Coulomb, fading   yes for ``s >= 0`` (then ``c + s e^(...) >= 0``)
+            over ``v_s``
+sigmoid     ``phi1`` (N m), ``phi2`` (s/rad), ``phi3``     yes for ``phi1, phi2 >= 0``: zero at rest and
+            (rad/s): Gaz et al.'s form (Panda, 2019)       increasing, it opposes the motion; with ``phi3 != 0``
+                                                           it is asymmetric
+==========  ===========================================  =====================================================
+
+``f`` is the torque the friction takes from the motor (it opposes the motion): ``tau = tau_rigid(q,
+qd, qdd) + f(v)``; as a generalised force on the coordinates, ``Q_f = -D^T f(D qd)`` for joint rates
+``D qd``. The linear forms enter least squares as columns (``columns``); the sigmoid is linear in
+``phi1`` alone. Pure tensor functions: every shape is ``(..., n_j)`` per joint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+FORMS = ("viscous", "coulomb", "offset", "stribeck", "sigmoid")
+LINEAR = ("viscous", "coulomb", "offset", "stribeck")  # linear in their one coefficient
+PASSIVE = {"viscous": True, "coulomb": True, "offset": False, "stribeck": True, "sigmoid": True}
+COEFFICIENTS = {"viscous": ("b",), "coulomb": ("c",), "offset": ("o",), "stribeck": ("s",),
+                "sigmoid": ("phi1", "phi2", "phi3")}
+UNITS = {"b": "N m s/rad", "c": "N m", "o": "N m", "s": "N m", "phi1": "N m", "phi2": "s/rad", "phi3": "rad/s"}
+
+
+def _error(message: str) -> Exception:
+    from .errors import InputError
+
+    return InputError(message)
+
+
+@dataclass(frozen=True)
+class DriveModel:
+    """Which friction forms each joint has (module docstring) and their smoothing velocities.
+
+    Args:
+        forms: a subset of ``FORMS`` (a ``+``-joined string is read too: ``"viscous+coulomb+offset"``).
+        coulomb_velocity: ``v_c``, rad/s: the smoothing of Coulomb (and Stribeck) friction's sign.
+        stribeck_velocity: ``v_s``, rad/s: how fast the breakaway fades.
+    """
+
+    forms: tuple[str, ...] = ("viscous", "coulomb")
+    coulomb_velocity: float = 0.02
+    stribeck_velocity: float = 0.1
+
+    @classmethod
+    def of(cls, value=None, **kw) -> DriveModel:
+        if isinstance(value, DriveModel):
+            return value
+        if isinstance(value, dict):
+            kw = {**value, **kw}
+            value = kw.pop("forms", None)
+        forms = cls.forms if value is None else tuple(value.split("+") if isinstance(value, str) else value)
+        unknown = [f for f in forms if f not in FORMS]
+        if unknown or not forms or len(set(forms)) != len(forms):
+            raise _error(f"drive model: forms must be distinct names among {', '.join(FORMS)}, got {list(forms)}")
+        model = cls(tuple(f for f in FORMS if f in forms), **kw)
+        for key in ("coulomb_velocity", "stribeck_velocity"):
+            if not getattr(model, key) > 0:
+                raise _error(f"drive model: {key} must be positive, got {getattr(model, key)}")
+        return model
+
+    @property
+    def name(self) -> str:
+        return "+".join(self.forms)
+
+    @property
+    def passive(self) -> bool:
+        """Whether every form is passive (with its coefficients' signs; ``offset`` is not)."""
+        return all(PASSIVE[f] for f in self.forms)
+
+    @property
+    def linear_forms(self) -> tuple[str, ...]:
+        return tuple(f for f in self.forms if f in LINEAR)
+
+    def coefficient_names(self) -> list[str]:
+        return [c for f in self.forms for c in COEFFICIENTS[f]]
+
+    # ------------------------------------------------------------------ the torque
+    def shape(self, form: str, v: torch.Tensor, phi2=None, phi3=None) -> torch.Tensor:
+        """The torque of ``form`` per unit of its linear coefficient at rates ``v (..., n_j)``."""
+        if form == "viscous":
+            return v
+        sign = torch.tanh(v / self.coulomb_velocity)
+        if form == "coulomb":
+            return sign
+        if form == "offset":
+            return torch.ones_like(v)
+        if form == "stribeck":
+            return sign * torch.exp(-((v / self.stribeck_velocity) ** 2))
+        if form == "sigmoid":
+            return torch.sigmoid(phi2 * (v + phi3)) - torch.sigmoid(phi2 * phi3)
+        raise _error(f"unknown friction form {form!r}")
+
+    def columns(self, v: torch.Tensor) -> torch.Tensor:
+        """``(..., n_j, k)``: the shapes of the linear forms (``linear_forms``, in order) at ``v``."""
+        return torch.stack([self.shape(f, v) for f in self.linear_forms], -1)
+
+    def torque(self, v: torch.Tensor, coefficients: dict) -> torch.Tensor:
+        """``f(v) (..., n_j)``: the friction torque at joint rates ``v`` for ``coefficients``
+        (``{name: (..., n_j)}``, SI; ``coefficient_names``)."""
+        out = torch.zeros_like(v)
+        for form in self.forms:
+            if form == "sigmoid":
+                out = out + coefficients["phi1"] * self.shape(form, v, coefficients["phi2"], coefficients["phi3"])
+            else:
+                out = out + coefficients[COEFFICIENTS[form][0]] * self.shape(form, v)
+        return out

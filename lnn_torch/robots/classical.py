@@ -1,0 +1,267 @@
+"""Classical identification of a robot arm, as robotics labs do it, beside every learned model: the
+inverse dynamics of the description's kinematic chain, linear in the inertial parameters
+(``lnn_torch.robots.regressor``), plus a drive model per joint (``lnn_torch.drives``), fitted to
+measured joint torques.
+
+* ``least_squares``: the base parameters (the combinations the trajectory excites; pivoted QR,
+  ``regressor.base_parameters``) and the linear friction coefficients by ordinary least squares or,
+  ``weighted=True``, by weighted least squares (each joint's rows divided by the standard deviation of
+  its ordinary residual, Gautier's two-step estimate); the sigmoid friction's ``phi2, phi3`` by
+  variable projection (an outer nonlinear least squares over them, the linear ones solved inside).
+* ``consistent_fit``: a physically consistent model: every link's pseudo-inertia ``J = U U^T``
+  (log-Cholesky: positive mass, inertia within the triangle inequality, for every value), armature and
+  the passive friction coefficients non-negative (squares), fitted by Newton's method with a trust
+  region on the same (weighted) squared torque error plus ``prior`` times the LogDet divergence of each
+  ``J`` from the description's (the geometry-aware pull towards the description when the data cannot
+  tell; 0: none).
+
+Both give an ``ArmModel``: ``torque(q, qd, qdd)`` in N m and a report of its parameters in SI.
+Shapes: ``q, qd, qdd, tau (N, n)``, float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..drives import COEFFICIENTS, DriveModel
+from ..errors import InputError
+from .kinematics import SerialChain, reverse_cholesky
+from .regressor import base_parameters, classical_of, regressor
+
+_OFF = torch.triu_indices(4, 4, 1)
+
+
+@dataclass
+class ArmModel:
+    """An identified arm: ``tau = Y(q, qd, qdd) pi + f(qd)`` (module docstring). ``pi``: the full
+    parameter vector (consistent fit) or None with ``base``/``beta`` (least squares: only the
+    identifiable combinations have values); ``friction``: the drive model's coefficients per joint."""
+
+    chain: SerialChain
+    drive: DriveModel
+    method: str
+    friction: dict[str, np.ndarray]
+    pi: np.ndarray | None = None
+    base: dict | None = None
+    beta: np.ndarray | None = None
+    weights: np.ndarray | None = None  # the per-joint row weights of a weighted fit
+    info: dict = field(default_factory=dict)
+
+    def rigid_torque(self, q, qd, qdd) -> torch.Tensor:
+        """The rigid body's and the armature's torques ``(N, n)`` (viscous friction included where the
+        drive has it: it is the regressor's damping column)."""
+        Y = _regressor(self.chain, q, qd, qdd, self.drive)
+        if self.pi is not None:
+            return Y @ torch.as_tensor(self.pi)
+        return Y[..., torch.as_tensor(self.base["independent"])] @ torch.as_tensor(self.beta)  # Y_B beta
+
+    def torque(self, q, qd, qdd) -> torch.Tensor:
+        """The joint torques ``(N, n)`` (N m) that give ``qdd`` at ``(q, qd)``."""
+        qd = torch.as_tensor(qd, dtype=torch.float64)
+        coefficients = {k: torch.as_tensor(v) for k, v in self.friction.items()}
+        return self.rigid_torque(q, qd, qdd) + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)})
+
+    def report(self) -> dict:
+        """The model in SI: its method, the drive model, the friction coefficients per joint, and the
+        links' masses (a consistent fit) or the number of base parameters (least squares)."""
+        out = {"method": self.method, "drive": self.drive.name, "joints": list(self.chain.joint_names),
+               "friction": {k: np.asarray(v).tolist() for k, v in self.friction.items()}, **self.info}
+        if self.pi is not None:
+            n = self.chain.dof
+            out["mass"] = self.pi[9: 10 * n: 10].tolist()
+            out["armature"] = self.pi[10 * n: 11 * n].tolist()
+        else:
+            out["base_parameters"] = int(self.base["rank"])
+        return out
+
+
+def _regressor(chain: SerialChain, q, qd, qdd, drive: DriveModel) -> torch.Tensor:
+    """``Y (N, n, 12 n)`` with the damping columns zeroed where the drive has no viscous friction."""
+    args = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd)]
+    Y = regressor(chain, *args)
+    if "viscous" not in drive.forms:
+        Y = Y.clone()
+        Y[..., 11 * chain.dof:] = 0.0
+    return Y
+
+
+def _friction_columns(qd: torch.Tensor, drive: DriveModel, forms) -> torch.Tensor:
+    """``(N, n, n k)``: the shapes of ``forms`` per joint, each joint's in its own columns."""
+    n = qd.shape[-1]
+    shapes = torch.stack([drive.shape(f, qd) for f in forms], -1)  # (N, n, k)
+    eye = torch.eye(n, dtype=qd.dtype)
+    return (eye[None, :, :, None] * shapes[:, :, None, :]).reshape(qd.shape[0], n, n * len(forms))
+
+
+def _check(q, qd, qdd, tau, chain: SerialChain):
+    arrays = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd, tau)]
+    n = chain.dof
+    for name, x in zip(("q", "qd", "qdd", "tau"), arrays, strict=True):
+        if x.ndim != 2 or x.shape[1] != n or x.shape[0] != arrays[0].shape[0]:
+            raise InputError(f"classical identification: {name} must be (N, {n}), got {tuple(x.shape)}")
+        if not torch.isfinite(x).all():
+            raise InputError(f"classical identification: {name} has NaN or Inf")
+    return arrays
+
+
+def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: bool = False,
+                  rtol: float = 1e-6) -> ArmModel:
+    """Base parameters and friction by (weighted) least squares (module docstring)."""
+    drive = DriveModel.of(drive)
+    q, qd, qdd, tau = _check(q, qd, qdd, tau, chain)
+    N, n = q.shape
+    Y = _regressor(chain, q, qd, qdd, drive)
+    base = base_parameters(Y.reshape(N * n, -1), rtol)
+    extra = [f for f in drive.linear_forms if f != "viscous"]
+    YB = Y.reshape(N * n, -1)[:, torch.as_tensor(base["independent"])]
+    F = _friction_columns(qd, drive, extra).reshape(N * n, -1) if extra else torch.zeros(N * n, 0, dtype=q.dtype)
+    target = tau.reshape(-1)
+
+    def solve(phi, w):
+        cols = [YB, F]
+        if phi is not None:
+            cols.append(_sigmoid_columns(qd, drive, *phi).reshape(N * n, -1))
+        A = torch.cat(cols, 1) * w[:, None]
+        x = torch.linalg.lstsq(A, target * w).solution
+        return x, target * w - A @ x
+
+    ones = torch.ones(N * n, dtype=q.dtype)
+    phi = None
+    if "sigmoid" in drive.forms:
+        phi = _variable_projection(lambda p: solve(p, ones)[1], n)
+    x, r = solve(phi, ones)
+    weights = None
+    if weighted:
+        sigma = (r.reshape(N, n).pow(2).mean(0).sqrt()).clamp_min(1e-12)
+        weights = (1.0 / sigma).numpy()
+        w = (1.0 / sigma).repeat(N)
+        if phi is not None:
+            phi = _variable_projection(lambda p: solve(p, w)[1], n, start=phi)
+        x, _ = solve(phi, w)
+    r_B = base["rank"]
+    beta, coefs = x[:r_B], x[r_B:]
+    # the friction columns are per joint, each joint's forms together: column j k + i is joint j, form i
+    friction = {COEFFICIENTS[f][0]: coefs[torch.arange(n) * len(extra) + i].numpy() for i, f in enumerate(extra)}
+    if phi is not None:
+        friction["phi1"] = coefs.reshape(-1)[len(extra) * n:].numpy()
+        friction["phi2"], friction["phi3"] = phi[0].numpy(), phi[1].numpy()
+    if "viscous" in drive.forms:  # the damping column's combination: its own base parameter where identifiable
+        friction["b"] = _viscous_of(base, beta.numpy(), n)
+    return ArmModel(chain, drive, "weighted least squares" if weighted else "least squares", friction,
+                    base=base, beta=beta.numpy(), weights=weights)
+
+
+def _sigmoid_columns(qd, drive, phi2, phi3) -> torch.Tensor:
+    """``(N, n, n)``: the sigmoid's shape per joint at ``(phi2, phi3)``, each joint's in its own column."""
+    return torch.diag_embed(drive.shape("sigmoid", qd, phi2, phi3))
+
+
+def _viscous_of(base: dict, beta: np.ndarray, n: int) -> np.ndarray:
+    """The viscous coefficient per joint where it is a base parameter of its own (NaN where it is only
+    identifiable in a combination)."""
+    p = base["map"].shape[1]
+    out = np.full(n, np.nan)
+    for j in range(n):
+        col = p - n + j
+        rows = np.nonzero(np.abs(base["map"][:, col]) > 0)[0]
+        if len(rows) == 1 and np.count_nonzero(base["map"][rows[0]]) == 1:
+            out[j] = beta[rows[0]] / base["map"][rows[0], col]
+    return out
+
+
+def _variable_projection(residual, n: int, start=None):
+    """``(phi2 (n,), phi3 (n,))`` minimising ``|residual(phi)|^2`` (scipy's least squares; ``phi2`` on a
+    log scale, starting at 30 s/rad, ``phi3`` at 0)."""
+    import scipy.optimize
+
+    x0 = np.concatenate([np.log(np.full(n, 30.0)), np.zeros(n)]) if start is None else \
+        np.concatenate([np.log(start[0].numpy()), start[1].numpy()])
+
+    def fun(x):
+        phi2, phi3 = torch.as_tensor(np.exp(x[:n])), torch.as_tensor(x[n:])
+        return residual((phi2, phi3)).numpy()
+
+    sol = scipy.optimize.least_squares(fun, x0, method="trf", x_scale="jac", max_nfev=200)
+    return torch.as_tensor(np.exp(sol.x[:n])), torch.as_tensor(sol.x[n:])
+
+
+def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None, prior: float = 0.01,
+                   start: ArmModel | None = None, max_iterations: int = 300) -> ArmModel:
+    """A physically consistent model (module docstring): starts from the description's inertias (and,
+    given ``start``, that fit's passive friction coefficients), minimises the mean (weighted) squared
+    torque error plus ``prior`` times the LogDet divergence from the description per link."""
+    import scipy.optimize
+
+    drive = DriveModel.of(drive)
+    q, qd, qdd, tau = _check(q, qd, qdd, tau, chain)
+    N, n = q.shape
+    Y = _regressor(chain, q, qd, qdd, drive).reshape(N * n, -1)
+    w = torch.ones(n, dtype=q.dtype) if weights is None else torch.as_tensor(weights, dtype=q.dtype)
+    w_rows = w.repeat(N)
+    Yw, tw = Y * w_rows[:, None], tau.reshape(-1) * w_rows
+    A, b, c = Yw.T @ Yw / N, Yw.T @ tw / N, tw @ tw / N  # the linear part's squared error: p A p - 2 b p + c
+    J0 = chain.J.to(q.dtype)
+    logdet0 = torch.logdet(J0)
+    names = drive.coefficient_names()
+    others = [x for x in names if x != "b"]
+
+    def unpack(theta):
+        raw = theta[: 10 * n].reshape(n, 10)
+        U = torch.diag_embed(raw[:, :4].exp()).index_put((torch.arange(n)[:, None], _OFF[0], _OFF[1]), raw[:, 4:])
+        J = U @ U.mT
+        armature = theta[10 * n: 11 * n] ** 2
+        coef = theta[11 * n:].reshape(len(names), n)
+        values = {}
+        for i, name in enumerate(names):
+            values[name] = coef[i] if name in ("o", "phi3") else coef[i] ** 2  # passive ones non-negative
+        return J, armature, values
+
+    def loss(theta):
+        J, armature, values = unpack(theta)
+        viscous = values.get("b", torch.zeros(n, dtype=theta.dtype))
+        p = torch.cat([classical_of(J).reshape(-1), armature, viscous])
+        err = p @ A @ p - 2 * b @ p + c
+        if others:
+            fr = drive.torque(qd, {k: values[k] for k in others} | {"b": torch.zeros(n, dtype=theta.dtype)})
+            fr = fr.reshape(-1) * w_rows
+            err = err + (fr @ fr - 2 * fr @ (tw - Yw @ p)) / N
+        div = (torch.linalg.solve(J0, J).diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(J) + logdet0 - 4).sum()
+        return err + prior * div
+
+    U0 = reverse_cholesky(J0)
+    raw0 = torch.cat([U0.diagonal(dim1=-2, dim2=-1).log(), U0[:, _OFF[0], _OFF[1]]], -1)
+    coef0 = []
+    for name in names:
+        value = np.zeros(n)
+        if start is not None and name in start.friction:
+            value = np.nan_to_num(np.asarray(start.friction[name], dtype=np.float64))
+        elif name == "phi2":
+            value = np.full(n, 30.0)
+        if name not in ("o", "phi3"):
+            value = np.sqrt(np.clip(value, 1e-8, None))
+        coef0.append(torch.as_tensor(value))
+    theta0 = torch.cat([raw0.reshape(-1), torch.full((n,), 0.05, dtype=q.dtype), *coef0])
+
+    def fun(x):
+        t = torch.as_tensor(x).requires_grad_(True)
+        value = loss(t)
+        (grad,) = torch.autograd.grad(value, t)
+        return float(value.detach()), grad.numpy()
+
+    def hess(x):
+        return torch.autograd.functional.hessian(loss, torch.as_tensor(x)).numpy()
+
+    sol = scipy.optimize.minimize(fun, theta0.numpy(), jac=True, hess=hess, method="trust-exact",
+                                  options={"maxiter": max_iterations, "gtol": 1e-10})
+    theta = torch.as_tensor(sol.x)
+    J, armature, values = unpack(theta)
+    pi = torch.cat([classical_of(J).reshape(-1), armature, values.get("b", torch.zeros(n, dtype=q.dtype))])
+    friction = {k: v.detach().numpy() for k, v in values.items() if k != "b"}
+    if "b" in values:
+        friction["b"] = values["b"].detach().numpy()
+    return ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
+                    weights=None if weights is None else np.asarray(weights),
+                    info={"prior": prior, "iterations": int(sol.nit), "converged": bool(sol.success)})
