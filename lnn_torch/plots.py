@@ -150,6 +150,29 @@ def friction_figure(fa: dict):
     return fig
 
 
+def torque_figure(ta: dict):
+    """Measured (solid) and predicted (dashed) input torques of one trajectory against time, one panel
+    per input: ``ta`` holds ``t (T,)``, ``measured`` and ``predicted`` ``(T, n_u)`` (N m), ``names``."""
+    plt = _pyplot()
+    n_u = ta["measured"].shape[-1]
+    cols = 2 if n_u > 3 else 1
+    rows = -(-n_u // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.5 * cols, 1.9 * rows + 0.6), sharex=True, squeeze=False)
+    for j, ax in enumerate(axes.flat):
+        if j >= n_u:
+            ax.set_visible(False)
+            continue
+        ax.plot(ta["t"], ta["measured"][:, j], "k-", lw=1.0, label="measured")
+        ax.plot(ta["t"], ta["predicted"][:, j], "C1--", lw=1.0, label="model (inverse dynamics)")
+        ax.set_ylabel(f"{ta['names'][j]} [N m]")
+    axes.flat[0].legend(loc="upper right", fontsize=8)
+    axes.flat[0].set_title("the first trajectory: measured and predicted torques", fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    fig.tight_layout()
+    return fig
+
+
 def decay_figure(da: dict):
     """Free decay: the true energy (solid) and the model's own (dashed), ``E_true``, ``E_model (B, T)``."""
     plt = _pyplot()

@@ -3,8 +3,10 @@ declared capabilities, ``lnn_torch.networks.capabilities``, and its SI accessors
 
 * ``mass_matrix``: the learned mass matrix against the scene's (structured models);
 * ``torques``: inverse dynamics, the inputs the model needs for the data's accelerations against
-  the recorded ones (normalised RMSE per input, and its square, the normalised MSE Deep Lagrangian
-  Networks report; structured models of actuated scenes);
+  the recorded ones: the RMS error per input in N m beside the data's own standard deviation (what
+  identification papers report for arms), the normalised RMSE and its square, the normalised MSE
+  Deep Lagrangian Networks report (structured models of actuated scenes); a figure of measured and
+  predicted torques over the first trajectory;
 * ``friction``: learned against true joint friction (coefficients and curves; scenes with friction);
 * ``free_decay``: from rest with the inputs off, the model's own energy against the true energy
   (it must decay like the truth; scenes with friction).
@@ -18,7 +20,7 @@ from ..ground_truth import reference_rollout
 from ..metrics import condition_numbers, divergence_time, normalized_rmse, scaled_matrix_error
 from ..networks.calls import model_rollout
 from ..networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX
-from ..plots import decay_figure, friction_figure
+from ..plots import decay_figure, friction_figure, torque_figure
 from ..report import pct, table_row
 from .registry import EvalContext, SectionResult, _closed_form, _figure, section, skip
 
@@ -81,16 +83,29 @@ def _torques(ctx: EvalContext) -> SectionResult:
         pred = model.inverse_dynamics(q, qd, qdd, params)
     err = normalized_rmse(pred, tau)
     names = list(getattr(ctx.system, "input_names", ()) or [f"u{i}" for i in range(err.numel())])
-    t = {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err, strict=True)}}
+
+    def per_input(values) -> dict:
+        return {"mean": float(values.mean()), **{n: float(e) for n, e in zip(names, values, strict=True)}}
+
+    t = per_input(err)
     # Deep Lagrangian Networks report the normalised MSE (the square of the above) per joint
-    mse = {"mean": float(err.pow(2).mean()), **{n: float(e) ** 2 for n, e in zip(names, err, strict=True)}}
+    mse = per_input(err.pow(2))
+    rms = per_input((pred - tau).pow(2).mean(0).sqrt())  # N m, what identification papers report for arms
+    std = per_input(tau.std(0))
 
-    def row(what: str, e: dict) -> str:
+    def row(what: str, e: dict, cell=pct) -> str:
         return table_row([f"inverse-dynamics torque error, {what}: mean ({', '.join(names)})",
-                          f"{pct(e['mean'])} ({', '.join(pct(e[n]) for n in names)})"])
+                          f"{cell(e['mean'])} ({', '.join(cell(e[n]) for n in names)})"])
 
-    return SectionResult({"torque_nrmse": t, "torque_nmse": mse},
-                         rows=[row("normalised RMSE", t), row("normalised MSE (DeLaN's)", mse)])
+    nm = lambda x: f"{x:.3g}"  # noqa: E731
+    first = int(ok.reshape(B, T)[0].sum()) if not ok.all() else T  # the first trajectory's valid points
+    arrays = {"t": torch.arange(first) * ctx.accel_stride * data.dt, "measured": tau[:first], "predicted": pred[:first],
+              "names": names}
+    rows = [row("normalised RMSE", t), row("normalised MSE (DeLaN's)", mse), row("RMS (N m)", rms, nm),
+            table_row([f"torque standard deviation of the data (N m): mean ({', '.join(names)})",
+                       f"{nm(std['mean'])} ({', '.join(nm(std[n]) for n in names)})"])]
+    return SectionResult({"torque_nrmse": t, "torque_nmse": mse, "torque_rms_nm": rms, "torque_std_nm": std},
+                         rows=rows, figures={"torques.png": _figure(torque_figure, arrays)})
 
 
 @section("friction", needs=(FRICTION,))
