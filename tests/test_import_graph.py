@@ -13,13 +13,13 @@ PACKAGE = Path(__file__).resolve().parents[1] / "lnn_torch"
 # places a package's submodules (the most specific name wins).
 LAYERS = [
     ("foundations", ["errors", "perf", "config_files", "pretrained", "checkpoint_format", "integrators", "dynamics",
-                     "forces", "excitation", "metrics", "report", "data.trajectories", "data.derivatives",
+                     "forces", "drives", "excitation", "metrics", "report", "data.trajectories", "data.derivatives",
                      "networks.normalization", "networks._kernels"]),
     ("physics", ["robots", "robots.*", "systems", "systems.*", "ground_truth", "recording", "identified"]),
     ("models", ["networks", "networks.*"]),
     ("data", ["data.spec", "data.generate", "data.hdf5", "data.importer", "data.cache"]),
     ("use", ["losses", "optim", "training_pass", "evaluation", "evaluation.*", "plots", "stability", "identification",
-             "control", "control.*", "export"]),
+             "arm_identification", "control", "control.*", "export"]),
     ("training", ["module", "callbacks", "checkpoints", "data.datamodule", "lightning_cli"]),
     ("interface", ["lnn_torch", "data", "commands", "commands.*", "cli"]),
 ]

@@ -29,7 +29,7 @@ import torch
 from ..drives import COEFFICIENTS, DriveModel
 from ..errors import InputError
 from .kinematics import SerialChain, reverse_cholesky
-from .regressor import base_parameters, classical_of, regressor
+from .regressor import base_parameters, classical_of, parameter_vector, regressor
 
 _OFF = torch.triu_indices(4, 4, 1)
 
@@ -76,6 +76,11 @@ class ArmModel:
         else:
             out["base_parameters"] = int(self.base["rank"])
         return out
+
+
+def description_parameters(chain: SerialChain) -> torch.Tensor:
+    """The description's own parameter vector ``pi`` (its links' classical ten, armature, damping)."""
+    return parameter_vector(chain.J, chain.armature, chain.damping)
 
 
 def _regressor(chain: SerialChain, q, qd, qdd, drive: DriveModel) -> torch.Tensor:
