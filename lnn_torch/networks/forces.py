@@ -21,6 +21,10 @@ conservative scene has no such module and no extra parameter.
 * ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
   semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
 
+In the model's normalised units (``force_norm``, ``dissipative_force_at``, ``holding_torques``,
+``with_static_friction``) the forces read the model's ``Normalizer`` (``attach_normalizer``): the model
+calls them with its normalised state and gets normalised generalised forces or accelerations back.
+
 Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction (the holding torque of static
 friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``). Coefficients
 are in SI units (``unit`` buffers, set from the training data, scale the network outputs).
@@ -189,10 +193,10 @@ class LearnedForces(nn.Module):
         velocities; ``tau_norm``: the inputs divided by ``normalizer.input_rms`` (None: none);
         ``features``: the model's features of ``q`` (the Rayleigh term reads them)."""
         norm = self.normalizer
-        scale, tau_t = norm.coord_scale.to(qd_norm.dtype), norm.time_scale.to(qd_norm.dtype)
-        qd = qd_norm * (scale / tau_t)
-        tau = None if tau_norm is None else tau_norm * norm.input_rms.to(tau_norm.dtype)
-        return norm.force_to_norm(self.force(qd, params_norm, tau, features, qd_norm))
+        Q = self.dissipative_force_at(qd_norm, params_norm, features)
+        if tau_norm is not None:
+            Q = Q + self.input_force(tau_norm * norm.input_rms.to(tau_norm.dtype))
+        return norm.force_to_norm(Q)
 
     def dissipative_force_at(self, qd_norm, params_norm, features=None) -> torch.Tensor:
         """``Q_diss (B, dof)`` in SI at the normalised velocities ``qd_norm`` (``features``: as in
