@@ -1,27 +1,32 @@
 """A trained model's dynamics as standalone programs for a control loop (``lnn-torch export``).
 
-Each exported function is a small ``nn.Module`` with plain tensor arguments and SI units, the
-model's normaliser and the scene's constants (input matrix, joint map, Coulomb smoothing velocity)
-baked in, and a dynamic batch dimension:
+Each exported function is a small ``nn.Module`` over one method of the model's SI rigid-body face
+(``lnn_torch.networks.rigid_body``, which states the convention ``M(q) qdd + n(q, qd) = B tau +
+Q_f(q, qd)``), with plain tensor arguments and SI units, the model's normaliser and the scene's
+constants (input matrix, joint map, Coulomb smoothing velocity) baked in, and a dynamic batch dimension:
 
 ==================  =======================================  ==========================================
 function            arguments -> result                      what
 ==================  =======================================  ==========================================
 forward_dynamics    ``(q, qd, params[, tau]) -> qdd``        accelerations (``tau``: actuated scenes)
-inverse_dynamics    ``(q, qd, qdd, params) -> tau``          the inputs that give ``qdd``
+inverse_dynamics    ``(q, qd, qdd, params) -> tau``          the inputs: ``B tau = M qdd + n - Q_f``
 mass_matrix         ``(q, params) -> M``                     the learned mass matrix ``(B, dof, dof)``
-bias_force          ``(q, qd, params) -> n``                 ``M qdd + n(q, qd) = B tau``
+bias_force          ``(q, qd, params) -> n``                 Coriolis, centrifugal, gravity: no friction
 gravity_force       ``(q, params) -> g``                     ``g(q) = n(q, 0)``
+friction_force      ``(q, qd, params) -> Q_f``               the learned dissipative force
 ==================  =======================================  ==========================================
 
 Shapes: ``q, qd, qdd (B, dof)``, ``params (B, P)``, ``tau (B, n_u)``. ``inverse_dynamics``,
-``bias_force`` and ``gravity_force`` need a structured model (``film_lnn``, ``delan``) of a scene with
-inputs (``INVERSE_DYNAMICS``: the torques fix the scale of the learned Lagrangian, so ``n`` is in
-N m); ``mass_matrix`` a structured model (``MASS_MATRIX``; without inputs it is in the model's own
-units, up to one positive factor per system). ``n = -M a(q, qd, tau=0)`` holds the Coriolis,
-centrifugal, gravity and learned friction forces (the model's inverse dynamics at ``qdd = 0``); static
-friction's holding torques (``dissipation: joint+stiction``) are not a force of the state and are in
-neither ``n`` nor ``inverse_dynamics``, as in the model's own inverse dynamics.
+``bias_force``, ``gravity_force`` and ``friction_force`` need a structured model (``film_lnn``,
+``delan``) of a scene with inputs (``INVERSE_DYNAMICS``: the torques fix the scale of the learned
+Lagrangian, so the forces are in N m), ``friction_force`` one that learns a dissipative force (a
+scene with friction); ``mass_matrix`` a structured model (``MASS_MATRIX``; without inputs it is in
+the model's own units, up to one positive factor per system). ``n = -M a_0`` holds the Coriolis,
+centrifugal and gravity forces (``a_0``: the accelerations under no force at all); the learned friction
+is ``Q_f`` (earlier versions' ``bias_force`` included it: ``n_old = n - Q_f``). Static
+friction's holding torques (``dissipation: joint+stiction``) are not a force of the state: they are in
+``forward_dynamics`` only, in none of ``n``, ``Q_f`` or ``inverse_dynamics``, as in the model's own
+inverse dynamics.
 
 Formats (``export_model``; ``lnn-torch export --format``):
 
@@ -59,9 +64,9 @@ import torch
 from torch import nn
 
 from .errors import InputError
-from .networks.base import INVERSE_DYNAMICS, MASS_MATRIX
+from .networks.capabilities import FORCES, INVERSE_DYNAMICS, MASS_MATRIX
 
-FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force")
+FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force", "friction_force")
 FORMATS = ("pt2", "onnx", "aoti")
 SUFFIXES = {"pt2": "pt2", "onnx": "onnx", "aoti": "aoti.pt2"}
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -69,9 +74,9 @@ ONNX_OPSET = 18
 ONNX_PACKAGES = ("onnx", "onnxscript")  # needed to write ONNX; onnxruntime runs it
 MAX_BATCH = 1 << 24  # the largest batch an exported program takes
 
-# what each function needs of the model, beyond accelerations
-_NEEDS = {"inverse_dynamics": INVERSE_DYNAMICS, "mass_matrix": MASS_MATRIX, "bias_force": INVERSE_DYNAMICS,
-          "gravity_force": INVERSE_DYNAMICS}
+# what each function needs of the model, beyond accelerations (the forces need inputs: they fix the scale)
+_NEEDS = {"inverse_dynamics": (INVERSE_DYNAMICS,), "mass_matrix": (MASS_MATRIX,), "bias_force": (INVERSE_DYNAMICS,),
+          "gravity_force": (INVERSE_DYNAMICS,), "friction_force": (INVERSE_DYNAMICS, FORCES)}
 # variants whose accelerations need autograd: torch.export (2.13) fails inside their torch.func transforms
 _AUTOGRAD = {"lnn": "its accelerations solve the Euler-Lagrange equations through torch.func velocity Hessians",
              "hnn": "its vector field is the torch.func gradient of its Hamiltonian"}
@@ -79,7 +84,8 @@ _AUTOGRAD = {"lnn": "its accelerations solve the Euler-Lagrange equations throug
 
 # ---------------------------------------------------------------------------- the functions
 class _Function(nn.Module):
-    """A copy of a dynamics model (frozen, evaluation mode) behind one plain tensor function."""
+    """A copy of a dynamics model (frozen, evaluation mode) behind one plain tensor function: one method
+    of the model's SI rigid-body face (``lnn_torch.networks.rigid_body``), unchecked."""
 
     name = ""
     arguments: tuple[str, ...] = ()
@@ -89,29 +95,10 @@ class _Function(nn.Module):
         super().__init__()
         self.model = model
 
-    def _normalize(self, q, qd, params):
-        m = self.model
-        return m.normalize(q.to(m.dtype), qd.to(m.dtype), params.to(m.dtype))
-
-    def _inputs_of(self, input_force):
-        """The inputs ``tau`` whose force ``B tau`` is closest to ``input_force`` (``LearnedForces.solve_inputs``
-        with the pseudo-inverse computed once, here, as a constant of the program)."""
-        forces = self.model.forces
-        if forces.identity_inputs:
-            return input_force
-        if not hasattr(self, "input_pinv"):
-            self.register_buffer("input_pinv", torch.linalg.pinv(forces.input_matrix.detach()).mT.contiguous())
-        return input_force @ self.input_pinv.to(input_force.dtype)
-
-    def _input_force_at(self, q, qd, qdd, params):
-        """``B tau`` (SI, ``(B, dof)``) that makes the model accelerate by ``qdd``."""
-        m = self.model
-        q_n, qd_n, p_n = self._normalize(q, qd, params)
-        return m.inverse_dynamics_norm(q_n, qd_n, m.normalizer.accel_to_norm(qdd.to(m.dtype)), p_n)
-
 
 class ForwardDynamics(_Function):
-    """``(q, qd, params[, tau]) -> qdd``: the model's accelerations (``tau`` for an actuated scene)."""
+    """``(q, qd, params[, tau]) -> qdd``: the model's accelerations (``tau`` for an actuated scene;
+    ``forward_dynamics_si``)."""
 
     name, result = "forward_dynamics", "qdd"
 
@@ -120,59 +107,68 @@ class ForwardDynamics(_Function):
         self.arguments = ("q", "qd", "params") + (("tau",) if model.scene.num_inputs else ())
 
     def forward(self, q, qd, params, tau=None):
-        return self.model.acceleration(q, qd, params, tau, check=False)
+        return self.model.forward_dynamics_si(q, qd, params, tau, check=False)
 
 
 class InverseDynamics(_Function):
-    """``(q, qd, qdd, params) -> tau``: the inputs that make the model accelerate by ``qdd``."""
+    """``(q, qd, qdd, params) -> tau``: the inputs that make the model accelerate by ``qdd``
+    (``inverse_dynamics_si``, with the input matrix's pseudo-inverse a constant of the program)."""
 
     name, arguments, result = "inverse_dynamics", ("q", "qd", "qdd", "params"), "tau"
 
     def __init__(self, model) -> None:
         super().__init__(model)
-        self._inputs_of(torch.zeros(1, model.scene.dof))  # the pseudo-inverse buffer, before export
+        forces = model.forces
+        if not forces.identity_inputs:  # LearnedForces.solve_inputs with the pseudo-inverse computed once, here
+            self.register_buffer("input_pinv", torch.linalg.pinv(forces.input_matrix.detach()).mT.contiguous())
 
     def forward(self, q, qd, qdd, params):
-        return self._inputs_of(self._input_force_at(q, qd, qdd, params)).to(q.dtype)
+        input_force = self.model.input_force_si(q, qd, qdd, params)  # B tau
+        if self.model.forces.identity_inputs:
+            return input_force
+        return input_force @ self.input_pinv.to(input_force.dtype)
 
 
 class MassMatrix(_Function):
-    """``(q, params) -> M (B, dof, dof)``: the learned mass matrix in SI velocities."""
+    """``(q, params) -> M (B, dof, dof)``: the learned mass matrix in SI velocities (``mass_matrix_si``)."""
 
     name, arguments, result = "mass_matrix", ("q", "params"), "M"
 
     def forward(self, q, params):
-        # ``mass_matrix_si`` with the Lagrangian's scale as a tensor (it reads it as a Python float)
-        m = self.model
-        q_n, _, p_n = self._normalize(q, q, params)
-        norm = m.normalizer
-        D = (norm.time_scale / norm.coord_scale).to(m.dtype)
-        M = D[:, None] * m.mass_matrix_norm(q_n, p_n) * D[None, :]
-        if m.scene.num_inputs:  # J s^2 per unit^2 where the inputs fix the scale (``DynamicsModel._joules``)
-            M = M / norm.force_scale.to(m.dtype)
-        return M.to(q.dtype)
+        return self.model.mass_matrix_si(q, params)
 
 
 class BiasForce(_Function):
-    """``(q, qd, params) -> n``: ``M qdd + n = B tau`` (Coriolis, centrifugal, gravity, learned friction)."""
+    """``(q, qd, params) -> n``: ``M qdd + n = B tau + Q_f``: Coriolis, centrifugal and gravity forces, no
+    friction (``bias_si``)."""
 
     name, arguments, result = "bias_force", ("q", "qd", "params"), "n"
 
     def forward(self, q, qd, params):
-        return self._input_force_at(q, qd, torch.zeros_like(q), params).to(q.dtype)
+        return self.model.bias_si(q, qd, params)
 
 
 class GravityForce(_Function):
-    """``(q, params) -> g``: the bias force at rest, ``n(q, 0)`` (gravity and the learned potential)."""
+    """``(q, params) -> g``: the bias force at rest, ``n(q, 0)`` (gravity and the learned potential;
+    ``gravity_si``)."""
 
     name, arguments, result = "gravity_force", ("q", "params"), "g"
 
     def forward(self, q, params):
-        zero = torch.zeros_like(q)
-        return self._input_force_at(q, zero, zero, params).to(q.dtype)
+        return self.model.gravity_si(q, params)
 
 
-_CLASSES = {cls.name: cls for cls in (ForwardDynamics, InverseDynamics, MassMatrix, BiasForce, GravityForce)}
+class FrictionForce(_Function):
+    """``(q, qd, params) -> Q_f``: the learned dissipative generalised force (``friction_si``)."""
+
+    name, arguments, result = "friction_force", ("q", "qd", "params"), "Q_f"
+
+    def forward(self, q, qd, params):
+        return self.model.friction_si(q, qd, params)
+
+
+_CLASSES = {cls.name: cls for cls in (ForwardDynamics, InverseDynamics, MassMatrix, BiasForce, GravityForce,
+                                       FrictionForce)}
 
 
 def _dynamics_model(model):
@@ -189,11 +185,12 @@ def refusal(model, function: str = "forward_dynamics") -> str | None:
     if m.variant in _AUTOGRAD:
         return (f"variant '{m.variant}' cannot be exported: {_AUTOGRAD[m.variant]}, autograd that torch.export "
                 "does not trace (export a structured model: film_lnn, delan)")
-    needed = _NEEDS.get(function)
-    if needed is not None:
-        reason = m.missing(needed)
-        if reason is not None:
-            return f"{function} is not available for this model: {reason}"
+    needed = _NEEDS.get(function, ())
+    reason = m.missing(*needed) if needed else None
+    if reason is None and function == "friction_force" and not m.forces.dissipative:
+        reason = "it learns no dissipative force (the scene has no friction)"
+    if reason is not None:
+        return f"{function} is not available for this model: {reason}"
     return None
 
 
@@ -331,7 +328,7 @@ def to_onnx(program: torch.export.ExportedProgram, fn: _Function):
         raise InputError(f"{fn.name} of variant '{fn.model.variant}' could not be converted to ONNX "
                          f"({_reason(err)})") from err
     finally:
-        for log, level in zip(quiet, levels):
+        for log, level in zip(quiet, levels, strict=True):
             log.setLevel(level)
 
 
@@ -403,14 +400,20 @@ def describe_function(fn: _Function, system) -> dict:
     outputs = {
         "forward_dynamics": ("qdd", ["batch", dof], units["qdd"], "accelerations"),
         "inverse_dynamics": ("tau", ["batch", system.num_inputs], units["tau"],
-                             "the inputs that give the accelerations qdd (least squares through the input matrix "
-                             "where there are fewer inputs than coordinates)"),
-        "mass_matrix": ("M", ["batch", dof, dof], matrix_units, "the learned mass matrix (symmetric positive definite)"),
+                             "the inputs that give the accelerations qdd: B tau = M qdd + n - Q_f (least squares "
+                             "through the input matrix where there are fewer inputs than coordinates); static "
+                             "friction's holding torques excluded"),
+        "mass_matrix": ("M", ["batch", dof, dof], matrix_units,
+                        "the learned mass matrix (symmetric positive definite)"),
         "bias_force": ("n", ["batch", dof], units["force"],
-                       "M qdd + n(q, qd) = B tau: Coriolis, centrifugal, gravity and learned friction forces "
-                       "(n = -M a(q, qd, tau=0)); static friction's holding torques excluded"),
+                       "M qdd + n(q, qd) = B tau + Q_f(q, qd): Coriolis, centrifugal and gravity forces, no friction "
+                       "(n = -M a_0, a_0 the accelerations under no force at all)"),
         "gravity_force": ("g", ["batch", dof], units["force"], "n(q, 0): the forces at rest (gravity, the learned "
                                                                   "potential)"),
+        "friction_force": ("Q_f", ["batch", dof], units["force"],
+                           "M qdd + n(q, qd) = B tau + Q_f(q, qd): the learned dissipative generalised force (joint "
+                           "friction through the joint map, learned damping; qd . Q_f <= 0); static friction's "
+                           "holding torques excluded"),
     }[fn.name]
     return {"inputs": inputs, "output": {"name": outputs[0], "shape": outputs[1], "dtype": dtype,
                                          "units": outputs[2], "description": outputs[3]}}

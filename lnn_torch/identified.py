@@ -30,13 +30,13 @@ class RigidArmModel:
 
     def __init__(self, m1, m2, l1, r1, r2, I1, I2, Ir=0.0, gr=1.0, b1=0.0, b2=0.0, cf1=0.0, cf2=0.0, g=9.81,
                  coulomb_slope: float = 100.0, l2: float | None = None) -> None:
-        self.values = dict(m1=m1, m2=m2, l1=l1, r1=r1, r2=r2, I1=I1, I2=I2, Ir=Ir, gr=gr, b1=b1, b2=b2, cf1=cf1, cf2=cf2,
-                           g=g)
+        self.values = dict(m1=m1, m2=m2, l1=l1, r1=r1, r2=r2, I1=I1, I2=I2, Ir=Ir, gr=gr, b1=b1, b2=b2, cf1=cf1,
+                           cf2=cf2, g=g)
         self.coulomb_slope = float(coulomb_slope)
         self.l2 = None if l2 is None else float(l2)  # for drawing only (link 2's length is not in its dynamics)
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> "RigidArmModel":
+    def from_yaml(cls, path: str | Path) -> RigidArmModel:
         """From an identified-parameters YAML file (the keys of ``KEYS``; others are ignored)."""
         import yaml
 

@@ -8,9 +8,12 @@ process-wide defaults cost more time than the arithmetic there:
   those blocks in the heap (measured in ``results/README.md``).
 * tanh/softplus tails produce denormal floats, which slow CPU arithmetic by up to 30x.
 
-``configure_cpu`` applies both; on platforms without glibc the allocator part is a no-op. The library
-applies them itself when it builds its first model (``apply_cpu_defaults``; ``LNN_TORCH_CPU_TUNING=0``
-opts out), so a Python user gets them without a call.
+``configure_cpu`` applies both; on platforms without glibc the allocator part is a no-op. They are
+process-wide, so the library sets them only where a process is its own: the ``lnn-torch`` command at
+its entry point (``lnn_torch.cli.main``) and each command that takes ``--threads``, and a training run
+when it starts (``LNNModule.on_fit_start``). Building or loading a model changes nothing; a Python user
+who wants them calls ``configure_cpu()`` or ``apply_cpu_defaults()`` (once per process;
+``LNN_TORCH_CPU_TUNING=0`` opts out).
 """
 
 from __future__ import annotations
@@ -61,13 +64,13 @@ _DEFAULTS_APPLIED = False
 
 
 def apply_cpu_defaults() -> bool:
-    """What the library applies by itself, once per process, when its first model is built (so a
-    Python user gets it without calling anything): ``configure_cpu()`` without changing the thread
-    count, i.e. denormal floats flushed to zero on the calling thread (values below 1.2e-38 in
-    float32 become 0; torch's ``set_flush_denormal``) and glibc's allocator thresholds raised (freed
-    blocks up to 32 MiB stay in the heap instead of going back to the OS). Set the environment
-    variable ``LNN_TORCH_CPU_TUNING=0`` to leave the process untouched. Returns whether it applied
-    them now."""
+    """The library's CPU defaults, once per process, for an entry point that owns its process (a
+    script, a service): ``configure_cpu()`` without changing the thread count, i.e. denormal floats
+    flushed to zero on the calling thread (values below 1.2e-38 in float32 become 0; torch's
+    ``set_flush_denormal``) and glibc's allocator thresholds raised (freed blocks up to 32 MiB stay in
+    the heap instead of going back to the OS). Building a model does not call it (it would change
+    process-wide state behind its caller). Set the environment variable ``LNN_TORCH_CPU_TUNING=0`` to
+    leave the process untouched. Returns whether it applied them now."""
     global _DEFAULTS_APPLIED
     if _DEFAULTS_APPLIED or os.environ.get("LNN_TORCH_CPU_TUNING", "").strip() == "0":
         return False

@@ -10,11 +10,27 @@ import torch
 
 from lnn_torch.commands.evaluate import write_report
 from lnn_torch.data import DatasetSpec, Trajectories, generate_arrays
-from lnn_torch.evaluation import (SECTIONS, SectionResult, evaluate_model, report_sections, section, section_figures,
-                                  section_logs, skip)
+from lnn_torch.evaluation import (
+    SECTIONS,
+    SectionResult,
+    evaluate_model,
+    report_sections,
+    section,
+    section_figures,
+    section_logs,
+    skip,
+)
 from lnn_torch.networks import MODELS, VARIANTS, build_model
-from lnn_torch.networks.base import (CAPABILITIES, ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, NAN_ON_SINGULAR,
-                                     STATIC_FRICTION)
+from lnn_torch.networks.base import (
+    CAPABILITIES,
+    ENERGY,
+    FORCES,
+    FRICTION,
+    INVERSE_DYNAMICS,
+    MASS_MATRIX,
+    NAN_ON_SINGULAR,
+    STATIC_FRICTION,
+)
 from lnn_torch.systems import InputError, get_system
 
 KINDS = ("conservative", "actuated", "measured")
@@ -63,20 +79,26 @@ def tiny_model(variant, system, data):
 EXPECTED = {  # (variant, kind) -> capabilities; hnn cannot be built for a measured system
     ("film_lnn", "conservative"): {ENERGY, MASS_MATRIX}, ("delan", "conservative"): {ENERGY, MASS_MATRIX},
     ("lnn", "conservative"): {ENERGY, NAN_ON_SINGULAR}, ("mlp", "conservative"): set(), ("hnn", "conservative"): set(),
-    ("film_lnn", "actuated"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION},
-    ("delan", "actuated"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION},
-    ("lnn", "actuated"): {ENERGY, FRICTION, NAN_ON_SINGULAR}, ("mlp", "actuated"): set(),
-    ("hnn", "actuated"): {FRICTION},
-    ("film_lnn", "measured"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION},  # a measured arm has friction
-    ("delan", "measured"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION},
-    ("lnn", "measured"): {ENERGY, FRICTION, NAN_ON_SINGULAR}, ("mlp", "measured"): set(),
+    ("film_lnn", "actuated"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, FORCES},
+    ("delan", "actuated"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, FORCES},
+    ("lnn", "actuated"): {ENERGY, FRICTION, NAN_ON_SINGULAR, FORCES}, ("mlp", "actuated"): set(),
+    ("hnn", "actuated"): {FRICTION, FORCES},
+    ("film_lnn", "measured"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, FORCES},  # a measured arm has friction
+    ("delan", "measured"): {ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, FORCES},
+    ("lnn", "measured"): {ENERGY, FRICTION, NAN_ON_SINGULAR, FORCES}, ("mlp", "measured"): set(),
 }
+# the flags that ``provides`` replaced: (flag, capability) -> the classes that have it
+FLAGS = {("has_energy", ENERGY): {"film_lnn", "delan", "lnn"},
+         ("uses_forces", FORCES): {"film_lnn", "delan", "lnn", "hnn"},
+         ("static_friction", STATIC_FRICTION): {"film_lnn", "delan"}}
 
 
 def test_each_class_declares_what_it_provides_and_the_scene_narrows_it(scenes):
     for name, cls in MODELS.items():
         assert cls.provides <= set(CAPABILITIES), name
         assert (ENERGY in cls.provides) == cls.has_energy, name  # the energy regulariser's flag agrees
+        for (flag, capability), having in FLAGS.items():  # the old flags: read-only, derived from provides
+            assert getattr(cls, flag) == (capability in cls.provides) == (name in having), (name, flag)
     for (variant, kind), expected in EXPECTED.items():
         system, data = scenes[kind]
         assert tiny_model(variant, system, data).capabilities == expected, (variant, kind)
@@ -90,8 +112,14 @@ def test_each_class_declares_what_it_provides_and_the_scene_narrows_it(scenes):
     conservative = build_model("delan", get_system("double_pendulum"), hidden_dims=(8,))
     assert conservative.missing(INVERSE_DYNAMICS, ENERGY) == ("scene 'double_pendulum' has no inputs (inverse "
                                                               "dynamics needs them)")
-    assert build_model("hnn", system, hidden_dims=(8,)).missing(ENERGY, FRICTION) == "variant 'hnn' does not provide energy"
+    hnn = build_model("hnn", system, hidden_dims=(8,))
+    assert hnn.missing(ENERGY, FRICTION) == "variant 'hnn' does not provide energy"
     assert plain.missing(ENERGY) is None
+    assert plain.has_energy and plain.uses_forces and plain.static_friction
+    with pytest.raises(AttributeError, match="read-only"):
+        plain.has_energy = False
+    assert conservative.missing(FORCES) == "scene 'double_pendulum' has no generalised forces (inputs or friction)"
+    assert build_model("mlp", system, hidden_dims=(8,)).forces is None  # the inputs are its features
 
 
 def test_si_accessors_agree_with_the_normalised_quantities(scenes):

@@ -27,7 +27,8 @@ def set_chain(model, mass, along, across, length, const=None):
     dof = model.chain.dof
     L = torch.zeros(dof, dof, dtype=torch.float64) if const is None else torch.as_tensor(const, dtype=torch.float64)
     rows, cols = torch.tril_indices(dof, dof)
-    tri = [inv_softplus(max(float(L[r, c]), 1e-300)) if r == c else float(L[r, c]) for r, c in zip(rows, cols)]
+    tri = [inv_softplus(max(float(L[r, c]), 1e-300)) if r == c else float(L[r, c])
+           for r, c in zip(rows, cols, strict=True)]
     raw = [math.log(m) for m in mass] + list(along) + list(across) + list(length) + tri
     with torch.no_grad():
         model.chain.raw.copy_(torch.tensor(raw, dtype=model.chain.raw.dtype))
@@ -46,7 +47,8 @@ def test_point_mass_chain_is_the_double_pendulums_mass_matrix():
     m1, m2, l1, l2 = 0.7, 1.3, 0.9, 0.6
     set_chain(model, mass=(m1, m2), along=(l1, l2), across=(0.0, 0.0), length=(l1,))
     q = torch.randn(32, 2, dtype=torch.float64) * 2
-    expected = get_system("double_pendulum").mass_matrix(q, torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(32, -1))
+    params = torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(32, -1)
+    expected = get_system("double_pendulum").mass_matrix(q, params)
     torch.testing.assert_close(chain_mass(model, q), expected, rtol=1e-12, atol=1e-12)
 
 
@@ -84,7 +86,8 @@ def test_joint_angles_are_a_change_of_coordinates_of_absolute_angles():
     """The same arm (centres of mass off the link axes) in joint-relative angles: ``M_rel = G^T M_abs G``
     with ``phi = G q``; the constant part adds ``K = L_K L_K^T`` (link inertias, motor rotors)."""
     values = dict(mass=(0.8, 0.5), along=(0.3, 0.25), across=(0.05, -0.04), length=(0.6,))
-    absolute = set_chain(build_model("film_lnn", MeasuredSystem(2), kinetic="chain", links=ABSOLUTE2).double(), **values)
+    absolute = set_chain(build_model("film_lnn", MeasuredSystem(2), kinetic="chain", links=ABSOLUTE2).double(),
+                         **values)
     L_K = [[0.2, 0.0], [-0.1, 0.15]]
     relative = set_chain(build_model("film_lnn", MeasuredSystem(2, input_names=["tau1", "tau2"]), kinetic="chain",
                                      links=RELATIVE2).double(), **values, const=L_K)
@@ -165,7 +168,8 @@ def test_weight_decay_spares_the_physical_coefficients():
     friction's coefficients it would bias the physics, so only the network weights decay."""
     from lnn_torch.module import LNNModule
 
-    module = LNNModule(scene="measured", scene_config=MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config(),
+    config = MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config()
+    module = LNNModule(scene="measured", scene_config=config,
                        variant="film_lnn", hidden_dims=[8, 8], weight_decay=0.1,
                        model_options={"kinetic": "chain+mlp", "links": RELATIVE2, "potential": "harmonic+mlp"})
     opt = module.configure_optimizers()["optimizer"]
@@ -227,6 +231,36 @@ def test_si_inverse_dynamics_of_a_point_mass_chain_is_the_closed_form():
     got = model.inverse_dynamics(q, torch.zeros_like(q), qdd, q.new_zeros(16, 0))
     torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(model.chain_si()["mass"][0], torch.tensor([m1, m2], dtype=torch.float64))
+
+
+def test_the_si_face_of_a_point_mass_chain_is_the_double_pendulums_plant():
+    """The SI rigid-body face of a chain set from SI point masses in absolute angles, through the
+    normalisation (time scale, force scale, g tau^2), is ``plant_of(double_pendulum)`` (its closed form):
+    M up to the model's eps I, the bias n at nonzero velocities (Coriolis, centrifugal, gravity) with the
+    model's learned friction kept out of it, g = n(q, 0), and the inverse dynamics B tau = M qdd + n - Q_f."""
+    from lnn_torch.control import plant_of
+
+    scene = MeasuredSystem(2, input_names=["tau1", "tau2"])
+    model = build_model("film_lnn", scene, kinetic={"chain": {"links": ABSOLUTE2}}, potential="chain").double()
+    tau, fs = 0.21, 3.7
+    with torch.no_grad():
+        model.normalizer.time_scale.fill_(tau)
+        model.normalizer.force_scale.fill_(fs)
+    m1, m2, l1, l2 = 0.6, 0.45, 0.3, 0.25
+    set_chain(model, mass=(m1 * fs / tau**2, m2 * fs / tau**2), along=(l1, l2), across=(0.0, 0.0), length=(l1,))
+    gen = torch.Generator().manual_seed(3)
+    q, qd, qdd = (torch.randn(16, 2, generator=gen, dtype=torch.float64) for _ in range(3))
+    params, none = torch.tensor([m1, m2, l1, l2], dtype=torch.float64).expand(16, -1), q.new_zeros(16, 0)
+    plant = plant_of(get_system("double_pendulum"))
+    eps_si = model.eps * tau**2 / fs  # the model's M = F F^T + eps I (eps in normalised units)
+    with torch.no_grad():
+        M, n, Qf = model.mass_matrix_si(q, none), model.bias_si(q, qd, none), model.friction_si(q, qd, none)
+        torch.testing.assert_close(M, plant.mass_matrix(q, params) + eps_si * torch.eye(2, dtype=torch.float64))
+        torch.testing.assert_close(n, plant.bias(q, qd, params), rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(model.gravity_si(q, none), plant.gravity(q, params), rtol=1e-10, atol=1e-12)
+        assert Qf.abs().max() > 1e-3 and ((Qf * qd).sum(-1) < 0).all()  # learned friction: in Q_f, not in n
+        expected = (plant.mass_matrix(q, params) @ qdd[..., None])[..., 0] + eps_si * qdd + plant.bias(q, qd, params)
+        torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, none), expected - Qf, rtol=1e-10, atol=1e-12)
 
 
 def test_the_residuals_decay_and_the_chain_constants_do_not():

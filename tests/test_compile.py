@@ -45,7 +45,7 @@ def test_compiled_dynamics_equal_eager(rng):
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
     """A failing compiled call warns once and the model continues eagerly with the eager result;
     the model's own errors (singular Hessian) pass through and are not taken for a compile failure."""
-    import lnn_torch.networks.base as models
+    import lnn_torch.networks.compiled as models
 
     def broken(fn, device):
         def run(*args):
@@ -83,7 +83,7 @@ def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never
     perf.AUTO_COMPILE_CALLS acceleration calls (RK4: 4 a step), and nothing else: not a shorter rollout,
     not a direct acceleration call, not after compile_dynamics(False) or with LNN_TORCH_COMPILE=0. A
     compilation failure warns once and the rollout continues eagerly with the eager result."""
-    import lnn_torch.networks.base as models
+    import lnn_torch.networks.compiled as models
     import lnn_torch.perf as perf
 
     compiled = []
@@ -150,7 +150,7 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
         results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
     (l0, g0), (l1, g1) = results
     torch.testing.assert_close(l1, l0, rtol=1e-12, atol=0)
-    for a, b in zip(g0, g1):
+    for a, b in zip(g0, g1, strict=True):
         # only the summation order differs between the two graphs (in float32 that alone reached
         # 1e-6 of the largest entry, and 5x relative on near-zero entries)
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-12 * max(float(a.abs().max()), 1e-3))

@@ -102,6 +102,38 @@ def test_rigid_body_terms_are_consistent(name):
         assert plant.residual(q, qd, qdd, params).max() < 1e-9
 
 
+def test_the_learned_plant_is_the_models_rigid_body_face():
+    """``plant_of(model)`` takes M, n, g and Q_f from the model's SI face (``lnn_torch.networks.rigid_body``),
+    nothing derived again; a model learned without inputs has all of them in its own units, divided by
+    the torque scale (model units per N m) in its plant."""
+    model = structured_model(ARM)
+    plant = plant_of(model)
+    q, qd, params, _ = _states(plant)
+    with torch.no_grad():
+        for got, face in ((plant.mass_matrix(q, params), model.mass_matrix_si(q, params)),
+                          (plant.bias(q, qd, params), model.bias_si(q, qd, params)),
+                          (plant.gravity(q, params), model.gravity_si(q, params)),
+                          (plant.friction(q, qd, params), model.friction_si(q, qd, params))):
+            torch.testing.assert_close(got, face, rtol=0, atol=0)
+    # a measured arm learned without inputs (joint friction in the model's units) under a torque scale
+    from lnn_torch.systems import MeasuredSystem
+
+    scene = MeasuredSystem(2, angle_combinations=[[1, 1]])
+    torch.manual_seed(1)
+    learned = perturbed(build_model("film_lnn", scene, hidden_dims=[16, 16]).double(), 0.05, 1)
+    gen = torch.Generator().manual_seed(1)
+    q, qd, qdd = (torch.randn(64, 2, generator=gen, dtype=torch.float64) for _ in range(3))
+    none = torch.zeros(64, 0, dtype=torch.float64)
+    learned.fit_normalizer({"q": q, "qd": qd, "qdd": qdd, "params": none[:1], "params_points": none})
+    scaled = plant_of(learned, torque_scale=2.5)
+    q, qd, u = q[:6], 0.3 * qd[:6], torch.randn(6, 2, generator=gen, dtype=torch.float64)
+    M, n, Qf = scaled.mass_matrix(q, none[:6]), scaled.bias(q, qd, none[:6]), scaled.friction(q, qd, none[:6])
+    torch.testing.assert_close(Qf, learned.friction_si(q, qd, none[:6]) / 2.5, rtol=0, atol=0)
+    assert Qf.abs().max() > 1e-3
+    qdd = scaled.forward(q, qd, none[:6], u)
+    torch.testing.assert_close(torch.einsum("bij,bj->bi", M, qdd) + n, u @ scaled.input_matrix.T + Qf)
+
+
 def test_gravity_is_the_gradient_of_the_potential():
     """An independent reference: the truth's ``n(q, 0)`` equals ``dV/dq`` by autograd of its potential."""
     q, _, params = random_batch(ARM, np.random.default_rng(3), 8)

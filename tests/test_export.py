@@ -36,7 +36,8 @@ def untrained_module(variant="film_lnn", scene="actuated_double_pendulum", seed=
     rng = np.random.default_rng(seed)
     q, qd, params = random_batch(system, rng, 256)
     tau = random_inputs(system, rng, 256)
-    stats = {"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params, "params_points": params}
+    stats = {"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
+             "params_points": params}
     if tau is not None:
         stats["tau"] = tau
     module.model.fit_normalizer(stats)
@@ -74,18 +75,25 @@ def states(module, n, dtype, seed=1):
 
 
 def eager(model, function, q, qd, params, tau, qdd):
-    """``function`` by the model's own public methods (``model``: a ``DynamicsModel`` in the dtype)."""
+    """``function`` by the model's own public methods (``model``: a ``DynamicsModel`` in the dtype): its SI
+    rigid-body face."""
     if function == "forward_dynamics":
         return model.acceleration(q, qd, params, tau)
     if function == "inverse_dynamics":
         return model.inverse_dynamics(q, qd, qdd, params)
+    if function == "bias_force":
+        return model.bias_si(q, qd, params)
+    if function == "gravity_force":
+        return model.gravity_si(q, params)
+    if function == "friction_force":
+        return model.friction_si(q, qd, params)
     return model.mass_matrix_si(q, params)
 
 
 def arguments(function, q, qd, params, tau, qdd):
     return {"forward_dynamics": (q, qd, params) + (() if tau is None else (tau,)),
             "inverse_dynamics": (q, qd, qdd, params), "mass_matrix": (q, params), "bias_force": (q, qd, params),
-            "gravity_force": (q, params)}[function]
+            "gravity_force": (q, params), "friction_force": (q, qd, params)}[function]
 
 
 # ---------------------------------------------------------------------------- the programs
@@ -95,12 +103,11 @@ def test_exported_programs_equal_the_eager_model(models, name, dtype):
     module = models[name]
     model = copy.deepcopy(module.model).to(dtype)
     expected = {"double_pendulum": ("forward_dynamics", "mass_matrix"),
-                "actuated": ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force")}[name]
+                "actuated": ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force",
+                             "friction_force")}[name]
     assert ex.available_functions(module) == expected
     q, qd, params, tau, qdd = states(module, 33, dtype)
-    for function in ("forward_dynamics", "inverse_dynamics", "mass_matrix"):
-        if function not in expected:
-            continue
+    for function in expected:
         program = ex.export_program(ex.wrap(module, function, dtype)).module()
         args = arguments(function, q, qd, params, tau, qdd)
         with torch.no_grad():
@@ -109,24 +116,57 @@ def test_exported_programs_equal_the_eager_model(models, name, dtype):
         torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{name} {function}")
 
 
-def test_bias_and_gravity_forces_are_what_the_mass_matrix_and_accelerations_give(models):
-    """``n = -M a(q, qd, tau=0)`` and ``g = n(q, 0)`` (float64), and ``M qdd + n = B tau`` through the
-    exported inverse dynamics."""
+def test_bias_gravity_and_friction_forces_are_what_the_mass_matrix_and_accelerations_give(models):
+    """The one convention ``M qdd + n = B tau + Q_f`` (float64): ``n = Q_f - M a(q, qd, tau=0)`` (no friction
+    in ``n``), ``g = n(q, 0)``, ``Q_f`` the learned joint friction ``-D^T (b r + c tanh(r / v))`` at the joint
+    rates ``r = D qd`` (an independent formula of its coefficients), and ``B tau = M qdd + n - Q_f`` through
+    the exported inverse dynamics."""
     module = models["actuated"]
     model = copy.deepcopy(module.model).double()
     q, qd, params, _, qdd = states(module, 33, torch.float64)
     zero_tau = torch.zeros(33, ADP.num_inputs, dtype=torch.float64)
     fns = {f: ex.export_program(ex.wrap(module, f, torch.float64)).module()
-           for f in ("bias_force", "gravity_force", "inverse_dynamics")}
+           for f in ("bias_force", "gravity_force", "friction_force", "inverse_dynamics")}
     with torch.no_grad():
+        b, c = model.friction_coefficients_si(params)
+        D = ADP.joint_map().double()
+        rates = qd @ D.T
+        Qf = -(b * rates + c * torch.tanh(rates / ADP.coulomb_velocity)) @ D
+        torch.testing.assert_close(fns["friction_force"](q, qd, params), Qf, rtol=1e-9, atol=1e-12)
+        assert (Qf.abs() > 1e-3).any() and ((Qf * qd).sum(-1) <= 0).all()  # friction matters here, and dissipates
         M = model.mass_matrix_si(q, params)
-        n = -(M @ model.acceleration(q, qd, params, zero_tau)[..., None])[..., 0]
+        n = Qf - (M @ model.acceleration(q, qd, params, zero_tau)[..., None])[..., 0]
         g = -(M @ model.acceleration(q, torch.zeros_like(qd), params, zero_tau)[..., None])[..., 0]
         torch.testing.assert_close(fns["bias_force"](q, qd, params), n, rtol=1e-9, atol=1e-10 * float(n.abs().max()))
         torch.testing.assert_close(fns["gravity_force"](q, params), g, rtol=1e-9, atol=1e-10 * float(g.abs().max()))
         tau = fns["inverse_dynamics"](q, qd, qdd, params)  # identity input matrix: B tau = tau
         Mqdd = (M @ qdd[..., None])[..., 0]
-        torch.testing.assert_close(tau, Mqdd + n, rtol=1e-9, atol=1e-10 * float(tau.abs().max()))
+        torch.testing.assert_close(tau, Mqdd + n - Qf, rtol=1e-9, atol=1e-10 * float(tau.abs().max()))
+
+
+def test_control_and_export_take_the_same_face(models):
+    """Control's plant of a structured model with friction and the exported programs agree on M, n, g and Q_f
+    (they once disagreed: export's bias held the learned friction, the plant's did not)."""
+    from lnn_torch.control import plant_of
+
+    module = models["actuated"]
+    model = copy.deepcopy(module.model).double()
+    plant = plant_of(model)
+    q, qd, params, tau, _ = states(module, 17, torch.float64, seed=5)
+    programs = {f: ex.export_program(ex.wrap(module, f, torch.float64)).module()
+                for f in ("mass_matrix", "bias_force", "gravity_force", "friction_force")}
+    with torch.no_grad():
+        pairs = {"mass_matrix": (plant.mass_matrix(q, params), programs["mass_matrix"](q, params)),
+                 "bias_force": (plant.bias(q, qd, params), programs["bias_force"](q, qd, params)),
+                 "gravity_force": (plant.gravity(q, params), programs["gravity_force"](q, params)),
+                 "friction_force": (plant.friction(q, qd, params), programs["friction_force"](q, qd, params))}
+        for name, (from_plant, from_program) in pairs.items():
+            torch.testing.assert_close(from_plant, from_program, **TOL[torch.float64], msg=name)
+        assert pairs["friction_force"][0].abs().max() > 1e-3  # the friction is there to disagree about
+        # and both describe the plant's (the model's) motion: M qdd + n = B tau + Q_f
+        qdd = plant.forward(q, qd, params, tau)
+        lhs = (pairs["mass_matrix"][1] @ qdd[..., None])[..., 0] + pairs["bias_force"][1]
+        torch.testing.assert_close(lhs, tau @ plant.input_matrix.T + pairs["friction_force"][1])
 
 
 def test_saved_programs_load_back_and_take_any_batch(models, tmp_path):
@@ -208,7 +248,7 @@ def test_onnx_programs_equal_the_eager_model_through_onnxruntime(models, tmp_pat
             q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
             args = arguments(function, q, qd, params, tau, qdd)
             names = [i.name for i in session.get_inputs()]
-            (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args)})
+            (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
             with torch.no_grad():
                 ref = eager(model, function, q, qd, params, tau, qdd)
             torch.testing.assert_close(torch.from_numpy(out), ref, **TOL[torch.float64], msg=function)

@@ -107,14 +107,15 @@ def test_generated_data_satisfies_power_balance_and_matches_dop853():
         t_knots = arrays["t"]
         p = torch.from_numpy(arrays["params"][i])
 
-        def f(t, y, k):
+        def f(t, y, k, i=i, p=p):  # this trajectory's inputs and parameters
             yt = torch.from_numpy(y)
             u = torch.from_numpy(tau[i, k])
             return np.concatenate([y[2:], ADP.acceleration(yt[:2], yt[2:], p, u).numpy()])
 
         y = np.concatenate([arrays["q"][i, 0], arrays["qd"][i, 0]])
         for k in range(20):  # the first 0.1 s, interval by interval (the inputs change at each sample)
-            y = solve_ivp(f, (t_knots[k], t_knots[k + 1]), y, method="DOP853", rtol=1e-12, atol=1e-12, args=(k,)).y[:, -1]
+            y = solve_ivp(f, (t_knots[k], t_knots[k + 1]), y, method="DOP853", rtol=1e-12, atol=1e-12,
+                          args=(k,)).y[:, -1]
         ours = np.concatenate([arrays["q"][i, 20], arrays["qd"][i, 20]])
         assert np.abs(ours - y).max() < 1e-8, np.abs(ours - y).max()
 
@@ -236,7 +237,7 @@ def test_gradcheck_through_the_forced_structured_solve(rng):
     tau = torch.randn(3, 2, dtype=torch.float64)
 
     def accel(*ws):
-        return torch.func.functional_call(model, dict(zip(names, ws)), (q, qd, params, tau))
+        return torch.func.functional_call(model, dict(zip(names, ws, strict=True)), (q, qd, params, tau))
 
     assert torch.autograd.gradcheck(accel, weights)
 
@@ -259,7 +260,8 @@ def test_learned_model_obeys_its_own_power_balance(rng):
         H = model.energy_norm(q_n, qd_n, p_n)[0].reshape(4, n + 1)
         power = (qd_n * model.force_norm(q_n, qd_n, p_n, tau_n)).sum(-1).reshape(4, n + 1)
     dt_n = dt / float(model.normalizer.time_scale)
-    work = torch.cat([torch.zeros(4, 1, dtype=torch.float64), (0.5 * dt_n * (power[:, 1:] + power[:, :-1])).cumsum(1)], 1)
+    steps = (0.5 * dt_n * (power[:, 1:] + power[:, :-1])).cumsum(1)
+    work = torch.cat([torch.zeros(4, 1, dtype=torch.float64), steps], 1)
     residual = (H - H[:, :1] - work).abs().max() / (H.max() - H.min())
     assert residual < 1e-4, residual
 
@@ -307,7 +309,8 @@ def test_power_balance_error_of_the_exact_rollout_is_small_and_of_a_wrong_model_
     # a rollout without friction, driven by the same inputs, violates the true power balance
     frictionless = params.clone()
     frictionless[:, 7:] = 0
-    qf, qdf = rollout(ADP.acceleration, q[:, 0], qd[:, 0], frictionless, spec.dt, q.shape[1] - 1, "rk4", tau=tau[:, :-1])
+    qf, qdf = rollout(ADP.acceleration, q[:, 0], qd[:, 0], frictionless, spec.dt, q.shape[1] - 1, "rk4",
+                      tau=tau[:, :-1])
     assert power_balance_error(ADP, qf, qdf, params, tau[:, :-1], spec.dt).max() > 100 * err.max()
     with pytest.raises(ValueError, match="tau"):
         integrate_ground_truth(ADP, q[:, 0], qd[:, 0], params, 0.005, 10, tau=tau[:, :5])
@@ -403,7 +406,8 @@ def test_combined_angle_features_tangents_and_pullback_match_autograd(rng):
     assert model.num_features == 6
     q = torch.tensor(rng.uniform(-3, 3, (5, 2)), requires_grad=True)
     phi, dphi = model.features(q, tangents=True)
-    torch.testing.assert_close(phi[:, [2, 5]], torch.stack([torch.sin(q[:, 0] + q[:, 1]), torch.cos(q[:, 0] + q[:, 1])], -1))
+    absolute = q[:, 0] + q[:, 1]
+    torch.testing.assert_close(phi[:, [2, 5]], torch.stack([torch.sin(absolute), torch.cos(absolute)], -1))
     jac = torch.func.vmap(torch.func.jacrev(lambda x: model.features(x[None])[0][0]))(q.detach())  # (B, F, dof)
     torch.testing.assert_close(dphi.permute(1, 2, 0), jac, rtol=1e-12, atol=1e-12)
     g = torch.randn(5, 6, dtype=torch.float64)

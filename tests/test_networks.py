@@ -58,6 +58,69 @@ def test_potential_gradient_matches_autograd(shared, rng):
     torch.testing.assert_close(dV, auto, rtol=1e-12, atol=1e-12)
 
 
+def fitted(model, system, rng, n=256):
+    """``model`` with its normaliser fitted on the scene's (widened) distribution, inputs included: with
+    inputs the force scale is not 1, so the SI face's units matter."""
+    q, qd, params = random_batch(system, rng, n)
+    tau = random_inputs(system, rng, n)
+    stats = {"q": q, "qd": qd, "qdd": system.acceleration(q, qd, params, tau), "params": params,
+             "params_points": params, **({"tau": tau} if tau is not None else {})}
+    model.fit_normalizer(stats)
+    return model
+
+
+@pytest.mark.parametrize("scene, variant, shared", [("actuated_double_pendulum", "film_lnn", False),
+                                                    ("actuated_double_pendulum", "delan", True),
+                                                    ("double_pendulum", "film_lnn", False),
+                                                    ("mass_spring", "delan", False)])
+def test_the_si_face_is_its_lagrangian_by_torch_func(scene, variant, shared, rng):
+    """The SI rigid-body face (``networks.rigid_body``) against the model's own SI Lagrangian ``L = H - 2 V``
+    (``energy_si``, its potential at rest) differentiated by torch.func through the normalisation:
+    ``M = d2L/dqd2``, ``n = (d/dq dL/dqd) qd - dL/dq``, ``g = -dL/dq`` at rest (in J and N m with inputs,
+    else the model's units); and ``M qdd + n = B tau + Q_f`` at the model's accelerations,
+    ``inverse_dynamics_si`` their inverse, ``Q_f`` dissipative."""
+    system = get_system(scene)
+    model = fitted(perturbed(build_model(variant, system, hidden_dims=(16, 16), shared=shared).double()), system,
+                   rng)
+    q, qd, params = random_batch(system, rng, 12)
+    zero = torch.zeros_like(qd)
+
+    def lagrangian(q_, qd_):  # (B,): T - V = H - 2 V, V = H at rest
+        return model.energy_si(q_, qd_, params) - 2 * model.energy_si(q_, torch.zeros_like(qd_), params)
+
+    def momentum(q_, qd_):
+        return torch.func.grad(lambda v: lagrangian(q_, v).sum())(qd_)
+
+    dof = system.dof
+    M_ref = torch.stack([torch.func.jvp(lambda v: momentum(q, v), (qd,), (zero + torch.eye(dof, dtype=q.dtype)[k],))[1]
+                         for k in range(dof)], -1)
+    dL_dq = torch.func.grad(lambda x: lagrangian(x, qd).sum())(q)
+    n_ref = torch.func.jvp(lambda x: momentum(x, qd), (q,), (qd,))[1] - dL_dq
+    g_ref = -torch.func.grad(lambda x: lagrangian(x, zero).sum())(q)
+    with torch.no_grad():
+        M, n, g = model.mass_matrix_si(q, params), model.bias_si(q, qd, params), model.gravity_si(q, params)
+        for got, ref in ((M, M_ref), (n, n_ref), (g, g_ref)):
+            torch.testing.assert_close(got, ref, rtol=1e-9, atol=1e-10 * float(ref.abs().max()))
+        torch.testing.assert_close(model.bias_si(q, zero, params), g, rtol=1e-9, atol=1e-12 * float(g.abs().max()))
+        tau = random_inputs(system, rng, 12)
+        if tau is None:  # a conservative scene: no forces, no friction, no inverse dynamics
+            assert model.forces is None and model.missing("forces") and model.missing("inverse_dynamics")
+            with pytest.raises(InputError, match="has no generalised forces"):
+                model.friction_si(q, qd, params)
+            tau, Qf, B = torch.zeros(12, 0, dtype=q.dtype), torch.zeros_like(q), torch.zeros(dof, 0, dtype=q.dtype)
+            qdd = model.forward_dynamics_si(q, qd, params)
+        else:
+            Qf, B = model.friction_si(q, qd, params), system.input_matrix().double()
+            assert ((Qf * qd).sum(-1) <= 0).all() and Qf.abs().max() > 0
+            qdd = model.forward_dynamics_si(q, qd, params, tau)
+            torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, params), tau, rtol=1e-9, atol=1e-9)
+            torch.testing.assert_close(model.input_force_si(q, qd, qdd, params), tau @ B.T, rtol=1e-9, atol=1e-9)
+        torch.testing.assert_close(qdd, model.acceleration(q, qd, params, tau if tau.shape[1] else None),
+                                   rtol=0, atol=0)
+        torch.testing.assert_close((M @ qdd[..., None])[..., 0] + n, tau @ B.T + Qf, rtol=1e-9,
+                                   atol=1e-10 * float(n.abs().max()))
+
+
 @pytest.mark.parametrize("variant", ["film_lnn", "delan"])
 def test_mass_matrix_spd_with_min_eigenvalue_eps(variant, rng):
     system = get_system("double_pendulum")
@@ -116,13 +179,14 @@ def test_gradcheck_through_structured_solve(shared, rng):
     assert torch.autograd.gradcheck(lambda a, b: model.acceleration_norm(a, b, pn), (qn, qdn))
     # and with respect to network weights (what training differentiates)
     q, qd, params = (x[:3] for x in random_batch(system, rng, 3))
-    names = (("kinetic.shared.net.hidden.1.weight", "kinetic.shared.net.out.weight", "conditioning_nets.kinetic_shared.net.2.weight")
+    names = (("kinetic.shared.net.hidden.1.weight", "kinetic.shared.net.out.weight",
+              "conditioning_nets.kinetic_shared.net.2.weight")
              if shared else ("kinetic.mlp.net.hidden.1.weight", "potential.mlp.net.hidden.0.weight",
                              "conditioning_nets.kinetic_mlp.net.2.weight"))
     weights = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
 
     def accel(*ws):
-        return torch.func.functional_call(model, dict(zip(names, ws)), (q, qd, params))
+        return torch.func.functional_call(model, dict(zip(names, ws, strict=True)), (q, qd, params))
 
     assert torch.autograd.gradcheck(accel, weights)
 
@@ -234,7 +298,7 @@ def test_lnn_init_scheme():
         for i, layer in enumerate([*mlp.hidden, mlp.out]):
             samples[i].append(layer.weight.flatten())
     expected = [2.2 / 10, 0.58 / 10, 1.16 / 10, 100 / 10]
-    for s, e in zip(samples, expected):
+    for s, e in zip(samples, expected, strict=True):
         assert abs(torch.cat(s).std().item() - e) / e < 0.05
 
 
@@ -337,12 +401,12 @@ def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
             out = model.training_terms(q, qd, qdd, params, energy=energy, chunks=chunks)
             sum(o.sum() for o in out.values()).backward()
             results.append((out, [p.grad.clone() for p in model.parameters() if p.grad is not None]))
-    for (o0, g0), (o1, g1) in zip(results[:2], results[2:]):
+    for (o0, g0), (o1, g1) in zip(results[:2], results[2:], strict=True):
         assert o0.keys() == o1.keys()
         for key in o0:
             torch.testing.assert_close(o1[key], o0[key], rtol=1e-12, atol=1e-12)
         assert len(g0) == len(g1)
-        for a, b in zip(g0, g1):
+        for a, b in zip(g0, g1, strict=True):
             torch.testing.assert_close(b, a, rtol=1e-10, atol=1e-12)
     mixed = params.clone()
     mixed[1] *= 1.5  # a parameter change inside the first chunk: per-chunk FiLM no longer applies
@@ -377,7 +441,7 @@ def test_rollout_conditions_once(variant, kw, rng):
     model = perturbed(build_model(variant, system, hidden_dims=(16, 16), **kw).double())
     q, qd, params = random_batch(system, rng, 6)
     reference = integrators.rollout(lambda a, b, p: model.acceleration(a, b, p, check=False), q, qd, params, 0.01, 5)
-    for got, want in zip(model.rollout(q, qd, params, 0.01, 5), reference):
+    for got, want in zip(model.rollout(q, qd, params, 0.01, 5), reference, strict=True):
         torch.testing.assert_close(got, want, rtol=0, atol=0)
     accel = model.acceleration_fn(params)
     torch.testing.assert_close(accel(q, qd, params), model.acceleration(q, qd, params), rtol=0, atol=0)
@@ -397,7 +461,8 @@ def test_mass_invariance_keeps_the_solve_exact(variant, rng):
         qn, qdn, pn = normalized_batch(model, system, rng, 16)
         force = model.force_norm(qn, qdn, pn, torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64))
         fast = model.solve_norm(qn, qdn, pn, force)
-        generic = generic_acceleration(lambda a, b, c: reference.lagrangian(model, a, b, c), qn, qdn, pn, force=force)
+        generic = generic_acceleration(lambda a, b, c, m=model: reference.lagrangian(m, a, b, c), qn, qdn, pn,
+                                       force=force)
         assert (fast - generic).abs().max() <= 1e-10 * generic.abs().max()
         turned = qn + torch.tensor([1.3, 0.0], dtype=torch.float64)
         same = torch.allclose(model.mass_matrix_norm(turned, pn), model.mass_matrix_norm(qn, pn), rtol=0, atol=1e-14)
@@ -498,10 +563,10 @@ def test_networks_are_built_in_a_fixed_order(potential):
                 "conditioning_nets.kinetic_mlp": films[0], "conditioning_nets.potential_mlp": films[1]}
     modules = dict(model.named_modules())
     for name, net in expected.items():
-        for (n, a), (_, b) in zip(modules[name].named_parameters(), net.named_parameters()):
+        for (n, a), (_, b) in zip(modules[name].named_parameters(), net.named_parameters(), strict=True):
             assert torch.equal(a, b), f"{name}.{n}"
     assert torch.equal(forces.coefficient_net[0].weight, forces_again.coefficient_net[0].weight)
     # and the parameters come in that order too (gradient clipping sums their norms in this order)
     order = [p for net in expected.values() for p in net.parameters()]
     assert [tuple(p.shape) for p in model.parameters()][:len(order)] == [tuple(p.shape) for p in order]
-    assert all(torch.equal(a, b) for a, b in zip(model.parameters(), order))
+    assert all(torch.equal(a, b) for a, b in zip(model.parameters(), order, strict=False))  # the first ones

@@ -41,7 +41,7 @@ def test_the_old_string_forms_build_the_same_model_with_a_deprecation(old, new, 
     assert a.state_dict().keys() == b.state_dict().keys()
     assert all(torch.equal(x, b.state_dict()[k]) for k, x in a.state_dict().items())
     batch = (*random_batch(system, rng, 8), torch.randn(8, system.num_inputs, dtype=torch.float64))
-    for x, y in zip(_outputs(a, batch), _outputs(b, batch)):
+    for x, y in zip(_outputs(a, batch), _outputs(b, batch), strict=True):
         assert torch.equal(x, y)
 
 

@@ -31,7 +31,8 @@ def arm_model(dissipation="joint+stiction", seed=0):
     q = torch.rand(512, 2, generator=gen, **F64) * 2 - 1
     model.fit_normalizer({"q": q, "qd": torch.randn(512, 2, generator=gen, **F64) * 3,
                           "qdd": torch.randn(512, 2, generator=gen, **F64) * 40, "params": torch.zeros(1, 0, **F64),
-                          "params_points": torch.zeros(512, 0, **F64), "tau": torch.randn(512, 2, generator=gen, **F64)})
+                          "params_points": torch.zeros(512, 0, **F64),
+                          "tau": torch.randn(512, 2, generator=gen, **F64)})
     with torch.no_grad():
         model.forces.units.fill_(1.0)
         model.forces.coefficients_raw.copy_(torch.tensor(coef, **F64).expm1().log())  # softplus^-1
@@ -132,6 +133,28 @@ def test_the_holding_torques_power_is_bounded_and_every_path_adds_it():
     step = model.rollout(q[:4], qd[:4], p[:4], 1e-3, 1, method="semi_implicit_euler", tau=tau[:4, None])
     torch.testing.assert_close(step[1][:, 1], qd[:4] + 1e-3 * model.acceleration(q[:4], qd[:4], p[:4], tau[:4]),
                                rtol=1e-10, atol=1e-12)
+
+
+def test_the_holding_torques_are_what_the_face_leaves_out():
+    """The rigid-body face's convention (``networks.rigid_body``): static friction's holding torques are in
+    the forward dynamics only, so at the model's accelerations ``M qdd + n - B tau - Q_f = D^T lam`` (the
+    holding torques at the joints), and the inverse dynamics of those accelerations is ``tau + lam``."""
+    model = arm_model()
+    q, _, p = at_rest(64)
+    gen = torch.Generator().manual_seed(6)
+    qd = (torch.rand(q.shape, generator=gen, **F64) - 0.5) * 4 * model.forces.stick_velocity
+    tau = torch.randn(q.shape, generator=gen, **F64) * 0.05
+    with torch.no_grad():
+        qdd = model.forward_dynamics_si(q, qd, p, tau)
+        q_n, qd_n, p_n = model.normalize(q, qd, p)
+        force = model.force_norm(q_n, qd_n, p_n, model.tau_norm(tau))
+        plain = model.solve_norm(q_n, qd_n, p_n, force)
+        _, lam = model.holding_torques(plain, force, lambda f: model.solve_norm(q_n, qd_n, p_n, f), qd_n, p_n)
+        M, n, Qf = model.mass_matrix_si(q, p), model.bias_si(q, qd, p), model.friction_si(q, qd, p)
+        residual = (M @ qdd[..., None])[..., 0] + n - tau - Qf  # the input matrix and the joint map are I
+        torch.testing.assert_close(residual, lam, rtol=1e-9, atol=1e-12)
+        assert lam.abs().max() > 1e-3  # held here
+        torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, p), tau + lam, rtol=1e-9, atol=1e-12)
 
 
 def test_gradients_through_the_holding_torques():

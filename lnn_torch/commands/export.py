@@ -8,10 +8,13 @@ units), the scene's conventions, the trusted parameter range and the versions th
 * ``forward_dynamics``: ``(q, qd, params[, tau]) -> qdd`` (``tau``: the inputs of an actuated scene);
 * ``inverse_dynamics``: ``(q, qd, qdd, params) -> tau``;
 * ``mass_matrix``: ``(q, params) -> M``;
-* ``bias_force``: ``(q, qd, params) -> n`` with ``M qdd + n = B tau``; ``gravity_force``: ``(q, params) -> n(q, 0)``.
+* ``bias_force``: ``(q, qd, params) -> n``; ``gravity_force``: ``(q, params) -> n(q, 0)``;
+* ``friction_force``: ``(q, qd, params) -> Q_f``;
 
-Inverse dynamics and the forces need a structured model (film_lnn, delan) of a scene with inputs;
-the mass matrix a structured model. Variants whose accelerations need autograd (lnn, hnn) cannot
+with ``M qdd + n = B tau + Q_f``: ``n`` the Coriolis, centrifugal and gravity forces (no friction),
+``Q_f`` the learned friction (``lnn_torch.networks.rigid_body`` states the convention). Inverse dynamics
+and the forces need a structured model (film_lnn, delan) of a scene with inputs (friction_force: and
+friction); the mass matrix a structured model. Variants whose accelerations need autograd (lnn, hnn) cannot
 be exported. ONNX needs the optional packages onnx and onnxscript (``pip install 'lnn-torch[export]'``);
 ``aoti`` compiles each program to native code with AOTInductor (a C++ compiler, 10-20 s per
 function on one thread). ``lnn_torch.export`` has the details.

@@ -52,7 +52,7 @@ def lqr_gain(A: torch.Tensor, B: torch.Tensor, Q, R, dt: float | None = None) ->
     n2, m = A_np.shape[-1], B_np.shape[-1]
     Q, R = _weights(Q, n2, "Q"), _weights(R, m, "R")
     gains = []
-    for a, b in zip(A_np, B_np):
+    for a, b in zip(A_np, B_np, strict=True):
         try:
             if dt is None:
                 P = scipy.linalg.solve_continuous_are(a, b, Q, R)
@@ -94,7 +94,7 @@ class LQR:
         A, B = plant.linearize(q_eq, torch.zeros_like(q_eq), self.u_eq, params, friction=False)
         self.K = lqr_gain(A, B, Q, R, dt)
 
-    def repeat_interleave(self, k: int) -> "LQR":
+    def repeat_interleave(self, k: int) -> LQR:
         """The same controller for ``k`` episodes of each design (one row per episode)."""
         out = copy.copy(self)
         out.q_eq, out.u_eq, out.K = (x.repeat_interleave(k, 0) for x in (self.q_eq, self.u_eq, self.K))

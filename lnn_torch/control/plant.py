@@ -14,6 +14,10 @@ batched over states and (conditioning) parameters:
   (forward-mode derivatives of ``forward``);
 * ``energy(q, qd, params)`` where the source has one.
 
+A learned model's plant wraps the model's SI rigid-body face (``lnn_torch.networks.rigid_body``, where
+the convention is stated: ``n`` without friction or inputs, ``Q_f`` the learned dissipation, static
+friction's holding torques in the accelerations only); a scene's plant its closed form.
+
 Inputs act through ``B`` (``input_matrix``): an actuated scene's own; for a scene without inputs,
 torques at its joints (``actuation``: all joints by default, or a mask such as ``(True, False)`` for
 a pendubot) acting as generalised forces ``joint_map^T u``. A model learned without inputs knows its
@@ -24,13 +28,17 @@ with known torques.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import torch
 
 from ..errors import InputError
+from ..identified import RigidArmModel
 from ..integrators import held, rk4_step
+from ..networks.base import DynamicsModel
+from ..networks.capabilities import FORCES, MASS_MATRIX, capabilities_of
+from ..systems.base import System
 
 
 @dataclass
@@ -51,7 +59,8 @@ class Plant:
     energy_fn: Callable | None = None  # (q, qd, params) -> E
     torque_scale: float | torch.Tensor = 1.0  # model units per N m (one, or one per state of the batch)
     input_names: tuple[str, ...] = field(default_factory=tuple)
-    rigid_bias: Callable | None = None  # (q, qd, params) -> n without friction; None: Q_f - M a_free
+    rigid_bias: Callable | None = None  # (q, qd, params) -> n (no friction, no inputs); None: Q_f - M a_free
+    gravity_fn: Callable | None = None  # (q, params) -> n(q, 0); None: bias at qd = 0
 
     @property
     def num_inputs(self) -> int:
@@ -96,7 +105,11 @@ class Plant:
 
     def gravity(self, q, params=None) -> torch.Tensor:
         """The gravity forces ``n(q, 0)`` (what holding the system still at ``q`` takes)."""
-        return self.bias(q, torch.zeros_like(q), params)
+        if self.gravity_fn is None:
+            return self.bias(q, torch.zeros_like(q), params)
+        params = self._params(q, params)
+        self._check(q, params=params)
+        return self.gravity_fn(q, params)
 
     # ------------------------------------------------------------------ dynamics
     def forward(self, q, qd, params=None, u=None) -> torch.Tensor:
@@ -198,9 +211,6 @@ def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant
     ``actuation``: for a source without inputs of its own, which joints carry a motor (see
     ``_joint_inputs``); refused for one with inputs (those are its own). ``torque_scale``: for a
     learned model without inputs of its own, model units per N m (see the module docstring)."""
-    from ..identified import RigidArmModel
-    from ..systems.base import System
-
     if isinstance(source, System):
         return _system_plant(source, actuation)
     if isinstance(source, RigidArmModel):
@@ -210,7 +220,7 @@ def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant
                      lambda q, qd, p, u: source.acceleration(q, qd, None, u),
                      lambda q, p: source.mass_matrix(q), source.friction_force, source.energy, 1.0, ("tau1", "tau2"))
     network = getattr(source, "model", source)
-    if hasattr(network, "mass_matrix_si") and hasattr(network, "scene"):
+    if isinstance(network, DynamicsModel):
         return _model_plant(network, actuation, torque_scale)
     raise InputError(f"no plant view of {type(source).__name__}: give a scene, a trained structured model or an "
                      "identified rigid-body model")
@@ -243,9 +253,9 @@ def _system_plant(system, actuation) -> Plant:
 
 
 def _model_plant(network, actuation, torque_scale) -> Plant:
-    from ..networks.base import FRICTION, MASS_MATRIX
-
-    capabilities = getattr(network, "capabilities", frozenset())
+    """A learned model's plant: its SI rigid-body face (``lnn_torch.networks.rigid_body``: ``mass_matrix_si``,
+    ``bias_si``, ``friction_si``, ``forward_dynamics_si``, ``energy_si``), in N m per ``torque_scale``."""
+    capabilities = capabilities_of(network)
     if MASS_MATRIX not in capabilities:
         raise InputError(f"variant '{network.variant}' has no mass matrix M(q): a controller needs one (train a "
                          "structured variant: film_lnn or delan)")
@@ -260,9 +270,10 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     B = torch.tensor(scene.input_matrix, dtype=dtype) if own else _joint_inputs(D, actuation)
     scale = torch.as_tensor(1.0 if torque_scale is None else torque_scale, dtype=dtype)
     if scale.ndim > 1 or (scale <= 0).any():
-        raise InputError(f"torque_scale must be positive: one value, or one per state of the batch, got {scale.tolist()}")
+        raise InputError(f"torque_scale must be positive: one value, or one per state of the batch, "
+                         f"got {scale.tolist()}")
 
-    def per_state(x):  # x (B, ...) divided by the scale (one, or one per state)
+    def per_state(x):  # x (B, ...) in model units -> N m (divided by the scale: one, or one per state)
         return x / scale.reshape(-1, *([1] * (x.ndim - 1))) if scale.ndim else x / scale
 
     def mass(q, p):
@@ -271,26 +282,29 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     def accel(q, qd, p, u):
         if own:
             tau = u if u is not None else torch.zeros(q.shape[0], B.shape[1], dtype=q.dtype)
-            return network.acceleration(q, qd, p, tau, check=False)
-        free = network.acceleration(q, qd, p, check=False)
+            return network.forward_dynamics_si(q, qd, p, tau, check=False)
+        free = network.forward_dynamics_si(q, qd, p, check=False)
         if u is None:
             return free
         return free + torch.linalg.solve(mass(q, p), (u @ B.T.to(u.dtype))[..., None])[..., 0]
 
     friction = None
-    if FRICTION in capabilities:
+    if FORCES in capabilities:
         def friction(q, qd, p):
-            return -(network.friction_torque_si(qd @ D.T.to(qd.dtype), p) @ D.to(qd.dtype))
+            return per_state(network.friction_si(q, qd, p))
 
     def energy(q, qd, p):
         return per_state(network.energy_si(q, qd, p))
 
-    def rigid_bias(q, qd, p):
-        return per_state(network.rigid_bias_si(q, qd, p))
+    def bias(q, qd, p):
+        return per_state(network.bias_si(q, qd, p))
+
+    def gravity(q, p):
+        return per_state(network.gravity_si(q, p))
 
     names = tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(f"{network.variant} ({scene.name})", scene.dof, scene.num_params, B, tuple(scene.angle_mask), accel,
-                 mass, friction, energy, scale, names, rigid_bias if hasattr(network, "rigid_bias_si") else None)
+                 mass, friction, energy, scale, names, bias, gravity)
 
 
 def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None):

@@ -1,20 +1,25 @@
 """Networks (plain ``nn.Module``): FiLM, tangent-carrying MLPs, the normaliser, the model variants and
 their registry.
 
-Where things live: ``base`` (features, normalisation glue, checks, rollouts), ``structured``
-(``film_lnn``, ``delan``: the structured Lagrangian of its ``parts``), ``blackbox`` (``lnn``), ``direct`` (``mlp``), ``hamiltonian`` (``hnn``),
-``registry`` (name -> class, ``build_model``), ``layers`` (FiLM, TangentMLP), ``reference`` (the
-plain formulas the fast paths are tested against), ``_kernels`` (private CPU-oriented forms).
+Where things live: ``base`` (normalisation glue, checks, rollouts, capabilities), ``features`` (the
+angle features), ``rigid_body`` (the SI rigid-body face and its convention), ``forces`` (the learned
+generalised forces), ``compiled`` (opt-in compilation), ``scene`` (``SceneInfo``), ``structured``
+(``film_lnn``, ``delan``: the structured Lagrangian of its ``parts``), ``blackbox`` (``lnn``), ``direct``
+(``mlp``), ``hamiltonian`` (``hnn``), ``registry`` (name -> class, ``build_model``), ``layers`` (FiLM,
+TangentMLP), ``reference`` (the plain formulas the fast paths are tested against), ``_kernels`` (private
+CPU-oriented forms).
 """
 
-from .base import DynamicsModel, SceneInfo
+from .base import DynamicsModel
 from .blackbox import BlackBoxLagrangian
 from .direct import DirectMLP
 from .hamiltonian import HamiltonianNN
 from .layers import FiLM, TangentMLP
 from .normalization import Normalizer
 from .registry import MODELS, VARIANTS, build_model, model_options
+from .scene import SceneInfo
 from .structured import DeLaN, FiLMLagrangian, StructuredLagrangian
 
-__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "FiLMLagrangian", "DeLaN",
-           "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model", "model_options"]
+__all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "FiLMLagrangian",
+           "DeLaN", "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model",
+           "model_options"]

@@ -11,7 +11,8 @@ from __future__ import annotations
 import torch
 
 from ..dynamics import generic_acceleration
-from .base import ENERGY, FRICTION, NAN_ON_SINGULAR, DynamicsModel
+from .base import DynamicsModel
+from .capabilities import ENERGY, FORCES, FRICTION, NAN_ON_SINGULAR
 from .layers import TangentMLP
 
 
@@ -19,7 +20,6 @@ class BlackBoxLagrangian(DynamicsModel):
     """The LNN paper's model: an MLP ``L(q, qd, theta)`` and the generic Euler-Lagrange solve."""
 
     variant = "lnn"
-    static_friction = False  # its velocity Hessian (the mass matrix) can be indefinite
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "softplus", lnn_init: bool = False,
                  hessian_reg: float = 0.0, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
@@ -60,4 +60,5 @@ class BlackBoxLagrangian(DynamicsModel):
         H = 2 * T - L
         return H, T, T - L
 
-    provides = frozenset({ENERGY, FRICTION, NAN_ON_SINGULAR})  # no mass matrix: its velocity Hessian may be indefinite
+    # no mass matrix and no static friction: its velocity Hessian (the mass matrix) may be indefinite
+    provides = frozenset({ENERGY, FRICTION, NAN_ON_SINGULAR, FORCES})

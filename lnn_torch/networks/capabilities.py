@@ -9,12 +9,18 @@ identified model) is a model too; one that declares nothing provides acceleratio
 from __future__ import annotations
 
 ENERGY = "energy"  # its own energy H = T + V: ``energy_si(q, qd, params)``
-MASS_MATRIX = "mass_matrix"  # ``mass_matrix_si(q, params)`` (SI) and ``mass_matrix(q, params)`` (normalised)
-INVERSE_DYNAMICS = "inverse_dynamics"  # ``inverse_dynamics(q, qd, qdd, params)``: needs a scene with inputs
+# the rigid-body face (``lnn_torch.networks.rigid_body``): ``mass_matrix_si``, ``bias_si``, ``gravity_si``
+# (and ``mass_matrix(q, params)``, normalised)
+MASS_MATRIX = "mass_matrix"
+# ``inverse_dynamics_si(q, qd, qdd, params)`` (alias ``inverse_dynamics``), ``input_force_si``: needs inputs
+INVERSE_DYNAMICS = "inverse_dynamics"
 FRICTION = "friction"  # learned joint friction: ``friction_torque_si``, ``friction_coefficients_si``; needs friction
 STATIC_FRICTION = "static_friction"  # holding torques at rest (``dissipation: joint+stiction``)
 NAN_ON_SINGULAR = "nan_on_singular"  # accelerations can be undefined; NaN there within ``nan_on_singular()``
-CAPABILITIES = (ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, NAN_ON_SINGULAR)
+# the scene's generalised forces (inputs B tau, dissipation Q_f) apart from the model's own dynamics
+# (``lnn_torch.networks.forces.LearnedForces``): ``friction_si``; needs a scene with inputs or friction
+FORCES = "forces"
+CAPABILITIES = (ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, NAN_ON_SINGULAR, FORCES)
 
 
 def capabilities_of(model) -> frozenset:

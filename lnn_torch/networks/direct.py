@@ -14,8 +14,6 @@ class DirectMLP(DynamicsModel):
     """Baseline: an MLP that predicts normalised accelerations from ``(q, qd, theta)``."""
 
     variant = "mlp"
-    has_energy = False
-    uses_forces = False  # the inputs are features of the network
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh") -> None:
         super().__init__(scene)
@@ -27,4 +25,4 @@ class DirectMLP(DynamicsModel):
         x = [phi, qd_norm, params_norm] + ([] if tau_norm is None else [tau_norm])
         return self.net(torch.cat(x, -1))[0]
 
-    provides = frozenset()  # accelerations only: no energy, no forces of its own
+    provides = frozenset()  # accelerations only: no energy, no forces of its own (the inputs are features)

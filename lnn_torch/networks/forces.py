@@ -21,9 +21,13 @@ conservative scene has no such module and no extra parameter.
 * ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
   semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
 
+In the model's normalised units (``force_norm``, ``dissipative_force_at``, ``holding_torques``,
+``with_static_friction``) the forces read the model's ``Normalizer`` (``attach_normalizer``): the model
+calls them with its normalised state and gets normalised generalised forces or accelerations back.
+
 Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction (the holding torque of static
-friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``). Coefficients are in SI units (``unit``
-buffers, set from the training data, scale the network outputs).
+friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``). Coefficients
+are in SI units (``unit`` buffers, set from the training data, scale the network outputs).
 """
 
 from __future__ import annotations
@@ -48,7 +52,8 @@ class LearnedForces(nn.Module):
             raise ValueError(f"dissipation must be one of {', '.join(DISSIPATION)}, got '{dissipation}'")
         self.stiction = dissipation == "joint+stiction"
         if self.stiction and not scene.friction:
-            raise ValueError(f"dissipation 'joint+stiction' needs a scene with joint friction ('{scene.name}' has none)")
+            raise ValueError(f"dissipation 'joint+stiction' needs a scene with joint friction "
+                             f"('{scene.name}' has none)")
         self.dof, P = scene.dof, scene.num_params
         self.num_inputs = scene.num_inputs
         if scene.num_inputs:
@@ -67,7 +72,8 @@ class LearnedForces(nn.Module):
             self.coulomb_velocity = float(scene.coulomb_velocity)
             self.stick_velocity = 2.5 * float(scene.coulomb_velocity)  # the stick window (joint+stiction)
             if P:
-                self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(), nn.Linear(hidden, 2 * self.num_joints))
+                self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(),
+                                                     nn.Linear(hidden, 2 * self.num_joints))
                 nn.init.zeros_(self.coefficient_net[-1].weight)
                 nn.init.constant_(self.coefficient_net[-1].bias, _INIT)
             else:
@@ -77,11 +83,17 @@ class LearnedForces(nn.Module):
         self.rayleigh = None
         if dissipation == "joint+rayleigh":
             n = self.dof * (self.dof + 1) // 2
-            self.rayleigh = nn.Sequential(nn.Linear(num_features + self.dof + P, hidden), nn.Tanh(), nn.Linear(hidden, n))
+            self.rayleigh = nn.Sequential(nn.Linear(num_features + self.dof + P, hidden), nn.Tanh(),
+                                          nn.Linear(hidden, n))
             nn.init.zeros_(self.rayleigh[-1].weight)
             nn.init.constant_(self.rayleigh[-1].bias, -3.0)
             rows, cols = torch.tril_indices(self.dof, self.dof)
             self.register_buffer("tril_index", rows * self.dof + cols, persistent=False)
+
+    @property
+    def dissipative(self) -> bool:
+        """Whether the forces have a dissipative part ``Q_diss`` (joint friction, Rayleigh damping)."""
+        return self.friction or self.rayleigh is not None
 
     def coefficient_parameters(self) -> list[nn.Parameter]:
         """The physical coefficients (exempt from weight decay): constant friction coefficients and a
@@ -166,3 +178,52 @@ class LearnedForces(nn.Module):
         """``Q = B tau + Q_diss`` in SI, ``(B, dof)``."""
         Q = self.dissipative_force(qd, params_norm, features, qd_norm)
         return Q if tau is None else Q + self.input_force(tau)
+
+    # ------------------------------------------------------------------ in the model's normalised units
+    def attach_normalizer(self, normalizer: nn.Module) -> None:
+        """The model's ``Normalizer`` (a reference: the model owns it), for the forces in its units."""
+        self._normalizer_ref = (normalizer,)
+
+    @property
+    def normalizer(self) -> nn.Module:
+        return self._normalizer_ref[0]
+
+    def force_norm(self, qd_norm, params_norm, tau_norm=None, features=None) -> torch.Tensor:
+        """``Q = B tau + Q_diss`` ``(B, dof)`` in the model's normalised Euler-Lagrange units at normalised
+        velocities; ``tau_norm``: the inputs divided by ``normalizer.input_rms`` (None: none);
+        ``features``: the model's features of ``q`` (the Rayleigh term reads them)."""
+        norm = self.normalizer
+        Q = self.dissipative_force_at(qd_norm, params_norm, features)
+        if tau_norm is not None:
+            Q = Q + self.input_force(tau_norm * norm.input_rms.to(tau_norm.dtype))
+        return norm.force_to_norm(Q)
+
+    def dissipative_force_at(self, qd_norm, params_norm, features=None) -> torch.Tensor:
+        """``Q_diss (B, dof)`` in SI at the normalised velocities ``qd_norm`` (``features``: as in
+        ``force_norm``)."""
+        norm = self.normalizer
+        qd = qd_norm * (norm.coord_scale.to(qd_norm.dtype) / norm.time_scale.to(qd_norm.dtype))
+        return self.dissipative_force(qd, params_norm, features, qd_norm)
+
+    def holding_torques(self, qdd_norm, force_norm, solve, qd_norm, params_norm):
+        """``(U, lam)``: the normalised accelerations per N m at each joint ``U (B, dof, n_j)`` and static
+        friction's holding torques ``lam (B, n_j)`` in N m (``with_static_friction``), from the model's
+        normalised accelerations ``qdd_norm`` under ``force_norm`` and its solve under another force
+        ``solve(force_norm)``. The accelerations are affine in the generalised force, so one more solve
+        per joint gives ``U = M^-1 D^T``."""
+        norm = self.normalizer
+        D = self.joint_map.to(qdd_norm.dtype)  # (n_j, dof)
+        unit = norm.force_to_norm(D)  # 1 N m at each joint, as normalised generalised forces
+        U = torch.stack([solve(force_norm + unit[j]) - qdd_norm for j in range(D.shape[0])], -1)  # (B, dof, n_j)
+        rho0 = norm.accel_to_phys(qdd_norm) @ D.T
+        response = D @ norm.accel_to_phys(U.mT).mT
+        qd = qd_norm * (norm.coord_scale / norm.time_scale).to(qd_norm.dtype)
+        return U, self.holding_torque(qd, params_norm, rho0, response)
+
+    def with_static_friction(self, qdd_norm, force_norm, solve, qd_norm, params_norm):
+        """The normalised accelerations ``qdd_norm`` (under ``force_norm``) with static friction's holding
+        torques added (``dissipation: joint+stiction``; unchanged otherwise)."""
+        if not self.stiction:
+            return qdd_norm
+        U, lam = self.holding_torques(qdd_norm, force_norm, solve, qd_norm, params_norm)
+        return qdd_norm + (U * lam[:, None, :]).sum(-1)

@@ -6,7 +6,8 @@ import torch
 
 from .. import integrators
 from ..errors import InputError
-from .base import FRICTION, DynamicsModel
+from .base import DynamicsModel
+from .capabilities import FORCES, FRICTION
 from .layers import TangentMLP
 
 
@@ -29,8 +30,6 @@ class HamiltonianNN(DynamicsModel):
     """
 
     variant = "hnn"
-    static_friction = False  # its own flow (static friction's holding torques are not solved for)
-    has_energy = False  # its Hamiltonian is conserved by construction; no T/V split
 
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", hnn_coordinates: str = "canonical",
                  learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
@@ -71,7 +70,8 @@ class HamiltonianNN(DynamicsModel):
         q, qd, qdd = (stats[k].double() for k in ("q", "qd", "qdd"))
         if self.coordinates == "canonical":
             if "params_points" not in stats:
-                raise ValueError("the canonical HNN needs per-point parameters ('params_points') to fit its momentum scale")
+                raise ValueError("the canonical HNN needs per-point parameters ('params_points') to fit its "
+                                 "momentum scale")
             pp = stats["params_points"].double()
             p = self._momentum_fn(q, qd, pp) * self.normalizer.coord_scale.double()
             self.normalizer.momentum_scale.copy_(p.pow(2).mean().sqrt().clamp_min(1e-12))
@@ -165,5 +165,7 @@ class HamiltonianNN(DynamicsModel):
             qds_n = ms_n
         return self.normalizer.state_to_phys(qs_n, qds_n)
 
-    # learned friction through its port; no energy of (q, qd) (its H is a function of (q, p)), no mass matrix
-    provides = frozenset({FRICTION})
+    # learned forces and friction through its port; no energy of (q, qd) (its H is a function of (q, p):
+    # conserved by construction, no T/V split), no mass matrix, no static friction (its own flow: the
+    # holding torques are not solved for)
+    provides = frozenset({FRICTION, FORCES})

@@ -67,7 +67,8 @@ class FiLM(nn.Module):
             raise ValueError(f"FiLM mode must be 'neuron' or 'layer', got '{mode}'")
         self.mode = mode
         self.sizes = [h if mode == "neuron" else 1 for h in hidden_dims]
-        self.net = nn.Sequential(nn.Linear(cond_dim, film_hidden), nn.SiLU(), nn.Linear(film_hidden, 2 * sum(self.sizes)))
+        self.net = nn.Sequential(nn.Linear(cond_dim, film_hidden), nn.SiLU(),
+                                 nn.Linear(film_hidden, 2 * sum(self.sizes)))
         # identity at initialisation (gamma = 1 + 0, beta = 0); gamma is parametrised around 1 so that
         # weight decay pulls FiLM towards the identity, not towards gamma = 0
         nn.init.zeros_(self.net[-1].weight)
@@ -90,7 +91,7 @@ class FiLM(nn.Module):
             weight, bias = sigmoid_form_film(weight, bias, self.sigmoid_map)
         out = affine(act(affine(cond, first.weight, first.bias)), weight, bias)  # (B, 2 sum(sizes)): [gammas | betas]
         parts = out.split(self.sizes + self.sizes, dim=-1)  # ONE split: its backward is one cat
-        return list(zip(parts[: len(self.sizes)], parts[len(self.sizes):]))
+        return list(zip(parts[: len(self.sizes)], parts[len(self.sizes):], strict=True))
 
 
 class TangentMLP(nn.Module):
@@ -100,7 +101,7 @@ class TangentMLP(nn.Module):
                  out_bias: bool = True) -> None:
         super().__init__()
         dims = [in_dim, *hidden_dims]
-        self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
+        self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
         # energies are defined up to a constant: their output bias would be a parameter without gradient
         self.out = nn.Linear(dims[-1], out_dim, bias=out_bias)
         self.activation = activation

@@ -65,7 +65,7 @@ class Normalizer(nn.Module):
 
     @torch.no_grad()
     def fit(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor,
-            input_force: torch.Tensor | None = None, tau: torch.Tensor | None = None) -> "Normalizer":
+            input_force: torch.Tensor | None = None, tau: torch.Tensor | None = None) -> Normalizer:
         """Set the statistics from training data: q, qd, qdd ``(n, dof)``; params ``(m, P)``; the
         input forces ``B tau (n, dof)`` and the inputs ``tau (n, n_u)`` where the scene has inputs."""
         q, qd, qdd, params = (x.double().flatten(0, -2) for x in (q, qd, qdd, params))

@@ -30,7 +30,7 @@ def film_pairs(film, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tenso
     n = sum(film.sizes)
     g, beta = out[..., :n], out[..., n:]
     gammas, betas = (1 + g).split(film.sizes, -1), beta.split(film.sizes, -1)
-    return list(zip(gammas, betas))
+    return list(zip(gammas, betas, strict=True))
 
 
 def mlp(net, x: torch.Tensor, film=None) -> torch.Tensor:

@@ -26,7 +26,8 @@ from torch import nn
 from ..dynamics import structured_acceleration_from_factor
 from ..errors import InputError
 from ..systems.base import GRAVITY
-from .base import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION, DynamicsModel
+from .base import DynamicsModel
+from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 
@@ -36,8 +37,9 @@ _PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag
 # state-dict prefixes of the models before parts: loaded into the parts that replaced them
 _OLD_NAMES = (("kinetic_net.", "kinetic.mlp.net."), ("kinetic_film.", "conditioning_nets.kinetic_mlp."),
               ("potential_net.", "potential.mlp.net."), ("potential_film.", "conditioning_nets.potential_mlp."),
-              ("potential_coef_net.", "conditioning_nets.potential_harmonic."), ("potential_coef", "potential.harmonic.coef"),
-              ("chain.", "kinetic.chain."), ("trunk_film.", "conditioning_nets.kinetic_shared."), ("trunk.", "kinetic.shared.net."))
+              ("potential_coef_net.", "conditioning_nets.potential_harmonic."),
+              ("potential_coef", "potential.harmonic.coef"), ("chain.", "kinetic.chain."),
+              ("trunk_film.", "conditioning_nets.kinetic_shared."), ("trunk.", "kinetic.shared.net."))
 
 
 class StructuredLagrangian(DynamicsModel):
@@ -80,7 +82,7 @@ class StructuredLagrangian(DynamicsModel):
     """
 
     conditioning = ""  # "film" or "concat": fixed by the concrete variants
-    provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION})
+    provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, FORCES})
 
     def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
                  learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links) -> None:
@@ -98,8 +100,9 @@ class StructuredLagrangian(DynamicsModel):
         self.shared = bool(shared)
         ctx = BuildContext(self.scene.name, self.scene.dof, self.scene.num_params, self.num_features,
                            self.all_angles, self.scene.angle_mask, self.conditioning,
-                           {k: given[k] for k in _PART_DEFAULTS}, self.sel_angle,
-                           tuple(self.linear_idx.tolist()), robot_description=self.scene.robot_description)
+                           {k: given[k] for k in _PART_DEFAULTS}, self.angle_features.sel_angle,
+                           tuple(self.angle_features.linear_idx.tolist()),
+                           robot_description=self.scene.robot_description)
         kinetic_spec, potential_spec = self._part_specs(kinetic, potential, given)
         # phase 1: each part's own network (kinetic parts first); phase 2: their conditioning networks
         self.kinetic, self.potential = nn.ModuleDict(), nn.ModuleDict()
@@ -235,7 +238,8 @@ class StructuredLagrangian(DynamicsModel):
     def _factor(self, inputs: PartInputs, conds):
         """The mass-matrix factor ``(B, dof, r)`` and its tangents ``(dof, B, dof, r)`` (None without
         ``inputs.tangents``): the kinetic parts' columns side by side."""
-        out = [part.factor(inputs, cond) for part, cond in zip(self._kinetic_parts, conds)]
+        # conds: every part's conditioning, the kinetic parts' first
+        out = [part.factor(inputs, cond) for part, cond in zip(self._kinetic_parts, conds, strict=False)]
         if len(out) == 1:
             return out[0]
         F = torch.cat([f for f, _ in out], -1)
@@ -245,7 +249,7 @@ class StructuredLagrangian(DynamicsModel):
         """``V (B,)`` and, with ``grad``, ``dV/dq (B, dof)``: the sum of the potential parts, their
         feature gradients pulled back through the features once."""
         V = g_phi = dV = None
-        for part, cond in zip(self._potential_parts, conds[self._num_kinetic:]):
+        for part, cond in zip(self._potential_parts, conds[self._num_kinetic:], strict=True):
             term = part.potential(inputs, cond, grad)
             V = term.V if V is None else V + term.V
             if term.dV_dphi is not None:
@@ -347,40 +351,35 @@ class StructuredLagrangian(DynamicsModel):
 
         return accel
 
-    # ------------------------------------------------------------------ inverse dynamics
+    # ------------------------------------------------------------------ the rigid-body face (``rigid_body``)
+    def bias_force_norm(self, q_norm, qd_norm, params_norm):
+        """``n = -M a_0`` ``(B, dof)`` (normalised): Coriolis, centrifugal and gravity forces, with ``a_0``
+        the accelerations under no generalised force (``RigidBodyFace.bias_si``)."""
+        _, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm))
+        free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
+        return -torch.bmm(self._mass_from(chol), free[..., None])[..., 0]
+
+    def gravity_force_norm(self, q_norm, params_norm):
+        """``g = n(q, 0) = dV/dq`` ``(B, dof)`` (normalised; ``RigidBodyFace.gravity_si``)."""
+        return self.potential_norm(q_norm, params_norm, grad=True)[1]
+
     def inverse_dynamics_norm(self, q_norm, qd_norm, qdd_norm, params_norm, chunks: int | None = None):
         """The input force ``B tau`` in SI ``(B, dof)`` that makes the model accelerate by ``qdd_norm``:
-        ``M qdd - (dT/dq - dV/dq - Mdot qd) - Q_diss`` (Deep Lagrangian Networks' inverse model)."""
+        ``M qdd + n - Q_f`` with ``n = -M a_0`` (Deep Lagrangian Networks' inverse model;
+        ``RigidBodyFace.input_force_si``)."""
         if self.forces is None or not self.forces.num_inputs:
             raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
         phi, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm, chunks))
         M = self._mass_from(chol)
         free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
-        norm = self.normalizer
-        qd = qd_norm * (norm.coord_scale.to(qd_norm.dtype) / norm.time_scale.to(qd_norm.dtype))
         phi_f = phi if self.forces.rayleigh is not None else None
-        q_diss = self.forces.dissipative_force(qd, params_norm, phi_f, qd_norm)
-        return norm.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_diss
+        q_diss = self.forces.dissipative_force_at(qd_norm, params_norm, phi_f)
+        return self.normalizer.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_diss
 
     def rigid_bias_si(self, q, qd, params) -> torch.Tensor:
-        """The learned Lagrangian's Coriolis, centrifugal and gravity forces ``n(q, qd)`` (``M qdd + n =
-        Q``) at SI states ``(B, dof)``, without friction: ``-M_si`` times its force-free acceleration (in
-        N m where inputs fix the Lagrangian's scale, else in the units of ``mass_matrix_si``)."""
-        self._require(MASS_MATRIX)
-        dtype = self.dtype
-        q_n, qd_n, p_n = self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype))
-        _, chol, dchol, _, dV = self._terms(q_n, p_n, self.films(p_n))
-        free = self.normalizer.accel_to_phys(structured_acceleration_from_factor(chol, dchol, qd_n, dV, self.eps))
-        return -torch.einsum("bij,bj->bi", self.mass_matrix_si(q, params), free.to(q.dtype))
-
-    def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
-        """The inputs ``tau (B, n_u)`` in N m that make the model accelerate by ``qdd`` (SI): the input
-        force solved through the input matrix (least squares where fewer inputs than coordinates)."""
-        self.check_inputs(q, qd, params, inputs=False)
-        dtype = self.dtype
-        q_n, qd_n, p_n = self.normalize(q.to(dtype), qd.to(dtype), params.to(dtype))
-        Btau = self.inverse_dynamics_norm(q_n, qd_n, self.normalizer.accel_to_norm(qdd.to(dtype)), p_n)
-        return self.forces.solve_inputs(Btau).to(q.dtype)
+        """Deprecated: ``bias_si`` (the same ``n``, without friction)."""
+        warnings.warn("rigid_bias_si is deprecated: use bias_si", FutureWarning, stacklevel=2)
+        return self.bias_si(q, qd, params)
 
     # ------------------------------------------------------------------ energies
     def _mass_and_potential(self, q_norm, params_norm):

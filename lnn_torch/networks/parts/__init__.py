@@ -15,8 +15,7 @@ from __future__ import annotations
 import warnings
 
 from ...errors import InputError
-from .base import (BuildContext, KineticPart, Part, PartInputs, PotentialPart, PotentialTerm, check_angles,
-                   part_options)
+from .base import BuildContext, KineticPart, Part, PartInputs, PotentialPart, PotentialTerm, check_angles, part_options
 from .chain import ChainGravity, RigidChain
 from .cholesky import CholeskyMLP
 from .harmonic import HarmonicSeries

@@ -24,8 +24,8 @@ owns these networks (``model.conditioning_nets``), the part uses its own through
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import torch
 from torch import nn
