@@ -21,6 +21,11 @@ from .helpers import SPEC, dop853_reference, random_batch, random_inputs  # noqa
 from .helpers import session_file  # noqa: E402
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
+# the process settings lnn-torch's commands apply at their entry (denormals flushed, the allocator's
+# thresholds raised): the tests run the library as the commands do
+from lnn_torch.perf import apply_cpu_defaults  # noqa: E402
+
+apply_cpu_defaults()
 
 # every scene with torch-differentiable closed-form physics (an engine-backed scene, robot_arm, has its
 # own tests), the chain at other lengths (N = 1, 2, 5) than its default of 3, and the double pendulum
