@@ -227,3 +227,53 @@ def test_the_grey_box_starts_its_friction_at_the_descriptions_damping(arm):
     b, c = model.forces.coefficients(model.normalizer.params(payload[:1].float()))
     torch.testing.assert_close(b[0].double(), arm.damping, rtol=1e-5, atol=0)
     assert (c < 1e-3 * 20).all()
+
+
+TWO_LINK_URDF = """<robot name="two">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>
+  </inertial></link>
+  <link name="l1"><inertial><mass value="2"/><origin xyz="0.01 0 0.2"/>
+    <inertia ixx="0.02" iyy="0.03" izz="0.015" ixy="0" ixz="0.001" iyz="0"/></inertial></link>
+  <link name="l2"><inertial><mass value="1.5"/><origin xyz="0.1 0 0.1"/>
+    <inertia ixx="0.015" iyy="0.02" izz="0.015" ixy="0.001" ixz="0" iyz="0"/></inertial></link>
+  <link name="tool0"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.4" rpy="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>
+  <joint name="flange" type="fixed"><parent link="l2"/><child link="tool0"/><origin xyz="0.3 0 0"/></joint>
+</robot>
+"""
+
+
+@pytest.mark.parametrize("which", ["urdf", "panda without hand, armature and damping zero", "panda with a tool"])
+@pytest.mark.parametrize("with_payload", [False, True])
+def test_any_description_alone_is_the_engine_through_the_si_face(tmp_path, float64, which, with_payload):
+    """``learn: false`` on a description that is not the shipped one as written (a URDF without rotors,
+    the Panda with its hand removed and armature 0, the Panda carrying a tool): the model's SI rigid-body
+    face (mass matrix, bias, gravity) equals MuJoCo's to 1e-12 relative, with and without a payload."""
+    if which == "urdf":
+        path = tmp_path / "two.urdf"
+        path.write_text(TWO_LINK_URDF)
+        description = {"source": str(path), "flange": "tool0"}
+    elif which.startswith("panda without"):
+        description = {"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"}
+    else:
+        description = {"source": "franka_panda", "tool": [0.9, 0.01, 0.0, 0.04, 0.003, 0.004, 0.002, 0, 0, 0]}
+    engine = MujocoArm(description)
+    n = engine.dof
+    scene = SceneInfo.of({"name": "arm", "dof": n, "angle_mask": [True] * n,
+                          "param_names": ["payload_mass", "payload_x", "payload_y", "payload_z"],
+                          "param_kinds": ["nonnegative", "real", "real", "real"], "input_matrix": np.eye(n).tolist(),
+                          "config": {"description": description}})
+    model = build_model("film_lnn", scene, kinetic={"spatial": {"learn": False}}, potential={"spatial": {}},
+                        eps=0.0).double()
+    rng = np.random.default_rng(3)
+    q = torch.tensor(engine.sample_q(rng, 6))
+    qd = torch.tensor(rng.normal(size=(6, n)))
+    payload = torch.tensor([[1.2, 0.02, -0.01, 0.05]] * 6) if with_payload else torch.zeros(6, 4)
+    assert _rel(model.mass_matrix_si(q, payload), engine.mass_matrix(q, payload)) < 1e-12
+    assert _rel(model.bias_si(q, qd, payload), engine.bias(q, qd, payload)) < 1e-12
+    assert _rel(model.gravity_si(q, payload), engine.gravity_torque(q, payload)) < 1e-12
+    if "armature and damping zero" in which:
+        assert float(model.kinetic["spatial"].armature().abs().max()) == 0.0

@@ -306,7 +306,11 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
 
     @property
     def dtype(self) -> torch.dtype:
-        return next(self.parameters()).dtype
+        """The dtype the model computes in: its parameters', or (a model with nothing learned, e.g. a
+        robot description alone) its normaliser's."""
+        for p in self.parameters():
+            return p.dtype
+        return self.normalizer.time_scale.dtype
 
     def coefficient_parameters(self) -> list[nn.Parameter]:
         """The parameters that are physical coefficients, not network weights (a friction coefficient,

@@ -3,6 +3,7 @@ generalised forces, from a ``System``, its ``describe()`` dict or a ``SceneInfo`
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 
@@ -27,7 +28,9 @@ class SceneInfo:
     angle_combinations: tuple[tuple[float, ...], ...] | None = None
     param_names: tuple[str, ...] = ()  # for messages; empty: params[i]
     param_units: tuple[str, ...] = ()
-    robot_description: str | None = None  # a robot arm's description (its scene config's ``description``)
+    # a robot arm's description (its scene config's ``description``): a name, a path, or the JSON of an
+    # ``ArmDescription`` (hashable, as the rest)
+    robot_description: str | None = None
 
     @property
     def num_inputs(self) -> int:
@@ -53,4 +56,11 @@ class SceneInfo:
                    as_tuple(d.get("input_matrix")), d.get("friction") is not None,
                    as_tuple(d.get("joint_map")), float(d.get("coulomb_velocity", 0.05)),
                    as_tuple(d.get("angle_combinations")), tuple(d.get("param_names", ())),
-                   tuple(d.get("param_units", ())), (d.get("config") or {}).get("description"))
+                   tuple(d.get("param_units", ())), _description((d.get("config") or {}).get("description")))
+
+
+def _description(value) -> str | None:
+    """A scene's robot description as text: a name or path as it is, a dict as its JSON."""
+    if value is None or isinstance(value, str):
+        return value
+    return json.dumps(value, sort_keys=True)

@@ -8,7 +8,9 @@ gravity on the same masses. The inertial parameters start at the description's v
 U_i^T`` with ``U_i`` upper triangular, its diagonal ``exp`` of a learned value (the log-Cholesky
 parameterisation of the pseudo-inertia: positive mass, inertia positive definite and within the
 triangle inequality, for every value of the raw parameters); the armature (rotor inertia) is ``exp`` of
-a learned value.
+a learned value, starting at the description's (at least ``ARMATURE_START`` kg m^2: a description without
+rotors, armature 0, learns it from there). With ``learn: false`` every value is the description's exactly
+(armature 0 included).
 
 The scene's parameters are the payload at the flange, ``(mass, cx, cy, cz)`` (kg, m, flange frame) or
 with its inertia about its centre of mass ``(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)`` (kg m^2): the part adds the
@@ -24,9 +26,11 @@ from torch import nn
 
 from ...errors import InputError
 from ...robots import kinematics as K
+from ...robots.description import ArmDescription
 from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm
 
 _OFF = torch.triu_indices(4, 4, 1)  # the six entries above the diagonal of U
+ARMATURE_START = 1e-4  # kg m^2: where a learned armature starts if the description's is smaller (or 0)
 
 
 def _load_chain(description) -> K.SerialChain:
@@ -56,7 +60,9 @@ class SpatialChain(KineticPart):
     """``spatial``: the mass-matrix factor of the arm of a robot description (module docstring).
 
     Options:
-        description: a shipped description (``franka_panda``) or an MJCF path; None: the scene's own.
+        description: a shipped description (``franka_panda``), an MJCF or URDF path, or the description
+            as the robot it is (``lnn_torch.robots.description.ArmDescription``: ``{source, flange, remove,
+            tool, armature, damping}``); None: the scene's own.
         learn: learn the inertial parameters and armature (True) or keep the description's (False).
     """
 
@@ -69,8 +75,8 @@ class SpatialChain(KineticPart):
         if description is None:
             raise InputError("kinetic part 'spatial' needs a robot description: kinetic: {spatial: {description: "
                              "franka_panda}} (or a scene that has one, e.g. robot_arm)")
-        self.description = str(description)
-        chain = _load_chain(description)
+        self.description = ArmDescription.of(description)
+        chain = _load_chain(self.description)
         if chain.dof != ctx.dof:
             raise InputError(f"robot description {description} has {chain.dof} joints; scene '{ctx.scene_name}' has "
                              f"{ctx.dof} coordinates")
@@ -90,12 +96,11 @@ class SpatialChain(KineticPart):
         U = K.reverse_cholesky(chain.J)
         # in the default dtype (a float64 test builds the description's values exactly)
         raw = torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _OFF[0], _OFF[1]]], -1).to(torch.get_default_dtype())
-        log_arm = chain.armature.clamp_min(1e-6).log().to(torch.get_default_dtype())
         if self.learn:
             self.raw = nn.Parameter(raw)  # (n, 10): log of U's diagonal, then its six upper entries
-            self.log_armature = nn.Parameter(log_arm)
-        else:  # the description alone: nothing learned, nothing to save
-            self._fixed = {"raw": raw.double(), "log_armature": log_arm.double()}
+            self.log_armature = nn.Parameter(chain.armature.clamp_min(ARMATURE_START).log().to(raw.dtype))
+        else:  # the description alone, exactly: nothing learned, nothing to save
+            self._fixed = {"raw": raw.double(), "armature": chain.armature.clone()}
         self.joint_names = chain.joint_names
         self.num_columns = 6 * self.num_links + self.dof
 
@@ -131,7 +136,10 @@ class SpatialChain(KineticPart):
         return U @ U.mT
 
     def armature(self, dtype=torch.float64) -> torch.Tensor:
-        return self._raw("log_armature", dtype).exp()
+        """The joints' armature ``(n,)``, kg m^2."""
+        if self.learn:
+            return self.log_armature.to(dtype).exp()
+        return self._fixed["armature"].to(dtype=dtype, device=self.normalizer.time_scale.device)
 
     def payload_si(self, params_norm: torch.Tensor) -> torch.Tensor | None:
         """The payload in SI ``(B, P)`` from the normalised parameters (None without one)."""
