@@ -78,7 +78,8 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
     uses_forces = _Provided(FORCES)
     static_friction = _Provided(STATIC_FRICTION)
 
-    def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint") -> None:
+    def __init__(self, scene, learn_input_matrix: bool = False, dissipation: str = "joint",
+                 friction: str = "viscous+coulomb") -> None:
         super().__init__()
         self.scene = SceneInfo.of(scene)
         dof = self.scene.dof
@@ -89,7 +90,8 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         self.all_angles = self.angle_features.all_angles
         self.forces = None
         if self.scene.has_forces and FORCES in self.provides:
-            self.forces = LearnedForces(self.scene, self.num_features, learn_input_matrix, dissipation)
+            self.forces = LearnedForces(self.scene, self.num_features, learn_input_matrix, dissipation,
+                                        friction=friction)
             self.forces.attach_normalizer(self.normalizer)
             if self.forces.stiction and STATIC_FRICTION not in self.provides:
                 raise InputError(f"dissipation 'joint+stiction' needs a positive definite mass matrix through which "

@@ -11,6 +11,12 @@ conservative scene has no such module and no extra parameter.
   with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
   the rest of the model), or free coefficients where the scene has no parameters. ``v`` is the
   scene's Coulomb smoothing velocity.
+* ``friction``: the drive model's forms (``lnn_torch.drives``): ``viscous+coulomb`` (the default, as
+  above) or any of ``viscous``, ``coulomb``, ``offset`` (a constant torque per joint: an asymmetry or
+  a torque sensor's offset; *not* dissipative), ``stribeck`` (``s >= 0``, a breakaway above Coulomb
+  fading over ``v_s``) and ``sigmoid`` (Gaz et al.'s ``phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2
+  phi3)]``, ``phi1, phi2 >= 0``), e.g. ``viscous+coulomb+offset``; the coefficients beyond ``(b, c)``
+  come from the same network of the parameters (or are free constants without parameters).
 * ``dissipation="joint+stiction"`` adds static friction to the joint friction: a joint slower than
   the stick velocity ``v_s`` (2.5 times the scene's Coulomb smoothing velocity) is held at rest by
   up to its Coulomb level ``c`` (no parameter of its own), its kinetic friction fading in that
@@ -25,8 +31,9 @@ In the model's normalised units (``force_norm``, ``dissipative_force_at``, ``hol
 ``with_static_friction``) the forces read the model's ``Normalizer`` (``attach_normalizer``): the model
 calls them with its normalised state and gets normalised generalised forces or accelerations back.
 
-Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction (the holding torque of static
-friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``). Coefficients
+Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction, but a friction ``offset`` (a
+constant torque, which the data may need and no passive model has); the holding torque of static
+friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``. Coefficients
 are in SI units (``unit`` buffers, set from the training data, scale the network outputs).
 """
 
@@ -38,15 +45,20 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..drives import DriveModel
 from ..forces import dissipative_force, holding_torque, identity_or_none, input_force, joint_friction, stick_weight
 
 DISSIPATION = ("joint", "joint+rayleigh", "joint+stiction")
 _INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1 of their unit
+# the coefficients beyond (b, c), per joint, in the order of the drive model's forms: (name, raw start);
+# the sigmoid's phi2 = softplus(raw) / v_c starts at 0.6 / v_c (30 s/rad at v_c = 0.02 rad/s)
+_EXTRA = {"offset": (("o", 0.0),), "stribeck": (("s", _INIT),),
+          "sigmoid": (("phi1", _INIT), ("phi2", math.log(math.expm1(0.6))), ("phi3", 0.0))}
 
 
 class LearnedForces(nn.Module):
     def __init__(self, scene, num_features: int, learn_input_matrix: bool = False, dissipation: str = "joint",
-                 hidden: int = 16) -> None:
+                 hidden: int = 16, friction: str = "viscous+coulomb") -> None:
         super().__init__()
         if dissipation not in DISSIPATION:
             raise ValueError(f"dissipation must be one of {', '.join(DISSIPATION)}, got '{dissipation}'")
@@ -71,13 +83,19 @@ class LearnedForces(nn.Module):
             self.register_buffer("joint_map", D, persistent=False)
             self.coulomb_velocity = float(scene.coulomb_velocity)
             self.stick_velocity = 2.5 * float(scene.coulomb_velocity)  # the stick window (joint+stiction)
+            self.drive = DriveModel.of(friction, coulomb_velocity=self.coulomb_velocity)
+            # (b, c) first, as always; then the further forms' coefficients per joint
+            self.extra = tuple(item for form in self.drive.forms for item in _EXTRA.get(form, ()))
+            n_raw = (2 + len(self.extra)) * self.num_joints
+            start = torch.tensor([_INIT] * 2 * self.num_joints + [v for _, v in self.extra for _ in
+                                                                  range(self.num_joints)])
             if P:
-                self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(),
-                                                     nn.Linear(hidden, 2 * self.num_joints))
+                self.coefficient_net = nn.Sequential(nn.Linear(P, hidden), nn.SiLU(), nn.Linear(hidden, n_raw))
                 nn.init.zeros_(self.coefficient_net[-1].weight)
-                nn.init.constant_(self.coefficient_net[-1].bias, _INIT)
+                with torch.no_grad():
+                    self.coefficient_net[-1].bias.copy_(start)
             else:
-                self.coefficients_raw = nn.Parameter(torch.full((2 * self.num_joints,), _INIT))
+                self.coefficients_raw = nn.Parameter(start)
             # SI units of (b, c): torque / rate and torque, set from the data (fit)
             self.register_buffer("units", torch.ones(2))
         self.rayleigh = None
@@ -116,20 +134,43 @@ class LearnedForces(nn.Module):
         b = (viscous.double().clamp_min(1e-6) / units[0])
         c = torch.full_like(b, coulomb)
         raw = torch.cat([b + torch.log(-torch.expm1(-b)), c + torch.log(-torch.expm1(-c))])
+        k = 2 * self.num_joints  # the further forms' coefficients keep their start
         if hasattr(self, "coefficient_net"):
-            self.coefficient_net[-1].weight.zero_()
-            self.coefficient_net[-1].bias.copy_(raw)
+            self.coefficient_net[-1].weight[:k].zero_()
+            self.coefficient_net[-1].bias[:k].copy_(raw)
         else:
-            self.coefficients_raw.copy_(raw)
+            self.coefficients_raw[:k].copy_(raw)
 
     # ------------------------------------------------------------------ the forces (SI)
+    def _raw(self, params_norm: torch.Tensor) -> torch.Tensor:
+        return self.coefficient_net(params_norm) if hasattr(self, "coefficient_net") else self.coefficients_raw
+
     def coefficients(self, params_norm: torch.Tensor):
         """Friction coefficients ``(b, c)``, each ``(B, num_joints)`` (or ``(num_joints,)`` without
-        parameters) in N m s/rad and N m."""
-        raw = self.coefficient_net(params_norm) if hasattr(self, "coefficient_net") else self.coefficients_raw
+        parameters) in N m s/rad and N m (zero for a form the drive model leaves out)."""
+        raw = self._raw(params_norm)[..., : 2 * self.num_joints]
         b, c = F.softplus(raw).split(self.num_joints, -1)
         units = self.units.to(raw.dtype)
-        return b * units[0], c * units[1]
+        forms = self.drive.forms
+        return b * units[0] * ("viscous" in forms), c * units[1] * ("coulomb" in forms)
+
+    def drive_coefficients(self, params_norm: torch.Tensor) -> dict:
+        """Every coefficient of the drive model (``lnn_torch.drives``) in SI, ``{name: (..., num_joints)}``."""
+        b, c = self.coefficients(params_norm)
+        out = {"b": b, "c": c}
+        raw = self._raw(params_norm)[..., 2 * self.num_joints:]
+        torque = self.units[1].to(raw.dtype)
+        for k, (name, _) in enumerate(self.extra):
+            r = raw[..., k * self.num_joints:(k + 1) * self.num_joints]
+            if name == "phi2":
+                out[name] = F.softplus(r) / self.coulomb_velocity
+            elif name == "phi3":
+                out[name] = r * self.coulomb_velocity
+            elif name == "o":
+                out[name] = r * torque
+            else:  # s, phi1: non-negative torques
+                out[name] = F.softplus(r) * torque
+        return out
 
     def static_level(self, params_norm: torch.Tensor) -> torch.Tensor:
         """The static friction level per joint (``joint+stiction``): the Coulomb level ``c``, N m."""
@@ -138,8 +179,11 @@ class LearnedForces(nn.Module):
     def friction_torque(self, rates: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
         """Per-joint (kinetic) friction torque at joint rates ``(B, num_joints)``, N m; with static
         friction it fades as ``1 - w`` in the stick window."""
-        b, c = self.coefficients(params_norm)
-        torque = joint_friction(rates, b, c, self.coulomb_velocity)
+        if self.extra:
+            torque = self.drive.torque(rates, self.drive_coefficients(params_norm))
+        else:  # viscous + Coulomb: the model's original form, kept as it was computed
+            b, c = self.coefficients(params_norm)
+            torque = joint_friction(rates, b, c, self.coulomb_velocity)
         return torque * (1 - stick_weight(rates, self.stick_velocity)) if self.stiction else torque
 
     def holding_torque(self, qd: torch.Tensor, params_norm: torch.Tensor, rho0: torch.Tensor,

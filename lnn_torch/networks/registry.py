@@ -8,8 +8,8 @@ import inspect
 
 from ..errors import InputError
 from .base import DynamicsModel
-from .capabilities import ENERGY, INVERSE_DYNAMICS
 from .blackbox import BlackBoxLagrangian
+from .capabilities import ENERGY, INVERSE_DYNAMICS
 from .direct import DirectMLP
 from .hamiltonian import HamiltonianNN
 from .structured import DeLaN, FiLMLagrangian

@@ -75,6 +75,8 @@ class StructuredLagrangian(DynamicsModel):
         links: the rigid chain's ``links`` (deprecated here: give it as the part's option).
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
+        friction: the drive model's friction forms per joint (``lnn_torch.drives``): ``viscous+coulomb``
+            (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, sigmoid.
 
     Options given with a value other than their default that no part of the model takes: the
     part-specific ones (``mass_invariant``, ``links``) are refused, all in one line; the defaults of
@@ -85,8 +87,9 @@ class StructuredLagrangian(DynamicsModel):
     provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, FORCES})
 
     def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
-                 learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links) -> None:
-        super().__init__(scene, learn_input_matrix, dissipation)
+                 learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links,
+                 friction) -> None:
+        super().__init__(scene, learn_input_matrix, dissipation, friction)
         if not self.scene.quadratic_kinetic:
             raise InputError(
                 f"scene '{self.scene.name}' has a kinetic energy that is not quadratic in the velocities; "
@@ -425,11 +428,12 @@ class FiLMLagrangian(StructuredLagrangian):
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
                  learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
                  mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
-                 links: list[list[float]] | None = None) -> None:
+                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb") -> None:
         super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
                          potential_film=potential_film, film_hidden=film_hidden, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
-                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links)
+                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links,
+                         friction=friction)
 
 
 class DeLaN(StructuredLagrangian):
@@ -443,8 +447,9 @@ class DeLaN(StructuredLagrangian):
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
                  diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
                  shared: bool = False, mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
-                 links: list[list[float]] | None = None) -> None:
+                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb") -> None:
         super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode="neuron",
                          potential_film=True, film_hidden=16, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
-                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links)
+                         mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links,
+                         friction=friction)
