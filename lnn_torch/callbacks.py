@@ -122,6 +122,9 @@ class FitSummary(L.Callback):
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
                          + (f"; {_divergence(pl_module, m['val/divergence_time'])}" if "val/divergence_time" in m
                             else ""))
+        if "val/torque_rms" in m:
+            lines.append(f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
+                         f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")
         if last is not None:
             configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
             lines.append(f"  test it: lnn-torch test {configs} --ckpt_path {path(last)}")

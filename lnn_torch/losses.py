@@ -57,19 +57,22 @@ def torque_loss(tau_pred: torch.Tensor, tau_target: torch.Tensor, delta: float =
 
 
 def training_loss(terms: dict, chunks: int, length: int, *, huber_delta: float = 1.0, energy_weight: float = 0.0,
-                  torque_weight: float = 0.0, dt: float = 1.0) -> tuple[torch.Tensor, dict]:
+                  torque_weight: float = 0.0, dt: float = 1.0, acceleration_weight: float = 1.0
+                  ) -> tuple[torch.Tensor, dict]:
     """``(loss, parts)``: the acceleration objective and its named parts from a model's training terms
     (``DynamicsModel.training_terms``) on ``chunks`` contiguous chunks of ``length`` points each (rows
     in chunk order).
 
-    * ``huber``: ``acceleration_loss`` of ``terms["pred"]`` against ``terms["target"]`` (rms ``terms["rms"]``);
+    * ``huber``: ``acceleration_loss`` of ``terms["pred"]`` against ``terms["target"]`` (rms ``terms["rms"]``),
+      weighted by ``acceleration_weight`` (0: the inverse-dynamics torque term alone, as a robot's
+      identification fits measured torques);
     * ``energy_var`` (where the terms hold ``H, T, V``): ``energy_variance`` per chunk, of ``H`` or,
       with the forces' ``power``, of the power balance ``H - W`` (``power_balance`` at the data's step
       ``dt`` in normalised time), weighted by ``energy_weight``;
     * ``torque`` (where the terms hold ``tau_pred``): ``torque_loss``, weighted by ``torque_weight``.
     """
     huber = acceleration_loss(terms["pred"], terms["target"], terms["rms"], huber_delta)
-    loss, parts = huber, {"huber": huber}
+    loss, parts = (huber if acceleration_weight == 1 else acceleration_weight * huber), {"huber": huber}
     if "H" in terms:
         H, T, V = (terms[k].reshape(chunks, length) for k in ("H", "T", "V"))
         if "power" in terms:
@@ -135,7 +138,8 @@ def trajectory_loss(err: torch.Tensor, err_v: torch.Tensor | None = None, *, hub
 
 
 def acceleration_batch_loss(model, batch: dict, pass_fn, *, huber_delta: float = 1.0, energy_weight: float = 0.0,
-                            torque_weight: float = 0.0, dt: float | None = None) -> tuple[torch.Tensor, dict]:
+                            torque_weight: float = 0.0, dt: float | None = None, acceleration_weight: float = 1.0
+                            ) -> tuple[torch.Tensor, dict]:
     """``(loss, parts)`` of ``training_loss`` on one batch of ``C`` chunks of ``L`` contiguous points:
     ``batch`` holds ``q, qd, qdd (C, L, dof)``, ``params (C, L, P)`` and, for a scene with inputs,
     ``tau (C, L, n_u)`` (SI). ``pass_fn(q, qd, qdd, params, tau, chunks)`` gives the model's training
@@ -151,7 +155,7 @@ def acceleration_batch_loss(model, batch: dict, pass_fn, *, huber_delta: float =
     out = pass_fn(*flat, tau, C if shared else None)
     dt_norm = (dt or 1.0) / float(model.normalizer.time_scale) if "power" in out else 1.0
     return training_loss(out, C, L, huber_delta=huber_delta, energy_weight=energy_weight,
-                         torque_weight=torque_weight, dt=dt_norm)
+                         torque_weight=torque_weight, dt=dt_norm, acceleration_weight=acceleration_weight)
 
 
 def trajectory_batch_loss(model, batch: dict, *, dt: float | None = None, integrator: str = "rk4",

@@ -41,18 +41,18 @@ class LNNModule(L.LightningModule):
             chol^T + eps I``; ``hessian_reg``: regularisation of ``lnn``'s velocity Hessian (0 raises on
             singular Hessians); ``hnn_coordinates``: ``canonical`` (p = dL/dqd) or ``velocity``.
         model_options: further options of the variant (a dict): parts, dissipation, ...
-        lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run (its step budget or,
-            under ``max_time``, its time budget, whichever ends first).
+        lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run (``lnn_torch.optim``).
         weight_decay: AdamW weight decay of the network weights (physical coefficients are exempt).
         huber_delta: Huber threshold (normalised units).
         energy_weight: weight of the energy-conservation (with forces: power-balance) term; 0: off.
+        acceleration_weight: weight of the acceleration term (0: torques alone, with ``torque_weight``).
         torque_weight: weight of the inverse-dynamics term, Huber on the inputs the model needs for the
             data's accelerations over their rms (structured models of actuated scenes); 0: off.
         loss: ``acceleration`` (Huber on accelerations) or ``trajectory`` (multiple shooting: each chunk
             of ``L`` points rolled out ``L - 1`` steps from its first state with
             ``trajectory_integrator``; position errors over ``(L - 1)^2 dt^2 / 2``; no accelerations).
-        trajectory_integrator: the integrator of those rollouts (``rk4``, ``leapfrog``, ...).
-        trajectory_velocity_weight: weight of their velocity error, over ``(L - 1) dt``.
+        trajectory_integrator, trajectory_velocity_weight: those rollouts' integrator (``rk4``, ...) and the
+            weight of their velocity error, over ``(L - 1) dt``.
         val_rollouts: validation trajectories rolled out at each validation.
         val_rollout_seconds: the horizon of validation and test rollouts (s).
         test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
@@ -70,7 +70,8 @@ class LNNModule(L.LightningModule):
                  hessian_reg: float | None = None, hnn_coordinates: str | None = None,
                  model_options: dict | None = None, lr: float = 3e-3,
                  lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
-                 torque_weight: float = 0.0, loss: str = "acceleration", trajectory_integrator: str = "rk4",
+                 torque_weight: float = 0.0, acceleration_weight: float = 1.0, loss: str = "acceleration",
+                 trajectory_integrator: str = "rk4",
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto") -> None:
@@ -81,7 +82,7 @@ class LNNModule(L.LightningModule):
                        potential_film=potential_film, eps=eps, lnn_init=lnn_init, hessian_reg=hessian_reg,
                        hnn_coordinates=hnn_coordinates, **(model_options or {}))
         options = ckpt.without_old_checkpoint_defaults(options, registry.model_options(variant))
-        registry.refuse_conflicts(variant, self.system, options, energy_weight, torque_weight)
+        registry.refuse_conflicts(variant, self.system, options, energy_weight, torque_weight, acceleration_weight)
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
         if loss not in ("acceleration", "trajectory"):
@@ -165,8 +166,7 @@ class LNNModule(L.LightningModule):
 
     # ------------------------------------------------------------------ training
     def training_terms(self, q, qd, qdd, params, tau=None, chunks=None) -> dict:
-        """The eager training pass on flat SI tensors (``DynamicsModel.training_terms``), with the terms
-        this module's loss needs; ``chunks``: the rows are that many chunks of one parameter vector each."""
+        """The eager training pass on flat SI tensors (``DynamicsModel.training_terms``; ``chunks``: as there)."""
         energy = self.hparams.energy_weight > 0 and ENERGY in self.model.capabilities
         return self.model.training_terms(q, qd, qdd, params, tau=tau, energy=energy, chunks=chunks,
                                          torque=self.hparams.get("torque_weight", 0) > 0)
@@ -181,7 +181,7 @@ class LNNModule(L.LightningModule):
                                          huber_delta=hp.huber_delta, velocity_weight=hp.trajectory_velocity_weight)
         return acceleration_batch_loss(self.model, batch, pass_fn or self.training_terms, huber_delta=hp.huber_delta,
                                        energy_weight=hp.energy_weight, torque_weight=hp.get("torque_weight", 0),
-                                       dt=self.data_dt)
+                                       dt=self.data_dt, acceleration_weight=hp.get("acceleration_weight", 1.0))
 
     def training_step(self, batch, batch_idx):
         self._last_batch = batch  # a failed compiled backward redoes it eagerly (``backward``)

@@ -67,7 +67,8 @@ from . import accelerations, rollouts, structure, horizons, cases  # noqa: F401 
 # isort: on
 
 __all__ = [
-    "DEFAULT_SECTIONS", "REPORT_SECTIONS", "SECTIONS", "EvalContext", "SectionResult", "evaluate_model", "evaluate_split",
+    "DEFAULT_SECTIONS", "REPORT_SECTIONS", "SECTIONS", "EvalContext", "SectionResult", "evaluate_model",
+    "evaluate_split",
     "report_sections", "section", "section_figures", "section_logs", "skip",
     # compatibility re-exports (see the docstring for their homes)
     "ClosedForm", "reference_rollout", "Trajectories", "capabilities_of", "missing", "ENERGY", "FRICTION",
@@ -139,10 +140,13 @@ def evaluate_split(model, system, data: Trajectories, *, num_rollouts: int = -1,
     """The evaluation training runs on a whole validation or test split (``LNNModule``): for a scene
     with a closed form, ``DEFAULT_SECTIONS`` with rollouts of ``num_rollouts`` trajectories over
     ``seconds`` (-1: all; 0: accelerations alone); for measured recordings, the accelerations and
-    open-loop horizons (0.1 s, 0.5 s, ``seconds``) from many start points of every recording."""
+    open-loop horizons (0.1 s, 0.5 s, ``seconds``) from many start points of every recording, and
+    the inverse-dynamics torques where the model has them (measured torques are what a real arm's
+    model is judged by)."""
     options = dict(thresholds=(threshold,), accel_stride=accel_stride)
     if not system.closed_form:
-        return evaluate_model(model, system, data, sections=("accelerations", "horizons"),
+        torques = ("torques",) if INVERSE_DYNAMICS in capabilities_of(model) else ()
+        return evaluate_model(model, system, data, sections=("accelerations", *torques, "horizons"),
                               horizons=(0.1, 0.5, seconds), **options)
     sections = DEFAULT_SECTIONS if num_rollouts != 0 else ("accelerations",)
     return evaluate_model(model, system, data, sections=sections, horizon=seconds,

@@ -105,7 +105,8 @@ def _torques(ctx: EvalContext) -> SectionResult:
             table_row([f"torque standard deviation of the data (N m): mean ({', '.join(names)})",
                        f"{nm(std['mean'])} ({', '.join(nm(std[n]) for n in names)})"])]
     return SectionResult({"torque_nrmse": t, "torque_nmse": mse, "torque_rms_nm": rms, "torque_std_nm": std},
-                         rows=rows, figures={"torques.png": _figure(torque_figure, arrays)})
+                         rows=rows, figures={"torques.png": _figure(torque_figure, arrays)},
+                         logs={"torque_rms": rms["mean"], "torque_nrmse": t["mean"]})
 
 
 @section("friction", needs=(FRICTION,))

@@ -57,7 +57,7 @@ def build_model(variant: str, scene, **options) -> DynamicsModel:
 
 
 def refuse_conflicts(variant: str, system, options: dict, energy_weight: float = 0.0,
-                     torque_weight: float = 0.0) -> None:
+                     torque_weight: float = 0.0, acceleration_weight: float = 1.0) -> None:
     """Every option and loss term that ``variant`` cannot use on ``system``, in ONE ``InputError`` (a user
     switching variants sees the whole list at once, not one refusal per attempt)."""
     cls = model_class(variant)
@@ -67,6 +67,9 @@ def refuse_conflicts(variant: str, system, options: dict, energy_weight: float =
                         f"inputs; scene '{system.name}' has {system.num_inputs})")
     if energy_weight > 0 and ENERGY not in cls.provides:
         problems.append(f"energy_weight {energy_weight:g} (variant {variant} has no energy of its own)")
+    if acceleration_weight < 0 or (acceleration_weight == 0 and not torque_weight > 0):
+        problems.append(f"acceleration_weight {acceleration_weight:g} (>= 0, and 0 only with a torque_weight: "
+                        "else nothing is fitted)")
     if (energy_weight > 0 or torque_weight > 0) and options.get("dissipation") == "joint+stiction":
         problems.append("energy_weight/torque_weight with dissipation 'joint+stiction' (static friction's holding "
                         "torque is not a force of the state)")
