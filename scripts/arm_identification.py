@@ -69,7 +69,8 @@ def smoothed(arrays, dt):
         qd.append(a)
         qdd.append(b)
         tau.append(derivatives.smooth_inputs(arrays["tau"][i], dt, s))
-    q = np.stack([derivatives._smooth(x, dt, s, 0) for x in arrays["q_noisy"]])
+    # the smoothed angles themselves: the smoothing that smooth_inputs applies to the torques
+    q = np.stack([derivatives.smooth_inputs(x, dt, s) for x in arrays["q_noisy"]])
     return q, np.stack(qd), np.stack(qdd), np.stack(tau), derivatives.describe(s)
 
 

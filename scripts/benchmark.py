@@ -25,17 +25,19 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from _cli import HelpFormatter, add_output_dir, wrote
+from _cli import ROOT, HelpFormatter, add_output_dir, wrote
 from lnn_torch.perf import median_seconds
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.append(str(ROOT / "benchmarks"))  # the machine header of the timings (benchmarks/timing.py)
+from timing import header  # noqa: E402
+
 OUT = ROOT / "results" / "benchmark"
 
 # per scene: dataset (generated if missing), default budget (minutes), rollout horizon (s), threshold
@@ -102,6 +104,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from lnn_torch import LNNModule, TrajectoryDataModule
+    from lnn_torch.lightning_cli import make_trainer
 
     class Curve(L.Callback):
         """Validation error on a fixed sample of validation points against training time (the
@@ -156,12 +159,14 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     model = LNNModule(scene=scene, scene_config=scene_config, val_rollouts=0, energy_weight=args.energy_weight,
                       hidden_dims=[128, 128], **extra, **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
-    trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
-                        num_sanity_val_steps=0, inference_mode=False, gradient_clip_val=1.0,
-                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-                        logger=TensorBoardLogger(str(ROOT / "lightning_logs"), name=f"benchmark_{scene}",
-                                                 default_hp_metric=False),
-                        callbacks=[curve], accelerator="cpu", devices=1)
+    # as `lnn-torch fit` trains (gradient clipping at 1.0, inference mode off), on a wall-clock budget, its own
+    # TensorBoard folder, no checkpoints or validation
+    trainer = make_trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
+                           num_sanity_val_steps=0, enable_checkpointing=False, enable_progress_bar=False,
+                           enable_model_summary=False,
+                           logger=TensorBoardLogger(str(ROOT / "lightning_logs"), name=f"benchmark_{scene}",
+                                                    default_hp_metric=False),
+                           callbacks=[curve], accelerator="cpu", devices=1)
     start = time.perf_counter()
     trainer.fit(model, dm)
     if args.save_checkpoints:
@@ -430,7 +435,7 @@ def main() -> None:
     system = get_system(cfg.get("scene", args.scene), **cfg.get("scene_config", {}))
     rows_spec = [v for v in variants_for(system, cfg) if args.variants is None or v[0] in args.variants]
     result = {"scene": args.scene, "has_forces": system.has_forces, "minutes": args.minutes, "train_threads": args.threads,
-              "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
+              "machine": header(),
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
                                                                    (("scene", args.scene), ("minutes", args.minutes),

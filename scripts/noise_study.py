@@ -27,8 +27,10 @@ import shutil
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import torch
+
 from _cli import HelpFormatter, add_output_dir, wrote
 
 SCENE = "actuated_double_pendulum"
@@ -128,12 +130,10 @@ def plot_targets(rows, args, path: Path) -> None:
 
 def part_training(args, out: Path) -> list[Path]:
     """Part 2; the paths it wrote."""
-    import lightning as L
-
     from lnn_torch import LNNModule, TrajectoryDataModule
     from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
-    from lnn_torch.data.hdf5 import _h5py
     from lnn_torch.evaluation import evaluate_model
+    from lnn_torch.lightning_cli import make_trainer
 
     dt = 1.0 / args.rate
     clean = Path(args.work) / f"train_{args.rate:g}hz.h5"
@@ -144,7 +144,6 @@ def part_training(args, out: Path) -> list[Path]:
                                      seed=12), clean)
     if not noisy.exists():
         shutil.copy(clean, noisy)
-        h5py = _h5py()
         with h5py.File(noisy, "r+") as f:
             qn, qdn = corrupt(f["q"][...], f["qd"][...], dt, args.sigma, np.random.default_rng(1))
             f["q"][...], f["qd"][...] = qn, qdn
@@ -174,9 +173,10 @@ def part_training(args, out: Path) -> list[Path]:
         dm = TrajectoryDataModule(path=str(path), spec=spec, targets=targets, steps_per_epoch=args.steps,
                                   **data_options)
         module = LNNModule(scene=SCENE, hidden_dims=[64, 64], val_rollouts=0, lr=3e-3, **extra)
-        trainer = L.Trainer(max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
-                            inference_mode=False)
+        # as `lnn-torch fit` trains (gradient clipping at 1.0), without its logger, checkpoints and validation
+        trainer = make_trainer(max_epochs=1, logger=False, callbacks=[], enable_checkpointing=False,
+                               enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
+                               num_sanity_val_steps=0)
         start = time.perf_counter()
         trainer.fit(module, dm)
         seconds = time.perf_counter() - start

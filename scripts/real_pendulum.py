@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
     from lnn_torch.checkpoints import data_hparams, load_model, output_dir
-    from lnn_torch.data import TrajectoryDataModule
+    from lnn_torch.data import TrajectoryDataModule, read_dataset
     from lnn_torch.evaluation import evaluate_model
     from lnn_torch.identified import RigidArmModel
     from lnn_torch.perf import configure_cpu
@@ -58,7 +58,7 @@ def main() -> None:
     dm = TrajectoryDataModule(path=args.data or saved["path"], targets=saved.get("targets", "file"))
     data = dm.trajectories(args.split)
     smoothed = dm.trajectories(args.split, smooth_inputs=True)  # the torques in the reference's band
-    names = json.loads(dm._open().attrs["recordings"])
+    names = json.loads(read_dataset(dm.path).attrs["recordings"])
     held_out = [names[int(i)] for i in data.index]
     lab = RigidArmModel.from_yaml(PARAMS)
     horizons = (0.1, 0.25, 0.5, 1.0)

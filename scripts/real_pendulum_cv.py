@@ -29,6 +29,7 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import torch
 
@@ -63,11 +64,9 @@ def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
 
 def fold_file(source: Path, dest: Path, held_out: int, keep: list[int], test: np.ndarray) -> None:
     """A copy of the imported dataset whose training split is ``keep`` and validation split ``held_out``."""
-    from lnn_torch.data.hdf5 import _h5py
-
     dest.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(source, dest)
-    with _h5py().File(dest, "r+") as f:
+    with h5py.File(dest, "r+") as f:
         for name, idx in (("train", keep), ("val", [held_out]), ("test", test)):
             del f[f"splits/{name}"]
             f.create_dataset(f"splits/{name}", data=np.asarray(idx, dtype=np.int64))
