@@ -30,7 +30,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 import torch
-
 from _cli import HelpFormatter, add_output_dir, wrote
 
 SCENE = "actuated_double_pendulum"
@@ -111,7 +110,7 @@ def plot_targets(rows, args, path: Path) -> None:
     from lnn_torch.plots import plt
 
     fig, axes = plt.subplots(1, len(args.rates), figsize=(3.2 * len(args.rates), 3.2), sharey=True, squeeze=False)
-    for ax, rate in zip(axes[0], args.rates):
+    for ax, rate in zip(axes[0], args.rates, strict=True):
         for k, name in enumerate(TARGET_MODES):
             r = sorted((x for x in rows if x["rate_hz"] == rate and x["mode"] == name), key=lambda x: x["sigma"])
             if r:
@@ -194,7 +193,8 @@ def part_training(args, out: Path) -> list[Path]:
                                                   "rows": rows}, indent=1))
     lines = [f"Actuated double pendulum at {args.rate:g} Hz, position noise {args.sigma:g} rad + 12-bit quantisation, "
              f"velocity noise {10 * args.sigma:g} rad/s; film_lnn 64x64, {args.steps} steps each; judged on "
-             f"{len(test)} clean held-out trajectories (rollouts {args.horizon:g} s, driven by the recorded torques).", "",
+             f"{len(test)} clean held-out trajectories (rollouts {args.horizon:g} s, driven by the recorded "
+             "torques).", "",
              "| training target | batch (chunks x points) | held-out acc. rel. L2 | median time within 0.1 rad (s) "
              "| training (s) |",
              "|---|---|---|---|---|"]
