@@ -48,9 +48,10 @@ def mm_t(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     return torch.mm(x, weight.t())
 
 
-def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """``x @ weight.T + bias`` as one fused ``addmm``, as the networks' layers compute it."""
-    return torch.addmm(bias, x, weight.t())
+def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``x @ weight.T + bias`` as one fused ``addmm`` (an ``mm`` without a bias), as the networks' layers
+    compute it."""
+    return torch.mm(x, weight.t()) if bias is None else torch.addmm(bias, x, weight.t())
 
 
 def paths(model, variant, compile_fast: bool, chunks):
