@@ -66,6 +66,7 @@ import torch
 torch.set_num_threads(1)
 from lnn_torch import LNNModule, TrajectoryDataModule
 from lnn_torch.perf import adamw
+from lnn_torch.training_pass import TrainingPass
 width = int(sys.argv[1])
 dm = TrajectoryDataModule(path="data/quickstart.h5", spec=dict(scene="double_pendulum", num_trajectories=200,
                           duration=20.0, dt=0.005, seed=0), chunk_len=8, chunks_per_batch=64, seed=0)
@@ -76,7 +77,7 @@ module = LNNModule(hidden_dims=[width, width], val_rollouts=0, compile=False)
 module.model.fit_normalizer(dm.normalization_data())
 opt = adamw(module.parameters(), lr=1e-6)
 def step(pass_fn):
-    loss, _ = module._training_loss(batch, pass_fn)
+    loss, _ = module.batch_loss(batch, pass_fn)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
     opt.step()
@@ -90,9 +91,8 @@ def per_step(pass_fn, n=20, repeats=7):
             step(pass_fn)
         ts.append((time.perf_counter() - t) / n)
     return statistics.median(ts)
-eager = per_step(module._training_pass)
-module.hparams.compile = True
-fn = module._pass_fn()
+eager = per_step(module.training_terms)
+fn = TrainingPass(module.training_terms, True).function(0, module.device)
 t = time.perf_counter(); step(fn); first = time.perf_counter() - t
 compiled = per_step(fn)
 print(json.dumps({"eager_step_s": eager, "compiled_step_s": compiled, "first_call_s": first}))

@@ -157,11 +157,11 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
 
     from lnn_torch import LNNModule, load_model
     from lnn_torch.perf import adamw
+    from lnn_torch.training_pass import TrainingPass
 
     ckpt = CKPT / f"{slug(name)}.ckpt"
     if ckpt.exists():
         module = load_model(ckpt).to(dtype)
-        module.hparams.compile = compiled  # the training pass compiled or not
     elif untrained:  # the same network, freshly initialised: a call's cost does not depend on the weights' values
         module = LNNModule(variant="film_lnn", val_rollouts=0, compile=compiled, **POINTS[name]).to(dtype)
     else:
@@ -174,13 +174,14 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
     q64, qd64, p64 = cast["q64"], cast["qd64"], cast["p64"]
     chunk = {k: cast[k].reshape(64, 8, -1) for k in ("q", "qd", "qdd", "params")}
     opt = adamw(module.parameters(), lr=1e-6)
+    pass_fn = TrainingPass(module.training_terms, compiled).function(0, module.device)  # compiled or eager
 
     def accel():
         with torch.no_grad():
             model.acceleration(q, qd, params, check=False)
 
     def step():
-        loss, _ = module._training_loss(chunk, module._pass_fn())
+        loss, _ = module.batch_loss(chunk, pass_fn)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
         opt.step()

@@ -124,8 +124,9 @@ def test_no_script_or_benchmark_imports_a_private_name(name):
     # a private module of the library (lnn_torch.networks._kernels), or a private name from it (_h5py)
     assert not re.findall(r"\blnn_torch(?:\.\w+)*\._\w+", text), name
     assert not re.findall(r"^\s*from\s+lnn_torch[\w.]*\s+import\s+(?:\(\s*)?(?:\w+\s*,\s*)*_\w", text, re.M), name
-    # nor from the other helpers: one module's private name used in another
-    assert not re.findall(r"\b(?:harness|derivatives|hdf5|_cli|timing)\._[a-z]\w*", text), name
+    # nor another object's private attribute: a module's, a data module's, a model's, a helper module's
+    assert not re.findall(r"\b(?:module|dm|model|m|arm|system|harness|derivatives|hdf5|_cli|timing)\._[a-z]\w*",
+                          text), name
 
 
 @pytest.mark.parametrize("name", sorted(ALL_SOURCES))
