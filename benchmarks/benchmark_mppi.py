@@ -41,6 +41,7 @@ def main(argv=None) -> int:
         compiled.model.compile_dynamics(True)
         plants["learned model, compiled"] = plant_of(compiled)
     plants["lab model (closed form)"] = plant_of(RigidArmModel.from_yaml(LAB))
+    machine = header()  # before the loop sets the thread counts it times
     goal = torch.tensor([[math.pi, 0.0]], dtype=torch.float64)
     q, qd = goal + 0.05, torch.zeros(1, 2, dtype=torch.float64)
     rows = []
@@ -53,7 +54,7 @@ def main(argv=None) -> int:
             rows.append((name, threads, f"{1e3 * step:.1f}"))
     lines = [f"# One MPPI step: {args.samples} samples x {args.horizon}-step horizon", "",
              f"`python benchmarks/benchmark_mppi.py {args.checkpoint}{' --compile' if args.compile else ''}` (median "
-             f"of {args.repeats} calls after a warm-up; a 500 Hz loop has 2 ms). {header()}.", "",
+             f"of {args.repeats} calls after a warm-up; a 500 Hz loop has 2 ms). {machine}.", "",
              markdown_table(["plant rolled out", "CPU threads", "ms per step"], rows)]
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
