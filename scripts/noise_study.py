@@ -9,7 +9,8 @@ velocities, Butterworth, Savitzky-Golay and smoothing-spline estimates.
 
 Part 2, training (``--train``): at ``--rate`` Hz and ``--sigma`` rad, one model per target mode
 (exact accelerations of clean data; finite differences, smoothed estimates and trajectory matching of
-the noisy data), a fixed number of steps each, judged on clean held-out trajectories: acceleration
+the noisy data), a fixed number of steps each (trained as ``lnn-torch fit`` trains: ``make_trainer``,
+gradients clipped at norm 1), judged on clean held-out trajectories: acceleration
 error against the truth and the median time until an open-loop rollout (driven by the recorded
 torques) first leaves 0.1 rad.
 
