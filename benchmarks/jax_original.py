@@ -37,6 +37,7 @@ Conventions: absolute angles from the downward vertical, params order
 """
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 
@@ -87,7 +88,10 @@ def _import_original():
     import optax
     import train
     import train_utils  # NB: imports data.doublependulum, which does config.update('jax_enable_x64', True)
-    from data import doublependulum
+
+    # the original's package `data`, imported by name: its import statement would sort differently
+    # wherever a data/ folder of datasets sits beside this project
+    doublependulum = importlib.import_module("data.doublependulum")
 
     # undo the global side effect of the original's import; each call below chooses its precision
     # with the jax.enable_x64(...) context manager instead
