@@ -7,7 +7,8 @@
 * The help states each default once: where the option's help does not already say it, and never for
   an option without one (None, False, an empty string).
 
-Not a script: the others import it (``python scripts/X.py`` puts this folder on ``sys.path``).
+Not a script: the others import it (``python scripts/X.py`` puts this folder on ``sys.path``); the
+benchmarks (``benchmarks/``) use the same module through ``benchmarks/timing.py``.
 """
 
 from __future__ import annotations

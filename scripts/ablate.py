@@ -12,7 +12,8 @@ writes it and the rows as JSON to that one Markdown file).
         --setting "8x64" data.chunk_len=8 data.chunks_per_batch=64 \\
         --setting "64x8" data.chunk_len=64 data.chunks_per_batch=8
     # the energy-conservation weight, on an equal step budget
-    python scripts/ablate.py --steps 20000 --setting "w=0" model.energy_weight=0 --setting "w=0.1" model.energy_weight=0.1
+    python scripts/ablate.py --steps 20000 --setting "w=0" model.energy_weight=0 \\
+        --setting "w=0.1" model.energy_weight=0.1
 """
 
 from __future__ import annotations
@@ -78,10 +79,10 @@ def main() -> None:
     rows = [run(s[0], s[1:], args) for s in args.setting]
     budget = f"{args.steps} steps" if args.steps else f"{args.minutes:g} min"
     lines = [f"config {Path(args.config).name}, {budget} of training per setting on {args.threads} threads, "
-             f"seed {args.seed} unless a setting sets one; test split; RK4 rollouts (data dt) of {args.rollouts} test trajectories over "
-             f"{args.rollout_seconds:g} s", "",
-             "| setting | steps | train time (s) | test acc. rel. L2 | median time to 0.1 rad (s) | mean true-energy drift "
-             "| skipped steps |", "|---|---|---|---|---|---|---|"]
+             f"seed {args.seed} unless a setting sets one; test split; RK4 rollouts (data dt) of {args.rollouts} "
+             f"test trajectories over {args.rollout_seconds:g} s", "",
+             "| setting | steps | train time (s) | test acc. rel. L2 | median time to 0.1 rad (s) "
+             "| mean true-energy drift | skipped steps |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['name']} | {r['steps']} | {r['train_seconds']:.0f} | {r['test/acc_rel_err']:.4f} | "
                      f"{r['test/divergence_time']:.2f} | {r['test/energy_drift']:.2e} | {r['skipped_steps']} |")

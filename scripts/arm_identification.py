@@ -38,7 +38,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from _cli import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,7 +68,8 @@ def smoothed(arrays, dt):
         qd.append(a)
         qdd.append(b)
         tau.append(derivatives.smooth_inputs(arrays["tau"][i], dt, s))
-    q = np.stack([derivatives._smooth(x, dt, s, 0) for x in arrays["q_noisy"]])
+    # the smoothed angles themselves: the smoothing that smooth_inputs applies to the torques
+    q = np.stack([derivatives.smooth_inputs(x, dt, s) for x in arrays["q_noisy"]])
     return q, np.stack(qd), np.stack(qdd), np.stack(tau), derivatives.describe(s)
 
 
@@ -91,7 +91,10 @@ def least_squares_payloads(q, qd, qdd, tau, edge: int):
         out["linear"][0].append(float(pi[0]))
         out["linear"][1].append((pi[1:4] / pi[0]).numpy())
         theta = torch.cat([pi[:1], pi[1:4] / pi[0]])
-        residual = lambda th: Y @ MujocoArm.inertial_parameters(th) - b  # noqa: E731
+
+        def residual(th, Y=Y, b=b):
+            return Y @ MujocoArm.inertial_parameters(th) - b
+
         for _ in range(20):
             r = residual(theta)
             Jr = torch.func.jacrev(residual)(theta)
@@ -175,7 +178,8 @@ def base_parameter_study(args) -> dict:
     Y = regressor.regressor(nominal, q, qd, qdd).reshape(-1, 12 * 7)
     base = regressor.base_parameters(Y)
     names = regressor.parameter_names(nominal)
-    pis = {"truth (perturbed engine)": regressor.parameter_vector(true_chain.J, true_chain.armature, true_chain.damping),
+    pis = {"truth (perturbed engine)": regressor.parameter_vector(true_chain.J, true_chain.armature,
+                                                                  true_chain.damping),
            "shipped description": regressor.parameter_vector(nominal.J, nominal.armature, nominal.damping)}
     if args.perturbed_grey_box:
         module = load_model(args.perturbed_grey_box)
@@ -215,7 +219,8 @@ def markdown(result: dict) -> str:
                   "payloads >= 0.5 kg: mass / com median | time (s) |", "|---|---|---|---|---|"]
         for name, r in p["rows"].items():
             lines.append(f"| {name} | {100 * r['mass_rel_median']:.2f} % ({100 * r['mass_rel_q75']:.2f} %) | "
-                         f"{r['com_mm_median']:.2f} ({r['com_mm_q75']:.2f}) | {100 * r['mass_rel_median_heavy']:.2f} % / "
+                         f"{r['com_mm_median']:.2f} ({r['com_mm_q75']:.2f}) | "
+                         f"{100 * r['mass_rel_median_heavy']:.2f} % / "
                          f"{r['com_mm_median_heavy']:.2f} mm ({r['num_heavy']}) | "
                          f"{r.get('seconds', float('nan')):.1f} |")
         lines.append("")
@@ -227,7 +232,8 @@ def markdown(result: dict) -> str:
                   f"regressor has rank {b['rank']} of {b['num_parameters']} parameters (ten per link, armature and "
                   f"damping per joint); no number for {len(b['unidentified'])} that move no torque "
                   f"({', '.join(b['unidentified'])}).", "",
-                  "| parameters | base-parameter error vs truth, median / max | torque nMSE on these trajectories (fraction) |",
+                  "| parameters | base-parameter error vs truth, median / max "
+                  "| torque nMSE on these trajectories (fraction) |",
                   "|---|---|---|"]
         for name, r in b["rows"].items():
             lines.append(f"| {name} | {100 * r['base_rel_err_median']:.2f} % / {100 * r['base_rel_err_max']:.1f} % | "

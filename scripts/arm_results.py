@@ -18,9 +18,7 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
 import torch
-
 from _cli import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,15 +53,16 @@ def description_row(system, test, horizon: float) -> dict:
     err = normalized_rmse(pred, flat(test.tau).double())
     names = list(system.input_names)
     return {"acc_rel_err": r["acc_rel_err"]["total"],
-            "torque_nmse": {"mean": float(err.pow(2).mean()), **{n: float(e) ** 2 for n, e in zip(names, err)}},
-            "torque_nrmse": {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err)}},
+            "torque_nmse": {"mean": float(err.pow(2).mean()),
+                            **{n: float(e) ** 2 for n, e in zip(names, err, strict=True)}},
+            "torque_nrmse": {"mean": float(err.mean()), **{n: float(e) for n, e in zip(names, err, strict=True)}},
             "time_to_0.1": r["divergence_time@0.1"]["model"], "power_balance_mean": r["power_balance_error"]["mean"]}
 
 
 def markdown(result: dict) -> str:
-    lines = [f"Test split of `{result['data']}` ({result['num_test']} trajectories of {result['seconds']:g} s, every 5th "
-             f"point for the errors); rollouts with RK4 at the data's dt, driven by the recorded torques, from each "
-             f"trajectory's first state, over {result['horizon']:g} s. Command: `{result['command']}`", "",
+    lines = [f"Test split of `{result['data']}` ({result['num_test']} trajectories of {result['seconds']:g} s, "
+             f"every 5th point for the errors); rollouts with RK4 at the data's dt, driven by the recorded torques, "
+             f"from each trajectory's first state, over {result['horizon']:g} s. Command: `{result['command']}`", "",
              "| model | torque nMSE, mean over joints | torque nMSE per joint (1-7) | acceleration rel. L2 | "
              "time within 0.1 rad, median (q25) | power-balance error, mean |", "|---|---|---|---|---|---|"]
     for name, r in result["rows"].items():
@@ -105,7 +104,8 @@ def main() -> None:
               "command": "python scripts/arm_results.py " + " ".join(
                   [f"--data {args.data}"] + (["--description-row"] if args.description_row else [])
                   + [f'--model "{m}"' for m in args.model]
-                  + [f"--test-trajectories {args.test_trajectories} --horizon {args.horizon:g} --output {args.output}"])}
+                  + [f"--test-trajectories {args.test_trajectories} --horizon {args.horizon:g} "
+                     f"--output {args.output}"])}
     if args.description_row:
         result["rows"]["shipped description (engine)"] = description_row(system, test, args.horizon)
     for item in args.model:

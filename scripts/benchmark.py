@@ -25,17 +25,19 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from _cli import ROOT, HelpFormatter, add_output_dir, wrote
 
-from _cli import HelpFormatter, add_output_dir, wrote
 from lnn_torch.perf import median_seconds
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.append(str(ROOT / "benchmarks"))  # the machine header of the timings (benchmarks/timing.py)
+from timing import header  # noqa: E402
+
 OUT = ROOT / "results" / "benchmark"
 
 # per scene: dataset (generated if missing), default budget (minutes), rollout horizon (s), threshold
@@ -71,11 +73,13 @@ GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
 RESIDUAL = {"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}}
 DESCRIPTION = {"kinetic": {"spatial": {"learn": False}}, "potential": {"spatial": {}}}
 ARM_VARIANTS = {
-    "arm": [("film_lnn", {"variant": "film_lnn", "model_options": {"mass_invariant": [0]}}), ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
+    "arm": [("film_lnn", {"variant": "film_lnn", "model_options": {"mass_invariant": [0]}}),
+            ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
             ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
             ("delan", {"variant": "delan", "model_options": {"mass_invariant": [0]}}), ("lnn", {"variant": "lnn"}),
             ("mlp", {"variant": "mlp"})],
-    "perturbed_arm": [("description (inertia as shipped, friction fitted)", {"variant": "film_lnn", "model_options": DESCRIPTION, "eps": 0.0}),
+    "perturbed_arm": [("description (inertia as shipped, friction fitted)",
+                       {"variant": "film_lnn", "model_options": DESCRIPTION, "eps": 0.0}),
                       ("grey box", {"variant": "film_lnn", "model_options": GREY_BOX, "eps": 0.0}),
                       ("grey box + residual", {"variant": "film_lnn", "model_options": RESIDUAL, "eps": 0.0}),
                       ("film_lnn", {"variant": "film_lnn", "model_options": {"mass_invariant": [0]}})],
@@ -102,6 +106,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from lnn_torch import LNNModule, TrajectoryDataModule
+    from lnn_torch.lightning_cli import make_trainer
 
     class Curve(L.Callback):
         """Validation error on a fixed sample of validation points against training time (the
@@ -156,16 +161,19 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     model = LNNModule(scene=scene, scene_config=scene_config, val_rollouts=0, energy_weight=args.energy_weight,
                       hidden_dims=[128, 128], **extra, **overrides)
     curve = Curve(sample, every_s=max(5.0, args.minutes * 60 / 40))
-    trainer = L.Trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
-                        num_sanity_val_steps=0, inference_mode=False, gradient_clip_val=1.0,
-                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-                        logger=TensorBoardLogger(str(ROOT / "lightning_logs"), name=f"benchmark_{scene}",
-                                                 default_hp_metric=False),
-                        callbacks=[curve], accelerator="cpu", devices=1)
+    # as `lnn-torch fit` trains (gradient clipping at 1.0, inference mode off), on a wall-clock budget, its own
+    # TensorBoard folder, no checkpoints or validation
+    trainer = make_trainer(max_time={"seconds": int(args.minutes * 60)}, max_epochs=-1, limit_val_batches=0,
+                           num_sanity_val_steps=0, enable_checkpointing=False, enable_progress_bar=False,
+                           enable_model_summary=False,
+                           logger=TensorBoardLogger(str(ROOT / "lightning_logs"), name=f"benchmark_{scene}",
+                                                    default_hp_metric=False),
+                           callbacks=[curve], accelerator="cpu", devices=1)
     start = time.perf_counter()
     trainer.fit(model, dm)
     if args.save_checkpoints:
-        path = Path(args.output_dir) / "checkpoints" / f"{cfg.get('name', scene)}_{name.split(' (')[0].replace(' ', '_').replace('+', 'plus')}.ckpt"
+        stem = name.split(" (")[0].replace(" ", "_").replace("+", "plus")
+        path = Path(args.output_dir) / "checkpoints" / f"{cfg.get('name', scene)}_{stem}.ckpt"
         path.parent.mkdir(parents=True, exist_ok=True)
         trainer.save_checkpoint(path)
     model.eval()
@@ -190,7 +198,8 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     states = [x[:, ::10].reshape(-1, x.shape[-1]) for x in (test.q, test.qd)]
     rep = lambda x: x[torch.arange(n) % x.shape[0]].float()  # noqa: E731
     T = test.q[:, ::10].shape[1]
-    qq, qqd, pp = rep(states[0]), rep(states[1]), rep(test.params[:, None].expand(-1, T, -1).reshape(-1, test.params.shape[-1]))
+    params = test.params[:, None].expand(-1, T, -1).reshape(-1, test.params.shape[-1])
+    qq, qqd, pp = rep(states[0]), rep(states[1]), rep(params)
     uu = None if test.tau is None else rep(test.tau[:, ::10].reshape(-1, test.tau.shape[-1]))  # recorded inputs
 
     def ev():
@@ -211,8 +220,10 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
         # rollout cost: batch 64 (test states repeated), 200 steps, scaled to 1000 steps
         idx = torch.arange(64) % B
         held = None if test.tau is None else test.tau[idx, :1].expand(-1, 200, -1)
-        cost = median_seconds(lambda: model_rollout(model, test.q[idx, 0], test.qd[idx, 0], test.params[idx], dt, 200,
-                                                    method, held), repeats=3, warmup=1) * 5
+        def roll(idx=idx, dt=dt, method=method, held=held):
+            return model_rollout(model, test.q[idx, 0], test.qd[idx, 0], test.params[idx], dt, 200, method, held)
+
+        cost = median_seconds(roll, repeats=3, warmup=1) * 5
         r = evaluate_model(model, system, test, sections=("rollouts", "energy"), integrator=method, dt=dt,
                            horizon=cfg["horizon"], thresholds=(cfg["threshold"],))
         div = r[f"divergence_time@{cfg['threshold']:g}"]["model"]
@@ -260,7 +271,8 @@ def drift_cell(r: dict) -> str:
 def markdown(result: dict) -> str:
     scene = result["scene"]
     lines = [f"### {scene}", "",
-             f"{result['machine']}; each variant trained {result['minutes']:g} min on {result['train_threads']} threads "
+             f"{result['machine']}; each variant trained {result['minutes']:g} min on {result['train_threads']} "
+             "threads "
              f"(same data, seed, budget); speed on 1 thread; {result['num_test']} test trajectories, rollouts over "
              f"{result['horizon']:g} s. Command: `{result['command']}`"
              + "".join(f"; then `{c}`" for c in result.get("added", [])), "",
@@ -297,7 +309,7 @@ def plots(result: dict, out: Path) -> list[Path]:
     scene = result["scene"]
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     for name, t in result["training"].items():
-        xs, ys = zip(*t["curve"])
+        xs, ys = zip(*t["curve"], strict=True)
         ax.loglog(np.maximum(xs, 1.0), ys, label=name)
     ax.set_xlabel("training time (s)")
     ax.set_ylabel("validation acc. rel. L2")
@@ -315,7 +327,7 @@ def plots(result: dict, out: Path) -> list[Path]:
         xs = [r["rollout_s_per_1000_steps_b64"] for r in rows]
         ys = [max(r["energy_drift_mean"], 1e-16) for r in rows]
         axes[1].scatter(xs, ys, color=f"C{i}", label=model)
-        for r, x, y in zip(rows, xs, ys):
+        for r, x, y in zip(rows, xs, ys, strict=True):
             axes[1].annotate(f"{r['integrator'][:4]} {r['dt']:g}", (x, y), fontsize=6)
     axes[0].set(xscale="log", yscale="log", xlabel="seconds per state (accel., batch 8192, 1 thread)",
                 ylabel="test acc. rel. L2", title="acceleration: cost vs error")
@@ -337,12 +349,14 @@ def summary(result: dict, integrator: str = "rk4", dt: float = 0.005) -> str:
     lines = [f"**{result['scene']}** ({result['minutes']:g} min of training per model on {result['train_threads']} "
              f"thread(s); {result['num_test']} test trajectories; {integrator}, dt = {dt:g} s, {result['horizon']:g} s "
              f"rollouts; `{result['command']}`)", "",
-             f"| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | {energy_label(result)}, mean | "
+             "| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | "
+             f"{energy_label(result)}, mean | "
              + ("torque nRMSE | " if torques else "") + "accel. cost x closed form | rollout cost x closed form |",
              "|---" * (7 + torques) + "|"]
     for r in rows:
         steps = result["training"].get(r["model"], {}).get("steps")
-        lines.append(f"| {r['model']} | {fmt(steps, ',')} | {acc_cell(r)} | {fmt(r.get('divergence_time_median'), '.2f')} | "
+        lines.append(f"| {r['model']} | {fmt(steps, ',')} | {acc_cell(r)} | "
+                     f"{fmt(r.get('divergence_time_median'), '.2f')} | "
                      f"{drift_cell(r)} | " + (f"{fmt(r.get('torque_nrmse'), '.4f')} | " if torques else "")
                      + f"{ceiling['states_per_s'] / r['states_per_s']:.0f} | "
                      f"{r['rollout_s_per_1000_steps_b64'] / ceiling['rollout_s_per_1000_steps_b64']:.1f} |")
@@ -429,8 +443,9 @@ def main() -> None:
     cfg["name"] = args.scene
     system = get_system(cfg.get("scene", args.scene), **cfg.get("scene_config", {}))
     rows_spec = [v for v in variants_for(system, cfg) if args.variants is None or v[0] in args.variants]
-    result = {"scene": args.scene, "has_forces": system.has_forces, "minutes": args.minutes, "train_threads": args.threads,
-              "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
+    result = {"scene": args.scene, "has_forces": system.has_forces, "minutes": args.minutes,
+              "train_threads": args.threads,
+              "machine": header(),
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
                                                                    (("scene", args.scene), ("minutes", args.minutes),

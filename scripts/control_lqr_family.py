@@ -103,7 +103,8 @@ def main(argv=None) -> int:
              f"parameter sets, {K} starts each within {args.ball:g} rad of the upright, {args.seconds:g} s at "
              f"{args.control_hz:g} Hz; stabilised: both angles within 0.01 rad at the end.", "",
              f"The truth-designed LQR stabilises {100 * result['truth_starts_stabilised']:.1f} % of the starts.", "",
-             "| design | sets where it stabilises every start the truth's LQR does | starts stabilised of the truth's |",
+             "| design | sets where it stabilises every start the truth's LQR does "
+             "| starts stabilised of the truth's |",
              "|---|---|---|"]
     lines += [f"| {name} | {100 * r['sets_all_truth_starts_stabilised']:.1f} % | "
               f"{100 * r['starts_stabilised_of_truths']:.1f} % |" for name, r in rows.items()]

@@ -49,7 +49,7 @@ def run_case(model, system, tr, seconds: float, noise: float, args, rng) -> dict
         seconds_per_id.append((time.perf_counter() - start) / len(chunk))
         exact = identify_batch(ClosedForm(system), system, t, chunk, method="acceleration", starts=args.starts,
                                steps=args.steps)
-        for i, (r, e) in enumerate(zip(found, exact)):
+        for i, (r, e) in enumerate(zip(found, exact, strict=True)):
             j = b + i
             ls = least_squares_reference(system, t, chunk[i])
             unidentified += any(set(d["direction"]) >= {"m1", "m2"} for d in r.unidentifiable)
@@ -121,7 +121,8 @@ def main() -> None:
             case = run_case(module.model, module.system, tr, seconds, noise, args, np.random.default_rng(0))
             cases.append(case)
             s = case["summary"]
-            print(f"{seconds:4.1f} s noise {noise:g}: " + ", ".join(f"{k} {100 * v['median']:.3f} %" for k, v in s.items())
+            print(f"{seconds:4.1f} s noise {noise:g}: "
+                  + ", ".join(f"{k} {100 * v['median']:.3f} %" for k, v in s.items())
                   + f" ({case['trajectories']} trajectories, {case['time_per_id']:.2f} s each)", flush=True)
             (out / "study.json").write_text(json.dumps({"checkpoint": args.checkpoint, "method": args.method,
                                                         "cases": cases}, indent=1))
@@ -156,7 +157,7 @@ def plot(cases, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(QUANTITIES), figsize=(11, 3.2), sharey=True)
-    for ax, name in zip(axes, QUANTITIES):
+    for ax, name in zip(axes, QUANTITIES, strict=True):
         for k, noise in enumerate(sorted({c["noise"] for c in cases})):
             sel = sorted((c for c in cases if c["noise"] == noise), key=lambda c: c["seconds"])
             x = [c["seconds"] for c in sel]

@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
     from lnn_torch.checkpoints import data_hparams, load_model, output_dir
-    from lnn_torch.data import TrajectoryDataModule
+    from lnn_torch.data import TrajectoryDataModule, read_dataset
     from lnn_torch.evaluation import evaluate_model
     from lnn_torch.identified import RigidArmModel
     from lnn_torch.perf import configure_cpu
@@ -58,7 +58,7 @@ def main() -> None:
     dm = TrajectoryDataModule(path=args.data or saved["path"], targets=saved.get("targets", "file"))
     data = dm.trajectories(args.split)
     smoothed = dm.trajectories(args.split, smooth_inputs=True)  # the torques in the reference's band
-    names = json.loads(dm._open().attrs["recordings"])
+    names = json.loads(read_dataset(dm.path).attrs["recordings"])
     held_out = [names[int(i)] for i in data.index]
     lab = RigidArmModel.from_yaml(PARAMS)
     horizons = (0.1, 0.25, 0.5, 1.0)
@@ -71,7 +71,7 @@ def main() -> None:
             acceleration_report(model, smoothed, module.system.coord_names),
             acceleration_report(model, data, module.system.coord_names))
         r["per_recording"] = {rec: {"filtered_torques": f, "recorded_torques": e}
-                              for rec, f, e in zip(held_out, filtered, recorded)}
+                              for rec, f, e in zip(held_out, filtered, recorded, strict=True)}
         results[name] = r
     structure = compare_structure(module.model, lab, data, held_out)
     out = output_dir(args.checkpoint, args.output_dir, "real_pendulum")
@@ -83,7 +83,8 @@ def main() -> None:
              f"({saved.get('targets')}); open-loop rollouts (RK4 at the data's 2 ms step, the recorded torques held "
              f"over each step) started every {args.start_every:g} s with the measured state. {args.note}", "",
              "| model | acc. rel. L2, torques filtered alike (q1, q2) | with the recorded torques | angle error after "
-             + ", ".join(f"{h:g}" for h in horizons) + " s: median [p90] (rad) | time to 0.1 rad: median [q25, q75] (s) |",
+             + ", ".join(f"{h:g}" for h in horizons)
+             + " s: median [p90] (rad) | time to 0.1 rad: median [q25, q75] (s) |",
              "|---|---|---|---|---|"]
     for name, r in results.items():
         a, ar, h = r["acc_rel_err"], r["acc_rel_err_recorded_torques"], r["horizons"]
@@ -95,13 +96,14 @@ def main() -> None:
     lines += ["", "Per recording, acc. rel. L2 with the torques filtered alike (with the recorded torques):", "",
               "| model | " + " | ".join(held_out) + " |", "|---|" + "---|" * len(held_out)]
     for name, r in results.items():
-        lines.append(f"| {name} | " + " | ".join(f"{100 * e['filtered_torques']:.1f} % ({100 * e['recorded_torques']:.1f} %)"
-                                                 for e in r["per_recording"].values()) + " |")
+        lines.append(f"| {name} | "
+                     + " | ".join(f"{100 * e['filtered_torques']:.1f} % ({100 * e['recorded_torques']:.1f} %)"
+                                  for e in r["per_recording"].values()) + " |")
     m = structure["mass_matrix"]
-    lines += ["", f"Learned against the lab's model: mass matrix over q2 in [-pi, pi] (q1 = 0; the learned one in its normalised units, after "
-              f"one best scale), relative Frobenius difference median {100 * m['median']:.1f} %, max "
-              f"{100 * m['max']:.1f} %; static torque (inverse dynamics at zero velocity and acceleration: gravity) along "
-              "each recording's measured angles, RMS [max] difference: "
+    lines += ["", "Learned against the lab's model: mass matrix over q2 in [-pi, pi] (q1 = 0; the learned one in its "
+              f"normalised units, after one best scale), relative Frobenius difference median {100 * m['median']:.1f} "
+              f"%, max {100 * m['max']:.1f} %; static torque (inverse dynamics at zero velocity and acceleration: "
+              "gravity) along each recording's measured angles, RMS [max] difference: "
               + ", ".join(f"{k} {v['rms']:.3f} [{v['max']:.3f}] N m" for k, v in structure["static_torque"].items())]
     if "identified" in structure:  # the lab's values of the same quantities
         lines += ["", "Identified rigid chain (SI) against the lab's parameters: " + ", ".join(
@@ -149,7 +151,8 @@ def compare_structure(model, lab, data, names) -> dict:
     forces = getattr(model, "forces", None)
     if forces is not None and forces.friction:  # viscous b and the Coulomb level (the lab's: cf pi / 2)
         with torch.no_grad():
-            b, c = (x.reshape(-1) for x in forces.coefficients(model.normalizer.params(data.params[:1].to(model.dtype))))
+            p_n = model.normalizer.params(data.params[:1].to(model.dtype))
+            b, c = (x.reshape(-1) for x in forces.coefficients(p_n))
         out["friction"] = {**{f"b{i + 1}": float(v) for i, v in enumerate(b)},
                            **{f"coulomb{i + 1}": float(v) for i, v in enumerate(c)}}
     return out

@@ -1,16 +1,16 @@
 """Leave-one-recording-out cross-validation of model settings on the real double pendulum.
 
-The held-out test recordings of ``configs/import/real_double_pendulum.yaml`` stay out of it. Each of
-the other recordings (training and validation) is held out in turn; for every setting (its
-``model.model_options`` and any other overrides of the config, ``SETTINGS``), ``lnn-torch fit -c configs/real_double_pendulum.yaml`` trains on
-the rest and the held-out recording is predicted: the acceleration error against the filtered
-reference with the torques through the same filter (as ``scripts/real_pendulum.py`` leads with),
-beside the lab's identified model. The criterion is the pooled relative L2 error over all folds
-(every recording's squared errors summed, then divided by the summed squared reference). One
-validation recording of moderate swings says little about angles and speeds no other recording
-reaches; holding out each recording in turn, the high-energy one included, does. The fits skip
-Lightning's validation (``--trainer.limit_val_batches=0``: open-loop rollouts that cost more than the
-training and change nothing in it); the study evaluates each held-out recording itself.
+The held-out test recordings of ``configs/import/real_double_pendulum.yaml`` stay out of it. Each of the
+other recordings (training and validation) is held out in turn; for every setting (its
+``model.model_options`` and any other overrides of the config, ``SETTINGS``), ``lnn-torch fit -c
+configs/real_double_pendulum.yaml`` trains on the rest and the held-out recording is predicted: the
+acceleration error against the filtered reference with the torques through the same filter (as
+``scripts/real_pendulum.py`` leads with), beside the lab's identified model. The criterion is the pooled
+relative L2 error over all folds (every recording's squared errors summed, then divided by the summed
+squared reference). One validation recording of moderate swings says little about angles and speeds no
+other recording reaches; holding out each recording in turn, the high-energy one included, does. The
+fits skip Lightning's validation (``--trainer.limit_val_batches=0``: open-loop rollouts that cost more
+than the training and change nothing in it); the study evaluates each held-out recording itself.
 
     lnn-torch import lnn_torch/datasets/real_double_pendulum/recordings/*.csv.gz \\
         --config configs/import/real_double_pendulum.yaml -o data/real_double_pendulum.h5
@@ -29,9 +29,9 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import torch
-
 from _cli import HelpFormatter, add_output_dir, wrote
 from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison script
 
@@ -41,7 +41,8 @@ DECAY = ["--model.weight_decay=0.1"]  # on network weights and on a residual bes
 SETTINGS = {
     "MLP potential (the default)": {"model_options": {"mass_invariant": [0]}, "args": DECAY},
     "harmonic potential": {"model_options": {"mass_invariant": [0], "potential": "harmonic"}, "args": DECAY},
-    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": ["harmonic", "mlp"]}, "args": DECAY},
+    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": ["harmonic", "mlp"]},
+                              "args": DECAY},
     "rigid chain + harmonic": {**CHAIN, "potential": "harmonic"},
     "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": ["chain", "harmonic"]},
                                                       "args": DECAY},
@@ -63,11 +64,9 @@ def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
 
 def fold_file(source: Path, dest: Path, held_out: int, keep: list[int], test: np.ndarray) -> None:
     """A copy of the imported dataset whose training split is ``keep`` and validation split ``held_out``."""
-    from lnn_torch.data.hdf5 import _h5py
-
     dest.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(source, dest)
-    with _h5py().File(dest, "r+") as f:
+    with h5py.File(dest, "r+") as f:
         for name, idx in (("train", keep), ("val", [held_out]), ("test", test)):
             del f[f"splits/{name}"]
             f.create_dataset(f"splits/{name}", data=np.asarray(idx, dtype=np.int64))

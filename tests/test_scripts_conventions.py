@@ -1,7 +1,9 @@
-"""The scripts' command-line conventions (``scripts/_cli.py``, the same as the package's commands): a
-folder of results is ``--output-dir`` / ``-o``, a single file ``--output`` / ``-o``; the old spellings
-still work, hidden, with one deprecation line; each default stated once. Only ``--help`` and parsing
-run here: no script does its work."""
+"""The command-line conventions of the scripts and the benchmarks (``scripts/_cli.py``, the same as the
+package's commands): a folder of results is ``--output-dir`` / ``-o``, a single file ``--output`` /
+``-o``; the old spellings still work, hidden, with one deprecation line; each default stated once. And
+what keeps them apart from the library's insides: no script or benchmark imports a private name, the
+studies train through ``make_trainer``, and the machine header and the timing in turn are written once
+(``benchmarks/timing.py``). Only ``--help`` and parsing run here: no script does its work."""
 
 from __future__ import annotations
 
@@ -16,7 +18,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"
-SOURCES = {p.stem: p.read_text() for p in sorted(SCRIPTS.glob("*.py")) if not p.name.startswith("_")}
+BENCHMARKS = ROOT / "benchmarks"
+HELPERS = {"timing", "jax_original"}  # modules the benchmarks import, not commands
+PATHS = {p.stem: p for folder in (SCRIPTS, BENCHMARKS) for p in sorted(folder.glob("*.py"))
+         if not p.name.startswith("_") and p.stem not in HELPERS}
+SOURCES = {name: path.read_text() for name, path in PATHS.items()}
+ALL_SOURCES = {f"{p.parent.name}/{p.name}": p.read_text() for folder in (SCRIPTS, BENCHMARKS)
+               for p in sorted(folder.glob("*.py"))}
 FOLDER = sorted(name for name, text in SOURCES.items() if "add_output_dir(" in text)
 FILE = sorted(name for name, text in SOURCES.items() if "add_output_file(" in text)
 
@@ -24,6 +32,18 @@ FILE = sorted(name for name, text in SOURCES.items() if "add_output_file(" in te
 def _runnable(name: str) -> bool:
     """False for a script that imports jax where jax is not installed (its --help cannot run)."""
     return not re.search(r"^import jax\b", SOURCES[name], re.M) or importlib.util.find_spec("jax") is not None
+
+
+def test_the_timing_scripts_live_in_benchmarks_and_the_studies_in_scripts():
+    assert len(PATHS) == len({p.stem for folder in (SCRIPTS, BENCHMARKS) for p in folder.glob("*.py")} - HELPERS
+                             - {"_cli"})  # no name in both folders
+    timing = {"benchmark_dynamics", "benchmark_arm_dynamics", "benchmark_compile_rule", "benchmark_export",
+              "benchmark_first_call", "benchmark_jax_reference", "benchmark_mppi", "compare_compile",
+              "cost_accuracy_front"}
+    assert {name for name in timing if PATHS[name].parent == BENCHMARKS} == timing
+    assert (BENCHMARKS / "timing.py").exists() and (BENCHMARKS / "jax_original.py").exists()
+    assert {"noise_study", "real_pendulum_cv", "benchmark", "ablate"} <= {n for n, p in PATHS.items()
+                                                                         if p.parent == SCRIPTS}
 
 
 def test_every_output_option_goes_through_the_convention():
@@ -36,7 +56,7 @@ def test_every_output_option_goes_through_the_convention():
 
 def _help(name: str) -> str:
     env = {**os.environ, "COLUMNS": "200", "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, str(SCRIPTS / f"{name}.py"), "--help"], cwd=ROOT, env=env,
+    done = subprocess.run([sys.executable, str(PATHS[name]), "--help"], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     return done.stdout
@@ -59,7 +79,8 @@ def test_help_names_the_output_option_and_not_the_old_spellings(name):
 
 def _script(name: str, monkeypatch):
     monkeypatch.syspath_prepend(str(SCRIPTS))  # the scripts import _cli from their folder
-    spec = importlib.util.spec_from_file_location(f"script_{name}", SCRIPTS / f"{name}.py")
+    monkeypatch.syspath_prepend(str(PATHS[name].parent))  # the benchmarks import timing from theirs
+    spec = importlib.util.spec_from_file_location(f"script_{name}", PATHS[name])
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -95,3 +116,33 @@ def test_help_states_each_default_once_and_wrote_lists_the_paths(monkeypatch, ca
     _cli.wrote(Path("a"), [Path("b"), "c"])
     _cli.wrote([])
     assert capsys.readouterr().out == "wrote a, b, c\n"
+
+
+@pytest.mark.parametrize("name", sorted(ALL_SOURCES))
+def test_no_script_or_benchmark_imports_a_private_name(name):
+    text = ALL_SOURCES[name]
+    # a private module of the library (lnn_torch.networks._kernels), or a private name from it (_h5py)
+    assert not re.findall(r"\blnn_torch(?:\.\w+)*\._\w+", text), name
+    assert not re.findall(r"^\s*from\s+lnn_torch[\w.]*\s+import\s+(?:\(\s*)?(?:\w+\s*,\s*)*_\w", text, re.M), name
+    # nor another object's private attribute: a module's, a data module's, a model's, a helper module's
+    assert not re.findall(r"\b(?:module|dm|model|m|arm|system|harness|derivatives|hdf5|_cli|timing)\._[a-z]\w*",
+                          text), name
+
+
+@pytest.mark.parametrize("name", sorted(ALL_SOURCES))
+def test_studies_train_as_the_cli_does(name):
+    """A hand-built ``Trainer`` drifts from ``lnn-torch fit`` (a study once trained without gradient
+    clipping): scripts and benchmarks build theirs with ``lnn_torch.lightning_cli.make_trainer``."""
+    assert not re.search(r"\bTrainer\(", ALL_SOURCES[name]), name
+    assert not re.search(r"\.load_from_checkpoint\(", ALL_SOURCES[name]), name  # lnn_torch.load_model
+
+
+def test_the_machine_header_and_the_timing_in_turn_are_written_once():
+    timing = ALL_SOURCES["benchmarks/timing.py"]
+    others = {n: t for n, t in ALL_SOURCES.items() if n != "benchmarks/timing.py"}
+    for needle in ("/proc/cpuinfo", "platform.processor", "getloadavg", "process_time"):
+        assert needle in timing, needle
+        assert not [n for n, t in others.items() if needle in t], needle
+    assert not [n for n, t in others.items() if "torch.__version__" in t]  # the versions: timing.machine()
+    timed = [n for n, t in others.items() if "in turn" in t and n.startswith("benchmarks/")]
+    assert len(timed) >= 5 and all("in_turn(" in ALL_SOURCES[n] for n in timed), timed

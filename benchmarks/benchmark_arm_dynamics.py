@@ -35,7 +35,7 @@ against the engine's. The grey box's inverse dynamics is also timed unchecked (e
 States: q uniform within the joint ranges (``MujocoArm.sample_q``), qd, qdd, tau standard normal,
 payload mass uniform 0-3 kg, centre of mass x, y uniform in +-0.05 m and z in 0-0.1 m (flange frame).
 
-    python scripts/benchmark_arm_dynamics.py            # results/robot_arm/speed.md and speed.json (~4 min)
+    python benchmarks/benchmark_arm_dynamics.py         # results/robot_arm/speed.md and speed.json (~4 min)
 """
 
 from __future__ import annotations
@@ -44,7 +44,6 @@ import argparse
 import gc
 import json
 import os
-import platform
 import shlex
 import signal
 import sys
@@ -59,11 +58,24 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from timing import (  # noqa: E402
+    ROOT,
+    CpuShare,
+    HelpFormatter,
+    add_output_dir,
+    calls_per_run,
+    header,
+    in_turn,
+    machine,
+    median_ratio,
+    run_seconds,
+    wrote,
+)
 
-from _cli import ROOT, HelpFormatter, add_output_dir, wrote  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.networks.base import SceneInfo  # noqa: E402
-from lnn_torch.perf import compile_fn, configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.networks.capabilities import INVERSE_DYNAMICS, capabilities_of  # noqa: E402
+from lnn_torch.perf import compile_fn, configure_cpu  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 
 BATCHES = (1, 4096)
@@ -110,18 +122,10 @@ def sample_states(arm: MujocoArm, n: int, seed: int = 0) -> dict[str, np.ndarray
 
 def per_state_us(fn, batch: int, repeats: int) -> float:
     """Median over ``repeats`` runs of one call's time divided by ``batch``, in us; a run is as many
-    calls in a row as take about 20 ms (at least one), after warm-up calls."""
+    calls in a row as take about 20 ms (at least one), after warm-up calls (two runs' worth)."""
     gc.collect()
-    fn()
-    start = time.perf_counter()
-    fn()
-    inner = max(1, int(0.02 / max(time.perf_counter() - start, 1e-7)))
-
-    def run():
-        for _ in range(inner):
-            fn()
-
-    return 1e6 * median_seconds(run, repeats, warmup=2) / (inner * batch)
+    calls = calls_per_run(fn, 0.02)
+    return 1e6 * run_seconds(fn, calls, repeats, warmup_calls=2 * calls) / batch
 
 
 # ---------------------------------------------------------------------------- the engine
@@ -201,8 +205,10 @@ def engine_rows(arm: MujocoArm, states: dict, repeats: int, batches) -> tuple[li
         x = {k: v[:b] for k, v in t.items()}
         rows.append({"name": "MuJoCo via MujocoArm (tensors in/out, set_payload per state)", "engine": True,
                      "dtype": "float64", "batch": b,
-                     "forward_us": per_state_us(lambda: arm.forward(x["q"], x["qd"], x["tau"], x["payload"]), b, repeats),
-                     "inverse_us": per_state_us(lambda: arm.inverse(x["q"], x["qd"], x["qdd"], x["payload"]), b, repeats)})
+                     "forward_us": per_state_us(lambda x=x: arm.forward(x["q"], x["qd"], x["tau"], x["payload"]), b,
+                                                repeats),
+                     "inverse_us": per_state_us(lambda x=x: arm.inverse(x["q"], x["qd"], x["qdd"], x["payload"]), b,
+                                                repeats)})
         for mode, name in (("set_payload", "MuJoCo raw loop, set_payload per state"), ("direct", ENGINE_REFERENCE),
                            ("once", "MuJoCo raw loop, one payload for all states")):
             engine = RawEngine(arm, states, b, mode)
@@ -237,7 +243,8 @@ def unchecked_inverse(model):
     """``model.inverse_dynamics`` without the input checks (what ``torch.compile`` gets)."""
     def inverse(q, qd, qdd, params):
         q_n, qd_n, p_n = model.normalize(q, qd, params)
-        return model.forces.solve_inputs(model.inverse_dynamics_norm(q_n, qd_n, model.normalizer.accel_to_norm(qdd), p_n))
+        qdd_n = model.normalizer.accel_to_norm(qdd)
+        return model.forces.solve_inputs(model.inverse_dynamics_norm(q_n, qd_n, qdd_n, p_n))
 
     return inverse
 
@@ -258,7 +265,7 @@ def compiled_rows(model, x_by_batch: dict, repeats: int, budget: float) -> tuple
 
     for b, x in x_by_batch.items():
         rows.append({"name": "grey box (spatial parts), inverse unchecked, eager", "dtype": "float32", "batch": b,
-                     "forward_us": None, "inverse_us": per_state_us(lambda: eager(*x), b, repeats)})
+                     "forward_us": None, "inverse_us": per_state_us(lambda x=x: eager(*x), b, repeats)})
         if budget <= 0 or info["failed"]:
             continue
         old = signal.signal(signal.SIGALRM, alarm)
@@ -275,7 +282,7 @@ def compiled_rows(model, x_by_batch: dict, repeats: int, budget: float) -> tuple
         info["seconds"][b] = time.perf_counter() - start
         info[f"max_abs_difference_from_eager_batch_{b}"] = float((out - eager(*x)).abs().max())
         rows.append({"name": "grey box (spatial parts), inverse unchecked, torch.compile", "dtype": "float32",
-                     "batch": b, "forward_us": None, "inverse_us": per_state_us(lambda: compiled(*x), b, repeats)})
+                     "batch": b, "forward_us": None, "inverse_us": per_state_us(lambda x=x: compiled(*x), b, repeats)})
         print(f"torch.compile, batch {b}: compiled in {info['seconds'][b]:.0f} s, "
               f"{rows[-1]['inverse_us']:.2f} us/state", file=sys.stderr, flush=True)
     return rows, info
@@ -310,11 +317,15 @@ def model_rows(arm: MujocoArm, states: dict, repeats: int, batches, compile_budg
     for label, variant, options, dtype, friction in MODELS:
         model = build(variant, options, dtype, friction, arm)
         x = {k: torch.from_numpy(v).to(dtype) for k, v in states.items()}
-        has_inverse = hasattr(model, "inverse_dynamics")
+        has_inverse = INVERSE_DYNAMICS in capabilities_of(model)
         for b in batches:
             q, qd, qdd, tau, payload = (x[k][:b] for k in ("q", "qd", "qdd", "tau", "payload"))
-            forward = per_state_us(lambda: model.acceleration(q, qd, payload, tau), b, repeats)
-            inverse = per_state_us(lambda: model.inverse_dynamics(q, qd, qdd, payload), b, repeats) if has_inverse else None
+            forward = per_state_us(lambda m=model, q=q, qd=qd, p=payload, tau=tau: m.acceleration(q, qd, p, tau), b,
+                                   repeats)
+            inverse = None
+            if has_inverse:
+                inverse = per_state_us(lambda m=model, q=q, qd=qd, qdd=qdd, p=payload: m.inverse_dynamics(
+                    q, qd, qdd, p), b, repeats)
             rows.append({"name": label, "variant": variant, "dtype": str(dtype)[6:], "batch": b,
                          "parameters": sum(p.numel() for p in model.parameters()),
                          "forward_us": forward, "inverse_us": inverse})
@@ -330,19 +341,17 @@ def model_rows(arm: MujocoArm, states: dict, repeats: int, batches, compile_budg
     return rows, accuracy, compile_info
 
 
-def in_turn(arm: MujocoArm, states: dict, batch: int, repeats: int, rounds: int = 5) -> dict:
+def grey_box_in_turn(arm: MujocoArm, states: dict, batch: int, repeats: int, rounds: int = 5) -> dict:
     """The grey box's (float32) inverse dynamics and the reference engine loop timed in turn, ``rounds``
     times: the median of the per-round ratios is robust to a load on the machine that changes between
     the rows of the tables."""
-    import statistics
-
     model = build("film_lnn", GREY, torch.float32, True, arm)
     x = [torch.from_numpy(states[k][:batch]).float() for k in ("q", "qd", "qdd", "payload")]
     engine = RawEngine(arm, states, batch, "direct")
-    pairs = [(per_state_us(lambda: model.inverse_dynamics(*x), batch, repeats),
-              per_state_us(engine.inverse, batch, repeats)) for _ in range(rounds)]
-    return {"rounds": rounds, "repeats": repeats, "grey_box_us": [g for g, _ in pairs],
-            "engine_us": [e for _, e in pairs], "ratio": statistics.median(g / e for g, e in pairs)}
+    us = in_turn({"grey box": lambda: model.inverse_dynamics(*x), "engine": engine.inverse}, rounds,
+                 lambda fn: per_state_us(fn, batch, repeats))
+    return {"rounds": rounds, "repeats": repeats, "grey_box_us": us["grey box"], "engine_us": us["engine"],
+            "ratio": median_ratio(us["grey box"], us["engine"])}
 
 
 # ---------------------------------------------------------------------------- the report
@@ -358,32 +367,12 @@ def ratio(x, ref) -> str:
     return f"{x / ref:.2f}" if x / ref < 10 else f"{x / ref:.0f}"
 
 
-def load_average():
-    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
-
-
-def machine(load_at_start) -> dict:
-    import mujoco
-
-    cpu = ""
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"processor": platform.processor() or platform.machine(), "cpu": cpu, "cores": os.cpu_count(),
-            "python": platform.python_version(), "torch": torch.__version__, "mujoco": mujoco.__version__,
-            "threads": torch.get_num_threads(), "load_average_at_start": load_at_start,
-            "load_average_at_end": load_average()}
-
-
 def report(result: dict) -> str:
     m, rows = result["machine"], result["rows"]
     lines = ["# Franka Panda arm: forward and inverse dynamics per state, models against MuJoCo", "",
-             f"One CPU thread (torch threads {m['threads']}, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}); "
-             f"{m['processor']}, {m['cpu']} ({m['cores']} cores, shared; load average (1, 5, 15 min) at the start "
-             f"{', '.join(map(str, m['load_average_at_start'] or []))}, at the end "
-             f"{', '.join(map(str, m['load_average_at_end'] or []))}); Python {m['python']}, torch {m['torch']}, "
-             f"mujoco {m['mujoco']}. All in one process: {result['cpu_seconds']:.0f} s of CPU time in "
+             f"One CPU thread: {header(m)} at the end (at the start "
+             f"{', '.join(map(str, result['load_average_at_start'] or []))}). All in one process: "
+             f"{result['cpu_seconds']:.0f} s of CPU time in "
              f"{result['seconds']:.0f} s (a share of {result['cpu_seconds'] / result['seconds']:.2f} of a core; 1: a "
              "core to itself, less: other processes took turns on it and the times are that much noisier).", "",
              f"Microseconds per state: the median over {result['repeats']} runs of one call's time divided by the "
@@ -400,7 +389,8 @@ def report(result: dict) -> str:
         for r in (r for r in rows if r["batch"] == b):
             name = f"**{r['name']}**" if r["name"] == ENGINE_REFERENCE else r["name"]
             lines.append(f"| {name} | {r['dtype']} | {cell(r['forward_us'])} | {cell(r['inverse_us'])} "
-                         f"| {ratio(r['forward_us'], ref['forward_us'])} | {ratio(r['inverse_us'], ref['inverse_us'])} |")
+                         f"| {ratio(r['forward_us'], ref['forward_us'])} "
+                         f"| {ratio(r['inverse_us'], ref['inverse_us'])} |")
     c, acc, raw = result["correctness"], result["accuracy"], result["raw_loop_differences"]
     lines += ["", "## Correctness", "",
               f"Grey box at float64 default dtype, eps = 0, against MuJoCo on {c['states']} states with their payloads "
@@ -427,7 +417,8 @@ def report(result: dict) -> str:
               f"The grey box's batched inverse dynamics (float32) within 10x of the engine per state at batch "
               f"{t['batch']} on one thread: **{t['verdict']}** — {t['grey_box_us']:.2f} µs/state "
               f"against {t['engine_us']:.2f} µs/state ({t['ratio']:.1f}x; against the MujocoArm wrapper "
-              f"{t['ratio_wrapper']:.1f}x, against the raw loop with one payload for all states {t['ratio_once']:.1f}x)."
+              f"{t['ratio_wrapper']:.1f}x, against the raw loop with one payload for all states "
+              f"{t['ratio_once']:.1f}x)."
               + f" Timed in turn with the engine ({t['in_turn']['rounds']} rounds, the median of the per-round "
               f"ratios, robust to a changing load): {t['in_turn']['ratio']:.1f}x."
               + (f" Through torch.compile: {t['compiled_us']:.2f} µs/state ({t['compiled_ratio']:.1f}x)."
@@ -449,33 +440,38 @@ def main() -> None:
     torch.set_num_threads(1)
     arm = MujocoArm("franka_panda")
     states = sample_states(arm, max(BATCHES))
-    start, cpu_start, load_at_start = time.perf_counter(), time.process_time(), load_average()
-    correct = correctness(arm, states)
-    print(f"correctness: {correct}", file=sys.stderr, flush=True)
-    with torch.no_grad():
-        engine, differences = engine_rows(arm, states, args.repeats, BATCHES)
-        models, accuracy, compile_info = model_rows(arm, states, args.repeats, BATCHES,
-                                                    None if args.no_compile else args.compile_budget)
-        turn = in_turn(arm, states, max(BATCHES), max(3, args.repeats // 2))
+    load_at_start, share = machine()["load_average"], CpuShare()
+    with share:
+        correct = correctness(arm, states)
+        print(f"correctness: {correct}", file=sys.stderr, flush=True)
+        with torch.no_grad():
+            engine, differences = engine_rows(arm, states, args.repeats, BATCHES)
+            models, accuracy, compile_info = model_rows(arm, states, args.repeats, BATCHES,
+                                                        None if args.no_compile else args.compile_budget)
+            turn = grey_box_in_turn(arm, states, max(BATCHES), max(3, args.repeats // 2))
     rows = sorted(engine + models, key=lambda r: r["batch"])  # stable: engine rows first per batch
     b = max(BATCHES)
     pick = lambda name: next(r for r in rows if r["batch"] == b and r["name"] == name)  # noqa: E731
-    grey = next(r for r in rows if r["batch"] == b and r["name"] == "grey box (spatial parts)" and r["dtype"] == "float32")
+    grey = next(r for r in rows
+                if r["batch"] == b and r["name"] == "grey box (spatial parts)" and r["dtype"] == "float32")
     ref = pick(ENGINE_REFERENCE)["inverse_us"]
     target = {"batch": b, "grey_box_us": grey["inverse_us"], "engine_us": ref, "ratio": grey["inverse_us"] / ref,
-              "ratio_wrapper": grey["inverse_us"] / pick("MuJoCo via MujocoArm (tensors in/out, set_payload per state)")["inverse_us"],
+              "ratio_wrapper": grey["inverse_us"]
+              / pick("MuJoCo via MujocoArm (tensors in/out, set_payload per state)")["inverse_us"],
               "ratio_once": grey["inverse_us"] / pick("MuJoCo raw loop, one payload for all states")["inverse_us"]}
     target["in_turn"] = turn
     within = [target["ratio"] <= 10, turn["ratio"] <= 10]
-    target["verdict"] = "met" if all(within) else "not met" if not any(within) else "borderline (the two timings disagree)"
+    target["verdict"] = ("met" if all(within) else "not met" if not any(within)
+                         else "borderline (the two timings disagree)")
     compiled = [r for r in rows if r["batch"] == b and r["name"].endswith("torch.compile")]
     if compiled:
         target["compiled_us"] = compiled[0]["inverse_us"]
         target["compiled_ratio"] = compiled[0]["inverse_us"] / ref
-    command = "OMP_NUM_THREADS=1 python " + " ".join(shlex.quote(a) for a in ["scripts/benchmark_arm_dynamics.py",
+    command = "OMP_NUM_THREADS=1 python " + " ".join(shlex.quote(a) for a in ["benchmarks/benchmark_arm_dynamics.py",
                                                                                *sys.argv[1:]])
-    result = {"machine": machine(load_at_start), "command": command, "batches": list(BATCHES), "repeats": args.repeats,
-              "seconds": round(time.perf_counter() - start, 1), "cpu_seconds": round(time.process_time() - cpu_start, 1), "engine_reference": ENGINE_REFERENCE,
+    result = {"machine": machine(), "load_average_at_start": load_at_start, "command": command,
+              "batches": list(BATCHES), "repeats": args.repeats, "seconds": round(share.seconds, 1),
+              "cpu_seconds": round(share.cpu_seconds, 1), "engine_reference": ENGINE_REFERENCE,
               "rows": rows, "correctness": correct, "accuracy": accuracy, "raw_loop_differences": differences,
               "compile": compile_info, "target": target}
     text = report(result)

@@ -16,18 +16,18 @@ call, then the median of ``--calls`` timed calls), one thread, after warm-up and
 
 for each point eagerly and compiled (``model.compile_dynamics()``, ``LNNModule(compile=True)``),
 and the widest point also in float64. The original (released checkpoint, its own model call and
-its own ``train.train_step``; ``scripts/jax_original.py``) is timed the same way in the same
+its own ``train.train_step``; ``benchmarks/jax_original.py``) is timed the same way in the same
 rounds, and its accuracy is measured on the same test split through the same evaluation (its
 accelerations, our RK4). Its rollout step is its accelerations inside one jitted RK4 step.
 
-    python scripts/cost_accuracy_front.py train                 # trains every point (~15 min)
+    python benchmarks/cost_accuracy_front.py train                 # trains every point (~15 min)
     LNN_JAX_ORIGINAL_SRC=... PYTHONPATH=.venv/lib/python3.11/site-packages:. \\
-        ../jax_original/venv/bin/python scripts/cost_accuracy_front.py time     # needs the original
-    python scripts/cost_accuracy_front.py time --no-original    # lnn_torch points only
+        ../jax_original/venv/bin/python benchmarks/cost_accuracy_front.py time     # needs the original
+    python benchmarks/cost_accuracy_front.py time --no-original    # lnn_torch points only
     ... cost_accuracy_front.py time --untrained   # time freshly initialised networks where a checkpoint is absent
-    python scripts/cost_accuracy_front.py report                # table and plot
+    python benchmarks/cost_accuracy_front.py report                # table and plot
 
-The ``time`` step runs under the original's environment (jax 0.9.1, see ``scripts/jax_original.py``)
+The ``time`` step runs under the original's environment (jax 0.9.1, see ``benchmarks/jax_original.py``)
 with lnn_torch's packages on ``PYTHONPATH``. Writes ``results/cost_accuracy/{train,time}.json``,
 ``README.md`` and ``front.png``; checkpoints go to ``data/front/``.
 """
@@ -41,14 +41,13 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
-from _cli import HelpFormatter, wrote  # noqa: E402
+from timing import ROOT, HelpFormatter, header, in_turn, median_ratio, wrote  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+from lnn_torch.perf import median_seconds  # noqa: E402
+
 OUT = ROOT / "results" / "cost_accuracy"
 CKPT = ROOT / "data" / "front"
 DATA = ROOT / "data" / "quickstart.h5"
@@ -107,6 +106,7 @@ def train(args) -> None:
     import torch
 
     from lnn_torch import LNNModule, TrajectoryDataModule
+    from lnn_torch.lightning_cli import make_trainer
 
     OUT.mkdir(parents=True, exist_ok=True)
     CKPT.mkdir(parents=True, exist_ok=True)
@@ -124,9 +124,10 @@ def train(args) -> None:
         dm = TrajectoryDataModule(path=str(DATA), spec=SPEC, chunk_len=8, chunks_per_batch=64, steps_per_epoch=500,
                                   seed=0)
         module = LNNModule(variant="film_lnn", val_rollouts=0, lr=3e-3, lr_min=3e-5, **POINTS[base])
-        trainer = L.Trainer(max_steps=steps, max_epochs=-1, limit_val_batches=0, num_sanity_val_steps=0,
-                            gradient_clip_val=1.0, enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, logger=False, accelerator="cpu", devices=1)
+        # as `lnn-torch fit` trains (gradient clipping at 1.0), without its logger, checkpoints and validation
+        trainer = make_trainer(max_steps=steps, max_epochs=-1, limit_val_batches=0, num_sanity_val_steps=0,
+                               enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                               logger=False, callbacks=[], accelerator="cpu", devices=1)
         start = time.perf_counter()
         trainer.fit(module, dm)
         seconds = time.perf_counter() - start
@@ -154,12 +155,13 @@ class Candidate:
 def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: bool = False):
     import torch
 
-    from lnn_torch import LNNModule
+    from lnn_torch import LNNModule, load_model
     from lnn_torch.perf import adamw
+    from lnn_torch.training_pass import TrainingPass
 
     ckpt = CKPT / f"{slug(name)}.ckpt"
     if ckpt.exists():
-        module = LNNModule.load_from_checkpoint(str(ckpt), compile=compiled).to(dtype)
+        module = load_model(ckpt).to(dtype)
     elif untrained:  # the same network, freshly initialised: a call's cost does not depend on the weights' values
         module = LNNModule(variant="film_lnn", val_rollouts=0, compile=compiled, **POINTS[name]).to(dtype)
     else:
@@ -172,13 +174,14 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
     q64, qd64, p64 = cast["q64"], cast["qd64"], cast["p64"]
     chunk = {k: cast[k].reshape(64, 8, -1) for k in ("q", "qd", "qdd", "params")}
     opt = adamw(module.parameters(), lr=1e-6)
+    pass_fn = TrainingPass(module.training_terms, compiled).function(0, module.device)  # compiled or eager
 
     def accel():
         with torch.no_grad():
             model.acceleration(q, qd, params, check=False)
 
     def step():
-        loss, _ = module._training_loss(chunk, module._pass_fn())
+        loss, _ = module.batch_loss(chunk, pass_fn)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
         opt.step()
@@ -194,11 +197,10 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
 
 
 def original_candidate(batch: dict):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import jax_original as harness
+    import jax_original as harness  # this folder's harness around the original
 
     m = harness.load("float32")
-    jax = harness._import_original().jax
+    import jax  # after the harness: it sets XLA's flags before jax starts
     q, qd, params = m.to_device(batch["q512"].numpy(), batch["qd512"].numpy(), batch["p512"].numpy())
     q64, qd64, p64 = m.to_device(batch["q64"].numpy(), batch["qd64"].numpy(), batch["p64"].numpy())
     step = harness.train_step_fn("float32")
@@ -207,7 +209,7 @@ def original_candidate(batch: dict):
 
     def rk4(q, qd, p, dt=0.005):
         def f(q, qd):
-            return qd, m._accel_jit(m._dyn, q, qd, p)
+            return qd, m.accel_traced(q, qd, p)
 
         k1 = f(q, qd)
         k2 = f(q + 0.5 * dt * k1[0], qd + 0.5 * dt * k1[1])
@@ -277,7 +279,7 @@ def time_all(args) -> None:
     starts = torch.randint(0, test.num_points - 8, (64,), generator=g)
     rows = torch.arange(64) % len(test)
     for key, src in (("q", test.q), ("qd", test.qd), ("qdd", test.qdd)):
-        batch[key] = torch.stack([src[r, s:s + 8] for r, s in zip(rows, starts)]).reshape(512, -1)
+        batch[key] = torch.stack([src[r, s:s + 8] for r, s in zip(rows, starts, strict=True)]).reshape(512, -1)
     batch["params"] = test.params[rows][:, None].expand(-1, 8, -1).reshape(512, -1)
     for key, src in (("cq", test.q), ("cqd", test.qd), ("cqdd", test.qdd)):
         batch[key] = src[0, 1000:1512].float()
@@ -307,20 +309,10 @@ def time_all(args) -> None:
             for _ in range(3):
                 c.calls[what]()
     print(f"warm-up and compilation: {time.perf_counter() - start:.0f} s", flush=True)
-    times = {(c.name, c.path, c.dtype, w): [] for c in candidates for w in whats}
-    for r in range(args.rounds):
-        for c in candidates:
-            for what in whats:
-                fn = c.calls[what]
-                fn()
-                samples = []
-                for _ in range(args.calls):
-                    t0 = time.perf_counter()
-                    fn()
-                    samples.append(time.perf_counter() - t0)
-                times[(c.name, c.path, c.dtype, what)].append(statistics.median(samples))
-        if (r + 1) % 5 == 0:
-            print(f"round {r + 1}/{args.rounds}", flush=True)
+    # per round, candidate and call kind: one untimed call, then the median of --calls timed calls
+    times = in_turn({(c.name, c.path, c.dtype, w): c.calls[w] for c in candidates for w in whats}, args.rounds,
+                    lambda fn: median_seconds(fn, args.calls, warmup=1),
+                    lambda r: print(f"round {r}/{args.rounds}", flush=True) if r % 5 == 0 else None)
     rows = []
     for c in candidates:
         row = {"point": c.name, "path": c.path, "dtype": c.dtype}
@@ -331,16 +323,12 @@ def time_all(args) -> None:
             row[f"{what} ms"] = 1e3 * statistics.median(own)
             if not args.no_original:
                 base = times[(ORIGINAL, "jit", "float32", what)]
-                row[f"{what} / original"] = statistics.median(a / b for a, b in zip(own, base))
+                row[f"{what} / original"] = median_ratio(own, base)
         rows.append(row)
-    header = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}",
-              "rounds": args.rounds, "calls_per_round": args.calls, "command": " ".join(["python", *sys.argv]),
-              "original_accuracy": original_accuracy, "untrained_networks": bool(args.untrained)}
-    if not args.no_original:
-        import jax
-
-        header["machine"] += f", jax {jax.__version__}"
-    (OUT / "time.json").write_text(json.dumps({"header": header, "rows": rows}, indent=1))
+    head = {"machine": header(), "rounds": args.rounds, "calls_per_round": args.calls,
+            "command": " ".join(["python", *sys.argv]), "original_accuracy": original_accuracy,
+            "untrained_networks": bool(args.untrained)}
+    (OUT / "time.json").write_text(json.dumps({"header": head, "rows": rows}, indent=1))
     for row in rows:
         print(row, flush=True)
     wrote(OUT / "time.json")
@@ -360,10 +348,10 @@ def report(args) -> None:
                    for r in timed["rows"] if r["point"] == base and r["dtype"] == "float32"]
     orig_acc = head.get("original_accuracy")
     lines = ["# Cost against accuracy: film_lnn configurations and the original JAX FiLM-LNN", "",
-             f"Commands: `python scripts/cost_accuracy_front.py train` (each point {trained['w16']['steps']}"
+             f"Commands: `python benchmarks/cost_accuracy_front.py train` (each point {trained['w16']['steps']}"
              f" steps of 512 states on `data/quickstart.h5`, seed 0; the points named '16k steps' 16,000 steps, "
              f"with the costs of the network they share), then `{head['command']}` (run under the original's "
-             "environment, see the script), then `python scripts/cost_accuracy_front.py report`. The float64 row is "
+             "environment, see the script), then `python benchmarks/cost_accuracy_front.py report`. The float64 row is "
              "the float32-trained network cast to float64 (same accuracy to 1e-6).", "",
              f"{head['machine']}; one thread; {head['rounds']} rounds in turn, each candidate's median of "
              f"{head['calls_per_round']} calls per round; the table gives the median over rounds and the median "
@@ -398,7 +386,7 @@ def report(args) -> None:
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
     summary(rows, trained, orig_acc)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, what in zip(axes, ("accel", "train step")):
+    for ax, what in zip(axes, ("accel", "train step"), strict=True):
         for path, marker in (("eager", "o"), ("compiled", "s"), ("jit", "*")):
             pts = [(r[f"{what} ms"], (orig_acc or {}).get("acc_rel_err") if r["point"] == ORIGINAL
                     else trained[r["point"]]["acc_rel_err"], r["point"]) for r in rows
@@ -406,10 +394,10 @@ def report(args) -> None:
             pts = [p for p in pts if p[1] is not None]
             if not pts:
                 continue
-            xs, ys, names = zip(*pts)
+            xs, ys, names = zip(*pts, strict=True)
             ax.scatter(xs, 100 * np.array(ys), marker=marker, s=80 if path == "jit" else 30,
                        label={"jit": ORIGINAL}.get(path, f"film_lnn, {path}"))
-            for x, y, n in zip(xs, ys, names):
+            for x, y, n in zip(xs, ys, names, strict=True):
                 if path != "jit":
                     ax.annotate(n, (x, 100 * y), fontsize=6, xytext=(3, 3), textcoords="offset points")
         ax.set_xscale("log")

@@ -10,16 +10,16 @@ Every row also gives the ratio to the scene's closed-form acceleration timed in 
 the structured variants, a last row times the matrix products of one acceleration call alone (same
 shapes and weights): the floor that the rest of the call (activations, FiLM, solve, dispatch) adds to.
 
-    python scripts/benchmark_dynamics.py                 # full table (a few minutes)
-    python scripts/benchmark_dynamics.py --quick         # fewer repeats, no batch 8192, no compile
+    python benchmarks/benchmark_dynamics.py              # full table (a few minutes)
+    python benchmarks/benchmark_dynamics.py --quick      # fewer repeats, no batch 8192, no compile
 """
 
 from __future__ import annotations
 
 import argparse
-import gc
 import os
-import platform
+import statistics
+from pathlib import Path
 
 # compile in this process: inductor's pool of compile workers would otherwise compete for the
 # cores while the rows are timed (before torch is imported)
@@ -27,19 +27,31 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from timing import HelpFormatter, add_output_file, header, in_turn, median_ms, median_ratio, wrote  # noqa: E402
 
-from _cli import HelpFormatter  # noqa: E402
 from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # noqa: E402
 from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
-
 from lnn_torch.networks import build_model  # noqa: E402
-from lnn_torch.perf import adamw, compile_fn, configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.networks.capabilities import ENERGY, capabilities_of  # noqa: E402
+from lnn_torch.perf import adamw, compile_fn, configure_cpu  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
+# the output width up to which a product is computed as ``(W @ x.T).T``, as the networks' fast path does
+# for products with few output columns (``lnn_torch.networks``; measured in results/benchmark_dynamics.md)
+SKINNY = 8
 
-def median_ms(fn, repeats: int, warmup: int = 5) -> float:
-    gc.collect()  # a compilation leaves much garbage: collect it before, not during, the timings
-    return 1e3 * median_seconds(fn, repeats, warmup)
+
+def mm_t(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``x @ weight.T`` the way the networks compute it: ``(weight @ x.T).T`` for few outputs."""
+    if weight.shape[0] <= SKINNY < x.shape[0]:
+        return torch.mm(weight, x.t()).t()
+    return torch.mm(x, weight.t())
+
+
+def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``x @ weight.T + bias`` as one fused ``addmm`` (an ``mm`` without a bias), as the networks' layers
+    compute it."""
+    return torch.mm(x, weight.t()) if bias is None else torch.addmm(bias, x, weight.t())
 
 
 def paths(model, variant, compile_fast: bool, chunks):
@@ -47,7 +59,7 @@ def paths(model, variant, compile_fast: bool, chunks):
 
     ``train_pass`` returns ``(qdd, H, T, V)`` (or ``(qdd,)`` for models without an energy);
     ``chunks`` as in ``DynamicsModel.acceleration_and_energy_norm``."""
-    if model.has_energy:
+    if ENERGY in capabilities_of(model):
         fused = lambda q, qd, p: model.acceleration_and_energy_norm(q, qd, p, chunks)  # noqa: E731
     else:
         fused = lambda q, qd, p: (model.acceleration_norm(q, qd, p),)  # noqa: E731
@@ -82,9 +94,6 @@ def matmul_floor(model, batch: int, dtype):
     """The matrix products of ONE structured acceleration call of ``model`` (film_lnn or delan) at
     ``batch`` states, alone: the same shapes, kinds and weights as the model's call, on random
     inputs. The rest of a call (activations, FiLM, the solve, dispatch) comes on top of this."""
-    from lnn_torch.networks._kernels import affine as _affine
-    from lnn_torch.networks._kernels import mm_t as _mm_t
-
     gen = torch.Generator().manual_seed(0)
 
     def rand(*shape):
@@ -97,33 +106,31 @@ def matmul_floor(model, batch: int, dtype):
                None if film is None else rand(batch, film.net[0].in_features)) for net, film, _ in nets]
 
     def products():
-        for (net, film, reverse), (x, dx, cond) in zip(nets, inputs):
+        for (net, film, reverse), (x, dx, cond) in zip(nets, inputs, strict=True):
             if film is not None:
                 first, _, last = film.net
-                _affine(_affine(cond, first.weight, first.bias), last.weight, last.bias)
+                affine(affine(cond, first.weight, first.bias), last.weight, last.bias)
             h, dh = x, dx
             for i, layer in enumerate(net.hidden):
-                h = _affine(h, layer.weight, layer.bias)
+                h = affine(h, layer.weight, layer.bias)
                 if not reverse:
                     dh = torch.mm(dh, (layer.weight[:, : dh.shape[-1]] if i == 0 else layer.weight).t())
-            _affine(h, net.out.weight, net.out.bias)
+            affine(h, net.out.weight, net.out.bias)
             if reverse:  # the hand-written reverse pass to the features
                 for i in range(len(net.hidden) - 1, -1, -1):
                     W = net.hidden[i].weight
-                    h = _mm_t(h, (W[:, : model.num_features] if i == 0 else W).t())
+                    h = mm_t(h, (W[:, : model.num_features] if i == 0 else W).t())
             else:
-                _mm_t(dh, net.out.weight)
+                mm_t(dh, net.out.weight)
 
     return products
 
 
-def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conservative) -> None:
+def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conservative) -> str:
     """The same structured solve on the actuated scene (inputs at both joints, joint friction): the
     cost of the generalised forces (``lnn_torch.networks.forces``), same network sizes. Timed in
     turn with the conservative model's solve (``conservative(b)``) over 5 rounds; the last column is
     the median per-round ratio forced / conservative."""
-    import statistics
-
     scene = get_system("actuated_double_pendulum")
     rng = np.random.default_rng(1)
     n = max(batches)
@@ -142,12 +149,74 @@ def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conserv
             with torch.no_grad():
                 model.acceleration_norm(qn[:b], qdn[:b], pn[:b], tau_n[:b])
 
-        rounds = [(median_ms(forced, repeats), median_ms(conservative(b), repeats)) for _ in range(5)]
-        cells.append(statistics.median(f for f, _ in rounds))
-        ratios.append(statistics.median(f / c for f, c in rounds))
-    print(f"| {variant} | structured, actuated scene (inputs + joint friction) | {str(dtype)[6:]} | "
-          + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} (x"
-          + ", x".join(f"{r:.2f}" for r in ratios) + " the conservative solve, in turn) |", flush=True)
+        ms = in_turn({"forced": forced, "conservative": conservative(b)}, 5, lambda fn: median_ms(fn, repeats))
+        cells.append(statistics.median(ms["forced"]))
+        ratios.append(median_ratio(ms["forced"], ms["conservative"]))
+    return (f"| {variant} | structured, actuated scene (inputs + joint friction) | {str(dtype)[6:]} | "
+            + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} (x"
+            + ", x".join(f"{r:.2f}" for r in ratios) + " the conservative solve, in turn) |")
+
+
+def closed_form(system, q, qd, params, b: int):
+    """One call of the scene's closed-form accelerations on the first ``b`` states."""
+    return lambda: system.acceleration(q[:b], qd[:b], params[:b])
+
+
+def variant_rows(variant: str, system, states: tuple, closed: dict, batches, repeats: int, compile_fast: bool,
+                 per_row_params: bool, row) -> None:
+    """The rows of one model variant at the states' dtype (``row(text)`` for each): every solve path,
+    and for the structured variants their matrix products alone and the actuated scene."""
+    qq, qqd, pp = states
+    dtype = qq.dtype
+    torch._dynamo.reset()  # fresh compile caches per model: no recompile limit across rows
+    torch.manual_seed(0)
+    model = build_model(variant, system, hidden_dims=(128, 128)).to(dtype)
+    model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
+    qn, qdn, pn = model.normalize(qq, qqd, pp)
+    target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))
+    opt = adamw(model.parameters(), lr=1e-5)  # as in training
+    # the training chunk: one trajectory's parameters on all 512 points (or per point)
+    p_chunk = pn[:512] if per_row_params else pn[:1].expand(512, -1)
+    chunks = None if per_row_params else 1
+    for name, (fn, train_pass, grad) in paths(model, variant, compile_fast, chunks).items():
+        cells = []
+        for b in batches:
+            if b > 512 and grad:  # the torch.func paths take seconds there
+                cells.append("-")
+                continue
+
+            def ev(b=b, fn=fn, grad=grad):
+                with torch.set_grad_enabled(grad):
+                    fn(qn[:b], qdn[:b], pn[:b])
+
+            cells.append(f"{median_ms(ev, repeats):.3f}")
+
+        def step(train_pass=train_pass):
+            opt.zero_grad()
+            pred, *energies = train_pass(qn[:512], qdn[:512], p_chunk)
+            loss = acceleration_loss(pred, target[:512], model.normalizer.accel_rms.to(dtype))
+            if energies:
+                H, T, V = (x.reshape(1, 512) for x in energies)
+                loss = loss + 0.1 * energy_variance(H, T, V)
+            loss.backward()
+            opt.step()
+
+        st = median_ms(step, max(5, repeats // 2))
+        ratio = float(cells[1]) / closed[512]
+        row(f"| {variant} | {name} | {str(dtype)[6:]} | " + " | ".join(cells) + f" | {st:.2f} | {ratio:.0f} |")
+    if variant in ("film_lnn", "delan"):
+        with torch.no_grad():
+            cells = [median_ms(matmul_floor(model, b, dtype), repeats) for b in batches]
+        row(f"| {variant} | its matrix products alone | {str(dtype)[6:]} | "
+            + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} |")
+
+        def conservative(b):
+            def call():
+                with torch.no_grad():
+                    model.acceleration_norm(qn[:b], qdn[:b], pn[:b])
+            return call
+
+        row(forced_row(variant, dtype, batches, repeats, closed, conservative))
 
 
 def main() -> None:
@@ -159,6 +228,7 @@ def main() -> None:
     ap.add_argument("--variants", nargs="*", default=["film_lnn", "delan", "lnn", "mlp"], help="model variants")
     ap.add_argument("--per-row-params", action="store_true",
                     help="training step on a chunk whose points all have different parameters")
+    add_output_file(ap, None, "also write the table (with the machine header) to this Markdown file")
     args = ap.parse_args()
     configure_cpu(args.threads)
     repeats = 7 if args.quick else args.repeats
@@ -169,66 +239,28 @@ def main() -> None:
     n = max(batches)
     params = torch.tensor(system.sample_params(rng, n))
     q, qd = (torch.tensor(x) for x in system.sample_state(rng, n))
-    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, threads "
-          f"{torch.get_num_threads()}, medians of {repeats} after warm-up")
-    print("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
-          + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
-    print("|---" * (5 + len(batches)) + "|")
+    lines = []
+
+    def row(text: str) -> None:  # printed as it comes (a full run takes minutes), kept for --output
+        lines.append(text)
+        print(text, flush=True)
+
+    row(f"{header()}; medians of {repeats} after warm-up")
+    row("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
+        + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
+    row("|---" * (5 + len(batches)) + "|")
     for dtype in (torch.float32, torch.float64):
         qq, qqd, pp = q.to(dtype), qd.to(dtype), params.to(dtype)
-        closed = {b: median_ms(lambda b=b: system.acceleration(qq[:b], qqd[:b], pp[:b]), repeats) for b in batches}
-        print(f"| closed form | analytic | {str(dtype)[6:]} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
-              + " | - | 1 |", flush=True)
+        closed = {b: median_ms(closed_form(system, qq, qqd, pp, b), repeats) for b in batches}
+        row(f"| closed form | analytic | {str(dtype)[6:]} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
+            + " | - | 1 |")
         for variant in args.variants:
-            torch._dynamo.reset()  # fresh compile caches per model: no recompile limit across rows
-            torch.manual_seed(0)
-            model = build_model(variant, system, hidden_dims=(128, 128)).to(dtype)
-            model.normalizer.fit(qq, qqd, system.acceleration(qq, qqd, pp), pp)
-            qn, qdn, pn = model.normalize(qq, qqd, pp)
-            target = model.normalizer.accel_to_norm(system.acceleration(qq, qqd, pp))
-            opt = adamw(model.parameters(), lr=1e-5)  # as in training
-            # the training chunk: one trajectory's parameters on all 512 points (or per point)
-            p_chunk = pn[:512] if args.per_row_params else pn[:1].expand(512, -1)
-            chunks = None if args.per_row_params else 1
-            for name, (fn, train_pass, grad) in paths(model, variant, compile_fast, chunks).items():
-                cells = []
-                for b in batches:
-                    if b > 512 and grad:  # the torch.func paths take seconds there
-                        cells.append("-")
-                        continue
-
-                    def ev(b=b, fn=fn, grad=grad):
-                        with torch.set_grad_enabled(grad):
-                            fn(qn[:b], qdn[:b], pn[:b])
-
-                    cells.append(f"{median_ms(ev, repeats):.3f}")
-
-                def step(train_pass=train_pass):
-                    opt.zero_grad()
-                    pred, *energies = train_pass(qn[:512], qdn[:512], p_chunk)
-                    loss = acceleration_loss(pred, target[:512], model.normalizer.accel_rms.to(dtype))
-                    if energies:
-                        H, T, V = (x.reshape(1, 512) for x in energies)
-                        loss = loss + 0.1 * energy_variance(H, T, V)
-                    loss.backward()
-                    opt.step()
-
-                st = median_ms(step, max(5, repeats // 2))
-                ratio = float(cells[1]) / closed[512]
-                print(f"| {variant} | {name} | {str(dtype)[6:]} | " + " | ".join(cells) + f" | {st:.2f} | {ratio:.0f} |",
-                      flush=True)
-            if variant in ("film_lnn", "delan"):
-                with torch.no_grad():
-                    cells = [median_ms(matmul_floor(model, b, dtype), repeats) for b in batches]
-                print(f"| {variant} | its matrix products alone | {str(dtype)[6:]} | "
-                      + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} |", flush=True)
-                def conservative(b, model=model):
-                    def call():
-                        with torch.no_grad():
-                            model.acceleration_norm(qn[:b], qdn[:b], pn[:b])
-                    return call
-
-                forced_row(variant, dtype, batches, repeats, closed, conservative)
+            variant_rows(variant, system, (qq, qqd, pp), closed, batches, repeats, compile_fast, args.per_row_params,
+                         row)
+    if args.output:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.output).write_text("\n".join(lines) + "\n")
+        wrote(args.output)
 
 
 if __name__ == "__main__":

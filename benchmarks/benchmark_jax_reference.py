@@ -2,7 +2,7 @@
 
 This is an independent re-implementation, written from the published design description of the JAX
 FiLM-LNN that lnn_torch reimplements (no code of it is used), for SPEED COMPARISON ONLY: it is timed
-exactly the way ``scripts/benchmark_dynamics.py`` times the torch models, on the same states, so that
+exactly the way ``benchmarks/benchmark_dynamics.py`` times the torch models, on the same states, so that
 the two tables can be read side by side. It is not a model to train or to use.
 
 Architecture (36,680 parameters, asserted):
@@ -37,18 +37,18 @@ busy thread).
 
 Needs jax next to the project (``pip install jax``; optax is optional, ``pip install optax``)::
 
-    python scripts/benchmark_jax_reference.py             # full table
-    python scripts/benchmark_jax_reference.py --quick     # fewer repeats, no batch 8192
-    python scripts/benchmark_jax_reference.py --check     # correctness checks only (no timing)
-    python scripts/benchmark_jax_reference.py --interleaved   # JAX and lnn_torch in turn, same process
+    python benchmarks/benchmark_jax_reference.py          # full table
+    python benchmarks/benchmark_jax_reference.py --quick  # fewer repeats, no batch 8192
+    python benchmarks/benchmark_jax_reference.py --check  # correctness checks only (no timing)
+    python benchmarks/benchmark_jax_reference.py --interleaved   # JAX and lnn_torch in turn, same process
 
 ``--interleaved`` answers "how fast is lnn_torch against the original here" under the same load:
 on a shared machine, timings drift by tens of percent over minutes, so two separate runs can
 disagree more than the two codes do. It times, float32, one thread, in round-robin order (per
-round, each candidate is called twice and the second call timed, so that the caches hold its data): 512 accelerations and one training step on a 512-point chunk of one
-trajectory (its points share one parameter vector) for the JAX reference, lnn_torch's film_lnn
-eagerly, and film_lnn under torch.compile; it reports each median and the median per-round ratio
-to JAX.
+round, each candidate is called twice and the second call timed, so that the caches hold its data):
+512 accelerations and one training step on a 512-point chunk of one trajectory (its points share
+one parameter vector) for the JAX reference, lnn_torch's film_lnn eagerly, and film_lnn under
+torch.compile; it reports each median and the median per-round ratio to JAX.
 """
 
 from __future__ import annotations
@@ -73,14 +73,17 @@ if _ALL_CPUS:
     os.sched_setaffinity(0, _ALL_CPUS)
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
+import statistics  # noqa: E402
+import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from timing import CpuShare, HelpFormatter, header, in_turn, median_ratio  # noqa: E402
 
-from _cli import HelpFormatter  # noqa: E402
-from lnn_torch.perf import configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.networks import build_model  # noqa: E402
+from lnn_torch.perf import adamw, compile_fn, configure_cpu, median_seconds  # noqa: E402
+from lnn_torch.report import markdown_table  # noqa: E402
 from lnn_torch.systems import GRAVITY, get_system  # noqa: E402
 
 try:
@@ -98,7 +101,7 @@ PATH = "generic (jax.hessian, jit)"
 def init_mlp(key, sizes, dtype):
     """Dense layers ``[(W, b), ...]``: W ~ U(+-1/sqrt(fan_in)), b = 0."""
     layers = []
-    for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
+    for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
         key, sub = jax.random.split(key)
         bound = 1.0 / np.sqrt(fan_in)
         layers.append((jax.random.uniform(sub, (fan_in, fan_out), dtype, -bound, bound), jnp.zeros(fan_out, dtype)))
@@ -271,32 +274,22 @@ def normalise(q, qd, qdd, params, dtype):
 
 
 # ------------------------------------------------------------------------------------------ timing
-class CpuMeter:
-    """Process CPU time and wall time accumulated over the timed calls (ratio 1.00 = one busy thread)."""
-
-    def __init__(self) -> None:
-        self.cpu = self.wall = 0.0
-
-    def median_ms(self, fn, repeats: int, warmup: int = 3) -> float:
-        fn()  # compiles (jit) outside the warm-up and the CPU/wall measurement
-        c0, w0 = time.process_time(), time.perf_counter()
-        out = 1e3 * median_seconds(fn, repeats, warmup)
-        self.cpu += time.process_time() - c0
-        self.wall += time.perf_counter() - w0
-        return out
-
-    @property
-    def ratio(self) -> float:
-        return self.cpu / max(self.wall, 1e-12)
+def jax_median_ms(fn, repeats: int, share: CpuShare, warmup: int = 3) -> float:
+    """``fn``'s median time (ms) after one untimed call (jit compiles there, outside the warm-up and the
+    CPU-share measurement) and ``warmup`` more; the timed calls' CPU share is added to ``share``."""
+    fn()
+    with share:
+        return 1e3 * median_seconds(fn, repeats, warmup)
 
 
 def run_benchmark(repeats: int, batches) -> None:
     system, q, qd, qdd, params = sample_data(max(batches))
-    meter = CpuMeter()
+    share = CpuShare()
     rows = []
     for dtype, tdtype in ((jnp.float32, torch.float32), (jnp.float64, torch.float64)):
         tq, tqd, tp = (torch.tensor(x, dtype=tdtype) for x in (q, qd, params))
-        closed = {b: 1e3 * median_seconds(lambda b=b: system.acceleration(tq[:b], tqd[:b], tp[:b]), repeats, 3)
+        closed = {b: 1e3 * median_seconds(lambda b=b, tq=tq, tqd=tqd, tp=tp: system.acceleration(tq[:b], tqd[:b],
+                                                                                                  tp[:b]), repeats, 3)
                   for b in batches}
         name = np.dtype(dtype).name
         rows.append(f"| closed form | analytic | {name} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
@@ -306,23 +299,22 @@ def run_benchmark(repeats: int, batches) -> None:
         cells = {}
         for b in batches:
             args_b = tuple(jax.block_until_ready(x[:b]) for x in (qn, qdn, pn))  # slices made outside the timing
-            cells[b] = meter.median_ms(lambda a=args_b: accel_jit(model, *a).block_until_ready(), repeats)
+            cells[b] = jax_median_ms(lambda a=args_b, m=model: accel_jit(m, *a).block_until_ready(), repeats, share)
         opt_init, train_step = make_train_step()
         chunk = tuple(jax.block_until_ready(x[:512]) for x in (qn, qdn, pn, tn))
         state = [model, opt_init(model)]
 
-        def step():
+        def step(state=state, train_step=train_step, chunk=chunk):
             state[0], state[1], loss = train_step(state[0], state[1], *chunk)
             jax.block_until_ready((state[0], loss))
 
-        st = meter.median_ms(step, max(5, repeats // 2))
+        st = jax_median_ms(step, max(5, repeats // 2), share)
         rows.append(f"| {VARIANT} | {PATH} | {name} | " + " | ".join(f"{cells[b]:.3f}" for b in batches)
                     + f" | {st:.2f} | {cells[512] / closed[512]:.0f} |")
-    print(f"jax {jax.__version__} ({jax.default_backend()}, x64 enabled), torch {torch.__version__}, "
-          f"{platform.processor() or platform.machine()}, XLA_FLAGS='{os.environ['XLA_FLAGS']}', XLA client "
-          f"created on 1 CPU, torch threads {torch.get_num_threads()}, optimizer "
+    print(f"{header()}; jax {jax.__version__} ({jax.default_backend()}, x64 enabled), XLA_FLAGS="
+          f"'{os.environ['XLA_FLAGS']}', XLA client created on 1 CPU, optimizer "
           f"{'optax.adam' if optax else 'hand-written Adam'}, medians of {repeats} after warm-up; "
-          f"CPU/wall over the JAX timings {meter.ratio:.2f}")
+          f"CPU/wall over the JAX timings {share.share:.2f}")
     print("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
           + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
     print("|---" * (5 + len(batches)) + "|")
@@ -332,13 +324,6 @@ def run_benchmark(repeats: int, batches) -> None:
 
 def run_interleaved(rounds: int) -> None:
     """JAX reference, film_lnn eager and film_lnn compiled, float32, timed in turn (see the docstring)."""
-    import statistics
-    import warnings
-
-    from lnn_torch.losses import acceleration_loss, energy_variance
-    from lnn_torch.perf import adamw, compile_fn
-    from lnn_torch.networks import build_model
-
     warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")
     B = 512
     system, q, qd, qdd, params = sample_data(B)
@@ -398,22 +383,16 @@ def run_interleaved(rounds: int) -> None:
     for fn in cands.values():  # compile and warm up
         for _ in range(5):
             fn()
-    times = {k: [] for k in cands}
-    for _ in range(rounds):
-        for k, fn in cands.items():
-            fn()  # untimed: the caches hold this candidate's data, not the previous one's
-            t0 = time.perf_counter()
-            fn()
-            times[k].append(time.perf_counter() - t0)
-    print(f"jax {jax.__version__}, torch {torch.__version__}, {platform.processor() or platform.machine()}, "
-          f"one thread each, float32, {rounds} rounds in turn (per round and candidate: one untimed call, "
-          "then one timed call), medians")
-    print("| what | median (ms) | median per-round ratio to JAX |")
-    print("|---|---|---|")
+    # per round and candidate one untimed call (the caches then hold this candidate's data, not the previous
+    # one's), then one timed call
+    times = in_turn(cands, rounds, lambda fn: median_seconds(fn, 1, warmup=1))
+    print(f"{header()}; jax {jax.__version__}, one thread each, float32, {rounds} rounds in turn (per round and "
+          "candidate: one untimed call, then one timed call), medians")
+    rows = []
     for k, v in times.items():
         ref = times["accel B=512: jax reference (jit)" if k.startswith("accel") else "train step: jax reference (jit)"]
-        ratio = statistics.median(a / b for a, b in zip(v, ref))
-        print(f"| {k} | {1e3 * statistics.median(v):.2f} | {ratio:.2f} |")
+        rows.append([k, f"{1e3 * statistics.median(v):.2f}", f"{median_ratio(v, ref):.2f}"])
+    print(markdown_table(["what", "median (ms)", "median per-round ratio to JAX"], rows))
 
 
 # ------------------------------------------------------------------------------------------ checks
@@ -458,10 +437,10 @@ def run_checks() -> None:
         print(f"{'PASS' if good else 'FAIL'}  {np.dtype(dtype).name}: accelerations and updated weights keep the "
               f"dtype and are finite (loss {float(loss):.4g})")
 
-    meter = CpuMeter()
+    share = CpuShare()
     b512 = tuple(x[:512] for x in (qn, qdn, pn))
-    meter.median_ms(lambda: accel_jit(model, *b512).block_until_ready(), 20)
-    print(f"INFO  process CPU time / wall time over 20 timed B=512 calls: {meter.ratio:.2f} (1.00 = one thread)")
+    jax_median_ms(lambda: accel_jit(model, *b512).block_until_ready(), 20, share)
+    print(f"INFO  process CPU time / wall time over 20 timed B=512 calls: {share.share:.2f} (1.00 = one thread)")
     print("all checks passed" if ok else "SOME CHECKS FAILED")
     if not ok:
         raise SystemExit(1)

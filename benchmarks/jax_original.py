@@ -1,5 +1,5 @@
 """Harness around the ORIGINAL JAX FiLM-LNN (matteocorbetta/lagrangian-film-nn), for timing and
-accuracy comparisons in one process with lnn_torch (``scripts/cost_accuracy_front.py``).
+accuracy comparisons in one process with lnn_torch (``benchmarks/cost_accuracy_front.py``).
 
 This file is our own code; it contains no code of the original (which has no licence: it may be run,
 not copied). It imports the original's modules from the directory named by the environment variable
@@ -23,7 +23,7 @@ It calls the original's own functions:
 
 Usage (caller process, before anything initialises the JAX backend)::
 
-    import sys; sys.path.insert(0, "scripts")
+    import sys; sys.path.insert(0, "benchmarks")
     import jax_original as harness                      # sets single-threaded XLA flags if jax not yet initialised
     m = harness.load("float32")          # or "float64"
     qdd = m.accel(q, qd, params)         # numpy (N,2) rad/s^2 from SI q (N,2) rad, qd (N,2) rad/s,
@@ -37,6 +37,7 @@ Conventions: absolute angles from the downward vertical, params order
 """
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 
@@ -82,12 +83,15 @@ def _import_original():
 
     x64_before = jax.config.jax_enable_x64
     import equinox as eqx
-    import optax
     import lnn
     import losses
-    import train_utils  # NB: imports data.doublependulum, which does config.update('jax_enable_x64', True)
+    import optax
     import train
-    from data import doublependulum
+    import train_utils  # NB: imports data.doublependulum, which does config.update('jax_enable_x64', True)
+
+    # the original's package `data`, imported by name: its import statement would sort differently
+    # wherever a data/ folder of datasets sits beside this project
+    doublependulum = importlib.import_module("data.doublependulum")
 
     # undo the global side effect of the original's import; each call below chooses its precision
     # with the jax.enable_x64(...) context manager instead
@@ -177,6 +181,11 @@ class OriginalModel:
         """jax arrays in, jax array out (asynchronous: call .block_until_ready() to time)."""
         with self._o.jax.enable_x64(self.x64):
             return self._accel_jit(self._dyn, q, qd, params)
+
+    def accel_traced(self, q, qd, params):
+        """The jitted acceleration on jax arrays in the caller's precision (no ``enable_x64`` context): to
+        call inside another jitted function, e.g. an integrator step."""
+        return self._accel_jit(self._dyn, q, qd, params)
 
     def accel(self, q, qd, params) -> np.ndarray:
         """SI numpy in -> SI numpy out. q (N,2) rad, qd (N,2) rad/s, params (N,4) or (4,)

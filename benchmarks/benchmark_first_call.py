@@ -10,7 +10,7 @@ on one thread. Variants, run alternately (``--repeats`` processes each):
 * ``configure_cpu``: the same after an explicit ``lnn_torch.perf.configure_cpu()``;
 * ``LNN_TORCH_CPU_TUNING=0``: the plain path with the library's own CPU settings switched off.
 
-    python scripts/benchmark_first_call.py                # writes results/first_call.md (-o FILE: elsewhere)
+    python benchmarks/benchmark_first_call.py             # writes results/first_call.md (-o FILE: elsewhere)
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _cli import HelpFormatter, add_output_file, wrote
+from timing import ROOT, HelpFormatter, add_output_file, header, in_turn, wrote
 
-ROOT = Path(__file__).resolve().parents[1]
+from lnn_torch.report import markdown_table
 
 CHILD = r"""
 import json, statistics, sys, time
@@ -73,23 +73,25 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def fresh_process(env: dict, arg: str) -> dict:
+    """One run of ``CHILD`` in a new Python process: its measurements."""
+    out = subprocess.run([sys.executable, "-c", CHILD, arg], env={**os.environ, **env}, cwd=ROOT,
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     args = parser().parse_args()
-    runs = {name: [] for name in VARIANTS}
-    for _ in range(args.repeats):
-        for name, (env, arg) in VARIANTS.items():
-            out = subprocess.run([sys.executable, "-c", CHILD, arg], env={**os.environ, **env}, cwd=ROOT,
-                                 capture_output=True, text=True, check=True)
-            runs[name].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    variants = {name: (lambda env=env, arg=arg: fresh_process(env, arg)) for name, (env, arg) in VARIANTS.items()}
+    runs = in_turn(variants, args.repeats, lambda run: run())
     keys = ("import_s", "load_s", "accel_first_ms", "accel_median_ms", "rollout_first_s", "rollout_second_s")
     lines = ["# A library user's first calls, in fresh processes", "",
-             f"Command: `python scripts/benchmark_first_call.py --repeats {args.repeats}`; torch threads 1; medians over "
-             f"{args.repeats} fresh processes per variant, run alternately.", "",
-             "| variant | import (s) | load model (s) | 512 accel, first call (ms) | 512 accel, median of 30 (ms) | "
-             "rollout 64 x 1000 RK4 steps, first (s) | second (s) |", "|---|---|---|---|---|---|---|"]
-    for name, rs in runs.items():
-        cells = [f"{statistics.median(r[k] for r in rs):.3g}" for k in keys]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+             f"Command: `python benchmarks/benchmark_first_call.py --repeats {args.repeats}`; torch threads 1; "
+             f"medians over {args.repeats} fresh processes per variant, run alternately. {header()}.", "",
+             markdown_table(["variant", "import (s)", "load model (s)", "512 accel, first call (ms)",
+                             "512 accel, median of 30 (ms)", "rollout 64 x 1000 RK4 steps, first (s)", "second (s)"],
+                            [[name, *(f"{statistics.median(r[k] for r in rs):.3g}" for k in keys)]
+                             for name, rs in runs.items()])]
     text = "\n".join(lines) + "\n"
     Path(args.output).write_text(text)
     print(text)

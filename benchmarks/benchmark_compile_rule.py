@@ -14,12 +14,13 @@ AdamW), eagerly and through the compiled pass (forward and backward), the first 
 cold and a warm cache, and the break-even in optimiser steps. ``lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS``
 is set from it.
 
-    python scripts/benchmark_compile_rule.py        # writes results/compile_rule.{json,md} (~10 min)
-    python scripts/benchmark_compile_rule.py --only training    # re-measure one part
+    python benchmarks/benchmark_compile_rule.py     # writes results/compile_rule.{json,md} (~10 min)
+    python benchmarks/benchmark_compile_rule.py --only training    # re-measure one part
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import statistics
@@ -28,9 +29,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _cli import HelpFormatter, wrote
+from timing import ROOT, HelpFormatter, add_output_dir, header, wrote
 
-ROOT = Path(__file__).resolve().parents[1]
 BATCHES = (1, 20, 64, 512)
 
 CHILD = r"""
@@ -66,6 +66,7 @@ import torch
 torch.set_num_threads(1)
 from lnn_torch import LNNModule, TrajectoryDataModule
 from lnn_torch.perf import adamw
+from lnn_torch.training_pass import TrainingPass
 width = int(sys.argv[1])
 dm = TrajectoryDataModule(path="data/quickstart.h5", spec=dict(scene="double_pendulum", num_trajectories=200,
                           duration=20.0, dt=0.005, seed=0), chunk_len=8, chunks_per_batch=64, seed=0)
@@ -76,7 +77,7 @@ module = LNNModule(hidden_dims=[width, width], val_rollouts=0, compile=False)
 module.model.fit_normalizer(dm.normalization_data())
 opt = adamw(module.parameters(), lr=1e-6)
 def step(pass_fn):
-    loss, _ = module._training_loss(batch, pass_fn)
+    loss, _ = module.batch_loss(batch, pass_fn)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
     opt.step()
@@ -90,9 +91,8 @@ def per_step(pass_fn, n=20, repeats=7):
             step(pass_fn)
         ts.append((time.perf_counter() - t) / n)
     return statistics.median(ts)
-eager = per_step(module._training_pass)
-module.hparams.compile = True
-fn = module._pass_fn()
+eager = per_step(module.training_terms)
+fn = TrainingPass(module.training_terms, True).function(0, module.device)
 t = time.perf_counter(); step(fn); first = time.perf_counter() - t
 compiled = per_step(fn)
 print(json.dumps({"eager_step_s": eager, "compiled_step_s": compiled, "first_call_s": first}))
@@ -135,26 +135,30 @@ def rollout_rows() -> list[dict]:
 
 
 def main() -> None:
-    import argparse
-
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--only", choices=("rollouts", "training"), help="measure one part, keep the other's last result")
     ap.add_argument("--report", action="store_true", help="only write the report from the last measurements")
+    add_output_dir(ap, str(ROOT / "results"), "the folder of compile_rule.json and compile_rule.md", old=())
     args = ap.parse_args()
-    store = ROOT / "results" / "compile_rule.json"
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    store = out / "compile_rule.json"
     measured = json.loads(store.read_text()) if store.exists() else {}
     if args.only != "training" and not args.report:
         measured["rollouts"] = rollout_rows()
     if args.only != "rollouts" and not args.report:
         measured["training"] = training_rows()
+    if not args.report:
+        measured["machine"] = header()
     store.write_text(json.dumps(measured, indent=1))
     rows, train = measured.get("rollouts", []), measured.get("training", [])
     from lnn_torch.perf import AUTO_COMPILE_CALLS, AUTO_COMPILE_TRAIN_STEPS
 
     lines = ["# When a compiled rollout pays", "",
-             "Command: `python scripts/benchmark_compile_rule.py`. The shipped model (film_lnn 128 x 128, float32), one "
-             "thread, no autograd; each batch size in two fresh processes sharing a new inductor cache directory (cold: "
-             "empty cache, a user's first run; warm: the second process). Step times are medians of 7 x 50 RK4 steps.",
+             "Command: `python benchmarks/benchmark_compile_rule.py`. The shipped model (film_lnn 128 x 128, "
+             "float32), one thread, no autograd; each batch size in two fresh processes sharing a new inductor cache "
+             "directory (cold: empty cache, a user's first run; warm: the second process). Step times are medians of "
+             "7 x 50 RK4 steps.", *(["", f"Machine: {measured['machine']}."] if "machine" in measured else []),
              "", "| batch | RK4 step eager (ms) | RK4 step compiled (ms) | compilation, cold cache (s) | "
              "compilation, warm cache (s) | break-even, cold (acceleration calls) | break-even, warm (calls) |",
              "|---|---|---|---|---|---|---|"]
@@ -169,8 +173,9 @@ def main() -> None:
               f"({min(r['break_even_cold'] for r in rows):,.0f}–{max(r['break_even_cold'] for r in rows):,.0f})."]
     lines += ["", "## When a compiled training pass pays", "",
               "film_lnn on the quickstart's training batch (64 chunks of 8 points), float32, one thread; a step is "
-              "the loss, its backward, gradient clipping and AdamW. Step times: medians of 7 x 20 steps (warm process). "
-              "On a machine shared with other jobs the absolute times grow, the break-even (a ratio of times) much less.",
+              "the loss, its backward, gradient clipping and AdamW. Step times: medians of 7 x 20 steps (warm "
+              "process). On a machine shared with other jobs the absolute times grow, the break-even (a ratio of "
+              "times) much less.",
               "", "| widths | step eager (ms) | step compiled (ms) | compilation, cold cache (s) | "
               "compilation, warm cache (s) | break-even, cold (steps) | break-even, warm (steps) |",
               "|---|---|---|---|---|---|---|"]
@@ -182,12 +187,13 @@ def main() -> None:
               f"`lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS` = {AUTO_COMPILE_TRAIN_STEPS:,} optimiser steps (the "
               "trainer's `estimated_stepping_batches`; default `compile: auto`, `--model.compile false` or "
               "`LNN_TORCH_COMPILE=0` switch it off): about the cold-cache break-even "
-              f"({min(r['break_even_cold'] for r in train):,.0f}–{max(r['break_even_cold'] for r in train):,.0f} steps), "
+              f"({min(r['break_even_cold'] for r in train):,.0f}–"
+              f"{max(r['break_even_cold'] for r in train):,.0f} steps), "
               "so that a first run about breaks even and later runs (warm cache) gain."]
     text = "\n".join(lines) + "\n"
-    (ROOT / "results" / "compile_rule.md").write_text(text)
+    (out / "compile_rule.md").write_text(text)
     print(text)
-    wrote(store, ROOT / "results" / "compile_rule.md")
+    wrote(store, out / "compile_rule.md")
 
 
 if __name__ == "__main__":

@@ -14,17 +14,15 @@ of a call does not depend on the weights, and no trained actuated model ships wi
 ``--checkpoint`` times a trained one instead (``pretrained:double_pendulum``: forward dynamics and
 the mass matrix only, it has no inputs).
 
-    python scripts/benchmark_export.py -o results/export.md
+    python benchmarks/benchmark_export.py -o results/export.md
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import shlex
 import shutil
-import statistics
 import sys
 import tempfile
 import time
@@ -35,8 +33,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from timing import HelpFormatter, add_output_file, header, run_seconds, wrote  # noqa: E402
 
-from _cli import HelpFormatter, add_output_file, wrote  # noqa: E402
 from lnn_torch import export as ex  # noqa: E402
 from lnn_torch.perf import configure_cpu  # noqa: E402
 
@@ -85,17 +83,10 @@ def checked_call(module, function: str):
 
 
 def per_call_seconds(fn, batch: int, repeats: int) -> float:
-    """Median over ``repeats`` runs of the time per call, a run being ``n`` calls in a row."""
+    """Median over ``repeats`` runs of the time per call, a run being ``n`` calls in a row (batch 1: 200,
+    else 3), after ``max(3, n // 10)`` untimed calls."""
     n = 200 if batch == 1 else 3
-    for _ in range(max(3, n // 10)):
-        fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(n):
-            fn()
-        times.append((time.perf_counter() - start) / n)
-    return statistics.median(times)
+    return run_seconds(fn, n, repeats, warmup_calls=max(3, n // 10))
 
 
 def ort_session(path: Path):
@@ -134,7 +125,8 @@ def main() -> None:
         module, label = load_model(args.checkpoint), args.checkpoint
     else:
         module = configured_module()
-        label = "film_lnn 64 x 64 (FiLM 64) on actuated_double_pendulum, untrained (configs/actuated_double_pendulum.yaml)"
+        label = ("film_lnn 64 x 64 (FiLM 64) on actuated_double_pendulum, untrained "
+                 "(configs/actuated_double_pendulum.yaml)")
     functions = [f for f in args.functions if ex.refusal(module, f) is None]
     skipped = [f for f in args.functions if f not in functions]
     has_aoti = not args.no_aoti and (shutil.which("g++") or shutil.which("clang++") or os.environ.get("CXX"))
@@ -169,25 +161,20 @@ def main() -> None:
                 row = {}
                 checked = checked_call(module, function) if eager_model is not None else None
                 row["LNNModule (checked)"] = None if checked is None else per_call_seconds(
-                    lambda: checked(*x), batch, args.repeats)
+                    lambda checked=checked, x=x: checked(*x), batch, args.repeats)
                 for name, runner in runners.items():
-                    row[name] = per_call_seconds(lambda: runner(*x), batch, args.repeats)
+                    row[name] = per_call_seconds(lambda runner=runner, x=x: runner(*x), batch, args.repeats)
                 if has_onnx:
-                    feed = {i.name: a.numpy() for i, a in zip(session.get_inputs(), x)}
-                    row["ONNX Runtime"] = per_call_seconds(lambda: session.run(None, feed), batch, args.repeats)
+                    # the graph's inputs in order (an input the program does not use may be left out of it)
+                    feed = {i.name: a.numpy() for i, a in zip(session.get_inputs(), x, strict=False)}
+                    row["ONNX Runtime"] = per_call_seconds(lambda session=session, feed=feed: session.run(None, feed),
+                                                           batch, args.repeats)
                 rows.append((function, batch, row))
                 print(f"{function} batch {batch}: " + ", ".join(f"{k} {cell(v)}" for k, v in row.items()),
                       file=sys.stderr, flush=True)
-    command = "python " + " ".join(shlex.quote(a) for a in ["scripts/benchmark_export.py", *sys.argv[1:]])
-    cpu = platform.processor() or platform.machine()
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
+    command = "python " + " ".join(shlex.quote(a) for a in ["benchmarks/benchmark_export.py", *sys.argv[1:]])
     lines = ["# Exported dynamics: latency per call (lnn-torch export)", "",
-             f"Model: {label}; {args.dtype}; one CPU thread ({cpu}, {os.cpu_count()} cores; load average at the "
-             f"end {load}); torch {torch.__version__}.", "",
+             f"Model: {label}; {args.dtype}; one CPU thread: {header()} (at the end).", "",
              "Median time per call over " f"{args.repeats} runs (batch 1: 200 calls a run; batch 4096: 3).", "",
              "| function | batch | " + " | ".join(columns) + " |", "|---|---:|" + "---:|" * len(columns)]
     for function, batch, row in rows:
