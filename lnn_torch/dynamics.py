@@ -161,7 +161,7 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
     For ``d <= SMALL_SPD`` the factorisation (``potrf``) and the two triangular solves (``potrs``)
     are unrolled over the entries: the same algorithm as LAPACK's, as a few elementwise ops on
     ``(B,)`` columns instead of one LAPACK call per matrix (cheaper for batches of small systems;
-    ``scripts/benchmark_dynamics.py`` times the whole solve). Larger systems use
+    ``benchmarks/benchmark_dynamics.py`` times the whole solve). Larger systems use
     ``torch.linalg.cholesky_ex`` and ``torch.cholesky_solve``. Only the lower triangle of ``M`` is
     read. A matrix that is not positive definite gives NaN (never a silently wrong solution).
     """

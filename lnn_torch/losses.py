@@ -154,8 +154,19 @@ def acceleration_batch_loss(model, batch: dict, pass_fn, *, huber_delta: float =
     shared = params.shape[1] == 1 or bool((params == params[:, :1]).all())
     out = pass_fn(*flat, tau, C if shared else None)
     dt_norm = (dt or 1.0) / float(model.normalizer.time_scale) if "power" in out else 1.0
-    return training_loss(out, C, L, huber_delta=huber_delta, energy_weight=energy_weight,
-                         torque_weight=torque_weight, dt=dt_norm, acceleration_weight=acceleration_weight)
+    loss, parts = training_loss(out, C, L, huber_delta=huber_delta, energy_weight=energy_weight,
+                                torque_weight=torque_weight, dt=dt_norm, acceleration_weight=acceleration_weight)
+    return with_prior(model, loss, parts)
+
+
+def with_prior(model, loss: torch.Tensor, parts: dict) -> tuple[torch.Tensor, dict]:
+    """``loss`` plus the model's priors on its physical parameters (``model.regularization()``, e.g.
+    a grey box's pull towards its robot description), logged as the part ``prior``; unchanged where it
+    has none."""
+    prior = model.regularization() if hasattr(model, "regularization") else None
+    if prior is None:
+        return loss, parts
+    return loss + prior, {**parts, "prior": prior}
 
 
 def trajectory_batch_loss(model, batch: dict, *, dt: float | None = None, integrator: str = "rk4",
@@ -173,4 +184,4 @@ def trajectory_batch_loss(model, batch: dict, *, dt: float | None = None, integr
         err, err_v = shooting_residuals(model, q[:, 0], qd[:, 0], batch["params"][:, 0], dt or 1.0, q, integrator,
                                         tau=tau, qd_windows=qd if velocity_weight > 0 else None,
                                         scale=norm.coord_scale.to(q.dtype), time_scale=float(norm.time_scale))
-    return trajectory_loss(err, err_v, huber_delta=huber_delta, velocity_weight=velocity_weight)
+    return with_prior(model, *trajectory_loss(err, err_v, huber_delta=huber_delta, velocity_weight=velocity_weight))

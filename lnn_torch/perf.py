@@ -93,7 +93,7 @@ def median_seconds(fn, repeats: int = 7, warmup: int = 2) -> float:
 
 # A rollout compiles its integrator step (``DynamicsModel.compile_dynamics("auto")``, the default)
 # when it makes at least this many acceleration calls (RK4: 4 per step). Measured break-even
-# (``scripts/benchmark_compile_rule.py``, ``results/compile_rule.md``): compilation costs about as much
+# (``benchmarks/benchmark_compile_rule.py``, ``results/compile_rule.md``): compilation costs about as much
 # as the eager calls it saves after roughly this many calls on a cold cache.
 AUTO_COMPILE_CALLS = 20_000
 
@@ -107,7 +107,7 @@ def compile_pays(calls: int) -> bool:
 
 
 # Training compiles its pass (``LNNModule(compile="auto")``, the default) when the run is planned for at
-# least this many optimiser steps. Measured break-even (``scripts/benchmark_compile_rule.py``,
+# least this many optimiser steps. Measured break-even (``benchmarks/benchmark_compile_rule.py``,
 # ``results/compile_rule.md``): the compilation of the training pass (forward and backward) costs as
 # much as the eager steps it saves after 4,500-5,200 steps on a cold cache, 300-600 on a warm one.
 AUTO_COMPILE_TRAIN_STEPS = 5_000
@@ -128,7 +128,7 @@ RECOMPILE_LIMIT = 64
 def compile_fn(fn, device: torch.device | str = "cpu"):
     """``torch.compile(fn)`` as lnn_torch compiles its dynamics: static shapes (one graph per batch
     shape, dtype and grad mode) and, on the CPU, inductor's C++ wrapper (the generated code calls
-    its kernels and matrix products from C++, not Python; ``scripts/compare_compile.py`` times
+    its kernels and matrix products from C++, not Python; ``benchmarks/compare_compile.py`` times
     both wrappers against eager: ``results/compare_compile.md``)."""
     # inductor's own call of a deprecated torch helper (torch 2.13) warns on every compilation
     warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\._inductor")

@@ -277,3 +277,18 @@ def test_any_description_alone_is_the_engine_through_the_si_face(tmp_path, float
     assert _rel(model.gravity_si(q, payload), engine.gravity_torque(q, payload)) < 1e-12
     if "armature and damping zero" in which:
         assert float(model.kinetic["spatial"].armature().abs().max()) == 0.0
+
+
+def test_the_prior_is_the_logdet_divergence_from_the_description(float64):
+    """``prior`` adds ``w sum_i [tr(J0^-1 J) - log det(J0^-1 J) - 4]``: zero at the description, positive
+    away from it, the written-out formula at any raw value; without ``prior`` no term."""
+    model = _grey_box(prior=0.3).double()
+    part = model.kinetic["spatial"]
+    assert float(model.regularization()) == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():
+        part.raw.add_(0.1 * torch.randn_like(part.raw, generator=torch.Generator().manual_seed(0)))
+    J, J0 = part.link_J(), part.const("nominal_J", part.raw)
+    A = torch.linalg.solve(J0, J)
+    expected = 0.3 * (A.diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(A) - 4).sum()
+    assert float(model.regularization()) == pytest.approx(float(expected), rel=1e-10) and float(expected) > 0
+    assert _grey_box().regularization() is None

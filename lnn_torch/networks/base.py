@@ -314,6 +314,10 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
             return p.dtype
         return self.normalizer.time_scale.dtype
 
+    def regularization(self) -> torch.Tensor | None:
+        """A term the training loss adds (priors of the model's parts on physical parameters), or None."""
+        return None
+
     def coefficient_parameters(self) -> list[nn.Parameter]:
         """The parameters that are physical coefficients, not network weights (a friction coefficient,
         a learned input matrix, a potential's or a rigid chain's constants): training exempts them

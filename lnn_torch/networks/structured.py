@@ -218,6 +218,11 @@ class StructuredLagrangian(DynamicsModel):
                 self.forces.num_joints == spatial.dof:
             self.forces.start_at(spatial.description_damping())
 
+    def regularization(self) -> torch.Tensor | None:
+        """The sum of the parts' priors (``Part.regularization``), or None where no part has one."""
+        terms = [t for t in (part.regularization() for part in self._parts) if t is not None]
+        return sum(terms) if terms else None
+
     def coefficient_parameters(self):
         """As ``DynamicsModel.coefficient_parameters``, plus each part's own (the chain's constants, a
         harmonic series that is not a residual, a Cholesky residual's output bias)."""

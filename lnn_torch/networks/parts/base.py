@@ -129,6 +129,10 @@ class Part(nn.Module):
         """The part's physical coefficients (exempt from weight decay)."""
         return []
 
+    def regularization(self) -> torch.Tensor | None:
+        """A term the training loss adds for this part (a prior on its physical parameters), or None."""
+        return None
+
     def si_report(self, scales: dict, params_norm: torch.Tensor) -> dict | None:
         """The part's identified quantities in SI units, where it has any (``scales``: the normaliser's
         ``time`` and ``force`` scales; ``StructuredLagrangian.chain_si`` says when they apply)."""

@@ -64,12 +64,16 @@ class SpatialChain(KineticPart):
             as the robot it is (``lnn_torch.robots.description.ArmDescription``: ``{source, flange, remove,
             tool, armature, damping}``); None: the scene's own.
         learn: learn the inertial parameters and armature (True) or keep the description's (False).
+        prior: the weight of a prior towards the description (learned parts only): the training loss adds
+            ``prior`` times the sum over links of the LogDet divergence of each learned pseudo-inertia from
+            the description's, ``tr(J0^-1 J) - log det(J0^-1 J) - 4`` (zero at the description, invariant
+            to the units; the geometry-aware pull where the data cannot tell a link's inertia). 0: none.
     """
 
     name = "spatial"
     needs_angles = True
 
-    def __init__(self, ctx: BuildContext, description=None, learn: bool = True) -> None:
+    def __init__(self, ctx: BuildContext, description=None, learn: bool = True, prior: float = 0.0) -> None:
         super().__init__()
         description = description or ctx.robot_description
         if description is None:
@@ -87,11 +91,15 @@ class SpatialChain(KineticPart):
             raise InputError(f"robot description {description} has no body 'payload' for the scene's payload")
         self.num_links, self.dof, self.payload = chain.dof, chain.dof, bool(ctx.num_params)
         self.learn = bool(learn)
+        self.prior = float(prior)
+        if not (self.prior >= 0):
+            raise InputError(f"kinetic part 'spatial': prior must be >= 0, got {prior!r}")
         # the description's geometry, exact: float64 constants (not buffers, which a float32 model would
         # round), cast once per dtype and device
         self._constants = {"X": chain.X, "axis": chain.axis, "anchor": chain.anchor, "qpos0": chain.qpos0,
                            "flange": chain.flange if chain.flange is not None else torch.eye(4, dtype=torch.float64),
-                           "gravity": chain.gravity, "nominal_J": chain.J, "damping": chain.damping}
+                           "gravity": chain.gravity, "nominal_J": chain.J, "nominal_U": K.reverse_cholesky(chain.J),
+                           "damping": chain.damping}
         self._cast = {}
         U = K.reverse_cholesky(chain.J)
         # in the default dtype (a float64 test builds the description's values exactly)
@@ -122,6 +130,17 @@ class SpatialChain(KineticPart):
 
     def coefficient_parameters(self):
         return [self.raw, self.log_armature] if self.learn else []
+
+    def regularization(self) -> torch.Tensor | None:
+        """``prior`` times the LogDet divergence of the learned links from the description's (option ``prior``)."""
+        if not (self.learn and self.prior):
+            return None
+        U = self.link_U(self.raw.dtype)
+        U0 = self.const("nominal_U", U)  # the description's factors: J0 = U0 U0^T
+        # J0^-1 J = U0^-T U0^-1 U U^T: with W = U0^-1 U, tr(J0^-1 J) = |W|^2 and log det(J0^-1 J) = 2 log |det W|
+        W = torch.linalg.solve_triangular(U0, U, upper=True)
+        logdet = 2 * torch.log(torch.diagonal(W, dim1=-2, dim2=-1).abs()).sum(-1)
+        return self.prior * (W.pow(2).sum((-2, -1)) - logdet - 4).sum()
 
     # ------------------------------------------------------------------ the inertial parameters
     def link_U(self, dtype) -> torch.Tensor:
