@@ -17,7 +17,7 @@ Pure tensor functions: no networks, no Lightning.
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 from torch.func import hessian, jacrev, vmap

@@ -22,7 +22,7 @@ as a digital controller applies them): output step ``k`` integrates from ``t_k``
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 

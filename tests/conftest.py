@@ -17,8 +17,13 @@ import torch  # noqa: E402
 from lnn_torch.data import DatasetSpec, generate_dataset  # noqa: E402
 from lnn_torch.systems import SYSTEMS, get_system  # noqa: E402
 
-from .helpers import SPEC, dop853_reference, random_batch, random_inputs  # noqa: E402, F401  (tests import them from here too)
-from .helpers import session_file  # noqa: E402
+from .helpers import (  # noqa: E402, F401  (tests import them from here too)
+    SPEC,
+    dop853_reference,
+    random_batch,
+    random_inputs,
+    session_file,  # noqa: E402
+)
 
 torch.set_num_threads(1)  # the tests run small tensors: one thread is faster and steadier
 # the process settings lnn-torch's commands apply at their entry (denormals flushed, the allocator's

@@ -122,10 +122,10 @@ def test_a_bad_dataset_is_named_in_one_line(kind, tmp_path, capsys):
 def test_a_bad_recording_is_named_in_one_line(kind, tmp_path, capsys):
     """identify's observation CSV and import's raw recording: a text file, an empty one and one cut
     mid-line are each named in one line."""
-    import numpy as np
-
     import gzip
     from pathlib import Path
+
+    import numpy as np
 
     import lnn_torch
 

@@ -11,8 +11,7 @@ import pytest
 import torch
 
 from lnn_torch.cli import main
-from lnn_torch.data import DatasetSpec, generate_arrays, read_dataset
-from lnn_torch.data import derivatives
+from lnn_torch.data import DatasetSpec, derivatives, generate_arrays, read_dataset
 from lnn_torch.data.importer import ImportSpec, import_recordings
 from lnn_torch.systems import InputError, get_system
 

@@ -190,7 +190,7 @@ class SplitDataset(Dataset):
     """One item: the whole split ``{"trajectories": Trajectories, "accel_stride": int}`` (under DDP
     the distributed sampler pads it to one item per rank)."""
 
-    def __init__(self, datamodule: "TrajectoryDataModule", split: str, stride: int) -> None:
+    def __init__(self, datamodule: TrajectoryDataModule, split: str, stride: int) -> None:
         self.datamodule, self.split, self.stride = datamodule, split, stride
         self._data = None
 

@@ -55,16 +55,16 @@ class Trajectories:
     def dof(self) -> int:
         return self.q.shape[2]
 
-    def head(self, n: int | None) -> "Trajectories":
+    def head(self, n: int | None) -> Trajectories:
         """The first ``n`` trajectories (all for None)."""
         if n is None or n >= len(self):
             return self
         return self._map(lambda x: x[:n])
 
-    def to(self, *args, **kwargs) -> "Trajectories":
+    def to(self, *args, **kwargs) -> Trajectories:
         """Every tensor ``.to(*args, **kwargs)`` (device, floating dtype; the index keeps its dtype)."""
         return self._map(lambda x: x.to(*args, **kwargs) if x.is_floating_point() else x)
 
-    def _map(self, fn) -> "Trajectories":
+    def _map(self, fn) -> Trajectories:
         return replace(self, **{f.name: fn(getattr(self, f.name)) for f in fields(self)
                                 if isinstance(getattr(self, f.name), torch.Tensor)})

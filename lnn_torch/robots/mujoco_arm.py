@@ -37,6 +37,7 @@ import torch
 from ..errors import InputError
 from . import description_path
 from .description import PAYLOAD_BODY, ArmDescription
+
 # the perturbation's factors and offsets (module docstring)
 MASS_FACTOR, COM_SHIFT, INERTIA_FACTOR = (0.8, 1.2), 0.01, (0.7, 1.3)
 ARMATURE_FACTOR, DAMPING_FACTOR = (0.7, 1.3), (0.5, 2.0)

@@ -46,7 +46,7 @@ class FourierReference:
         ``sum_h A_h`` and ``sum_h A_h 2 pi h f0``."""
         return self.amplitude.sum(-1), (self.amplitude * self.omegas).sum(-1)
 
-    def scaled(self, factor) -> "FourierReference":
+    def scaled(self, factor) -> FourierReference:
         """The same reference with its amplitudes times ``factor`` (a number or ``(n,)``), centre kept."""
         return replace(self, amplitude=self.amplitude * np.reshape(np.asarray(factor, dtype=np.float64), (-1, 1)))
 
