@@ -40,7 +40,7 @@ SCENES = ([(name, {}) for name in sorted(SYSTEMS) if SYSTEMS[name].closed_form a
           + [("double_pendulum", {"joint_damping": (0.3, 0.2)})])
 SCENE_IDS = [name + "".join(f"-{k}={v}" for k, v in kw.items()) for name, kw in SCENES]
 QUADRATIC = [(n, kw) for n, kw in SCENES if get_system(n, **kw).quadratic_kinetic]
-QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES) if (n, kw) in QUADRATIC]
+QUADRATIC_IDS = [i for i, (n, kw) in zip(SCENE_IDS, SCENES, strict=True) if (n, kw) in QUADRATIC]
 
 
 def pytest_collection_modifyitems(config, items):

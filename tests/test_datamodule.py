@@ -34,7 +34,7 @@ def test_chunk_sampling_is_seeded_per_epoch_and_worker_safe(dataset):
         dm.setup("fit")
     first = [x["q"] for x in a.train_dataloader()]
     second = [x["q"] for x in b.train_dataloader()]
-    for x, y in zip(first, second):
+    for x, y in zip(first, second, strict=True):
         torch.testing.assert_close(x, y)
     a.set_epoch(1)
     other = [x["q"] for x in a.train_dataloader()]

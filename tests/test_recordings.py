@@ -88,7 +88,8 @@ def test_import_round_trip_resamples_converts_and_records_provenance(recordings)
     assert provenance["sources"][0]["sha256"] == hashlib.sha256(files[0].read_bytes()).hexdigest()
     assert provenance["settings"]["angle_units"] == "deg" and "linearly interpolated" in provenance["resampling"]
     # without velocity columns the file has none (NaN), and fractions split by recording, seeded
-    spec2 = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], angle_units="deg", split=[0.34, 0.33, 0.33], seed=1)
+    spec2 = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], angle_units="deg", split=[0.34, 0.33, 0.33],
+                       seed=1)
     f2 = read_dataset(import_recordings(files, root / "noqd.h5", spec2))
     assert torch.isnan(f2.trajectories(None).qd).all() and f2.num_inputs == 0
     assert sorted(np.concatenate(list(f2.splits.values())).tolist()) == [0, 1, 2]
@@ -130,7 +131,8 @@ def test_import_command_refuses_an_existing_output_and_reports_one_line(recordin
     root, files, _, _ = recordings
     out = tmp_path / "a.h5"
     argv = ["import", *map(str, files), "-o", str(out), "--time", "stamp", "--coordinates", "angle0", "angle1",
-            "--inputs", "motor0", "motor1", "--angle-units", "deg", "--split-recordings", "train=run0,run1", "test=run2"]
+            "--inputs", "motor0", "motor1", "--angle-units", "deg",
+            "--split-recordings", "train=run0,run1", "test=run2"]
     assert main(argv) == 0
     assert "3 recordings" in capsys.readouterr().out
     before = out.read_bytes()
@@ -176,10 +178,10 @@ def test_derivative_estimates_recover_exact_derivatives_of_clean_signals(method,
     interior (relative to their range)."""
     arrays = generate_arrays(DatasetSpec(scene="double_pendulum", num_trajectories=2, duration=4.0, dt=0.002, seed=1))
     s = derivatives.settings({"method": method, "use_measured_velocity": False, **settings})
+    inner = slice(100, -100)
+    rel = lambda a, b: np.abs(a[inner] - b[inner]).max() / np.abs(b).max()  # noqa: E731
     for i in range(2):
         qd, qdd = derivatives.estimate(arrays["q"][i], 0.002, s)
-        inner = slice(100, -100)
-        rel = lambda a, b: np.abs(a[inner] - b[inner]).max() / np.abs(b).max()  # noqa: E731
         assert rel(qd, arrays["qd"][i]) < tol_qd, (method, rel(qd, arrays["qd"][i]))
         assert rel(qdd, arrays["qdd"][i]) < tol_qdd, (method, rel(qdd, arrays["qdd"][i]))
     with pytest.raises(InputError, match="targets method must be one of"):
@@ -290,7 +292,8 @@ def test_smoothed_inputs_reach_the_training_split_only(recordings):
     torch.testing.assert_close(smooth.trajectories("val").tau, raw.trajectories("val").tau, equal_nan=True)
     # asked for explicitly (evaluation in the reference's band): any split, whatever the configuration
     for j, n in enumerate(raw.source("val").lengths):
-        want = derivatives.smooth_inputs(raw.trajectories("val").tau[j, :n].numpy(), raw.dt, derivatives.settings(targets))
+        want = derivatives.smooth_inputs(raw.trajectories("val").tau[j, :n].numpy(), raw.dt,
+                                         derivatives.settings(targets))
         np.testing.assert_allclose(raw.trajectories("val", smooth_inputs=True).tau[j, :n].numpy(), want, rtol=1e-12,
                                    atol=1e-12)
     with pytest.raises(ValueError, match="smooth_inputs needs estimated targets"):

@@ -123,7 +123,8 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
     if tau is not None:
         tau = torch.as_tensor(np.asarray(tau)[:steps], dtype=torch.float64)[None]
         if tau.shape[1:] != (steps, system.num_inputs):
-            raise ValueError(f"inputs must be ({steps}, {system.num_inputs}) for {steps} steps, got {tuple(tau.shape[1:])}")
+            raise ValueError(f"inputs must be ({steps}, {system.num_inputs}) for {steps} steps, "
+                             f"got {tuple(tau.shape[1:])}")
     with torch.no_grad():
         q, qd = model.rollout(q0, qd0, params, dt, steps, method, tau=tau)
         out = {"t": np.arange(steps + 1) * dt, "q": q[0].numpy(), "qd": qd[0].numpy()}
@@ -157,7 +158,7 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
     if "energy" in result:
         cols += ["energy", "energy_drift"]
         data += [result["energy"][:, None], result["energy_drift"][:, None]]
-    units = ", ".join(f"{n} [{u}]" for n, u in zip(names, system.coord_units))
+    units = ", ".join(f"{n} [{u}]" for n, u in zip(names, system.coord_units, strict=True))
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
               f"columns: t [s], {units}, their time derivatives; *_exact: the closed-form trajectory; energy: the "
               "scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0) - W(t)| / (V_max - V_min) "

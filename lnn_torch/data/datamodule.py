@@ -121,7 +121,7 @@ class _Source:
     def chunks(self, js: np.ndarray, starts: np.ndarray, length: int) -> dict:
         """``len(js)`` chunks of ``length`` consecutive points: each field ``(C, length, .)``."""
         if self._arrays is None:
-            parts = [self.chunk(int(j), int(s), length) for j, s in zip(js, starts)]
+            parts = [self.chunk(int(j), int(s), length) for j, s in zip(js, starts, strict=True)]
             return {k: torch.stack([p[k] for p in parts]) for k in (*self.fields, "params")}
         rows = torch.as_tensor(js)[:, None]  # (C, 1)
         cols = torch.as_tensor(starts)[:, None] + torch.arange(length)  # (C, L)
@@ -275,7 +275,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         if differ:
             warnings.warn(f"{self.path} was generated with a different specification than configured "
                           f"({', '.join(f'{k}: file {recorded[k]!r} vs config {configured[k]!r}' for k in differ)}); "
-                          "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning)
+                          "using the file (delete it, or point data.path elsewhere, to regenerate)", UserWarning,
+                          stacklevel=2)
 
     def source(self, split: str, dtype=torch.float32, smooth_inputs: bool | None = None) -> _Source:
         """The arrays of a split; ``smooth_inputs`` None: the configured smoothing of the inputs
@@ -317,7 +318,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         f = self._open()
         if stage in ("fit", None):
             self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
-                                          self.hparams.chunks_per_batch, self.hparams.steps_per_epoch, self.hparams.seed)
+                                          self.hparams.chunks_per_batch, self.hparams.steps_per_epoch,
+                                          self.hparams.seed)
         for split in ("val", "test"):
             if len(f.splits[split]) == 0 and stage in (("test",) if split == "test" else ("validate", "fit")):
                 raise ValueError(f"{self.path} has an empty '{split}' split")

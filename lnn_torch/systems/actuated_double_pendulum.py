@@ -72,7 +72,8 @@ class ActuatedDoublePendulum(System):
         self.m_range, self.l1_range = as_range(m_range, "m_range"), as_range(l1_range, "l1_range")
         self.l2_range, self.com_ratio = as_range(l2_range, "l2_range"), as_range(com_ratio, "com_ratio")
         self.inertia_excess = as_range(inertia_excess, "inertia_excess")
-        self.viscous_range, self.coulomb_range = as_range(viscous_range, "viscous_range"), as_range(coulomb_range, "coulomb_range")
+        self.viscous_range = as_range(viscous_range, "viscous_range")
+        self.coulomb_range = as_range(coulomb_range, "coulomb_range")
         self.theta_range, self.omega_range = as_range(theta_range, "theta_range"), as_range(omega_range, "omega_range")
         for name in ("m_range", "l1_range", "l2_range", "com_ratio"):
             if getattr(self, name).low <= 0:
@@ -137,7 +138,7 @@ class ActuatedDoublePendulum(System):
         return self.theta_range.sample(rng, (n, 2)), self.omega_range.sample(rng, (n, 2))
 
     def default_excitation(self) -> dict:
-        amplitude = [a for a, on in zip((1.0, 0.5), self.actuated) if on]
+        amplitude = [a for a, on in zip((1.0, 0.5), self.actuated, strict=True) if on]
         return {"kind": "multisine", "amplitude": amplitude, "band": [0.1, 2.0], "num_sines": 6}
 
     def angle_combinations(self):
