@@ -35,7 +35,8 @@ def validate(excitation: dict, num_inputs: int) -> dict:
     kinds = [kinds] if isinstance(kinds, str) else list(kinds)
     unknown = [k for k in kinds if k not in KINDS]
     if unknown or not kinds:
-        raise InputError(f"excitation kind must be one of {', '.join(KINDS)} (or a list of them), got {ex.get('kind')!r}")
+        raise InputError(f"excitation kind must be one of {', '.join(KINDS)} (or a list of them), "
+                         f"got {ex.get('kind')!r}")
     if num_inputs == 0 and kinds != ["none"]:
         raise InputError("an excitation was given, but the scene has no inputs (it is not actuated)")
     amplitude = ex.get("amplitude", 1.0)

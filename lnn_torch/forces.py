@@ -15,8 +15,9 @@ Power balance: ``dE/dt = qd . B tau + qd . Q_diss``. Shapes ``(*batch, dof)``, S
 
 Static friction (stiction, a Karnopp-type model): a joint turning slower than the stick velocity
 ``v_s`` is held by whatever torque keeps it at rest, up to its static level ``s`` (the learned models
-take the Coulomb level ``c``), and its kinetic friction fades in that window. With ``w_j = exp(-(r_j / v_s)^2)`` the holding torques ``lam`` solve,
-by projected Gauss-Seidel sweeps (a fixed number, differentiable),
+take the Coulomb level ``c``), and its kinetic friction fades in that window. With
+``w_j = exp(-(r_j / v_s)^2)`` the holding torques ``lam`` solve, by projected Gauss-Seidel sweeps (a
+fixed number, differentiable),
 
     lam_j = w_j s_j sat((lam_j - rho_j / A_jj) / s_j),    rho = rho_0 + A lam,
 
@@ -90,7 +91,8 @@ def input_force(tau: torch.Tensor, input_matrix: torch.Tensor | None) -> torch.T
 
 def identity_or_none(matrix: torch.Tensor | None) -> torch.Tensor | None:
     """None for an identity matrix (the cheap path of ``dissipative_force``/``input_force``), else the matrix."""
-    if matrix is not None and matrix.shape[0] == matrix.shape[1] and torch.equal(matrix, torch.eye(matrix.shape[0], dtype=matrix.dtype)):
+    if matrix is not None and matrix.shape[0] == matrix.shape[1] and torch.equal(
+            matrix, torch.eye(matrix.shape[0], dtype=matrix.dtype)):
         return None
     return matrix
 

@@ -230,7 +230,8 @@ def rollout_first_order(
         raise ValueError(f"integrator '{method}' is not available for first-order systems; "
                          f"known: {', '.join(FIRST_ORDER_METHODS)}")
     if y0.ndim != 2 or params.ndim != 2 or params.shape[0] != y0.shape[0]:
-        raise ValueError(f"y0 must be (batch, n) and params (batch, P), got {tuple(y0.shape)} and {tuple(params.shape)}")
+        raise ValueError(f"y0 must be (batch, n) and params (batch, P), "
+                         f"got {tuple(y0.shape)} and {tuple(params.shape)}")
     if not dt > 0 or num_steps < 0 or substeps < 1:
         raise ValueError(f"need dt > 0, num_steps >= 0 and substeps >= 1; got {dt}, {num_steps}, {substeps}")
     ys, y = [y0], y0
@@ -283,7 +284,8 @@ def rollout_adaptive(
         """The vector field at ``y`` for trajectories ``rows[0]`` in their intervals ``rows[1]``."""
         return vector_field_fn(y, prm) if tau is None else vector_field_fn(y, prm, tau[rows[0], rows[1]])
 
-    all_rows = (torch.arange(y0.shape[0], device=y0.device), torch.zeros(y0.shape[0], dtype=torch.long, device=y0.device))
+    all_rows = (torch.arange(y0.shape[0], device=y0.device),
+                torch.zeros(y0.shape[0], dtype=torch.long, device=y0.device))
     y, f = y0.clone(), evaluate(y0, params, all_rows)
     t = torch.zeros(B, dtype=torch.float64, device=y0.device)
     h = torch.full((B,), float(dt), dtype=torch.float64, device=y0.device)

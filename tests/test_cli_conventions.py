@@ -96,7 +96,8 @@ def test_every_command_names_a_bad_checkpoint_in_one_line(command, kind, tmp_pat
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and ckpt in err, err
     assert {"text": "not an lnn-torch checkpoint", "empty": "empty file", "truncated": "truncated",
-            "newer": "written by a newer version of lnn-torch (9.0", "foreign": "not an lnn-torch checkpoint"}[kind] in err
+            "newer": "written by a newer version of lnn-torch (9.0",
+            "foreign": "not an lnn-torch checkpoint"}[kind] in err
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "truncated"])

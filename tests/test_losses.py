@@ -139,7 +139,8 @@ def test_training_loss_assembles_its_parts_by_hand():
     loss, parts = training_loss(t, C, L, huber_delta=0.7, energy_weight=0.3, torque_weight=2.0, dt=0.1)
     H = t["H"].reshape(C, L)
     p = t["power"].reshape(C, L)
-    W = torch.stack([torch.zeros(C, dtype=F64)] + [0.05 * (p[:, :i].sum(1) + p[:, 1:i + 1].sum(1)) for i in range(1, L)], 1)
+    W = torch.stack([torch.zeros(C, dtype=F64)]
+                    + [0.05 * (p[:, :i].sum(1) + p[:, 1:i + 1].sum(1)) for i in range(1, L)], 1)
     e = H - W
     T, V = t["T"].reshape(C, L), t["V"].reshape(C, L)
     ev = (e.var(1, unbiased=False) / (T.var(1, unbiased=False) + V.var(1, unbiased=False)
@@ -289,7 +290,8 @@ def test_module_losses_equal_the_assembly_the_module_had_before(scene, kw):
     new, new_parts = module.batch_loss(batch)
     old, old_parts = old_assembly(module, batch)
     assert set(new_parts) == set(old_parts) == {"huber", "energy_var", "torque"} & (
-        {"huber"} | ({"energy_var"} if kw.get("energy_weight") else set()) | ({"torque"} if kw.get("torque_weight") else set()))
+        {"huber"} | ({"energy_var"} if kw.get("energy_weight") else set())
+        | ({"torque"} if kw.get("torque_weight") else set()))
     assert torch.equal(new, old) and all(torch.equal(new_parts[k], old_parts[k]) for k in old_parts)
     module.hparams.loss = "trajectory"
     for weight in (0.0, 0.5):

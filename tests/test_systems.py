@@ -39,7 +39,8 @@ def test_every_parameter_matters(name, config, rng):
     for i, pname in enumerate(system.param_names):
         p2 = params.clone()
         p2[:, i] = p2[:, i] * 1.3 + 0.01  # (+ 0.01: friction coefficients may be sampled at 0)
-        changed = (system.acceleration(q, qd, p2, tau) - base_a).abs().max() + (system.energy(q, qd, p2) - base_e).abs().max()
+        changed = ((system.acceleration(q, qd, p2, tau) - base_a).abs().max()
+                   + (system.energy(q, qd, p2) - base_e).abs().max())
         assert changed > 1e-6, f"parameter {pname} has no effect"
 
 
@@ -197,7 +198,8 @@ def test_relativistic_particle_closed_forms(rng):
     x = torch.zeros_like(v)
     g = torch.full_like(v, 0.7)
     torch.testing.assert_close(system.momentum(x, v, g), v * (1 - v**2) ** -1.5, rtol=1e-14, atol=0)
-    torch.testing.assert_close(system.acceleration(x, v, g), 0.7 * (1 - v**2) ** 2.5 / (1 + 2 * v**2), rtol=1e-14, atol=0)
+    torch.testing.assert_close(system.acceleration(x, v, g), 0.7 * (1 - v**2) ** 2.5 / (1 + 2 * v**2),
+                               rtol=1e-14, atol=0)
     # d/dt p = dL/dx = g exactly along a trajectory: p(t) = p0 + g t, so the speed stays below c
     q0, qd0 = torch.tensor([[0.0]], dtype=torch.float64), torch.tensor([[0.3]], dtype=torch.float64)
     params = torch.tensor([[0.5]], dtype=torch.float64)

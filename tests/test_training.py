@@ -18,7 +18,8 @@ from .helpers import ROOT, make_dm, quiet_trainer, run_cli
 
 
 def _fit(dataset, tmp_path, **model_kw):
-    model = LNNModule(val_rollouts=2, val_rollout_seconds=0.5, hidden_dims=[32, 32], figure_every_n_epochs=1, **model_kw)
+    model = LNNModule(val_rollouts=2, val_rollout_seconds=0.5, hidden_dims=[32, 32], figure_every_n_epochs=1,
+                      **model_kw)
     trainer = quiet_trainer(tmp_path, max_epochs=2)
     trainer.fit(model, make_dm(dataset))
     return model, trainer
@@ -247,7 +248,8 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
     from lnn_torch import __version__
     from lnn_torch.checkpoints import CHECKPOINT_FORMAT
 
-    assert ckpt["lnn_torch"] == {"version": __version__, "format": CHECKPOINT_FORMAT}  # what a newer-version check reads
+    # what a newer-version check reads
+    assert ckpt["lnn_torch"] == {"version": __version__, "format": CHECKPOINT_FORMAT}
 
     old = LNNModule(hidden_dims=[128, 128], val_rollouts=0)
     trainer = quiet_trainer(tmp_path, max_epochs=1, logger=False, enable_checkpointing=False, limit_val_batches=0)

@@ -41,7 +41,8 @@ def settings(targets: dict | str | None) -> dict | None:
     if unknown:
         raise InputError(f"targets method '{method}' takes no setting {', '.join(sorted(unknown))}")
     if method == "savgol" and (int(out["window"]) % 2 == 0 or int(out["window"]) <= int(out["polyorder"])):
-        raise InputError(f"savgol window must be odd and larger than polyorder, got {out['window']}, {out['polyorder']}")
+        raise InputError("savgol window must be odd and larger than polyorder, "
+                         f"got {out['window']}, {out['polyorder']}")
     return out
 
 
@@ -65,7 +66,8 @@ def _smooth(x: np.ndarray, dt: float, s: dict, deriv: int) -> np.ndarray:
 
         nyquist = 0.5 / dt
         if not 0 < s["cutoff"] < nyquist:
-            raise InputError(f"butterworth cutoff must lie in (0, {nyquist:g}) Hz (the Nyquist frequency), got {s['cutoff']}")
+            raise InputError(f"butterworth cutoff must lie in (0, {nyquist:g}) Hz (the Nyquist frequency), "
+                             f"got {s['cutoff']}")
         b, a = butter(int(s["order"]), s["cutoff"] / nyquist)
         y = filtfilt(b, a, x, axis=0, padlen=min(3 * max(len(a), len(b)), len(x) - 1))
     for _ in range(deriv):

@@ -27,15 +27,15 @@ description: dof, angle mask, names, units, sampler configuration), ``convention
 (JSON), ``gravity``, ``param_names``, ``spec`` (the ``DatasetSpec`` as JSON), ``seed``,
 ``integrator``, ``substeps``, ``tolerances`` (JSON: the accuracy check, energy drift or power
 balance, and its measured maximum), ``targets``, ``inputs`` (JSON, actuated scenes: names, units,
-input matrix, excitation, hold), ``package_version``, ``created``, ``complete`` and, in a file of some splits only, ``subset``
-(JSON list of the splits it holds). A scene that records its own data adds its method (``robot_arm``:
-``recording``, the controller, gains, rates, reference and noise; ``robot``, the description and its
-perturbation; ``energy`` and ``work`` are then those of the true motion, ``q`` may carry encoder noise). Files written before
-``tau`` existed read as unactuated. Imported recordings (``lnn-torch import``; attribute
-``measured``) have no ``qdd`` and no ``energy`` (nothing is known but the measurements), a scene
-``measured`` (with each recording's known parameters, if any, and a robot arm's description),
-``lengths``, ``recordings`` (the entries' names: recordings or time windows) and ``provenance``
-(sources, checksums, each recording's timing and what resampling did, every setting).
+input matrix, excitation, hold), ``package_version``, ``created``, ``complete`` and, in a file of some
+splits only, ``subset`` (JSON list of the splits it holds). A scene that records its own data adds its
+method (``robot_arm``: ``recording``, the controller, gains, rates, reference and noise; ``robot``, the
+description and its perturbation; ``energy`` and ``work`` are then those of the true motion, ``q`` may
+carry encoder noise). Files written before ``tau`` existed read as unactuated. Imported recordings
+(``lnn-torch import``; attribute ``measured``) have no ``qdd`` and no ``energy`` (nothing is known but
+the measurements), a scene ``measured`` (with each recording's known parameters, if any, and a robot
+arm's description), ``lengths``, ``recordings`` (the entries' names: recordings or time windows) and
+``provenance`` (sources, checksums, each recording's timing and what resampling did, every setting).
 """
 
 from __future__ import annotations
@@ -55,7 +55,8 @@ FORMAT = "lnn_torch.trajectories"
 FORMAT_VERSION = 1
 ARRAYS = ("t", "q", "qd", "params")  # every file
 SIMULATED_ARRAYS = ("qdd", "energy")  # generated files (not measured ones)
-OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index", "q_ref", "windows")
+OPTIONAL_ARRAYS = ("qdd", "energy", "integrator_steps", "tau", "work", "lengths", "trajectory_index", "q_ref",
+                   "windows")
 SPLITS = ("train", "val", "test")
 
 
@@ -184,7 +185,8 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
         with h5py.File(path, "r") as f:
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
             if attrs.get("format") != FORMAT:
-                raise DatasetFileError(f"{path} is not an lnn_torch dataset (attribute 'format' is {attrs.get('format')!r})")
+                raise DatasetFileError(f"{path} is not an lnn_torch dataset "
+                                       f"(attribute 'format' is {attrs.get('format')!r})")
             if not attrs.get("complete", False):
                 raise DatasetFileError(f"{path} is incomplete (its writer did not finish)")
             required = ARRAYS + (() if attrs.get("measured", False) else SIMULATED_ARRAYS)
@@ -194,10 +196,13 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
             n, t, dof = f["q"].shape
             for name in ("qd", "qdd"):
                 if name in f and f[name].shape != (n, t, dof):
-                    raise DatasetFileError(f"{path} is malformed: '{name}' has shape {f[name].shape}, expected {(n, t, dof)}")
+                    raise DatasetFileError(f"{path} is malformed: '{name}' has shape {f[name].shape}, "
+                                           f"expected {(n, t, dof)}")
             if f["t"].shape != (t,) or f["params"].shape[0] != n or ("energy" in f and f["energy"].shape != (n, t)):
-                raise DatasetFileError(f"{path} is malformed: 't', 'params' or 'energy' shapes do not match 'q' {(n, t, dof)}")
-            if "lengths" in f and (f["lengths"].shape != (n,) or f["lengths"][()].min() < 2 or f["lengths"][()].max() > t):
+                raise DatasetFileError(f"{path} is malformed: 't', 'params' or 'energy' shapes do not match "
+                                       f"'q' {(n, t, dof)}")
+            if "lengths" in f and (f["lengths"].shape != (n,) or f["lengths"][()].min() < 2
+                                   or f["lengths"][()].max() > t):
                 raise DatasetFileError(f"{path} is malformed: 'lengths' must be ({n},) values in [2, {t}]")
             splits = {name: f[f"splits/{name}"][()] for name in SPLITS}
             all_idx = np.concatenate(list(splits.values()))
@@ -206,7 +211,8 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
             num_params = f["params"].shape[1]
             num_inputs = f["tau"].shape[2] if "tau" in f else 0
             if "tau" in f and f["tau"].shape[:2] != (n, t):
-                raise DatasetFileError(f"{path} is malformed: 'tau' has shape {f['tau'].shape}, expected {(n, t)} + (n_u,)")
+                raise DatasetFileError(f"{path} is malformed: 'tau' has shape {f['tau'].shape}, "
+                                       f"expected {(n, t)} + (n_u,)")
     except OSError as err:
         raise DatasetFileError(f"cannot read {path}: {err}") from None
     return TrajectoryFile(path, attrs, splits, n, t, dof, num_params, num_inputs)

@@ -125,7 +125,8 @@ def read_chain(model, payload_body: str | None = "payload") -> SerialChain:
             J[owner] = J[owner] + local @ Jb @ local.T
     if not moving:
         raise InputError("robot description: no hinge joint")
-    if flange is not None and frame_of[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, payload_body)][0] != len(moving) - 1:
+    if (flange is not None
+            and frame_of[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, payload_body)][0] != len(moving) - 1):
         raise InputError("robot description: the payload body must hang from the last moving body")
     dofs = [int(model.jnt_dofadr[model.body_jntadr[b]]) for b in moving]
     t = lambda a: torch.tensor(np.asarray(a), dtype=torch.float64)  # noqa: E731

@@ -149,7 +149,8 @@ class MujocoArm:
         mujoco = _mujoco()
         p = np.asarray(payload, dtype=np.float64).reshape(-1)
         if p.shape[0] not in (4, 10) or not np.isfinite(p).all() or p[0] < 0:
-            raise InputError(f"payload must be (mass >= 0, cx, cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]), got {p.tolist()}")
+            raise InputError("payload must be (mass >= 0, cx, cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]), "
+                             f"got {p.tolist()}")
         m, i = self.model, self.payload_id
         m.body_mass[i], m.body_ipos[i] = p[0], p[1:4]
         inertia = np.zeros((3, 3))
@@ -395,7 +396,8 @@ def _check_serial_arm(m, path) -> None:
     for j in range(m.njnt):
         if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
             raise InputError(f"robot description {path}: joint '{name(mujoco.mjtObj.mjOBJ_JOINT, j)}' is a "
-                             f"{joint_type.get(int(m.jnt_type[j]), 'non-hinge')} joint; only hinge joints are supported")
+                             f"{joint_type.get(int(m.jnt_type[j]), 'non-hinge')} joint; "
+                             "only hinge joints are supported")
     if m.nv == 0:
         raise InputError(f"robot description {path} has no joints: a serial arm of hinge joints is expected")
     for i in range(1, m.nv):  # in a serial chain each joint hangs from the one before it

@@ -83,7 +83,8 @@ def regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
     p = 12 * chain.dof
     zero = torch.zeros(p, dtype=q.dtype)
     basis = torch.eye(p, dtype=q.dtype)
-    _, cols = torch.func.vmap(lambda e: torch.func.jvp(lambda x: inverse_dynamics(chain, q, qd, qdd, x), (zero,), (e,)))(basis)
+    _, cols = torch.func.vmap(
+        lambda e: torch.func.jvp(lambda x: inverse_dynamics(chain, q, qd, qdd, x), (zero,), (e,)))(basis)
     return cols.permute(1, 2, 0)
 
 

@@ -32,5 +32,5 @@ def get_system(name: str, **config) -> System:
 
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
-           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle", "ActuatedDoublePendulum",
-           "RobotArm", "MeasuredSystem"]
+           "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle",
+           "ActuatedDoublePendulum", "RobotArm", "MeasuredSystem"]
