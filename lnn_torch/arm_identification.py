@@ -22,7 +22,7 @@ from .report import markdown_table
 METHODS = ("least squares", "weighted least squares", "physically consistent")
 
 
-def _rows(data, stride: int = 1) -> list[torch.Tensor]:
+def points(data, stride: int = 1) -> list[torch.Tensor]:
     """``q, qd, qdd, tau, params`` at the valid points of every trajectory (every ``stride``-th), float64."""
     out = {k: [] for k in ("q", "qd", "qdd", "tau", "params")}
     lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
@@ -53,14 +53,14 @@ def compare_on_arm(model, system, train, test, *, drive="viscous+coulomb+offset"
     description = system.config().get("description")
     chain = read_chain(load_description(description))
     names = list(system.coord_names)
-    q, qd, qdd, tau, params = _rows(test)
+    q, qd, qdd, tau, params = points(test)
     rows = {}
     if model is not None:
         with torch.no_grad(), counting_failures(model):
             pred = model.inverse_dynamics(q.to(model.dtype), qd.to(model.dtype), qdd.to(model.dtype),
                                           params.to(model.dtype)).double()
         rows[getattr(model, "variant", "model")] = {**torque_errors(pred, tau, names), "fit_seconds": None}
-    Xtr = _rows(train, train_stride)[:4]
+    Xtr = points(train, train_stride)[:4]
     fits = {}
     for method in methods:
         start = time.perf_counter()

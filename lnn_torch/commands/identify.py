@@ -8,6 +8,14 @@ beside it where the scene has one.
     lnn-torch identify pretrained:double_pendulum data/double_pendulum.h5 --trajectory 3 --duration 2
     lnn-torch identify pretrained:double_pendulum observed.csv --coordinates theta1 theta2
 
+A model of a measured robot arm (recordings imported with its robot description, no parameters to
+find) is identified the way robotics labs do it instead: classical least squares on the base
+parameters with the model's drive model (ordinary, weighted, physically consistent;
+``lnn_torch.arm_identification``), fitted on the dataset's training split, beside the model, as the
+held-out joint-torque error per joint in N m on ``--split`` (default test).
+
+    lnn-torch identify runs/real_panda/.../last.ckpt data/real_panda.h5
+
 The recording is a trajectory of a dataset file (``--split``, ``--trajectory``; generated files know
 the true parameters, and the report gives the errors) or a CSV file (a time column and a column per
 coordinate, optionally velocities and inputs; lines starting with ``#`` are comments). Writes
@@ -147,6 +155,8 @@ def main(argv: list[str]) -> int:
     configure_cpu(args.threads)
     module = load_model(args.checkpoint)
     system = module.system
+    if _measured_arm(system):
+        return _identify_arm(module, args)
     obs = read_observation(args.recording, system, split=args.split, trajectory=args.trajectory, start=args.start,
                            duration=args.duration, use=args.use, time=args.time, coordinates=args.coordinates,
                            velocities=args.velocities, inputs=args.inputs)
@@ -179,6 +189,39 @@ def main(argv: list[str]) -> int:
     (out / "report.md").write_text(text)
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}, {out / 'fit.png'}")
+    return 0
+
+
+def _measured_arm(system) -> bool:
+    """A measured robot arm: recordings imported with a robot description, driven by joint torques."""
+    return not system.closed_form and bool(system.config().get("description")) and system.num_inputs > 0
+
+
+def _identify_arm(module, args) -> int:
+    """Classical identification of a measured arm beside its model (module docstring)."""
+    from ..arm_identification import compare_on_arm, markdown
+    from ..checkpoints import data_hparams
+    from ..data import TrajectoryDataModule
+
+    path = Path(args.recording)
+    if path.suffix not in (".h5", ".hdf5"):
+        raise InputError(f"{path}: a measured arm is identified from its imported dataset (.h5: its training split "
+                         "for the fits, --split to judge them), not a single CSV")
+    targets = data_hparams(args.checkpoint).get("targets", "file")
+    dm = TrajectoryDataModule(path=str(path), targets=targets)
+    friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
+    result = compare_on_arm(module.model, module.system, dm.trajectories("train"), dm.trajectories(args.split),
+                            drive=friction)
+    out = Path(args.output_dir) if args.output_dir else _default_output(args)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result}
+    (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
+    text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
+            f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
+            f"Joint-torque RMS error (N m):\n\n{markdown(result)}\n")
+    (out / "report.md").write_text(text)
+    print(text)
+    print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
     return 0
 
 

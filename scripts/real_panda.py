@@ -1,0 +1,155 @@
+"""The real Franka Panda: every model beside classical identification, per joint, in N m, on the held-out
+window of its one recording (Gaz et al. 2019; ``../shared/data/real_panda/``, GPL-3.0: read from there,
+never shipped).
+
+The recording is imported with ``configs/import/real_panda.yaml``: the robot without its hand, armature
+and damping zero as written; training 0.5-8.0 s, validation 8.0-10.5 s, test 10.5-13.8 s (the part of
+the first period of the 13.33 s periodic motion that the rest of the recording does not repeat: samples
+after 13.8 s repeat the first period, and no training sample lies in it). Every model is judged on
+the same points with the same targets (the checkpoints' derivative estimates) against the measured
+torques: the models trained by ``lnn-torch fit`` (each checkpoint given), classical least squares on
+the base parameters with the same drive model (ordinary, weighted, physically consistent;
+``lnn_torch.robots.classical``) fitted on the training window, and the robot's description as shipped
+and as matched to the robot (rigid body only: the description's damping is its only friction).
+
+    lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
+        --config configs/import/real_panda.yaml -o data/real_panda.h5
+    lnn-torch fit -c configs/real_panda.yaml --trainer.default_root_dir runs/real_panda/grey_box_vco
+    python scripts/real_panda.py grey_box=runs/real_panda/grey_box_vco/lightning_logs/version_0/checkpoints/last.ckpt
+
+Writes ``metrics.json``, ``README.md`` (the tables, with the commands given by ``--command``) and
+``torques.png`` (measured and predicted torques of the first model on the held-out window) to
+``--output-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+from _cli import HelpFormatter, add_output_dir, wrote
+
+MATCHED = {"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("models", nargs="*", help="LABEL=CHECKPOINT, each trained on the imported recording")
+    ap.add_argument("--data", default="data/real_panda.h5", help="the imported recording")
+    ap.add_argument("--drive", default="viscous+coulomb+offset", help="the classical fits' drive model")
+    ap.add_argument("--classical", nargs="*", default=["least squares", "weighted least squares",
+                                                       "physically consistent"], help="the classical fits")
+    ap.add_argument("--targets", default=None, help="derivative settings as JSON (default: the first checkpoint's)")
+    ap.add_argument("--command", action="append", default=[], metavar="LABEL=COMMAND",
+                    help="the command that trained a model, for the report's table (repeatable)")
+    add_output_dir(ap, "real_panda", "the folder of metrics.json, README.md and torques.png")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    args = ap.parse_args()
+    from lnn_torch.arm_identification import compare_on_arm, points, torque_errors
+    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.perf import configure_cpu
+    from lnn_torch.plots import torque_figure
+    from lnn_torch.robots.classical import ArmModel, DriveModel, description_parameters
+    from lnn_torch.robots.kinematics import read_chain
+    from lnn_torch.robots.mujoco_arm import load_description
+
+    configure_cpu(args.threads)
+    models = dict(item.split("=", 1) for item in args.models)
+    targets = json.loads(args.targets) if args.targets else (
+        data_hparams(next(iter(models.values())))["targets"] if models else
+        {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True})
+    dm = TrajectoryDataModule(path=args.data, targets=targets)
+    f = read_dataset(args.data)
+    system = _system(f)
+    train, val, test = (dm.trajectories(s) for s in ("train", "val", "test"))
+    result = compare_on_arm(None, system, train, test, drive=args.drive, methods=tuple(args.classical))
+    on_val = compare_on_arm(None, system, train, val, drive=args.drive, methods=tuple(args.classical))
+    rows = result["rows"]
+    for name in list(rows):
+        rows[name]["val_rms_mean"] = on_val["rows"][name]["rms_mean"]
+    q, qd, qdd, tau, params = points(test)
+    qv, qdv, qddv, tauv, params_v = points(val)
+    names = result["joints"]
+    for label, description in (("description as shipped", "franka_panda"), ("description matched", MATCHED)):
+        chain = read_chain(load_description(description))
+        model = ArmModel(chain, DriveModel.of("viscous"), "description", {"b": chain.damping.numpy()},
+                         pi=description_parameters(chain).numpy())
+        rows[label] = {**torque_errors(model.torque(q, qd, qdd), tau, names), "fit_seconds": None,
+                       "val_rms_mean": torque_errors(model.torque(qv, qdv, qddv), tauv, names)["rms_mean"]}
+    rows.pop("description as written", None)
+    figure = None
+    for label, path in models.items():
+        module = load_model(path)
+        with torch.no_grad():
+            pred = module.model.inverse_dynamics(q.float(), qd.float(), qdd.float(), params.float()).double()
+            pred_v = module.model.inverse_dynamics(qv.float(), qdv.float(), qddv.float(), params_v.float()).double()
+        rows[label] = {**torque_errors(pred, tau, names), "fit_seconds": None, "checkpoint": path,
+                       "val_rms_mean": torque_errors(pred_v, tauv, names)["rms_mean"]}
+        if figure is None:
+            figure = {"t": torch.arange(len(q)) * f.dt, "measured": tau, "predicted": pred, "names": names}
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result["commands"] = dict(item.split("=", 1) for item in args.command)
+    (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
+    (out / "README.md").write_text(README.format(table=report(result), data=args.data, drive=args.drive))
+    paths = [out / "metrics.json", out / "README.md"]
+    if figure is not None:
+        fig = torque_figure(figure)
+        fig.suptitle(f"{next(iter(models))} on the real Panda, held-out window 10.5-13.8 s", fontsize=10)
+        fig.tight_layout()
+        fig.savefig(out / "torques.png", dpi=100)
+        paths.append(out / "torques.png")
+    print(report(result))
+    wrote(paths)
+
+
+def _system(f):
+    from lnn_torch.systems import get_system
+
+    scene = json.loads(f.attrs["scene_json"])
+    return get_system("measured", **scene["config"])
+
+
+README = """# The real Franka Panda: every model beside classical identification
+
+One exciting trajectory of a real Panda with measured joint torques (Gaz et al. 2019; the recording is
+GPL-3.0 and stays in `../shared/data/real_panda/`), imported as the robot was logged: the shipped
+description without its hand, armature and damping zero as written (`configs/import/real_panda.yaml`).
+The motion is periodic (13.33 s): samples after 13.8 s repeat the first period, so the held-out window
+is 10.5-13.8 s, the part of the first period that no other sample repeats; the models train on
+0.5-8.0 s and are chosen on 8.0-10.5 s (the classical fits train on 0.5-8.0 s too). Targets for every
+row: velocities and accelerations from a zero-phase 4th-order 10 Hz Butterworth filter of the measured
+velocities; errors against the measured torques, unfiltered.
+
+Held-out joint-torque RMS error in N m (lower is better; sorted by the test mean):
+
+{table}
+The classical rows are least squares on the base parameters of the description's kinematic chain with
+the drive model `{drive}` per joint (`lnn_torch.robots.classical`): ordinary, weighted (each joint's
+rows divided by its ordinary residual's standard deviation) and physically consistent (log-Cholesky
+inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
+(their damping their only friction). Every number: `python scripts/real_panda.py` with the checkpoints
+and commands listed (`metrics.json` holds the normalised MSE per joint and the validation errors too).
+"""
+
+
+def report(result: dict) -> str:
+    names = result["joints"]
+    header = ["model", *names, "mean, test", "mean, validation", "command"]
+    order = sorted(result["rows"], key=lambda k: result["rows"][k]["rms_mean"])
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for name in order:
+        r = result["rows"][name]
+        cmd = result.get("commands", {}).get(name, "")
+        lines.append(f"| {name} | " + " | ".join(f"{r['rms'][n]:.2f}" for n in names)
+                     + f" | **{r['rms_mean']:.3f}** | {r['val_rms_mean']:.3f} | {f'`{cmd}`' if cmd else ''} |")
+    lines.append("| torque std of the data | " + " | ".join(f"{result['torque_std'][n]:.2f}" for n in names)
+                 + " | | | |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()
