@@ -3,8 +3,8 @@ the joint-torque error per joint in N m on held-out data, for the learned model 
 on the base parameters with the same drive model (ordinary, weighted, and physically consistent:
 ``lnn_torch.robots.classical``) fitted on the same training data, and for the description as written.
 
-    result = compare_on_arm(module.model, system, train, test, drive="viscous+coulomb+offset")
-    print(markdown(result))
+    fits = fit_classical(system, train, drive="viscous+coulomb+offset")
+    print(markdown(compare_on_arm(module.model, system, test, fits)))
 
 ``train`` and ``test`` are ``Trajectories`` with accelerations (the estimates the model was trained
 on: the DataModule's ``targets``), SI units.
@@ -41,44 +41,73 @@ def torque_errors(predicted: torch.Tensor, measured: torch.Tensor, names) -> dic
             "nmse": dict(zip(names, nmse.tolist(), strict=True)), "nmse_mean": float(nmse.mean())}
 
 
-def compare_on_arm(model, system, train, test, *, drive="viscous+coulomb+offset", methods=METHODS,
-                   train_stride: int = 2, prior: float = 0.01) -> dict:
-    """Held-out torque errors (``torque_errors``) of ``model`` (its inverse dynamics, ``None`` to leave
-    it out) and of the classical fits on ``train`` (every ``train_stride``-th point), with the time
-    each fit took; and the description as written (its rigid body without friction)."""
+def arm_chain(system):
+    """The kinematic chain of a robot-arm scene's description (``robots.kinematics.SerialChain``)."""
+    from .robots.kinematics import read_chain
+    from .robots.mujoco_arm import load_description
+
+    return read_chain(load_description(system.config().get("description")))
+
+
+def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
+                  prior: float = 0.01) -> dict:
+    """The classical fits ``{label: ArmModel}`` of ``methods`` with the drive model ``drive`` on ``train``
+    (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
+    time in ``info["fit_seconds"]``."""
+    from .robots import classical
+
+    chain = arm_chain(system)
+    parts = [points(t, stride)[:4] for t in (train if isinstance(train, (list, tuple)) else [train])]
+    X = [torch.cat(column) for column in zip(*parts, strict=True)]
+    name = classical.DriveModel.of(drive).name
+    fits, out = {}, {}
+    for method in methods:
+        start = time.perf_counter()
+        if method == "physically consistent":
+            fits[method] = classical.consistent_fit(chain, *X, drive=drive, prior=prior,
+                                                    start=fits.get("least squares"))
+        else:
+            fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))
+        fits[method].info["fit_seconds"] = time.perf_counter() - start
+        fits[method].info["train_points"] = len(X[0])
+        out[f"{method} + {name}"] = fits[method]
+    return out
+
+
+def description_model(system, description=None):
+    """The description as written (or ``description``) as an ``ArmModel``: its rigid body, armature and
+    damping (its only friction)."""
     from .robots import classical
     from .robots.kinematics import read_chain
     from .robots.mujoco_arm import load_description
 
-    description = system.config().get("description")
-    chain = read_chain(load_description(description))
+    chain = arm_chain(system) if description is None else read_chain(load_description(description))
+    return classical.ArmModel(chain, classical.DriveModel.of("viscous"), "description", {"b": chain.damping.numpy()},
+                              pi=classical.description_parameters(chain).numpy())
+
+
+def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = None) -> dict:
+    """Torque errors (``torque_errors``) on ``data`` of ``model`` (its inverse dynamics; None: left out),
+    of the classical ``fits`` (``fit_classical``) and of ``descriptions`` (``{label: ArmModel}``; default:
+    the scene's description as written)."""
     names = list(system.coord_names)
-    q, qd, qdd, tau, params = points(test)
+    q, qd, qdd, tau, params = points(data)
     rows = {}
     if model is not None:
         with torch.no_grad(), counting_failures(model):
             pred = model.inverse_dynamics(q.to(model.dtype), qd.to(model.dtype), qdd.to(model.dtype),
                                           params.to(model.dtype)).double()
-        rows[getattr(model, "variant", "model")] = {**torque_errors(pred, tau, names), "fit_seconds": None}
-    Xtr = points(train, train_stride)[:4]
-    fits = {}
-    for method in methods:
-        start = time.perf_counter()
-        if method == "physically consistent":
-            fits[method] = classical.consistent_fit(chain, *Xtr, drive=drive, prior=prior,
-                                                    start=fits.get("least squares"))
-        else:
-            fits[method] = classical.least_squares(chain, *Xtr, drive=drive, weighted=method.startswith("weighted"))
-        seconds = time.perf_counter() - start
-        rows[f"{method} + {classical.DriveModel.of(drive).name}"] = {
-            **torque_errors(fits[method].torque(q, qd, qdd), tau, names), "fit_seconds": seconds}
-    as_written = classical.ArmModel(chain, classical.DriveModel.of("viscous"), "description",
-                                    {"b": chain.damping.numpy()},
-                                    pi=classical.description_parameters(chain).numpy())
-    rows["description as written"] = {**torque_errors(as_written.torque(q, qd, qdd), tau, names), "fit_seconds": None}
-    return {"joints": names, "test_points": len(q), "train_points": len(Xtr[0]), "drive": classical.DriveModel.of(
-        drive).name, "rows": rows, "fits": {k: v.report() for k, v in fits.items()},
-        "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
+        rows[getattr(model, "variant", "model")] = torque_errors(pred, tau, names)
+    for label, fit in fits.items():
+        rows[label] = {**torque_errors(fit.torque(q, qd, qdd), tau, names),
+                       "fit_seconds": fit.info.get("fit_seconds")}
+    for label, fit in (descriptions if descriptions is not None
+                       else {"description as written": description_model(system)}).items():
+        rows[label] = torque_errors(fit.torque(q, qd, qdd), tau, names)
+    train_points = next((f.info.get("train_points") for f in fits.values()), None)
+    return {"joints": names, "test_points": len(q), "train_points": train_points, "rows": rows,
+            "fits": {k: v.report() for k, v in fits.items()},
+            "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 
 
 def markdown(result: dict) -> str:

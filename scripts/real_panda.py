@@ -47,14 +47,11 @@ def main() -> None:
     add_output_dir(ap, "real_panda", "the folder of metrics.json, README.md and torques.png")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     args = ap.parse_args()
-    from lnn_torch.arm_identification import compare_on_arm, points, torque_errors
+    from lnn_torch.arm_identification import compare_on_arm, description_model, fit_classical, points
     from lnn_torch.checkpoints import data_hparams, load_model
     from lnn_torch.data import TrajectoryDataModule, read_dataset
     from lnn_torch.perf import configure_cpu
     from lnn_torch.plots import torque_figure
-    from lnn_torch.robots.classical import ArmModel, DriveModel, description_parameters
-    from lnn_torch.robots.kinematics import read_chain
-    from lnn_torch.robots.mujoco_arm import load_description
 
     configure_cpu(args.threads)
     models = dict(item.split("=", 1) for item in args.models)
@@ -62,34 +59,30 @@ def main() -> None:
         data_hparams(next(iter(models.values())))["targets"] if models else
         {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True})
     dm = TrajectoryDataModule(path=args.data, targets=targets)
-    f = read_dataset(args.data)
-    system = _system(f)
+    system = _system(read_dataset(args.data))
     train, val, test = (dm.trajectories(s) for s in ("train", "val", "test"))
-    result = compare_on_arm(None, system, train, test, drive=args.drive, methods=tuple(args.classical))
-    on_val = compare_on_arm(None, system, train, val, drive=args.drive, methods=tuple(args.classical))
-    rows = result["rows"]
-    for name in list(rows):
-        rows[name]["val_rms_mean"] = on_val["rows"][name]["rms_mean"]
-    q, qd, qdd, tau, params = points(test)
-    qv, qdv, qddv, tauv, params_v = points(val)
-    names = result["joints"]
-    for label, description in (("description as shipped", "franka_panda"), ("description matched", MATCHED)):
-        chain = read_chain(load_description(description))
-        model = ArmModel(chain, DriveModel.of("viscous"), "description", {"b": chain.damping.numpy()},
-                         pi=description_parameters(chain).numpy())
-        rows[label] = {**torque_errors(model.torque(q, qd, qdd), tau, names), "fit_seconds": None,
-                       "val_rms_mean": torque_errors(model.torque(qv, qdv, qddv), tauv, names)["rms_mean"]}
-    rows.pop("description as written", None)
+    fits = fit_classical(system, train, drive=args.drive, methods=tuple(args.classical))
+    # the anchor as the issue states it: least squares on all of 0.5-10.5 s (training and validation)
+    fits.update({f"{k} (fitted on 0.5-10.5 s)": v for k, v in fit_classical(
+        system, [train, val], drive=args.drive, methods=("least squares",)).items()})
+    descriptions = {"description as shipped": description_model(system, "franka_panda"),
+                    "description matched to the robot": description_model(system, MATCHED)}
+    result = compare_on_arm(None, system, test, fits, descriptions)
+    on_val = compare_on_arm(None, system, val, fits, descriptions)
     figure = None
     for label, path in models.items():
         module = load_model(path)
-        with torch.no_grad():
-            pred = module.model.inverse_dynamics(q.float(), qd.float(), qdd.float(), params.float()).double()
-            pred_v = module.model.inverse_dynamics(qv.float(), qdv.float(), qddv.float(), params_v.float()).double()
-        rows[label] = {**torque_errors(pred, tau, names), "fit_seconds": None, "checkpoint": path,
-                       "val_rms_mean": torque_errors(pred_v, tauv, names)["rms_mean"]}
+        result["rows"][label] = {**compare_on_arm(module.model, system, test, {}, {})["rows"][module.model.variant],
+                                 "checkpoint": path}
+        on_val["rows"][label] = compare_on_arm(module.model, system, val, {}, {})["rows"][module.model.variant]
         if figure is None:
-            figure = {"t": torch.arange(len(q)) * f.dt, "measured": tau, "predicted": pred, "names": names}
+            q, qd, qdd, tau, params = points(test)
+            with torch.no_grad():
+                pred = module.model.inverse_dynamics(q.float(), qd.float(), qdd.float(), params.float()).double()
+            figure = {"t": torch.arange(len(q)) * dm.dt, "measured": tau, "predicted": pred,
+                      "names": result["joints"]}
+    for label, row in result["rows"].items():
+        row["val_rms_mean"] = on_val["rows"][label]["rms_mean"]
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     result["commands"] = dict(item.split("=", 1) for item in args.command)

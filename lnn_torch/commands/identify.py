@@ -199,7 +199,7 @@ def _measured_arm(system) -> bool:
 
 def _identify_arm(module, args) -> int:
     """Classical identification of a measured arm beside its model (module docstring)."""
-    from ..arm_identification import compare_on_arm, markdown
+    from ..arm_identification import compare_on_arm, fit_classical, markdown
     from ..checkpoints import data_hparams
     from ..data import TrajectoryDataModule
 
@@ -210,8 +210,8 @@ def _identify_arm(module, args) -> int:
     targets = data_hparams(args.checkpoint).get("targets", "file")
     dm = TrajectoryDataModule(path=str(path), targets=targets)
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
-    result = compare_on_arm(module.model, module.system, dm.trajectories("train"), dm.trajectories(args.split),
-                            drive=friction)
+    fits = fit_classical(module.system, dm.trajectories("train"), drive=friction)
+    result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result}
