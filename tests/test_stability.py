@@ -14,9 +14,8 @@ import pytest
 import torch
 
 from lnn_torch.data import DatasetSpec, GenerationError, generate_arrays
-from lnn_torch.data.generate import integrate_ground_truth
 from lnn_torch.dynamics import SingularHessianError
-from lnn_torch.ground_truth import ClosedForm
+from lnn_torch.ground_truth import ClosedForm, integrate_ground_truth
 from lnn_torch.integrators import rollout
 from lnn_torch.losses import energy_variance
 from lnn_torch.metrics import energy_drift

@@ -188,7 +188,9 @@ class ArmDescription:
         try:
             return spec.compile()
         except ValueError as err:
-            raise InputError(f"robot description {path} as changed ({self}): {str(err).splitlines()[0]}") from None
+            first, *where = str(err).splitlines()
+            where = f" ({', '.join(w.strip() for w in where if w.strip())})" if any(w.strip() for w in where) else ""
+            raise InputError(f"robot description {path} as changed ({self}): {first}{where}") from None
 
     def _flange(self, spec, names: list[str], path):
         """``(body, pos, quat)`` where the payload attaches for a named flange (a body: its origin; a
