@@ -54,6 +54,13 @@ def same_signals(scene, recordings) -> dict:
     return out
 
 
+def weight_difference(weights: dict, first: dict) -> float | None:
+    """The largest difference between two models' weights and buffers (None: not the same tensors)."""
+    if weights.keys() != first.keys() or any(weights[k].shape != first[k].shape for k in weights):
+        return None
+    return max((float((weights[k] - first[k]).abs().max()) for k in weights if weights[k].numel()), default=0.0)
+
+
 def torque_nmse(module, data, stride: int) -> dict:
     from lnn_torch.evaluation import evaluate_model
 
@@ -71,8 +78,8 @@ def markdown(result: dict) -> str:
              f"{max(result['signal_difference'].values()):.3g} (q, qd, tau, params). "
              f"Command: `{result['command']}`", "",
              "| model | trained on | torque nMSE, engine's accelerations | per joint (1-7) | torque nMSE, "
-             "estimated accelerations | ratio to the first row of the model (engine / estimated) |",
-             "|---|---|---|---|---|---|"]
+             "estimated accelerations | ratio to the model's first row (engine / estimated) | largest weight "
+             "difference to it |", "|---|---|---|---|---|---|---|"]
     first: dict = {}  # each model's first row, the reference of its ratios
     for name, r in result["rows"].items():
         model, _, source = (s.strip() for s in name.partition("|"))
@@ -83,7 +90,10 @@ def markdown(result: dict) -> str:
         else:
             ratio = f"{true / first[model][0]:.4f} / {est / first[model][1]:.4f}"
         per_joint = " / ".join(f"{100 * r['engine'][j]:.3g}" for j in joints) + " %"
-        lines.append(f"| {model} | {source} | **{100 * true:.4g} %** | {per_joint} | {100 * est:.4g} % | {ratio} |")
+        weights = r["weight_difference"]
+        weights = "—" if weights is None else f"{weights:.3g}"
+        lines.append(f"| {model} | {source} | **{100 * true:.4g} %** | {per_joint} | {100 * est:.4g} % | {ratio} | "
+                     f"{weights} |")
     return "\n".join(lines) + "\n"
 
 
@@ -105,6 +115,7 @@ def main() -> None:
               "command": "python scripts/arm_recordings_compare.py " + " ".join(
                   [f"--scene-data {args.scene_data} --recordings-data {args.recordings_data}"]
                   + [f'--model "{m}"' for m in args.model] + [f"--output {args.output}"])}
+    firsts: dict = {}  # each model's first row's weights
     for item in args.model:
         name, _, path = item.rpartition("=")
         module = load_model(path)
@@ -113,7 +124,11 @@ def main() -> None:
             nmse = torque_nmse(module, data, args.stride)
             rows[ref] = {"mean": nmse["mean"], **{j: v for j, v in zip(names, (nmse[k] for k in nmse if k != "mean"),
                                                                          strict=True)}}
-        result["rows"][name] = {**rows, "checkpoint": path, "scene": module.system.name}
+        model = name.partition("|")[0].strip()
+        weights = {k: v.detach().double() for k, v in module.model.state_dict().items()}
+        first = firsts.setdefault(model, weights)
+        result["rows"][name] = {**rows, "checkpoint": path, "scene": module.system.name,
+                                "weight_difference": weight_difference(weights, first)}
         print(name, json.dumps({k: round(float(v["mean"]), 10) for k, v in rows.items()}), flush=True)
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
