@@ -17,7 +17,7 @@ LAYERS = [
                      "networks.normalization", "networks._kernels"]),
     ("physics", ["robots", "robots.*", "systems", "systems.*", "ground_truth", "recording", "identified"]),
     ("models", ["networks", "networks.*"]),
-    ("data", ["data.spec", "data.generate", "data.hdf5", "data.importer", "data.cache"]),
+    ("data", ["data.spec", "data.generate", "data.hdf5", "data.importer", "data.export_csv", "data.cache"]),
     ("use", ["losses", "optim", "training_pass", "evaluation", "evaluation.*", "plots", "stability", "identification",
              "arm_identification", "control", "control.*", "export"]),
     ("training", ["module", "callbacks", "checkpoints", "data.datamodule", "lightning_cli"]),
