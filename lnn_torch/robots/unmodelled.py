@@ -33,19 +33,26 @@ recorded torques and of ``Q_diss``: ``E(t) - E(0) = W_tau + W_diss`` closes with
 
 Options (a magnitude is one number for every joint or one per joint, N m; a value given per joint is
 used as it is, one number or the default is a magnitude that each joint's value is drawn around,
-seeded): ``friction: {coulomb, load, stribeck, coulomb_velocity, stribeck_velocity}`` (``c``, ``s``
-drawn as magnitude x U(0.5, 1.5); ``load`` ``l`` dimensionless, drawn likewise; defaults 0.4 % of each
-joint's torque limit for ``c`` and ``s`` (0.35 N m on the Panda's joints 1-4, 0.048 N m on 5-7), ``l`` =
-0.02, ``v_c`` = 0.05 rad/s, ``v_s`` = 0.2 rad/s); ``spring: {joints, stiffness, cubic, rest_spread}``
-(``joints`` 0-based, default ``[0, 1]``; ``k`` N m/rad and ``k3`` N m/rad^3, default 1 % of the
-torque limit per rad and per rad^3 (0.87); ``r_j`` the middle of the joint's range plus U(-spread,
-spread), spread 0.3 rad); ``cogging: {amplitude, cycles}`` (``a`` drawn as magnitude x U(0.5, 1.5),
-default 0.2 % of the torque limit (0.17 / 0.024 N m); ``n`` an integer, default 6; ``phi`` U(0,
-2 pi)); ``sensor_offset: {magnitude}`` (``o`` drawn as magnitude x U(-1, 1), default 0.3 % of the
-torque limit (up to 0.26 / 0.036 N m)). The Panda's held-out torque std per joint is about 3.9, 25,
-9.4, 7.7, 2.4, 2.6, 0.63 N m: each effect is a few percent of it. Each effect draws from its own
-generator, ``SeedSequence(seed, spawn_key=(k,))`` with ``k`` its index in ``EFFECTS``, so that switching
-one effect on or off leaves the others' values unchanged.
+seeded):
+
+* ``friction: {coulomb, load, stribeck, coulomb_velocity, stribeck_velocity}``: ``c`` and ``s`` drawn as
+  magnitude x U(0.5, 1.5), default 0.4 % of each joint's torque limit (0.35 N m on the Panda's joints
+  1-4, 0.048 N m on 5-7); ``load`` ``l`` dimensionless, drawn likewise, default 0.02; ``v_c`` = 0.05
+  rad/s, ``v_s`` = 0.2 rad/s.
+* ``spring: {joints, stiffness, cubic, rest_spread}``: ``joints`` 0-based, default ``[0, 1]``; ``k`` N
+  m/rad and ``k3`` N m/rad^3, default 0.25 % and 0.05 % of the torque limit per rad and per rad^3 (0.22
+  and 0.044 on the Panda: 0.38 N m at 1.3 rad from rest); ``r_j`` the middle of the joint's range plus
+  U(-spread, spread), spread 0.3 rad.
+* ``cogging: {amplitude, cycles}``: ``a`` drawn as magnitude x U(0.5, 1.5), default 0.2 % of the torque
+  limit (0.17 / 0.024 N m); ``n`` an integer, default 6; ``phi`` U(0, 2 pi).
+* ``sensor_offset: {magnitude}``: ``o`` drawn as magnitude x U(-1, 1), default 0.3 % of the torque
+  limit (up to 0.26 / 0.036 N m).
+
+The Panda's recorded torques have a std of 0.5-0.6 N m (joint 7) to 16-25 N m (joint 2) per joint:
+with the defaults each effect's torque RMS is a few percent of it (friction the largest, up to 12 % on
+joints 1 and 4 through its load; all effects together 4-16 % per joint, measured on 20 trajectories).
+Each effect draws from its own generator, ``SeedSequence(seed, spawn_key=(k,))`` with ``k`` its index in
+``EFFECTS``, so that switching one effect on or off leaves the others' values unchanged.
 
 Every function here takes numpy arrays or torch tensors (``(..., n)``) and answers in kind.
 """
@@ -68,8 +75,8 @@ OPTIONS = {
     "cogging": {"amplitude": None, "cycles": 6},
     "sensor_offset": {"magnitude": None},
 }
-TORQUE_FRACTION = {("friction", "coulomb"): 0.004, ("friction", "stribeck"): 0.004, ("spring", "stiffness"): 0.01,
-                   ("spring", "cubic"): 0.01, ("cogging", "amplitude"): 0.002, ("sensor_offset", "magnitude"): 0.003}
+TORQUE_FRACTION = {("friction", "coulomb"): 0.004, ("friction", "stribeck"): 0.004, ("spring", "stiffness"): 0.0025,
+                   ("spring", "cubic"): 0.0005, ("cogging", "amplitude"): 0.002, ("sensor_offset", "magnitude"): 0.003}
 UNITS = {"c": "N m", "l": "1", "s": "N m", "v_c": "rad/s", "v_s": "rad/s", "k": "N m/rad", "k3": "N m/rad^3",
          "r": "rad", "a": "N m", "n": "cycles/rev", "phi": "rad", "o": "N m"}
 
