@@ -40,11 +40,11 @@ EFFECTS = {"friction": {}, "spring": {}, "cogging": {}, "sensor_offset": {}}
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
 
 
-def residual_options(weight: float, hidden: list[int], parts: bool) -> dict:
+def residual_options(weight: float, hidden: list[int], parts: bool, harmonics: int) -> dict:
     """The grey box with its residuals: the force residual and (``parts``) the kinetic and potential MLPs."""
     parts_spec = ({"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}} if parts
                   else dict(GREY_BOX))
-    return {**parts_spec, "residual_force": {"hidden": list(hidden), "weight": weight}}
+    return {**parts_spec, "residual_force": {"hidden": list(hidden), "weight": weight, "harmonics": harmonics}}
 
 
 # ---------------------------------------------------------------------------- training
@@ -213,6 +213,8 @@ def main() -> None:
     ap.add_argument("--weights", type=float, nargs="+", default=[1e-3],
                     help="the force residual's L2 weights to try (the validation split chooses)")
     ap.add_argument("--hidden", type=int, nargs="+", default=[64, 64], help="the force residual's hidden widths")
+    ap.add_argument("--harmonics", type=int, default=1,
+                    help="the force residual reads sin/cos of k times the angles, k <= this")
     ap.add_argument("--no-residual-parts", action="store_true",
                     help="the force residual alone beside the grey box (no kinetic and potential MLPs)")
     ap.add_argument("--horizon", type=float, default=None, help="rollout horizon (s; default: --duration)")
@@ -245,7 +247,8 @@ def main() -> None:
 
     rows = {"description (engine, no effects, nothing learned)": description_row(system, splits["test"], test, args)}
     candidates = [("grey box", dict(GREY_BOX))]
-    candidates += [(f"grey box + residual (weight {w:g})", residual_options(w, args.hidden, not args.no_residual_parts))
+    parts = not args.no_residual_parts
+    candidates += [(f"grey box + residual (weight {w:g})", residual_options(w, args.hidden, parts, args.harmonics))
                    for w in args.weights]
     chosen, best = None, float("inf")
     for name, options in candidates:

@@ -87,6 +87,20 @@ def test_the_residual_is_in_the_forward_and_inverse_dynamics_and_nowhere_else(rn
         torch.testing.assert_close(value, without[name], rtol=0, atol=0, msg=name)
 
 
+def test_harmonics_are_the_sin_and_cos_of_multiples_of_the_feature_angles(rng):
+    model = build_model("film_lnn", ADP, hidden_dims=(16, 16), residual_force={"harmonics": 4}).double()
+    residual = model.forces.residual
+    q = torch.as_tensor(rng.uniform(-3, 3, (32, 2)))
+    phi = model.features(q)[0]
+    angles = q @ model.angle_features.sel_angle.double()  # the feature angles G q
+    expected = torch.cat([phi, *[torch.cat([torch.sin(k * angles), torch.cos(k * angles)], -1) for k in (2, 3, 4)]],
+                         -1)
+    torch.testing.assert_close(residual._harmonics(phi), expected, rtol=0, atol=1e-12)
+    assert residual.num_inputs == expected.shape[-1] + 2  # and the two velocities (FiLM takes the parameters)
+    with pytest.raises(InputError, match="harmonics must be an integer >= 1"):
+        build_model("film_lnn", ADP, residual_force={"harmonics": 0})
+
+
 def test_the_power_of_the_models_forces_counts_the_residuals_work(rng):
     torch.manual_seed(2)
     model = build_model("film_lnn", ADP, hidden_dims=(16, 16), residual_force={}).double()

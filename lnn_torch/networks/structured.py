@@ -40,7 +40,8 @@ from .parts import part_options as _part_options
 from .residual_force import ResidualForce
 
 # the options of ``residual_force`` (``ResidualForce``) and their defaults
-RESIDUAL_FORCE_OPTIONS = {"hidden": [32, 32], "weight": 1e-3, "activation": "tanh", "film_hidden": 16}
+RESIDUAL_FORCE_OPTIONS = {"hidden": [32, 32], "weight": 1e-3, "activation": "tanh", "film_hidden": 16,
+                          "harmonics": 1}
 # options of the model that are defaults for its parts (a part's own options override them)
 _PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag_shift", "potential_film")
 
@@ -89,8 +90,9 @@ class StructuredLagrangian(DynamicsModel):
             (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, sigmoid.
         residual_force: None (default: none) or the options of a force residual ``Q_r`` (``true`` or ``{}``:
             the defaults): ``hidden`` widths ([32, 32]), ``weight`` of its L2 penalty (1e-3), ``activation``
-            (tanh), ``film_hidden`` (16); FiLM on the parameters for ``film_lnn``, the parameters as
-            inputs for ``delan`` (``lnn_torch.networks.residual_force``). Needs a scene with forces.
+            (tanh), ``film_hidden`` (16), ``harmonics`` (1: sin/cos of the angles; K: of k times them, k <=
+            K); FiLM on the parameters for ``film_lnn``, the parameters as inputs for ``delan``
+            (``lnn_torch.networks.residual_force``). Needs a scene with forces.
 
     Options given with a value other than their default that no part of the model takes: the
     part-specific ones (``mass_invariant``, ``links``) are refused, all in one line; the defaults of
@@ -173,7 +175,8 @@ class StructuredLagrangian(DynamicsModel):
                              f"'{self.scene.name}' has none")
         opts = {**RESIDUAL_FORCE_OPTIONS, **opts}
         self.forces.attach_residual(ResidualForce(self.num_features, self.scene.dof, self.scene.num_params,
-                                                  "film" if self.conditioning == "film" else "concat", **opts))
+                                                  "film" if self.conditioning == "film" else "concat", **opts,
+                                                  num_angles=int(self.angle_features.sel_angle.shape[1])))
 
     def _part_specs(self, kinetic, potential, given: dict) -> tuple[dict, dict]:
         """``{name: options}`` of the kinetic and the potential parts, with the model-level options that
