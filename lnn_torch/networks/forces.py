@@ -27,6 +27,11 @@ conservative scene has no such module and no extra parameter.
 * ``dissipation="joint+rayleigh"`` adds ``-R(q, qd, theta) qd`` with ``R = chol chol^T`` positive
   semi-definite from a small MLP of ``(features(q), qd, theta)`` (coupled, state-dependent damping).
 
+* A force residual (``attach_residual``: the structured models' option ``residual_force``,
+  ``lnn_torch.networks.residual_force``): a learned generalised force ``Q_r(q, qd, theta)`` beside the
+  rest, starting at zero, regularised, NOT passive: it is in ``force``/``force_norm`` and
+  ``state_force_at`` (what the inverse dynamics subtracts) but never in ``Q_diss``.
+
 In the model's normalised units (``force_norm``, ``dissipative_force_at``, ``holding_torques``,
 ``with_static_friction``) the forces read the model's ``Normalizer`` (``attach_normalizer``): the model
 calls them with its normalised state and gets normalised generalised forces or accelerations back.
@@ -107,6 +112,17 @@ class LearnedForces(nn.Module):
             nn.init.constant_(self.rayleigh[-1].bias, -3.0)
             rows, cols = torch.tril_indices(self.dof, self.dof)
             self.register_buffer("tril_index", rows * self.dof + cols, persistent=False)
+        self.residual = None
+
+    def attach_residual(self, residual: nn.Module) -> None:
+        """Add the force residual ``Q_r`` (a ``ResidualForce``; the structured models build it after their
+        parts, so that a seed gives their other networks as without it)."""
+        self.residual = residual
+
+    @property
+    def needs_features(self) -> bool:
+        """Whether the forces read the model's features of ``q`` (the Rayleigh term, the force residual)."""
+        return self.rayleigh is not None or self.residual is not None
 
     @property
     def dissipative(self) -> bool:
@@ -219,8 +235,11 @@ class LearnedForces(nn.Module):
         return input_force @ torch.linalg.pinv(self.input_matrix.to(input_force.dtype)).mT
 
     def force(self, qd, params_norm, tau=None, features=None, qd_norm=None) -> torch.Tensor:
-        """``Q = B tau + Q_diss`` in SI, ``(B, dof)``."""
+        """``Q = B tau + Q_diss (+ Q_r)`` in SI, ``(B, dof)`` (the residual where ``features`` and ``qd_norm``
+        are given)."""
         Q = self.dissipative_force(qd, params_norm, features, qd_norm)
+        if self.residual is not None and features is not None and qd_norm is not None:
+            Q = Q + self.residual(features, qd_norm, params_norm)
         return Q if tau is None else Q + self.input_force(tau)
 
     # ------------------------------------------------------------------ in the model's normalised units
@@ -237,7 +256,7 @@ class LearnedForces(nn.Module):
         velocities; ``tau_norm``: the inputs divided by ``normalizer.input_rms`` (None: none);
         ``features``: the model's features of ``q`` (the Rayleigh term reads them)."""
         norm = self.normalizer
-        Q = self.dissipative_force_at(qd_norm, params_norm, features)
+        Q = self.state_force_at(qd_norm, params_norm, features)
         if tau_norm is not None:
             Q = Q + self.input_force(tau_norm * norm.input_rms.to(tau_norm.dtype))
         return norm.force_to_norm(Q)
@@ -248,6 +267,19 @@ class LearnedForces(nn.Module):
         norm = self.normalizer
         qd = qd_norm * (norm.coord_scale.to(qd_norm.dtype) / norm.time_scale.to(qd_norm.dtype))
         return self.dissipative_force(qd, params_norm, features, qd_norm)
+
+    def residual_force_at(self, qd_norm, params_norm, features) -> torch.Tensor | None:
+        """``Q_r (B, dof)`` in SI at the normalised velocities (None without a residual)."""
+        if self.residual is None:
+            return None
+        return self.residual(features, qd_norm, params_norm)
+
+    def state_force_at(self, qd_norm, params_norm, features=None) -> torch.Tensor:
+        """``Q_diss + Q_r (B, dof)`` in SI: the model's generalised force of the state, all but the inputs
+        (what the inverse dynamics subtracts; ``features``: as in ``force_norm``)."""
+        Q = self.dissipative_force_at(qd_norm, params_norm, features)
+        residual = self.residual_force_at(qd_norm, params_norm, features)
+        return Q if residual is None else Q + residual
 
     def holding_torques(self, qdd_norm, force_norm, solve, qd_norm, params_norm):
         """``(U, lam)``: the normalised accelerations per N m at each joint ``U (B, dof, n_j)`` and static

@@ -5,7 +5,7 @@ export (``lnn_torch.export``) take from a model, instead of deriving it again.
 THE CONVENTION (stated here once): a model with a mass matrix (``MASS_MATRIX``: the structured
 Lagrangians) is, in SI units, the rigid mechanical system
 
-    M(q) qdd + n(q, qd) = B tau + Q_f(q, qd)
+    M(q) qdd + n(q, qd) = B tau + Q_f(q, qd) + Q_r(q, qd)
 
 * ``mass_matrix_si(q, params)``: ``M (B, dof, dof)``, symmetric positive definite (``crba``);
 * ``bias_si(q, qd, params)``: ``n``, the learned Lagrangian's Coriolis, centrifugal and gravity forces
@@ -15,11 +15,15 @@ Lagrangians) is, in SI units, the rigid mechanical system
 * ``friction_si(q, qd, params)``: ``Q_f``, the learned dissipative generalised force (``FORCES``): joint
   friction at the joint rates ``D qd`` mapped back through the joint map, ``-D^T f(D qd)``, and a
   learned Rayleigh damping ``-R qd`` where the model has one; ``qd . Q_f <= 0``;
+* ``residual_force_si(q, qd, params)``: ``Q_r``, the learned force residual (the structured models'
+  option ``residual_force``, ``lnn_torch.networks.residual_force``; zero without it): a generalised force
+  of the state for what the model's physics cannot write, NOT passive (so not in ``Q_f``, whose
+  ``qd . Q_f <= 0`` stays true); its power is counted with the model's other forces;
 * ``inverse_dynamics_si(q, qd, qdd, params)``: the inputs ``tau (B, n_u)`` with ``B tau = M qdd + n -
-  Q_f`` (least squares through ``B`` where there are fewer inputs than coordinates;
+  Q_f - Q_r`` (least squares through ``B`` where there are fewer inputs than coordinates;
   ``INVERSE_DYNAMICS``; ``input_force_si`` gives ``B tau`` itself);
-* ``forward_dynamics_si(q, qd, params, tau)``: the accelerations ``M^-1 (B tau + Q_f - n)``: the model's
-  ``acceleration`` (``aba``).
+* ``forward_dynamics_si(q, qd, params, tau)``: the accelerations ``M^-1 (B tau + Q_f + Q_r - n)``: the
+  model's ``acceleration`` (``aba``).
 
 Static friction (``dissipation: joint+stiction``) is not a force of the state: its holding torques are
 what holding a slow joint at rest takes against everything else acting at that instant
@@ -122,10 +126,19 @@ class RigidBodyFace:
         phi = self.features(q_n)[0] if self.forces.rayleigh is not None else None
         return self.forces.dissipative_force_at(qd_n, p_n, phi).to(q.dtype)
 
+    def residual_force_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """``Q_r (B, dof)``: the learned force residual (N m; zeros for a model without one; not passive:
+        the module docstring). ``FORCES``."""
+        self._require(FORCES)
+        q_n, qd_n, p_n = self.normalize(*self._si_inputs(q, qd, params))
+        if self.forces.residual is None:
+            return torch.zeros_like(qd)
+        return self.forces.residual_force_at(qd_n, p_n, self.features(q_n)[0]).to(q.dtype)
+
     def input_force_si(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
                        params: torch.Tensor) -> torch.Tensor:
-        """``B tau = M qdd + n - Q_f (B, dof)``: the generalised force of the inputs that makes the model
-        accelerate by ``qdd`` (SI). ``INVERSE_DYNAMICS``."""
+        """``B tau = M qdd + n - Q_f - Q_r (B, dof)``: the generalised force of the inputs that makes the
+        model accelerate by ``qdd`` (SI). ``INVERSE_DYNAMICS``."""
         return self._input_force(q, qd, qdd, params).to(q.dtype)
 
     def _input_force(self, q, qd, qdd, params) -> torch.Tensor:
@@ -136,7 +149,7 @@ class RigidBodyFace:
     def inverse_dynamics_si(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor,
                             check: bool = True) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` in N m that make the model accelerate by ``qdd`` (SI): ``B tau = M
-        qdd + n - Q_f`` solved through the input matrix (least squares where fewer inputs than
+        qdd + n - Q_f - Q_r`` solved through the input matrix (least squares where fewer inputs than
         coordinates; static friction's holding torques excluded). ``check``: the shapes, NaN and
         parameter signs of the inputs first. ``INVERSE_DYNAMICS``."""
         if check:

@@ -8,6 +8,12 @@ shared network for both. ``film_lnn`` conditions the networks on the parameters 
 (Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs: the same
 composition with other conditioning.
 
+``residual_force`` adds a learned generalised force ``Q_r(q, qd, theta)`` beside the parts and the
+learned friction (``lnn_torch.networks.residual_force``): starting at zero, regularised, not passive; in
+the forward and inverse dynamics (``M qdd + n = B tau + Q_f + Q_r``, ``lnn_torch.networks.rigid_body``)
+and in the power of the model's forces. ``lnn_torch.networks.shares`` reports how much of the torque it
+and the residual parts carry.
+
 The solve needs no Hessian: the parts carry forward-mode tangents by hand (``d F / d q_k``), the
 potential parts give ``dV/dq`` (a hand-written reverse pass for the MLP), and ``M qdd = dT/dq - dV/dq
 - Mdot qd`` is solved by Cholesky (``lnn_torch.dynamics.structured_acceleration_from_factor``). The
@@ -17,6 +23,7 @@ them); tests compare the two, and the generic Hessian solve, in float64.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import warnings
 
@@ -30,7 +37,11 @@ from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
+from .residual_force import ResidualForce
 
+# the options of ``residual_force`` (``ResidualForce``) and their defaults
+RESIDUAL_FORCE_OPTIONS = {"hidden": [32, 32], "weight": 1e-3, "activation": "tanh", "film_hidden": 16,
+                          "harmonics": 1}
 # options of the model that are defaults for its parts (a part's own options override them)
 _PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag_shift", "potential_film")
 
@@ -77,6 +88,11 @@ class StructuredLagrangian(DynamicsModel):
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
         friction: the drive model's friction forms per joint (``lnn_torch.drives``): ``viscous+coulomb``
             (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, sigmoid.
+        residual_force: None (default: none) or the options of a force residual ``Q_r`` (``true`` or ``{}``:
+            the defaults): ``hidden`` widths ([32, 32]), ``weight`` of its L2 penalty (1e-3), ``activation``
+            (tanh), ``film_hidden`` (16), ``harmonics`` (1: sin/cos of the angles; K: of k times them, k <=
+            K); FiLM on the parameters for ``film_lnn``, the parameters as inputs for ``delan``
+            (``lnn_torch.networks.residual_force``). Needs a scene with forces.
 
     Options given with a value other than their default that no part of the model takes: the
     part-specific ones (``mass_invariant``, ``links``) are refused, all in one line; the defaults of
@@ -88,7 +104,7 @@ class StructuredLagrangian(DynamicsModel):
 
     def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
                  learn_input_matrix, dissipation, shared, mass_invariant, potential, kinetic, links,
-                 friction) -> None:
+                 friction, residual_force=None) -> None:
         super().__init__(scene, learn_input_matrix, dissipation, friction)
         if not self.scene.quadratic_kinetic:
             raise InputError(
@@ -141,6 +157,26 @@ class StructuredLagrangian(DynamicsModel):
                     self.conditioning_nets[f"{role}_{name}"] = net
         self.chunk_conditioning = ctx.film
         self.register_load_state_dict_pre_hook(_load_old_names)
+        # the force residual last: a seed gives every network above as without it
+        if residual_force is not None and residual_force is not False:
+            self._build_residual_force(residual_force)
+
+    def _build_residual_force(self, options) -> None:
+        opts = {} if options is True else options
+        if not isinstance(opts, dict):
+            raise InputError(f"residual_force takes a dict of options ({', '.join(RESIDUAL_FORCE_OPTIONS)}) or true, "
+                             f"got {options!r}")
+        bad = sorted(set(opts) - set(RESIDUAL_FORCE_OPTIONS))
+        if bad:
+            raise InputError(f"residual_force takes no option {', '.join(map(repr, bad))}; its options: "
+                             f"{', '.join(RESIDUAL_FORCE_OPTIONS)}")
+        if self.forces is None:
+            raise InputError(f"residual_force needs a scene with generalised forces (inputs or friction); scene "
+                             f"'{self.scene.name}' has none")
+        opts = {**RESIDUAL_FORCE_OPTIONS, **opts}
+        self.forces.attach_residual(ResidualForce(self.num_features, self.scene.dof, self.scene.num_params,
+                                                  "film" if self.conditioning == "film" else "concat", **opts,
+                                                  num_angles=int(self.angle_features.sel_angle.shape[1])))
 
     def _part_specs(self, kinetic, potential, given: dict) -> tuple[dict, dict]:
         """``{name: options}`` of the kinetic and the potential parts, with the model-level options that
@@ -211,17 +247,83 @@ class StructuredLagrangian(DynamicsModel):
 
     def fit_normalizer(self, stats: dict) -> None:
         """As ``DynamicsModel.fit_normalizer``; a model with the spatial arm part then starts its joint
-        friction at the description's viscous damping (and a small Coulomb level)."""
+        friction at the description's viscous damping (and a small Coulomb level); a force residual takes
+        its units from the data (each coordinate's rms input force and normalised velocity)."""
         super().fit_normalizer(stats)
+        residual = None if self.forces is None else self.forces.residual
+        if residual is not None:
+            tau = stats.get("tau")
+            B = self.scene.input_matrix
+            force_rms = None
+            if tau is not None and B is not None:
+                force = tau.double().reshape(-1, tau.shape[-1]) @ torch.tensor(B, dtype=torch.float64).T
+                force_rms = force.pow(2).mean(0).sqrt()
+            qd_norm = self.normalizer.state(stats["q"].double().reshape(-1, self.scene.dof),
+                                            stats["qd"].double().reshape(-1, self.scene.dof))[1]
+            residual.fit(force_rms, qd_norm.pow(2).mean(0).sqrt())
         spatial = self.part("kinetic", "spatial")
         if spatial is not None and self.forces is not None and self.forces.friction and \
                 self.forces.num_joints == spatial.dof:
             self.forces.start_at(spatial.description_damping())
 
     def regularization(self) -> torch.Tensor | None:
-        """The sum of the parts' priors (``Part.regularization``), or None where no part has one."""
-        terms = [t for t in (part.regularization() for part in self._parts) if t is not None]
+        """The sum of the parts' priors (``Part.regularization``) and the force residual's penalty
+        (``ResidualForce.regularization``), or None where there is none."""
+        terms = [part.regularization() for part in self._parts]
+        if self.forces is not None and self.forces.residual is not None:
+            terms.append(self.forces.residual.regularization())
+        terms = [t for t in terms if t is not None]
         return sum(terms) if terms else None
+
+    # ------------------------------------------------------------------ residuals
+    def residual_names(self) -> tuple[str, ...]:
+        """The model's residuals beside its physics: ``force`` (the force residual), ``kinetic`` (the
+        Cholesky MLP beside another kinetic part), ``potential`` (the potential MLP beside the arm's gravity,
+        or the harmonic series beside the chain's): what ``residuals_off`` can switch off."""
+        names = []
+        if self.forces is not None and self.forces.residual is not None:
+            names.append("force")
+        if not self.shared and any(getattr(self.kinetic[n], "residual", False) for n in self.kinetic):
+            names.append("kinetic")
+        if not self.shared and any(getattr(self.potential[n], "residual", False) for n in self.potential):
+            names.append("potential")
+        return tuple(names)
+
+    @contextlib.contextmanager
+    def residuals_off(self, *which: str):
+        """Within the block the model is without the residuals ``which`` (``residual_names``; none given:
+        all): every call (forward and inverse dynamics, energies) runs as if they were not there (the
+        force residual's output is dropped, the residual parts are left out of the sums). For measuring
+        their share (``lnn_torch.networks.shares``); the weights are untouched."""
+        names = self.residual_names()
+        which = names if not which else which
+        unknown = [w for w in which if w not in names]
+        if unknown:
+            raise InputError(f"the model has no residual {', '.join(map(repr, unknown))}; it has: "
+                             f"{', '.join(names) or 'none'}")
+        saved = (self._parts, self._kinetic_parts, self._potential_parts, self._num_kinetic,
+                 None if self.forces is None else self.forces.residual)
+        kinetic = tuple(p for p in self.kinetic.values() if not ("kinetic" in which and getattr(p, "residual", False)))
+        potential = tuple(p for p in self.potential.values() if not ("potential" in which and
+                                                                      getattr(p, "residual", False)))
+        try:
+            if "kinetic" in which or "potential" in which:
+                self._kinetic_parts, self._potential_parts = kinetic, potential
+                self._parts, self._num_kinetic = (*kinetic, *potential), len(kinetic)
+            if "force" in which:
+                self.forces.residual = None
+            yield self
+        finally:
+            self._parts, self._kinetic_parts, self._potential_parts, self._num_kinetic = saved[:4]
+            if self.forces is not None:
+                self.forces.residual = saved[4]
+
+    # ------------------------------------------------------------------ generalised forces
+    def force_norm(self, q_norm, qd_norm, params_norm, tau_norm=None):
+        """As ``DynamicsModel.force_norm``, with the features the force residual reads."""
+        if self.forces is None or not self.forces.needs_features:
+            return super().force_norm(q_norm, qd_norm, params_norm, tau_norm)
+        return self.forces.force_norm(qd_norm, params_norm, tau_norm, self.features(q_norm)[0])
 
     def coefficient_parameters(self):
         """As ``DynamicsModel.coefficient_parameters``, plus each part's own (the chain's constants, a
@@ -373,16 +475,16 @@ class StructuredLagrangian(DynamicsModel):
 
     def inverse_dynamics_norm(self, q_norm, qd_norm, qdd_norm, params_norm, chunks: int | None = None):
         """The input force ``B tau`` in SI ``(B, dof)`` that makes the model accelerate by ``qdd_norm``:
-        ``M qdd + n - Q_f`` with ``n = -M a_0`` (Deep Lagrangian Networks' inverse model;
-        ``RigidBodyFace.input_force_si``)."""
+        ``M qdd + n - Q_f - Q_r`` with ``n = -M a_0`` (Deep Lagrangian Networks' inverse model;
+        ``RigidBodyFace.input_force_si``; ``Q_r`` the force residual, if any)."""
         if self.forces is None or not self.forces.num_inputs:
             raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
         phi, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm, chunks))
         M = self._mass_from(chol)
         free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
-        phi_f = phi if self.forces.rayleigh is not None else None
-        q_diss = self.forces.dissipative_force_at(qd_norm, params_norm, phi_f)
-        return self.normalizer.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_diss
+        phi_f = phi if self.forces.needs_features else None
+        q_state = self.forces.state_force_at(qd_norm, params_norm, phi_f)
+        return self.normalizer.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_state
 
     def rigid_bias_si(self, q, qd, params) -> torch.Tensor:
         """Deprecated: ``bias_si`` (the same ``n``, without friction)."""
@@ -433,12 +535,13 @@ class FiLMLagrangian(StructuredLagrangian):
                  potential_film: bool = True, film_hidden: int = 16, eps: float = 1e-4, diag_shift: float = 1e-3,
                  learn_input_matrix: bool = False, dissipation: str = "joint", shared: bool = False,
                  mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
-                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb") -> None:
+                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb",
+                 residual_force: dict | None = None) -> None:
         super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode=film_mode,
                          potential_film=potential_film, film_hidden=film_hidden, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
                          mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links,
-                         friction=friction)
+                         friction=friction, residual_force=residual_force)
 
 
 class DeLaN(StructuredLagrangian):
@@ -452,9 +555,10 @@ class DeLaN(StructuredLagrangian):
     def __init__(self, scene, hidden_dims=(128, 128), activation: str = "tanh", eps: float = 1e-4,
                  diag_shift: float = 1e-3, learn_input_matrix: bool = False, dissipation: str = "joint",
                  shared: bool = False, mass_invariant: list[int] | None = None, potential="mlp", kinetic="mlp",
-                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb") -> None:
+                 links: list[list[float]] | None = None, friction: str = "viscous+coulomb",
+                 residual_force: dict | None = None) -> None:
         super().__init__(scene, hidden_dims=hidden_dims, activation=activation, film_mode="neuron",
                          potential_film=True, film_hidden=16, eps=eps, diag_shift=diag_shift,
                          learn_input_matrix=learn_input_matrix, dissipation=dissipation, shared=shared,
                          mass_invariant=mass_invariant, potential=potential, kinetic=kinetic, links=links,
-                         friction=friction)
+                         friction=friction, residual_force=residual_force)

@@ -14,6 +14,14 @@ carries over between calls.
 
     M qdd + bias(q, qd) = tau + passive(qd)      (passive = -damping qd; armature is in M)
 
+Generalised forces the engine cannot express (``forces``, a hook; None by default: the engine alone)
+are added to the arm in every call that has a velocity, at every stage of the integration: ``forces(arm,
+data)`` gives ``(Q_c, Q_d)``, each ``(n,)`` N m, at the state loaded into ``data`` (its kinematics done,
+the payload loaded): ``Q_c`` the gradient force ``-dV_x/dq`` of a potential the caller accounts for
+(springs, cogging), ``Q_d`` the rest (friction; its power enters the damper's work in ``hold``). With
+them ``M qdd + bias = tau + passive + Q_c + Q_d``; ``damping=False`` switches them off with the damper
+(``lnn_torch.robots.unmodelled`` gives the scene's).
+
 The dynamics are the smooth ones: MuJoCo's constraint solver (joint limits, contacts) is switched off,
 so that forward dynamics is ``qacc_smooth`` everywhere, also outside the joint ranges. ``damping=False``
 (the methods that take it) switches the joint damper off (``mjDSBL_DAMPER``): the arm without its
@@ -65,9 +73,11 @@ class MujocoArm:
         description: a shipped description's name (``franka_panda``), an MJCF or URDF path, or the
             description as the robot you have (``lnn_torch.robots.description.ArmDescription`` or its dict).
         perturbation: None (the description as written) or an int seed of the perturbed arm.
+        forces: None (the engine alone) or the hook of further generalised forces (module docstring),
+            also settable later as the attribute ``forces``.
     """
 
-    def __init__(self, description="franka_panda", perturbation: int | None = None) -> None:
+    def __init__(self, description="franka_panda", perturbation: int | None = None, forces=None) -> None:
         mujoco = _mujoco()
         self.description = ArmDescription.of(description)
         self.path = description_path(self.description.source)
@@ -99,6 +109,21 @@ class MujocoArm:
         self.armature = torch.tensor(m.dof_armature, dtype=torch.float64)
         self.damping = torch.tensor(m.dof_damping, dtype=torch.float64)
         self.gravity = torch.tensor(m.opt.gravity, dtype=torch.float64)
+        self.forces = forces
+        # which bodies move with each joint (the joint's body and its descendants): gravity_from_kinematics
+        subtree = np.zeros((self.dof, m.nbody))
+        for j in range(self.dof):
+            root = int(m.dof_bodyid[j])
+            for b in range(m.nbody):
+                k = b
+                while k > 0 and k != root:
+                    k = int(m.body_parentid[k])
+                subtree[j, b] = k == root
+        self._subtree = subtree
+        joints = np.asarray(m.dof_jntid, dtype=np.int64)
+        self._dof_joint = slice(None) if np.array_equal(joints, np.arange(m.njnt)) else joints
+        gx, gy, gz = m.opt.gravity
+        self._cross_g = np.array([[0.0, -gz, gy], [gz, 0.0, -gx], [-gy, gx, 0.0]])  # r @ this = r x g
 
     # ------------------------------------------------------------------ perturbation
     def _inertials(self) -> dict:
@@ -235,11 +260,30 @@ class MujocoArm:
     def _forward_field(self, field: str, q, qd=None, payload=None, tau=None, damping: bool = True) -> torch.Tensor:
         mujoco = _mujoco()
         out = np.zeros((len(_array(q, "q", self.dof)), self.dof))
+        hooked = damping and self.forces is not None and field != "qfrc_bias"
         with self._damper(damping):
             for k in self._each(q, qd, payload, tau=tau):
+                if hooked:
+                    self.data.qfrc_applied[:] += self._extra_force(self.data)
                 mujoco.mj_forward(self.model, self.data)
                 out[k] = getattr(self.data, field)
         return torch.from_numpy(out)
+
+    def _extra_force(self, d) -> np.ndarray:
+        """``Q_c + Q_d (n,)`` of the ``forces`` hook at the state in ``d`` (its kinematics computed here)."""
+        _mujoco().mj_kinematics(self.model, d)
+        conservative, dissipative = self.forces(self, d)
+        return conservative + dissipative
+
+    def gravity_from_kinematics(self, d) -> np.ndarray:
+        """The joint torques ``(n,)`` N m that hold the arm still at the state in ``d`` (``gravity_torque``,
+        from the bodies' centres of mass after ``mj_kinematics``, the loaded payload's included): for each
+        joint, ``-a . (sum_k m_k (x_k - p) x g)`` over the bodies ``k`` it moves, ``a`` its axis and ``p``
+        its anchor in the world. For the ``forces`` hook (a joint's gravity load), without another engine
+        call."""
+        mass, joint = self.model.body_mass, self._dof_joint
+        r = self._subtree @ (mass[:, None] * d.xipos) - (self._subtree @ mass)[:, None] * d.xanchor[joint]
+        return -np.einsum("ij,ij->i", d.xaxis[joint], r @ self._cross_g)  # -a . (r x g); numpy's cross is slow
 
     def bias(self, q, qd, payload=None) -> torch.Tensor:
         """Coriolis, centrifugal and gravity forces ``(B, n)`` (MuJoCo's ``qfrc_bias``)."""
@@ -254,19 +298,22 @@ class MujocoArm:
         return -torch.as_tensor(np.asarray(qd), dtype=torch.float64) * self.damping
 
     def forward(self, q, qd, tau, payload=None, damping: bool = True) -> torch.Tensor:
-        """Accelerations ``(B, n)`` under joint torques ``tau`` (smooth dynamics, ``qacc_smooth``);
-        ``damping=False``: without the joint damper (``M qdd + bias = tau``)."""
+        """Accelerations ``(B, n)`` under joint torques ``tau`` (smooth dynamics, ``qacc_smooth``), the
+        ``forces`` hook's included; ``damping=False``: without the joint damper and the hook (``M qdd +
+        bias = tau``)."""
         return self._forward_field("qacc_smooth", q, qd, payload, tau, damping)
 
     def inverse(self, q, qd, qdd, payload=None, damping: bool = True) -> torch.Tensor:
         """The joint torques ``(B, n)`` that give ``qdd`` (MuJoCo's ``mj_inverse``: ``M qdd + bias -
-        passive``; ``damping=False``: ``M qdd + bias``)."""
+        passive``, less the ``forces`` hook's ``Q_c + Q_d``; ``damping=False``: ``M qdd + bias``)."""
         mujoco = _mujoco()
         out = np.zeros((len(_array(q, "q", self.dof)), self.dof))
+        hooked = damping and self.forces is not None
         with self._damper(damping):
             for k in self._each(q, qd, payload, qdd=qdd):
+                extra = self._extra_force(self.data) if hooked else 0.0
                 mujoco.mj_inverse(self.model, self.data)
-                out[k] = self.data.qfrc_inverse
+                out[k] = self.data.qfrc_inverse - extra
         return torch.from_numpy(out)
 
     # ------------------------------------------------------------------ integration (data generation)
@@ -289,6 +336,12 @@ class MujocoArm:
         torques ``int tau . qd dt`` and of the damper ``int -qd . D qd dt``, each by the trapezoidal
         rule with its end correction (error O(h^5) per step of length h: ``h/2 (P0 + P1) + h^2/12
         (P0' - P1')``, ``P' = tau . qdd`` and ``-2 qd . D qdd``). The new state is ``state()``.
+
+        With the ``forces`` hook (module docstring) the hook's forces act at every stage: the classical
+        RK4 written here over the engine's ``mj_forward`` (``mj_RungeKutta`` holds the applied force
+        through its stages), the work integrated by the same stages (RK4 of the augmented system ``W' =
+        P``, error O(h^5) per step), the damper's column with the power ``qd . Q_d`` of the hook's
+        non-conservative part (``Q_c``'s work is its potential's change, which the caller's energy holds).
         """
         mujoco = _mujoco()
         if self._sim is None:
@@ -300,6 +353,8 @@ class MujocoArm:
             raise InputError(f"MujocoArm.hold: dt must be positive and substeps >= 1, got dt={dt}, substeps={substeps}")
         h = dt / int(substeps)
         D = m.dof_damping
+        if self.forces is not None:
+            return self._hold_with_forces(tau, h, int(substeps))
         m.opt.timestep = h
         d.qfrc_applied[:] = tau
         work = np.zeros(2)
@@ -318,6 +373,40 @@ class MujocoArm:
                 p1, dp1 = powers()
                 work += h / 2 * (p0 + p1) + h**2 / 12 * (dp0 - dp1)
                 p0, dp0 = p1, dp1
+        return qdd0, work
+
+    def _hold_with_forces(self, tau: np.ndarray, h: float, substeps: int):
+        """``hold`` with the ``forces`` hook: classical RK4 in ``substeps`` steps of ``h`` over the engine's
+        accelerations, the hook evaluated at each stage (``hold``'s docstring)."""
+        mujoco = _mujoco()
+        m, d = self.model, self._sim
+        D = m.dof_damping
+
+        def stage(q, qd):  # the accelerations and the powers (torques, damper + hook's Q_d) at one state
+            d.qpos[:], d.qvel[:] = q, qd
+            mujoco.mj_kinematics(m, d)
+            conservative, dissipative = self.forces(self, d)
+            d.qfrc_applied[:] = tau + conservative + dissipative
+            mujoco.mj_forward(m, d)
+            return d.qacc.copy(), np.array([tau @ qd, qd @ (dissipative - D * qd)])
+
+        q, qd = d.qpos.copy(), d.qvel.copy()
+        work = np.zeros(2)
+        qdd0 = None
+        with self._damper(True):
+            for _ in range(substeps):
+                a1, p1 = stage(q, qd)
+                qdd0 = a1 if qdd0 is None else qdd0
+                a2, p2 = stage(q + h / 2 * qd, qd + h / 2 * a1)
+                v2 = qd + h / 2 * a1
+                a3, p3 = stage(q + h / 2 * v2, qd + h / 2 * a2)
+                v3 = qd + h / 2 * a2
+                a4, p4 = stage(q + h * v3, qd + h * a3)
+                v4 = qd + h * a3
+                q = q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4)
+                qd = qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+                work += h / 6 * (p1 + 2 * p2 + 2 * p3 + p4)
+        d.qpos[:], d.qvel[:], d.qfrc_applied[:] = q, qd, tau
         return qdd0, work
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,13 @@ energy, ``qd``, ``tau``, the engine's accelerations at the true states under the
 of the torques and of the damper, the reference ``q_ref``; attributes ``recording`` (the experiment:
 controller, gains, rates, reference, limits, noise, largest tracking error, share of clipped samples)
 and ``robot`` (the description, its perturbation). Units: rad, rad/s, rad/s^2, N m, J, s.
+
+With unmodelled effects (the scene's ``unmodelled``, ``lnn_torch.robots.unmodelled``) the engine's arm
+carries them while the controller does not know them; the recorded ``tau`` is what the torque sensor
+reads, the applied torque plus its offset ``o``, and the work is the scene's: of the recorded torques
+(the applied ones' plus ``o . (q - q_0)``, exact for a constant ``o``) and of ``Q_diss`` (the damper's and
+the friction's, less the same ``o . (q - q_0)``); attribute ``unmodelled`` records the effects, their
+values per joint and the seed.
 """
 
 from __future__ import annotations
@@ -76,6 +83,8 @@ class TrackingRecorder:
             reference, _ = within_torque(reference, t, self._nominal_inverse, scene.torque_fraction * self.torque)
             noise = rng.normal(0.0, scene.encoder_noise, (len(t), scene.dof)) if scene.encoder_noise else None
             rec = record_tracking(scene.arm, payload, self.controller, reference, t, self.substeps, noise)
+            if scene.unmodelled is not None:
+                self._read_by_the_sensor(rec, scene.unmodelled.offset(rec["tau"]))
             outside = ~((rec["q"] >= low) & (rec["q"] <= high)).all(0) | ~np.isfinite(rec["q"]).all(0)
             if outside.any():
                 j = int(np.flatnonzero(outside)[0])
@@ -93,18 +102,43 @@ class TrackingRecorder:
                   "and adaptive_tol do not apply")
         check = ("power-balance residual |E(t) - E(0) - W(t)| over the energy scale, at the true states; W the work "
                  "of the torques and of the damper, by the corrected trapezoidal rule per RK4 step")
+        attrs = {}
+        if scene.unmodelled is not None:
+            if scene.unmodelled.acts_on_the_arm:
+                method = (f"classical RK4 over MuJoCo {_mujoco().__version__}'s forward dynamics (mj_forward) with the "
+                          f"unmodelled effects' forces at every stage, h = dt / substeps = {self.dt / self.substeps:g} "
+                          "s, joint limits and contacts off; the spec's integrator, energy_tol and adaptive_tol do not "
+                          "apply")
+            check = ("power-balance residual |E(t) - E(0) - W(t)| over the energy scale, at the true states; E with "
+                     "the effects' potential (spring, cogging), W the work of the recorded torques and of Q_diss "
+                     "(damper, unmodelled friction, sensor offset), the torques' and Q_diss's by the RK4 stages")
+            attrs["unmodelled"] = json.dumps(scene.unmodelled.report())
         return Recording(
             q=stack["q_measured"], qd=stack["qd"], params=np.array(params),
             steps=np.full(len(rows), (len(t) - 1) * self.substeps, dtype=np.int64),
             integrator="mujoco_rk4", method=method, check=check, tau=stack["tau"], work=stack["work"],
             q_true=stack["q"], qdd=stack["qdd"], arrays={"q_ref": stack["q_ref"]},
-            attrs={"recording": json.dumps(self._experiment(stack, method)), "robot": json.dumps(self._robot())})
+            attrs={"recording": json.dumps(self._experiment(stack, method)), "robot": json.dumps(self._robot()),
+                   **attrs})
+
+    @staticmethod
+    def _read_by_the_sensor(rec: dict, offset: np.ndarray) -> None:
+        """The recorded torques as the sensor reads them, ``tau + o``, and the work in the scene's terms:
+        ``o . (q - q_0)`` moved from the friction's column to the torques' (in place)."""
+        if not offset.any():
+            return
+        moved = (rec["q"] - rec["q"][:1]) @ offset
+        rec["tau"] = rec["tau"] + offset
+        rec["work"] = rec["work"] + np.stack([moved, -moved], -1)
 
     def _experiment(self, stack: dict, method: str) -> dict:
         """What attribute ``recording`` says: the controller, its rates, the reference, the limits, the
         noise, what each array is, the largest tracking error and the share of clipped samples."""
         scene = self.scene
-        clipped = np.isclose(np.abs(stack["tau"]), self.torque, rtol=0, atol=1e-12).any(-1)
+        offset = np.zeros(scene.dof) if scene.unmodelled is None else scene.unmodelled.offset(np.zeros(scene.dof))
+        clipped = np.isclose(np.abs(stack["tau"] - offset), self.torque, rtol=0, atol=1e-12).any(-1)
+        tau = ("as the torque sensor reads it: commanded = applied, plus the sensor's offset (attribute unmodelled)"
+               if offset.any() else "commanded = applied")
         return {
             "controller": CONTROLLER,
             "kp": scene.bandwidth**2, "kd": 2 * scene.bandwidth, "bandwidth_rad_s": scene.bandwidth,
@@ -115,7 +149,7 @@ class TrackingRecorder:
                           "velocity_fraction": scene.velocity_fraction, "torque_fraction": scene.torque_fraction},
             "limits": {"velocity_rad_s": list(scene.velocity_limits), "torque_n_m": list(scene.torque_limits)},
             "encoder_noise_rad": scene.encoder_noise,
-            "recorded": "q: measured (true + encoder noise); qd: true; tau: commanded = applied; qdd: "
+            "recorded": f"q: measured (true + encoder noise); qd: true; tau: {tau}; qdd: "
                         + ("the engine's at the true state and tau" if self.targets == "analytic"
                            else "central differences of qd") + "; energy, work: true; q_ref: the reference",
             "max_tracking_error_rad": float(np.abs(stack["q_measured"] - stack["q_ref"]).max()),

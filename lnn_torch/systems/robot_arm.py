@@ -23,6 +23,14 @@ False``): tensors go to the engine and come back in the input's dtype and device
 ``perturbation=seed``: the arm is not its description (masses, centres of mass, inertias, armature and
 damping perturbed, seeded; ``MujocoArm``); the payload stays the parameter.
 
+``unmodelled={seed, friction, spring, cogging, sensor_offset}``: physics the description cannot write,
+seeded (``lnn_torch.robots.unmodelled``: Stribeck and load-dependent Coulomb friction, a nonlinear
+spring, motor cogging, a torque-sensor offset), added to the engine's arm as generalised forces. The
+inputs ``tau`` are then the RECORDED torques (applied + the sensor's offset ``o``) and the truth is
+``M qdd + bias = tau - o - D qd - f(q, qd) + Q_spring(q) + Q_cogging(q)``: the conservative effects are
+in ``potential`` (so in the energy), the rest in ``dissipative_force`` (``-D qd - f - o``; the offset's
+part is not passive) and so in the recorded work. The controller does not know them.
+
 Data (``recorder``: ``lnn_torch.robots.recording.TrackingRecorder``, used by ``lnn-torch generate`` and
 ``generate_dataset``): per trajectory (seeded by ``(spec.seed, index)``: the payload first, then the
 reference, then the encoder noise) a Fourier-series joint reference tracked by a computed-torque
@@ -46,6 +54,7 @@ from ..errors import InputError
 from ..robots import DESCRIPTIONS, LIMITS
 from ..robots.mujoco_arm import MujocoArm
 from ..robots.recording import TrackingRecorder
+from ..robots.unmodelled import UnmodelledEffects
 from .base import System, as_range
 
 PARAM_NAMES = ("payload_mass", "payload_x", "payload_y", "payload_z")
@@ -69,6 +78,9 @@ class RobotArm(System):
         encoder_noise: standard deviation (rad) of the noise on the recorded (and fed back) angles.
         velocity_limits, torque_limits: per joint (rad/s, N m); None: the shipped description's
             datasheet values (``lnn_torch.robots.LIMITS``; required for another description).
+        unmodelled: None (the engine's arm alone) or the effects a description cannot write
+            (``lnn_torch.robots.unmodelled``): ``{seed: int, friction: {...}, spring: {...}, cogging:
+            {...}, sensor_offset: {...}}``, the effects named on (``{}``: their defaults).
     """
 
     name = "robot_arm"
@@ -86,7 +98,7 @@ class RobotArm(System):
                  payload_y=(-0.05, 0.05), payload_z=(0.0, 0.1), perturbation: int | None = None,
                  base_frequency: float = 0.2, harmonics: int = 5, velocity_fraction: float = 0.5,
                  torque_fraction: float = 0.6, joint_margin: float = 0.2, bandwidth: float = 20.0,
-                 encoder_noise: float = 0.0, velocity_limits=None, torque_limits=None) -> None:
+                 encoder_noise: float = 0.0, velocity_limits=None, torque_limits=None, unmodelled=None) -> None:
         self.description = str(description)
         integer = isinstance(perturbation, (int, np.integer)) and not isinstance(perturbation, bool)
         if perturbation is not None and not integer:
@@ -128,6 +140,12 @@ class RobotArm(System):
         self.angle_mask = (True,) * self.dof
         self.coord_names = self.arm.joint_names
         self.input_names = tuple(f"tau_{j}" for j in self.arm.joint_names)
+        self.unmodelled = None
+        if unmodelled is not None:
+            self.unmodelled = UnmodelledEffects.of(unmodelled, self.arm.joint_range.numpy(), self.torque_limits,
+                                                   self.arm.joint_names)
+            if self.unmodelled.acts_on_the_arm:
+                self.arm.forces = self.unmodelled.engine_forces
         self.conventions = self._conventions()
         self._scale_q = None
 
@@ -159,6 +177,12 @@ class RobotArm(System):
         parent = self.arm.body_names[m.body_parentid[self.arm.payload_id]]
         noise = (f"q as measured: true angles + N(0, {self.encoder_noise:g}^2) rad encoder noise"
                  if self.encoder_noise else "q the true angles (no encoder noise)")
+        effects = ""
+        if self.unmodelled is not None:
+            effects = (f"; unmodelled effects (seed {self.unmodelled.seed}): {', '.join(self.unmodelled.names)} "
+                       "(lnn_torch.robots.unmodelled; values in attribute unmodelled): tau are the recorded torques "
+                       "(applied + sensor offset o), M qdd + bias = tau - o - D qd - f(q, qd) + Q_spring(q) + "
+                       "Q_cogging(q); the potential holds V_spring + V_cogging, Q_diss = -D qd - f - o")
         return (
             f"q = ({', '.join(self.arm.joint_names)}): the joint angles of the robot {arm} (MJCF), rad, {axes}; "
             f"{zero}; joint ranges (rad): {ranges}; qd rad/s; "
@@ -170,7 +194,7 @@ class RobotArm(System):
             "dynamics, potential (-sum m_i g . x_i) and mass matrix from MuJoCo, no joint-limit or contact forces. "
             "Recorded: a Fourier-series joint reference tracked by a computed-torque controller on the nominal "
             "description without the payload, at the sample rate, torques clipped to the limits and held over each "
-            f"sample interval (zero-order hold); {noise}; qd, qdd, energy and work of the true motion"
+            f"sample interval (zero-order hold); {noise}; qd, qdd, energy and work of the true motion{effects}"
         )
 
     @property
@@ -188,7 +212,8 @@ class RobotArm(System):
                 "velocity_fraction": self.velocity_fraction, "torque_fraction": self.torque_fraction,
                 "joint_margin": self.joint_margin, "bandwidth": self.bandwidth, "encoder_noise": self.encoder_noise,
                 "velocity_limits": None if self.velocity_limits is None else list(self.velocity_limits),
-                "torque_limits": None if self.torque_limits is None else list(self.torque_limits)}
+                "torque_limits": None if self.torque_limits is None else list(self.torque_limits),
+                **({} if self.unmodelled is None else {"unmodelled": self.unmodelled.config()})}
 
     # ------------------------------------------------------------------ checks
     def check_params(self, params: torch.Tensor) -> None:
@@ -225,8 +250,37 @@ class RobotArm(System):
         return True
 
     def friction_torque(self, rates, params):
-        """The joint damper ``D r`` (N m), ``D`` the engine model's (perturbed) damping per joint."""
-        return self.arm.damping.to(rates.dtype).to(rates.device) * rates
+        """The joint damper ``D r`` (N m), ``D`` the engine model's (perturbed) damping per joint; with the
+        unmodelled friction, plus its torque at no gravity load (its load part depends on ``q``:
+        ``dissipative_force``)."""
+        torque = self.arm.damping.to(rates.dtype).to(rates.device) * rates
+        if self.unmodelled is not None:
+            torque = torque + self.unmodelled.friction(rates)
+        return torque
+
+    def gravity_load(self, q, params):
+        """The joints' gravity torques ``(*batch, dof)`` N m on the true arm with its payload (the engine's
+        ``bias(q, 0)``): the load of the unmodelled friction."""
+        return self._engine(lambda q_, p_: self.arm.gravity_torque(q_, p_), q, params)
+
+    def dissipative_force(self, q, qd, params):
+        """``Q_diss (*batch, dof)`` N m: ``-D qd``; with the unmodelled effects ``-D qd - f(q, qd) - o`` (the
+        module docstring; the sensor offset's ``-o`` is not passive)."""
+        if self.unmodelled is None:
+            return super().dissipative_force(q, qd, params)
+        effects = self.unmodelled
+        load = self.gravity_load(q, params) if effects.needs_load else None
+        damper = self.arm.damping.to(qd.dtype).to(qd.device) * qd
+        return -damper - effects.friction(qd, load) - effects.offset(qd)
+
+    def effect_torques(self, q, qd, params) -> dict:
+        """Each unmodelled effect's share of the recorded torques, ``{name: (*batch, dof)}`` N m
+        (``UnmodelledEffects.torques``): the recorded torques are the engine's inverse dynamics of the arm
+        (damper on, effects off) plus their sum. Empty without the option."""
+        if self.unmodelled is None:
+            return {}
+        load = self.gravity_load(q, params) if self.unmodelled.needs_load else None
+        return self.unmodelled.torques(q, qd, load)
 
     # ------------------------------------------------------------------ physics (the engine's)
     def _engine(self, fn, q, *arrays):
@@ -238,17 +292,23 @@ class RobotArm(System):
         return out.reshape(*batch, *out.shape[1:]).to(dtype=q.dtype, device=q.device)
 
     def acceleration(self, q, qd, params, tau=None):
-        """``qdd (*batch, dof)``: ``M qdd = tau - bias - D qd`` (the engine's forward dynamics, damper on)."""
+        """``qdd (*batch, dof)``: ``M qdd = tau - bias - D qd`` (the engine's forward dynamics, damper on);
+        with the unmodelled effects, theirs too (``tau`` the recorded torques, the sensor offset taken off)."""
         self.check_inputs(q, qd, params, tau)
+        if self.unmodelled is not None:
+            tau = tau - self.unmodelled.offset(tau)
         return self._engine(lambda q_, qd_, p_, tau_: self.arm.forward(q_, qd_, tau_, p_), q, qd, params, tau)
 
     def forced_acceleration(self, q, qd, params, force):
         """``qdd (*batch, dof)`` under a generalised force ``Q (*batch, dof)`` and no other: ``M qdd =
-        Q - bias`` (the engine with its damper off), so that ``acceleration(tau) ==
+        Q - bias`` (the engine with its damper off; with the unmodelled effects ``+ Q_spring + Q_cogging``,
+        the conservative ones, as gravity is in ``bias``), so that ``acceleration(tau) ==
         forced_acceleration(generalized_force(tau))``."""
         self.check_inputs(q, qd, params, inputs="skip")
         if force.shape != q.shape:
             raise InputError(f"{self.name}: force must have the shape of q {tuple(q.shape)}, got {tuple(force.shape)}")
+        if self.unmodelled is not None:
+            force = force + self.unmodelled.conservative_force(q.detach().double()).to(force.dtype)
         return self._engine(lambda q_, qd_, p_, f_: self.arm.forward(q_, qd_, f_, p_, damping=False),
                             q, qd, params, force)
 
@@ -280,10 +340,13 @@ class RobotArm(System):
 
     def potential(self, q, params):
         """``V (*batch,)`` in J: MuJoCo's ``-sum_i m_i g . x_i`` (payload included; the fixed base adds a
-        constant; NaN where ``q`` is not finite)."""
+        constant; NaN where ``q`` is not finite); with the unmodelled effects plus ``V_spring + V_cogging``."""
         def engine(q_, p_):
             self.check_inputs(q_, None, p_, inputs="skip")
-            return self._engine(lambda a, b: self.arm.potential(a, b)[:, None], q_, p_)[..., 0]
+            V = self._engine(lambda a, b: self.arm.potential(a, b)[:, None], q_, p_)[..., 0]
+            if self.unmodelled is not None:
+                V = V + self.unmodelled.potential(q_.detach().double()).to(V.dtype)
+            return V
 
         return self._finite_rows(engine, q, params, ())
 
