@@ -44,8 +44,12 @@ Formats (``export_model``; ``lnn-torch export --format``):
   (``dissipation: joint+stiction``) solve with ``linalg.solve``, so its forward dynamics has no ONNX form.
 * ``aoti``: AOTInductor (``torch._inductor.aoti_compile_and_package``): the program compiled to a
   shared library in a ``NAME.aoti.pt2`` package, loaded by ``load_program`` (``AOTIProgram``). It needs
-  a C++ compiler where it is exported (10-20 s per function on one thread), and the package is bound to
-  the torch version and CPU kind that compiled it; the fastest form at batch 1 (``results/export.md``).
+  a C++ compiler where it is exported (10-20 s per function on one thread for the double pendulum, about
+  a minute for the 7-joint arm's grey box), and the package is bound to the torch version and CPU kind
+  that compiled it; the fastest form at batch 1 (``results/export.md``). What the weights alone give is
+  folded once at load (``AOTI_CONFIG``), strided views of the weights copied first
+  (``contiguous_constant_views``: torch 2.13's folding reads them wrongly), and each package is called
+  once against the eager model before it is kept (``check_aoti``).
 
 What the programs do not do: check their inputs (shapes, NaN, parameter signs, a scene's valid
 states) or warn about parameters beyond the model's trusted range; they condition on the nearest
@@ -55,6 +59,7 @@ trusted values as the model does (``describe`` records the range). Call the mode
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import platform
@@ -240,11 +245,14 @@ def dynamic_shapes(fn: _Function) -> dict:
 
 
 def export_program(fn: _Function, batch: int = 8) -> torch.export.ExportedProgram:
-    """``fn`` through ``torch.export.export`` with a dynamic batch. A failure to trace is an
+    """``fn`` through ``torch.export.export`` with a dynamic batch, after one eager call (which fills the
+    model's caches of constants, e.g. the spatial part's geometry in its dtype: filled while tracing,
+    torch.export would warn that they were assigned during export). A failure to trace is an
     ``InputError`` naming the variant and the first line of torch's reason."""
     args = example_inputs(fn, batch)
     try:
         with torch.no_grad():
+            fn(*args)
             return torch.export.export(fn, args, dynamic_shapes=dynamic_shapes(fn), strict=False)
     except Exception as err:  # noqa: BLE001 (torch.export raises many kinds)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
@@ -342,6 +350,9 @@ def export_onnx(program: torch.export.ExportedProgram, fn: _Function, path: str 
 # what is computed from the weights alone (FiLM's maps of its output layers, transposes) folded once when
 # the package loads, not at every call: batch-1 inverse dynamics 75 -> 55 us (results/export.md)
 AOTI_CONFIG = {"aot_inductor.use_runtime_constant_folding": True}
+# the self-check of a compiled package against the eager function (``check_aoti``): far looser than the
+# two agree to (1e-7 in float32, 1e-13 in float64 on the arm's grey box), far tighter than a wrong kernel
+AOTI_CHECK_TOLERANCE = {torch.float32: 1e-3, torch.float64: 1e-8}
 
 
 class AOTIProgram:
@@ -356,20 +367,110 @@ class AOTIProgram:
         return self.loader.run(list(args))[0]
 
 
-def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str | Path) -> Path:
-    """The exported program compiled ahead of time by AOTInductor into a package at ``path``
-    (``torch._inductor.aoti_compile_and_package``; load it with ``torch._inductor.aoti_load_package``).
-    Needs a C++ compiler here; ``InputError`` (one line) where the compilation fails."""
+def _constant_nodes(program: torch.export.ExportedProgram) -> set:
+    """The nodes of ``program``'s graph computed from its weights, buffers and lifted constants alone (what
+    AOTInductor's runtime constant folding may fold; creation ops without inputs excluded, as there)."""
+    signature = program.graph_signature
+    names = (set(signature.inputs_to_parameters) | set(signature.inputs_to_buffers)
+             | set(signature.inputs_to_lifted_tensor_constants))
+    constant = set()
+    for node in program.graph.nodes:
+        if node.op == "placeholder":
+            if node.name in names:
+                constant.add(node)
+        elif node.op == "call_function" and node.all_input_nodes and all(i in constant for i in node.all_input_nodes):
+            constant.add(node)
+    return constant
+
+
+def contiguous_constant_views(program: torch.export.ExportedProgram) -> int:
+    """Give every strided view of the weights that the rest of ``program`` reads a contiguous copy of its
+    own, in place; returns how many. AOTInductor's runtime constant folding (``AOTI_CONFIG``; torch 2.13)
+    materialises such a view (e.g. the columns ``raw[:, 4:]`` of a weight: strides ``(10, 1)``) with a
+    contiguous clone, while the compiled kernels that read it keep the view's strides: they read the
+    wrong entries, past its end from some row on (the arm's grey box: wrong link inertias, then
+    "linalg.cholesky: ... not positive-definite"; the ``.pt2`` program and eager are right). A copy
+    computed from the view is a buffer of its own, contiguous in the folded constants and in the kernels."""
+    graph = program.graph
+    constant = _constant_nodes(program)
+    count = 0
+    for node in [n for n in graph.nodes if n in constant]:
+        val = node.meta.get("val")
+        readers = [u for u in node.users if u not in constant]
+        if not isinstance(val, torch.Tensor) or val.is_contiguous() or not readers:
+            continue
+        with graph.inserting_after(node):
+            copy_ = graph.call_function(torch.ops.aten.clone.default, (node,),
+                                        {"memory_format": torch.contiguous_format})
+        with val.fake_mode:
+            copy_.meta["val"] = val.clone(memory_format=torch.contiguous_format)
+        for user in readers:
+            user.replace_input_with(node, copy_)
+        count += 1
+    if count:
+        graph.lint()
+        program.graph_module.recompile()
+    return count
+
+
+@contextlib.contextmanager
+def _quiet_compilation():
+    """Warnings and inductor's log lines the user cannot act on, silenced while AOTInductor compiles
+    (e.g. "aten.linalg_cholesky_ex.default is missing a c-shim implementation, using proxy executor as
+    fallback": correct, a slower call of that one operator)."""
+    import logging
     import warnings
 
-    path = Path(path)
+    log = logging.getLogger("torch._inductor.ir")
+    level = log.level
+    log.setLevel(logging.ERROR)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path),
+            yield
+    finally:
+        log.setLevel(level)
+
+
+def check_aoti(path: str | Path, fn: _Function, batch: int = 8) -> float:
+    """The largest difference between the package at ``path`` and the eager ``fn`` on ``example_inputs``
+    (seeded states near rest), relative to the largest entry of the eager result; ``InputError`` (one
+    line) where the package fails or exceeds ``AOTI_CHECK_TOLERANCE`` (a wrong compilation)."""
+    args = example_inputs(fn, batch, seed=1)
+    try:
+        with torch.no_grad():
+            expected, got = fn(*args), AOTIProgram(path)(*args)
+        error = float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
+    except Exception as err:  # noqa: BLE001 (the compiled library raises RuntimeError of any kind)
+        raise InputError(f"{fn.name}: the AOTInductor package fails on its first call ({_reason(err)})") from err
+    if not error <= AOTI_CHECK_TOLERANCE.get(expected.dtype, 1e-3):
+        raise InputError(f"{fn.name}: the AOTInductor package disagrees with the model (largest difference "
+                         f"{error:.2g} of the largest value); the .pt2 program is the reference")
+    return error
+
+
+def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str | Path, check: bool = True) -> Path:
+    """The exported program compiled ahead of time by AOTInductor into a package at ``path``
+    (``torch._inductor.aoti_compile_and_package``; load it with ``load_program``), its strided views of
+    the weights copied first (``contiguous_constant_views``, on a copy: ``program`` is unchanged), and with
+    ``check`` called once against the eager ``fn`` (``check_aoti``; a package that fails it is removed).
+    Needs a C++ compiler here; ``InputError`` (one line) where the compilation or the check fails."""
+    path = Path(path)
+    try:
+        with _quiet_compilation():
+            program = copy.deepcopy(program)
+            contiguous_constant_views(program)
+            path = Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path),
                                                                  inductor_configs=dict(AOTI_CONFIG)))
     except Exception as err:  # noqa: BLE001
         raise InputError(f"{fn.name} could not be compiled by AOTInductor ({_reason(err)})") from err
+    if check:
+        try:
+            check_aoti(path, fn)
+        except InputError:
+            path.unlink(missing_ok=True)
+            raise
+    return path
 
 
 # ---------------------------------------------------------------------------- the description

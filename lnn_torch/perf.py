@@ -198,3 +198,13 @@ def adamw(parameters, **kwargs) -> torch.optim.AdamW:
         return torch.optim.AdamW(parameters, fused=True, **kwargs)
     except (RuntimeError, TypeError, ValueError):
         return torch.optim.AdamW(parameters, **kwargs)
+
+
+def quiet_compile_logs() -> None:
+    """Silence inductor's log lines that the user cannot act on, for the package's commands (process-wide,
+    as ``lightning_cli.quiet_third_parties`` does for training): a compiled operator without a native C++
+    kernel, e.g. ``aten.linalg_cholesky_ex``, runs through a fallback ("... is missing a c-shim
+    implementation, using proxy executor as fallback"): correct, nothing to act on."""
+    import logging
+
+    logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)

@@ -8,11 +8,18 @@ for the hardware, and report how it did.
 ``CHECKPOINT`` (a path or ``pretrained:NAME``) is the model the controller is designed on; ``plant``
 designs it on the plant itself (the comparison a learned model has to meet). The scenario (YAML):
 
-* ``plant``: ``{identified: FILE}`` (an identified rigid-body arm, ``lnn_torch.identified``) or
-  ``{scene: NAME, scene_config: {...}, params: [...], actuation: full | [true, false] ...}``;
-* ``controller``: ``{kind: swingup | lqr, goal: [q...], seconds, kp, kd, Q, R, catch}``
-  (``lnn_torch.control.controllers``: swing-up = computed-torque tracking of a minimum-jerk path,
-  then LQR; lqr = LQR about ``goal`` from starts near it);
+* ``plant``: ``{identified: FILE}`` (an identified rigid-body arm, ``lnn_torch.identified``),
+  ``{scene: NAME, scene_config: {...}, params: [...], actuation: full | [true, false] ...}`` or
+  ``{robot: DESCRIPTION, params: [payload]}``: a robot description's arm simulated by MuJoCo
+  (``lnn_torch.robots.mujoco_arm``; a shipped name, an MJCF or URDF path, ``{source, remove, armature,
+  damping, ...}`` as ``lnn-torch import`` takes it, or ``model``: the description the model was trained
+  with, e.g. a measured arm's; ``params``: the payload at its flange, default none), or ``{model: design |
+  CHECKPOINT, params: [...]}``: a learned model as the plant (``design``: the model the controller is
+  designed on, which checks the controller and the model's plant view alone);
+* ``controller``: ``{kind: swingup | reach | lqr, goal: [q...], seconds, kp, kd, Q, R, catch}``
+  (``lnn_torch.control.controllers``: swing-up and reach = computed-torque tracking of a minimum-jerk
+  path from the start to ``goal``, then LQR holding it, named for a pendulum's swing-up and an arm's
+  reach; lqr = LQR about ``goal`` from starts near it);
 * ``episodes``, ``duration`` (s), ``control_hz``, ``substeps`` (RK4 steps of the plant per control
   period), ``limits: {torque: [...]}`` (N m), ``noise: {angle, velocity}`` (standard deviations, rad
   and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}`` (uniform offsets, rad, at
@@ -37,6 +44,8 @@ import torch
 
 from ..errors import InputError
 
+# the controllers that track a path to the goal (computed torque, then LQR), and what the report calls the path
+PATHS = {"swingup": "swing-up", "reach": "reach"}
 DEFAULTS = {"episodes": 100, "duration": 5.0, "control_hz": 500.0, "substeps": 2, "limits": {}, "noise": {},
             "delay": 0, "start": {}, "success": {}, "seed": 0}
 
@@ -54,8 +63,9 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def build_plant(spec: dict, where: str):
-    """The plant of a scenario's ``plant`` mapping, and its parameters ``(1, P)`` (or None)."""
+def build_plant(spec: dict, where: str, design=None):
+    """The plant of a scenario's ``plant`` mapping, its parameters ``(1, P)`` (or None) and what it
+    simulates (``design``: the model, for ``robot: model``)."""
     from ..control import plant_of
     from ..identified import RigidArmModel
     from ..systems import get_system
@@ -63,6 +73,27 @@ def build_plant(spec: dict, where: str):
     if "identified" in spec:
         arm = RigidArmModel.from_yaml(_data_path(spec["identified"], where))
         return plant_of(arm), None, arm
+    if "robot" in spec:
+        from ..robots.mujoco_arm import MujocoArm
+
+        arm = MujocoArm(_robot_description(spec["robot"], design, where))
+        params = torch.tensor([spec.get("params", [0.0] * 4)], dtype=torch.float64)
+        if params.shape != (1, 4) or not torch.isfinite(params).all() or params[0, 0] < 0:
+            raise InputError(f"{where}: plant.params of a robot is its payload: (mass >= 0 kg, cx, cy, cz m), got "
+                             f"{spec.get('params')}")
+        return plant_of(arm), params, arm
+    if "model" in spec:
+        model = _plant_model(spec["model"], design, where)
+        plant = plant_of(model)
+        params = None
+        if plant.num_params:
+            if "params" not in spec:
+                raise InputError(f"{where}: plant.params is missing (the plant's model is conditioned on "
+                                 f"{plant.num_params} parameters)")
+            params = torch.tensor([spec["params"]], dtype=torch.float64)
+            rest = torch.zeros(1, plant.dof, dtype=torch.float64)
+            getattr(model, "model", model).check_inputs(rest, rest, params, inputs=False)
+        return plant, params, model
     if "scene" in spec:
         system = get_system(spec["scene"], **spec.get("scene_config", {}))
         if "params" not in spec:
@@ -70,7 +101,41 @@ def build_plant(spec: dict, where: str):
         params = torch.tensor([spec["params"]], dtype=torch.float64)
         system.check_params(params)
         return plant_of(system, actuation=spec.get("actuation")), params, system
-    raise InputError(f"{where}: plant needs 'identified: FILE' or 'scene: NAME' with params")
+    raise InputError(f"{where}: plant needs 'identified: FILE', 'scene: NAME' with params, 'robot: DESCRIPTION' or "
+                     "'model: design | CHECKPOINT'")
+
+
+def _plant_model(value, design, where: str):
+    """A scenario's ``plant.model``: the model the controller is designed on (``design``) or a checkpoint."""
+    from ..checkpoints import load_model
+
+    if value == "design":
+        if design is None:
+            raise InputError(f"{where}: plant.model 'design' is the model the controller is designed on; with the "
+                             "design 'plant' there is none (give a checkpoint)")
+        return design
+    return load_model(str(value))
+
+
+def _robot_description(value, design, where: str):
+    """A scenario's ``plant.robot``: the description itself, or (``model``) the one the model was trained
+    with (its spatial part's, else its scene's: a measured arm's import records it)."""
+    from ..robots.description import ArmDescription
+
+    if value != "model":
+        return ArmDescription.of(value)
+    if design is None:
+        raise InputError(f"{where}: plant.robot 'model' is the description of the model the controller is designed "
+                         "on; with the design 'plant' there is none (give the description, e.g. {source: "
+                         "franka_panda, remove: [hand]})")
+    network = getattr(design, "model", design)
+    found = next((m.description for m in network.modules() if isinstance(getattr(m, "description", None),
+                                                                           ArmDescription)), None)
+    if found is None and getattr(getattr(network, "scene", None), "robot_description", None):
+        found = ArmDescription.of(network.scene.robot_description)
+    if found is None:
+        raise InputError(f"{where}: plant.robot 'model': the model was trained with no robot description (give one)")
+    return found
 
 
 def _data_path(name: str, where: str) -> Path:
@@ -89,12 +154,12 @@ def _controller(kind, plant, q0, goal, params, ctrl, dt):
     from ..control import LQR, SwingUp
 
     weights = {k: ctrl[k] for k in ("Q", "R") if k in ctrl}
-    if kind == "swingup":
+    if kind in PATHS:
         return SwingUp(plant, q0, goal, params, seconds=float(ctrl.get("seconds", 2.0)), kp=float(ctrl.get("kp", 60.0)),
                        kd=float(ctrl.get("kd", 16.0)), dt=dt, catch=float(ctrl.get("catch", 0.1)), **weights)
     if kind == "lqr":
         return LQR(plant, goal, params, dt=dt, **weights)
-    raise InputError(f"controller.kind must be swingup or lqr, got {kind!r}")
+    raise InputError(f"controller.kind must be swingup, reach or lqr, got {kind!r}")
 
 
 def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int | None = None) -> dict:
@@ -106,7 +171,7 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
     for key in ("plant", "controller"):
         if key not in s:
             raise InputError(f"{where}: '{key}' is missing")
-    plant, params, truth = build_plant(s["plant"], where)
+    plant, params, truth = build_plant(s["plant"], where, design)
     design_plant, scale = plant, None
     if design is not None:
         design_plant = plant_of(design, actuation=s["plant"].get("actuation"))
@@ -125,7 +190,7 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
         raise InputError(f"{where}: controller.goal needs {n} values, got {goal1.tolist()[0]}")
     kind = ctrl.get("kind", "swingup")
     start = s["start"]
-    centre = torch.tensor([start.get("q", [0.0] * n if kind == "swingup" else goal1[0].tolist())], dtype=torch.float64)
+    centre = torch.tensor([start.get("q", [0.0] * n if kind in PATHS else goal1[0].tolist())], dtype=torch.float64)
     spread = float(start.get("spread", 0.05))
     q0 = centre + spread * (2 * torch.rand(N, n, generator=gen, dtype=torch.float64) - 1)
     goal = goal1.expand(N, -1)
@@ -163,7 +228,11 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
            "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
     if scale is not None:
         out["torque_scale_calibrated"] = [float(x) for x in scale.reshape(-1)]
-    if kind == "swingup":
+    if design is not None:
+        out["holding_torque_at_goal"] = _holding_torques(plant, p_plant, design_plant, p_design, goal1)
+    if p_design is None and design is not None and params is not None and params.abs().sum() > 0:
+        out["unknown_to_the_model"] = {"params": params[0].tolist(), "names": list(_param_names(truth))}
+    if kind in PATHS:
         ref = controller.track.ref
         q_ref = torch.stack([ref(k * dt)[0] for k in range(ep["q"].shape[1])], 1)
         swing = int(round(float(ctrl.get("seconds", 2.0)) / dt))
@@ -171,6 +240,25 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
                                               .pow(2).mean().sqrt())
     out["_episodes"], out["_truth"], out["_params"] = ep, truth, params
     return out
+
+
+def _holding_torques(plant, p_plant, design_plant, p_design, goal) -> dict:
+    """The inputs that hold the goal at rest on the plant and on the model the controller is designed on
+    (N m; least squares, ``Plant.inverse``), and their largest difference: a model's error where the
+    controller's feedback has to make up for it."""
+    rest = torch.zeros_like(goal)
+    with torch.no_grad():
+        u_plant = plant.inverse(goal, rest, rest, None if p_plant is None else p_plant[:1])[0]
+        u_model = design_plant.inverse(goal, rest, rest, None if p_design is None else p_design[:1])[0]
+    diff = (u_model - u_plant).abs()
+    k = int(diff.argmax())
+    return {"plant": u_plant.tolist(), "model": u_model.tolist(), "largest_difference": float(diff[k]),
+            "input": plant.input_names[k] if plant.input_names else str(k)}
+
+
+def _param_names(truth) -> tuple[str, ...]:
+    """The names of a plant's parameters (a scene's; an arm's payload)."""
+    return tuple(getattr(truth, "param_names", ("payload_mass", "payload_x", "payload_y", "payload_z")))
 
 
 def _figures(result: dict, out: Path, goal, animate: bool) -> list[Path]:
@@ -241,10 +329,11 @@ def _animation(xy, dt: float, path: Path, result: dict) -> Path:
 def main(argv: list[str]) -> int:
     from ..checkpoints import load_model
     from ..config_files import read_config
-    from ..perf import configure_cpu
+    from ..perf import configure_cpu, quiet_compile_logs
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
+    quiet_compile_logs()
     scenario = read_config(args.config, "scenario")
     design = None if args.checkpoint == "plant" else load_model(args.checkpoint)
     result = run_scenario(scenario, design, str(args.config), args.episodes)
@@ -265,8 +354,18 @@ def main(argv: list[str]) -> int:
              f"| torque RMS / max, N m | {clean['torque_rms']:.3g} / {clean['torque_max']:.3g} |",
              f"| final angle error, median, rad | {clean['final_error_rad_median']:.2g} |"]
     if "tracking_error_rms_rad" in clean:
-        lines.append(f"| tracking error along the swing-up path, RMS, rad | {clean['tracking_error_rms_rad']:.3g} |")
+        lines.append(f"| tracking error along the {PATHS[clean['controller']]} path, RMS, rad | "
+                     f"{clean['tracking_error_rms_rad']:.3g} |")
+    if "holding_torque_at_goal" in clean:
+        hold = clean["holding_torque_at_goal"]
+        lines.append(f"| holding torque at the goal, model against plant: largest difference, N m | "
+                     f"{hold['largest_difference']:.3g} ({hold['input']}) |")
     lines += ["", f"Closed loop: {clean['closed_loop_seconds']:.1f} s of computation."]
+    if "unknown_to_the_model" in clean:
+        unknown = clean["unknown_to_the_model"]
+        values = ", ".join(f"{n} = {v:g}" for n, v in zip(unknown["names"], unknown["params"], strict=True))
+        lines += ["", f"The plant's parameters ({values}) are unknown to the model: it conditions on no "
+                      "parameters (learned from recordings without them), so the feedback makes up for them."]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print("wrote " + ", ".join(str(p) for p in [out / "control.json", out / "report.md", *figures]))

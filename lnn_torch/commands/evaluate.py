@@ -123,10 +123,11 @@ def main(argv: list[str]) -> int:
     from ..checkpoints import data_hparams, load_model, output_dir
     from ..data import TrajectoryDataModule, read_dataset
     from ..evaluation import evaluate_model, report_sections
-    from ..perf import configure_cpu
+    from ..perf import configure_cpu, quiet_compile_logs
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
+    quiet_compile_logs()
     module = load_model(args.checkpoint)
     if args.compile:
         module.model.compile_dynamics()

@@ -66,10 +66,11 @@ def main(argv: list[str]) -> int:
 
     from ..checkpoints import load_model, output_dir
     from ..export import export_model
-    from ..perf import configure_cpu
+    from ..perf import configure_cpu, quiet_compile_logs
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
+    quiet_compile_logs()
     module = load_model(args.checkpoint)
     out_dir = output_dir(args.checkpoint, args.output_dir, "export")
     files = export_model(module, out_dir, functions=args.functions, formats=args.formats, dtype=args.dtype,

@@ -38,6 +38,7 @@ from ..identified import RigidArmModel
 from ..integrators import held, rk4_step
 from ..networks.base import DynamicsModel
 from ..networks.capabilities import FORCES, MASS_MATRIX, capabilities_of
+from ..robots.mujoco_arm import MujocoArm
 from ..systems.base import System
 
 
@@ -178,6 +179,7 @@ class Plant:
 
     def step(self, q, qd, params, u, dt: float, substeps: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """``dt`` of motion under the input ``u`` held constant (zero-order hold), RK4 in ``substeps``."""
+        params = self._params(q, params)
         accel = held(self.accel, u)
         for _ in range(substeps):
             q, qd = rk4_step(accel, q, qd, params, dt / substeps)
@@ -205,8 +207,9 @@ def _joint_inputs(joint_map: torch.Tensor, actuation) -> torch.Tensor:
 
 def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant:
     """The plant view of ``source``: a scene (``lnn_torch.systems``), a trained model (``LNNModule``
-    or its network; it must provide a mass matrix: the structured variants), or an identified
-    rigid-body model (``lnn_torch.identified.RigidArmModel``).
+    or its network; it must provide a mass matrix: the structured variants), an identified
+    rigid-body model (``lnn_torch.identified.RigidArmModel``) or a robot description's arm through
+    MuJoCo (``lnn_torch.robots.mujoco_arm.MujocoArm``: its parameters the payload at the flange).
 
     ``actuation``: for a source without inputs of its own, which joints carry a motor (see
     ``_joint_inputs``); refused for one with inputs (those are its own). ``torque_scale``: for a
@@ -219,11 +222,15 @@ def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant
         return Plant(source.variant, 2, 0, torch.eye(2, dtype=torch.float64), (True, True),
                      lambda q, qd, p, u: source.acceleration(q, qd, None, u),
                      lambda q, p: source.mass_matrix(q), source.friction_force, source.energy, 1.0, ("tau1", "tau2"))
+    if isinstance(source, MujocoArm):
+        if actuation is not None:
+            raise InputError("a robot description's arm is actuated at every joint; actuation is its own")
+        return _arm_plant(source)
     network = getattr(source, "model", source)
     if isinstance(network, DynamicsModel):
         return _model_plant(network, actuation, torque_scale)
-    raise InputError(f"no plant view of {type(source).__name__}: give a scene, a trained structured model or an "
-                     "identified rigid-body model")
+    raise InputError(f"no plant view of {type(source).__name__}: give a scene, a trained structured model, an "
+                     "identified rigid-body model or a robot description's arm (MujocoArm)")
 
 
 def _system_plant(system, actuation) -> Plant:
@@ -250,6 +257,29 @@ def _system_plant(system, actuation) -> Plant:
     names = tuple(system.input_names) if own else tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(system.name, system.dof, system.num_params, B, tuple(system.angle_mask), accel, system.mass_matrix,
                  system.dissipative_force if system.has_friction else None, system.energy, 1.0, names, rigid_bias)
+
+
+def _arm_plant(arm: MujocoArm) -> Plant:
+    """A robot description's arm through MuJoCo (``MujocoArm``): a motor at every joint, the parameters
+    ``(B, 4)`` the payload at the flange (mass, centre of mass; zeros: none), the description's viscous
+    joint damping as its friction (none where it is zero) and its armature in ``M``."""
+    dof = arm.dof
+
+    def torques(q, u):
+        return torch.zeros(q.shape[0], dof, dtype=q.dtype) if u is None else u
+
+    def accel(q, qd, p, u):
+        return arm.forward(q, qd, torques(q, u), payload=p)
+
+    def energy(q, qd, p):
+        kinetic = 0.5 * torch.einsum("bi,bij,bj->b", qd, arm.mass_matrix(q, p), qd)
+        return kinetic + arm.potential(q, p)
+
+    friction = (lambda q, qd, p: arm.passive(qd)) if bool((arm.damping != 0).any()) else None
+    names = tuple(f"tau_{j}" for j in arm.joint_names)
+    return Plant(f"{arm.description} (MuJoCo)", dof, 4, torch.eye(dof, dtype=torch.float64), (True,) * dof, accel,
+                 lambda q, p: arm.mass_matrix(q, p), friction, energy, 1.0, names,
+                 lambda q, qd, p: arm.bias(q, qd, p), lambda q, p: arm.gravity_torque(q, p))
 
 
 def _model_plant(network, actuation, torque_scale) -> Plant:
