@@ -86,24 +86,86 @@ def description_model(system, description=None):
                               pi=classical.description_parameters(chain).numpy())
 
 
-def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = None) -> dict:
+def open_loop(forward, data, *, every: float = 0.25, limit: float = 1.0, threshold: float = 0.1) -> dict:
+    """How long open-loop motion stays within ``threshold`` rad (largest joint error) of the recording,
+    driven by the measured torques: from a start every ``every`` s of each trajectory (the recorded state
+    there), RK4 steps of the data's ``dt`` with the torque held over each step, for at most ``limit`` s
+    (times censored there). ``forward(q, qd, tau, params) -> qdd`` (float64 SI). Returns the quartiles
+    of the times (s) and the number of starts."""
+    dt = float(data.dt)
+    steps, stride = int(round(limit / dt)), max(1, int(round(every / dt)))
+    lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
+    starts = [(j, s) for j, n in enumerate(lengths) for s in range(0, n - steps, stride)]
+    if not starts:
+        return {"quartiles": [float("nan")] * 3, "starts": 0, "limit": limit, "threshold": threshold}
+    js, ss = torch.tensor([j for j, _ in starts]), torch.tensor([s for _, s in starts])
+    window = ss[:, None] + torch.arange(steps + 1)
+    q_true, tau = data.q[js[:, None], window].double(), data.tau[js[:, None], window].double()
+    params = data.params[js].double()
+    q, qd = q_true[:, 0], data.qd[js, ss].double()
+    within = torch.full((len(starts),), float(limit), dtype=torch.float64)
+    alive = torch.ones(len(starts), dtype=torch.bool)
+
+    def accel(q, qd, u):
+        return forward(q, qd, u, params)
+
+    with torch.no_grad():
+        for k in range(steps):
+            u = tau[:, k]
+            a1 = accel(q, qd, u)
+            a2 = accel(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u)
+            a3 = accel(q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u)
+            a4 = accel(q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u)
+            q = q + dt * qd + dt * dt / 6 * (a1 + a2 + a3)
+            qd = qd + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+            error = (q - q_true[:, k + 1]).abs().amax(-1)
+            left = alive & ~(error <= threshold)  # NaN leaves too
+            within[left] = k * dt
+            alive &= ~left
+            if not alive.any():
+                break
+    quartiles = torch.quantile(within, torch.tensor([0.25, 0.5, 0.75], dtype=torch.float64)).tolist()
+    return {"quartiles": quartiles, "starts": len(starts), "limit": limit, "threshold": threshold}
+
+
+def model_forward(model):
+    """A learned model's forward dynamics in the form ``open_loop`` takes (float64 in and out)."""
+    def forward(q, qd, tau, params):
+        dtype = model.dtype
+        return model.forward_dynamics_si(q.to(dtype), qd.to(dtype), params.to(dtype), tau.to(dtype),
+                                         check=False).double()
+    return forward
+
+
+def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = None,
+                   open_loop_limit: float | None = None) -> dict:
     """Torque errors (``torque_errors``) on ``data`` of ``model`` (its inverse dynamics; None: left out),
     of the classical ``fits`` (``fit_classical``) and of ``descriptions`` (``{label: ArmModel}``; default:
-    the scene's description as written)."""
+    the scene's description as written); with ``open_loop_limit`` (s) each row's ``open_loop`` times
+    too (``open_loop``: driven by the measured torques, censored at that limit)."""
     names = list(system.coord_names)
     q, qd, qdd, tau, params = points(data)
     rows = {}
+
+    def with_open_loop(row, forward):
+        if open_loop_limit is not None:
+            row["open_loop"] = open_loop(forward, data, limit=open_loop_limit)
+        return row
+
     if model is not None:
         with torch.no_grad(), counting_failures(model):
             pred = model.inverse_dynamics(q.to(model.dtype), qd.to(model.dtype), qdd.to(model.dtype),
                                           params.to(model.dtype)).double()
-        rows[getattr(model, "variant", "model")] = torque_errors(pred, tau, names)
+            rows[getattr(model, "variant", "model")] = with_open_loop(torque_errors(pred, tau, names),
+                                                                      model_forward(model))
     for label, fit in fits.items():
-        rows[label] = {**torque_errors(fit.torque(q, qd, qdd), tau, names),
-                       "fit_seconds": fit.info.get("fit_seconds")}
+        rows[label] = with_open_loop({**torque_errors(fit.torque(q, qd, qdd), tau, names),
+                                      "fit_seconds": fit.info.get("fit_seconds")},
+                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u))
     for label, fit in (descriptions if descriptions is not None
                        else {"description as written": description_model(system)}).items():
-        rows[label] = torque_errors(fit.torque(q, qd, qdd), tau, names)
+        rows[label] = with_open_loop(torque_errors(fit.torque(q, qd, qdd), tau, names),
+                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u))
     train_points = next((f.info.get("train_points") for f in fits.values()), None)
     return {"joints": names, "test_points": len(q), "train_points": train_points, "rows": rows,
             "fits": {k: v.report() for k, v in fits.items()},

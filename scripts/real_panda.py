@@ -46,6 +46,9 @@ def main() -> None:
                     help="the command that trained a model, for the report's table (repeatable)")
     add_output_dir(ap, "real_panda", "the folder of metrics.json, README.md and torques.png")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--open-loop", type=float, default=1.0, help="open-loop horizon (s): how long each model, "
+                    "driven by the measured torques from a start every 0.25 s of the held-out window, stays "
+                    "within 0.1 rad of the recording (censored there)")
     args = ap.parse_args()
     from lnn_torch.arm_identification import compare_on_arm, description_model, fit_classical, points
     from lnn_torch.checkpoints import data_hparams, load_model
@@ -67,12 +70,13 @@ def main() -> None:
         system, [train, val], drive=args.drive, methods=("least squares",)).items()})
     descriptions = {"description as shipped": description_model(system, "franka_panda"),
                     "description matched to the robot": description_model(system, MATCHED)}
-    result = compare_on_arm(None, system, test, fits, descriptions)
+    result = compare_on_arm(None, system, test, fits, descriptions, open_loop_limit=args.open_loop)
     on_val = compare_on_arm(None, system, val, fits, descriptions)
     figure = None
     for label, path in models.items():
         module = load_model(path)
-        result["rows"][label] = {**compare_on_arm(module.model, system, test, {}, {})["rows"][module.model.variant],
+        on_test = compare_on_arm(module.model, system, test, {}, {}, open_loop_limit=args.open_loop)
+        result["rows"][label] = {**on_test["rows"][module.model.variant],
                                  "checkpoint": path}
         on_val["rows"][label] = compare_on_arm(module.model, system, val, {}, {})["rows"][module.model.variant]
         if figure is None:
@@ -115,7 +119,10 @@ The motion is periodic (13.33 s): samples after 13.8 s repeat the first period, 
 is 10.5-13.8 s, the part of the first period that no other sample repeats; the models train on
 0.5-8.0 s and are chosen on 8.0-10.5 s (the classical fits train on 0.5-8.0 s too). Targets for every
 row: velocities and accelerations from a zero-phase 4th-order 10 Hz Butterworth filter of the measured
-velocities; errors against the measured torques, unfiltered.
+velocities; errors against the measured torques, unfiltered. Open loop: the median (quartiles) over
+starts every 0.25 s of the held-out window of how long each model, driven by the measured torques from
+the recorded state, stays within 0.1 rad of the recorded joint angles (RK4 at 1 ms; censored at the
+horizon).
 
 Held-out joint-torque RMS error in N m (lower is better; sorted by the test mean):
 
@@ -129,18 +136,28 @@ and commands listed (`metrics.json` holds the normalised MSE per joint and the v
 """
 
 
+def _open_loop(row: dict) -> str:
+    """The median and quartiles of a row's open-loop times; '≥' where the median reached the horizon."""
+    if "open_loop" not in row:
+        return ""
+    lo, mid, hi = row["open_loop"]["quartiles"]
+    sign = "≥ " if mid >= row["open_loop"]["limit"] else ""
+    return f"{sign}{mid:.2f} ({lo:.2f}-{hi:.2f})"
+
+
 def report(result: dict) -> str:
     names = result["joints"]
-    header = ["model", *names, "mean, test", "mean, validation", "command"]
+    header = ["model", *names, "mean, test", "mean, validation", "open loop within 0.1 rad (s)", "command"]
     order = sorted(result["rows"], key=lambda k: result["rows"][k]["rms_mean"])
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for name in order:
         r = result["rows"][name]
         cmd = result.get("commands", {}).get(name, "")
         lines.append(f"| {name} | " + " | ".join(f"{r['rms'][n]:.2f}" for n in names)
-                     + f" | **{r['rms_mean']:.3f}** | {r['val_rms_mean']:.3f} | {f'`{cmd}`' if cmd else ''} |")
+                     + f" | **{r['rms_mean']:.3f}** | {r['val_rms_mean']:.3f} | {_open_loop(r)} | "
+                     + f"{f'`{cmd}`' if cmd else ''} |")
     lines.append("| torque std of the data | " + " | ".join(f"{result['torque_std'][n]:.2f}" for n in names)
-                 + " | | | |")
+                 + " | | | | |")
     return "\n".join(lines) + "\n"
 
 

@@ -64,6 +64,22 @@ class ArmModel:
         coefficients = {k: torch.as_tensor(v) for k, v in self.friction.items()}
         return self.rigid_torque(q, qd, qdd) + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)})
 
+    def forward(self, q, qd, tau) -> torch.Tensor:
+        """The accelerations ``(N, n)`` under the joint torques ``tau`` (N m): ``M(q) qdd = tau - h(q, qd)``
+        with ``h`` the torque at zero acceleration (friction included) and ``M``'s columns the rigid
+        torques of unit accelerations at rest less those at zero acceleration (the friction and gravity
+        cancel). A least-squares fit's ``M`` need not be positive definite: a singular one gives NaN."""
+        q, qd, tau = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, tau))
+        n, dof = q.shape
+        eye = torch.eye(dof, dtype=q.dtype)
+        rest = torch.zeros_like(qd)
+        still = self.rigid_torque(q, rest, rest)
+        unit = self.rigid_torque(q.repeat_interleave(dof, 0), rest.repeat_interleave(dof, 0), eye.repeat(n, 1))
+        M = (unit.view(n, dof, dof) - still[:, None]).mT  # column i: the torques of qdd = e_i
+        h = self.torque(q, qd, rest)
+        solution, info = torch.linalg.solve_ex(0.5 * (M + M.mT), (tau - h)[..., None])
+        return torch.where((info == 0)[:, None], solution[..., 0], torch.nan)
+
     def report(self) -> dict:
         """The model in SI: its method, the drive model, the friction coefficients per joint, and the
         links' masses (a consistent fit) or the number of base parameters (least squares)."""

@@ -1,0 +1,128 @@
+"""Classical identification of an arm beside every model (``lnn_torch.robots.classical``,
+``lnn_torch.arm_identification``), against the engine: torques of the Panda without its hand (armature
+and damping zero, as the real robot was logged) plus a known drive model per joint. Least squares
+(ordinary and weighted) recovers the torques and the friction coefficients exactly from noise-free data;
+the physically consistent fit explains them with positive masses; the sigmoid friction's nonlinear
+constants come back by variable projection; an identified model's forward dynamics is the engine's; and
+the open-loop time of a model driven by the recorded torques is the horizon for the truth and short for
+a wrong model."""
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco")
+
+from lnn_torch import arm_identification as ai  # noqa: E402
+from lnn_torch.drives import DriveModel  # noqa: E402
+from lnn_torch.robots import classical  # noqa: E402
+from lnn_torch.robots.kinematics import read_chain  # noqa: E402
+from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
+
+ROBOT = {"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"}
+FRICTION = {"b": torch.linspace(0.05, 0.3, 7, dtype=torch.float64),
+            "c": torch.linspace(0.6, 0.1, 7, dtype=torch.float64),
+            "o": torch.tensor([0.1, -0.2, 0.05, 0.3, -0.05, 0.02, 0.01], dtype=torch.float64)}
+DRIVE = "viscous+coulomb+offset"
+
+
+@pytest.fixture(scope="module")
+def arm():
+    arm = MujocoArm(ROBOT)
+    return arm, read_chain(arm.model)
+
+
+def samples(arm, n: int, seed: int, drive=DRIVE, coefficients=None):
+    rng = np.random.default_rng(seed)
+    q = torch.tensor(arm.sample_q(rng, n))
+    qd, qdd = (torch.tensor(rng.normal(size=(n, 7))) for _ in range(2))
+    tau = arm.inverse(q, qd, qdd) + DriveModel.of(drive).torque(qd, coefficients or FRICTION)
+    return q, qd, qdd, tau
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_least_squares_with_friction_gives_the_torques_and_the_coefficients(arm, weighted):
+    arm, chain = arm
+    fit = classical.least_squares(chain, *samples(arm, 300, 0), drive=DRIVE, weighted=weighted)
+    q, qd, qdd, tau = samples(arm, 50, 1)  # held out
+    assert (fit.torque(q, qd, qdd) - tau).abs().max() <= 1e-7 * tau.abs().max()
+    for key in ("c", "o"):  # viscous friction is in the regressor's damping column (with the armature)
+        np.testing.assert_allclose(fit.friction[key], FRICTION[key].numpy(), rtol=1e-6, atol=1e-8)
+    assert fit.report()["base_parameters"] < 84
+
+
+@pytest.mark.slow
+def test_the_consistent_fit_explains_the_torques_with_a_physical_arm(arm):
+    arm, chain = arm
+    data = samples(arm, 100, 2)
+    fit = classical.consistent_fit(chain, *data, drive=DRIVE, prior=1e-6)
+    q, qd, qdd, tau = samples(arm, 50, 3)
+    error = (fit.torque(q, qd, qdd) - tau).pow(2).mean().sqrt() / tau.std()
+    assert error < 1e-2, float(error)
+    report = fit.report()
+    assert min(report["mass"]) > 0 and min(report["armature"]) >= 0
+    assert (torch.as_tensor(fit.friction["b"]) >= 0).all() and (torch.as_tensor(fit.friction["c"]) >= 0).all()
+
+
+def test_the_sigmoid_frictions_constants_come_back_by_variable_projection(arm):
+    arm, chain = arm
+    truth = {"phi1": torch.full((7,), 0.4, dtype=torch.float64), "phi2": torch.full((7,), 20.0, dtype=torch.float64),
+             "phi3": torch.full((7,), 0.05, dtype=torch.float64)}
+    fit = classical.least_squares(chain, *samples(arm, 300, 4, "sigmoid", truth), drive="sigmoid")
+    for key, value in truth.items():
+        np.testing.assert_allclose(fit.friction[key], value.numpy(), rtol=1e-3)
+
+
+def test_an_identified_models_forward_dynamics_is_the_engines(arm):
+    arm, chain = arm
+    q, qd, qdd, tau = samples(arm, 20, 5, "viscous", {"b": torch.zeros(7, dtype=torch.float64)})
+    description = classical.ArmModel(chain, DriveModel.of("viscous"), "description", {"b": np.zeros(7)},
+                                     pi=classical.description_parameters(chain).numpy())
+    torch.testing.assert_close(description.forward(q, qd, tau), qdd, rtol=1e-9, atol=1e-9)
+    fit = classical.least_squares(chain, *samples(arm, 300, 0), drive=DRIVE)
+    q, qd, qdd, tau = samples(arm, 20, 6)
+    torch.testing.assert_close(fit.forward(q, qd, tau), qdd, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_open_loop_time_is_the_horizon_for_the_truth_and_short_for_a_wrong_model(arm):
+    """A recording of the engine's arm driven by smooth torques; ``open_loop`` of the description
+    (the truth) stays within 0.1 rad for the whole horizon from every start; the description with
+    every link 20 % heavier leaves early."""
+    arm, chain = arm
+    dt, steps = 0.002, 200
+    t = torch.arange(steps + 1, dtype=torch.float64)[:, None] * dt
+    q0 = torch.tensor(arm.sample_q(np.random.default_rng(7), 1))
+    q, qd = [q0], [torch.zeros(1, 7, dtype=torch.float64)]
+    g = arm.inverse(q0, qd[0], torch.zeros(1, 7, dtype=torch.float64))
+    tau = g + 0.5 * torch.sin(3.0 * t + torch.arange(7))[None]  # (1, steps + 1, 7)
+    for k in range(steps):  # RK4 of the engine with the torque held, as open_loop integrates
+        def f(x, v, u=tau[:, k]):
+            return arm.forward(x, v, u)
+        x, v = q[-1], qd[-1]
+        a1 = f(x, v)
+        a2 = f(x + 0.5 * dt * v, v + 0.5 * dt * a1)
+        a3 = f(x + 0.5 * dt * (v + 0.5 * dt * a1), v + 0.5 * dt * a2)
+        a4 = f(x + dt * (v + 0.5 * dt * a2), v + dt * a3)
+        q.append(x + dt * v + dt * dt / 6 * (a1 + a2 + a3))
+        qd.append(v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4))
+
+    data = _Recording(dt=dt, num_points=steps + 1, lengths=None, q=torch.stack(q, 1), qd=torch.stack(qd, 1),
+                      tau=tau, params=torch.zeros(1, 0, dtype=torch.float64))
+    pi = classical.description_parameters(chain).numpy()
+    truth = classical.ArmModel(chain, DriveModel.of("viscous"), "description", {"b": np.zeros(7)}, pi=pi)
+    out = ai.open_loop(lambda q, qd, u, p: truth.forward(q, qd, u), data, every=0.05, limit=0.2)
+    assert out["starts"] == 5 and out["quartiles"] == pytest.approx([0.2] * 3)
+    heavy = classical.ArmModel(chain, DriveModel.of("viscous"), "description", {"b": np.zeros(7)}, pi=1.2 * pi)
+    wrong = ai.open_loop(lambda q, qd, u, p: heavy.forward(q, qd, u), data, every=0.05, limit=0.2)
+    assert wrong["quartiles"][1] < 0.2
+
+
+class _Recording:
+    """The fields of ``Trajectories`` that ``open_loop`` reads."""
+
+    def __init__(self, **fields):
+        vars(self).update(fields)
+
+    def __len__(self) -> int:
+        return len(self.q)
