@@ -131,8 +131,16 @@ The classical rows are least squares on the base parameters of the description's
 the drive model `{drive}` per joint (`lnn_torch.robots.classical`): ordinary, weighted (each joint's
 rows divided by its ordinary residual's standard deviation) and physically consistent (log-Cholesky
 inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
-(their damping their only friction). Every number: `python scripts/real_panda.py` with the checkpoints
-and commands listed (`metrics.json` holds the normalised MSE per joint and the validation errors too).
+(their damping their only friction). `film_lnn` and DeLaN from the data alone are one model here: the
+recording has no parameters to condition on, so FiLM and concatenation both vanish (same seed, same
+weights); ten seconds of one robot are far too little for networks alone. Every number:
+
+    lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
+        --config configs/import/real_panda.yaml -o data/real_panda.h5
+    # each fit of the table's command column, then
+    python scripts/real_panda.py "LABEL=CHECKPOINT" ... --command "LABEL=COMMAND" ... -o results/real_panda
+
+(`metrics.json` holds the normalised MSE per joint, the validation errors and the open-loop times too).
 """
 
 

@@ -54,7 +54,7 @@ def test_least_squares_with_friction_gives_the_torques_and_the_coefficients(arm,
 @pytest.mark.slow
 def test_the_consistent_fit_explains_the_torques_with_a_physical_arm(arm):
     arm, chain = arm
-    data = samples(arm, 100, 2)
+    data = samples(arm, 60, 2)
     fit = classical.consistent_fit(chain, *data, drive=DRIVE, prior=1e-6)
     q, qd, qdd, tau = samples(arm, 50, 3)
     error = (fit.torque(q, qd, qdd) - tau).pow(2).mean().sqrt() / tau.std()
@@ -90,7 +90,7 @@ def test_open_loop_time_is_the_horizon_for_the_truth_and_short_for_a_wrong_model
     (the truth) stays within 0.1 rad for the whole horizon from every start; the description with
     every link 20 % heavier leaves early."""
     arm, chain = arm
-    dt, steps = 0.002, 200
+    dt, steps = 0.004, 100
     t = torch.arange(steps + 1, dtype=torch.float64)[:, None] * dt
     q0 = torch.tensor(arm.sample_q(np.random.default_rng(7), 1))
     q, qd = [q0], [torch.zeros(1, 7, dtype=torch.float64)]

@@ -383,27 +383,3 @@ def test_the_arm_grey_box_programs_equal_the_eager_model(arm_grey_box):
                 out = program(*arguments(function, q, qd, params, tau, qdd))
                 ref = eager(model, function, q, qd, params, tau, qdd)
             torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{function} {dtype}")
-
-
-@pytest.mark.slow
-@pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None, reason="no C++ compiler")
-def test_aoti_packages_of_the_arms_grey_box_equal_the_eager_model(arm_grey_box, tmp_path):
-    """Issue 36: the arm's AOTInductor packages once failed their first call. Every function of the grey
-    box's mass matrix (where the wrong link inertias showed first) exported as ``pt2`` and ``aoti`` in the
-    model's own dtype (float32), both equal to the eager model on arm states at batch 1 and 33 (AOTInductor:
-    about a minute per function on one thread: one function here, the forward dynamics in
-    ``test_measured_arm.py``)."""
-    module, functions = arm_grey_box, ("mass_matrix",)
-    files = ex.export_model(module, tmp_path, functions=functions, formats=["pt2", "aoti"])
-    assert sorted(p.name for p in files) == sorted([*(ex.output_name(f, fmt) for f in functions
-                                                      for fmt in ("pt2", "aoti")), "export.json"])
-    model = copy.deepcopy(module.model)
-    for function in functions:
-        programs = {fmt: ex.load_program(tmp_path / ex.output_name(function, fmt)) for fmt in ("pt2", "aoti")}
-        for batch in (1, 33):
-            q, qd, params, tau, qdd = arm_states(module, batch, torch.float32, seed=batch)
-            args = arguments(function, q, qd, params, tau, qdd)
-            with torch.no_grad():
-                ref = eager(model, function, q, qd, params, tau, qdd)
-                for fmt, program in programs.items():
-                    assert_close_float32(program(*args), ref, f"{function} {fmt} batch {batch}")
