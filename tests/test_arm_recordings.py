@@ -113,3 +113,39 @@ def test_a_robot_arms_recording_names_its_joints_and_carries_its_description(tmp
     assert scene["param_names"] == ["payload_mass", "payload_x", "payload_y", "payload_z"]
     with pytest.raises(InputError, match="are not the joints of robot"):
         ImportSpec(coordinates=[f"q{j}" for j in range(7)], robot="franka_panda", coord_names=list("abcdefg"))
+
+
+def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
+    """Currents imported with nominal gains (here 1: unknown); ``learn_input_matrix: gains`` gives the
+    model ``B diag(k)`` with one positive gain per input, 1 at the start (the model as without it), the
+    torques it needs divided by ``k``, a gradient from a torque loss, and the gains kept by a checkpoint."""
+    from lnn_torch.networks import build_model
+    from lnn_torch.systems import get_system
+
+    t = np.arange(0, 2, 0.002)
+    cols = signals(t)
+    path = write_csv(tmp_path / "run.csv", cols)
+    out = import_recordings([path], tmp_path / "i.h5", spec(inputs=None, currents=["ta", "tb"], drive_gains=[1.0, 1.0],
+                                                            split=[1.0, 0.0, 0.0]))
+    system = get_system("measured", **json.loads(read_dataset(out).attrs["scene_json"])["config"])
+    torch.manual_seed(0)
+    plain = build_model("film_lnn", system).double()
+    torch.manual_seed(0)
+    model = build_model("film_lnn", system, learn_input_matrix="gains").double()
+    assert model.forces.input_gains().tolist() == [1.0, 1.0]
+    q, qd, qdd = (torch.randn(5, 2, dtype=torch.float64) for _ in range(3))
+    params = torch.zeros(5, 0, dtype=torch.float64)
+    ref = plain.inverse_dynamics(q, qd, qdd, params)
+    torch.testing.assert_close(model.inverse_dynamics(q, qd, qdd, params), ref, rtol=1e-12, atol=1e-12)
+    k = torch.tensor([2.5, 0.4], dtype=torch.float64)
+    with torch.no_grad():
+        model.forces.input_gains_raw.copy_(k.log())
+    torch.testing.assert_close(model.inverse_dynamics(q, qd, qdd, params), ref / k, rtol=1e-10, atol=1e-12)
+    model.inverse_dynamics(q, qd, qdd, params).pow(2).sum().backward()
+    assert model.forces.input_gains_raw.grad.abs().min() > 0
+    assert model.forces.input_gains_raw in model.forces.coefficient_parameters()
+    again = build_model("film_lnn", system, learn_input_matrix="gains").double()
+    again.load_state_dict(model.state_dict())
+    torch.testing.assert_close(again.forces.input_gains(), k)
+    with pytest.raises(ValueError, match="learn_input_matrix must be"):
+        build_model("film_lnn", system, learn_input_matrix="diagonal")

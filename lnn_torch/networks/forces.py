@@ -5,7 +5,9 @@ Built only for scenes that declare inputs or friction (``SceneInfo.has_forces``)
 conservative scene has no such module and no extra parameter.
 
 * Inputs: ``B tau`` with ``B`` the scene's input matrix (a buffer), or a learned matrix initialised
-  at it (``learn_input_matrix``: motor gains or calibration errors).
+  at it (``learn_input_matrix: true``: motor gains or calibration errors), or the scene's with one
+  learned positive gain per input (``learn_input_matrix: gains``: drive gains of motor currents known
+  only nominally, or not at all: import the currents with gains 1 and the gains are learned in N m/A).
 * Joint friction (``dissipation="joint"``, the default): per joint, viscous ``b >= 0`` and smooth
   Coulomb ``c >= 0`` friction on the joint rates ``r = D qd``, ``Q = -D^T (b r + c tanh(r / v))``,
   with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
@@ -75,7 +77,12 @@ class LearnedForces(nn.Module):
         self.num_inputs = scene.num_inputs
         if scene.num_inputs:
             B = torch.tensor(scene.input_matrix, dtype=torch.float32)
-            if learn_input_matrix:
+            if learn_input_matrix not in (False, True, "gains"):
+                raise ValueError(f"learn_input_matrix must be true, false or 'gains', got {learn_input_matrix!r}")
+            if learn_input_matrix == "gains":  # B diag(k), k = exp(raw) > 0 learned from 1
+                self.register_buffer("nominal_input_matrix", B, persistent=False)
+                self.input_gains_raw = nn.Parameter(torch.zeros(B.shape[1]))
+            elif learn_input_matrix:
                 self.input_matrix = nn.Parameter(B)
             else:
                 self.register_buffer("input_matrix", B, persistent=False)
@@ -132,7 +139,20 @@ class LearnedForces(nn.Module):
     def coefficient_parameters(self) -> list[nn.Parameter]:
         """The physical coefficients (exempt from weight decay): constant friction coefficients and a
         learned input matrix."""
-        return [p for n, p in self.named_parameters(recurse=False) if n in ("coefficients_raw", "input_matrix")]
+        return [p for n, p in self.named_parameters(recurse=False)
+                if n in ("coefficients_raw", "input_matrix", "input_gains_raw")]
+
+    def current_input_matrix(self) -> torch.Tensor:
+        """``B (dof, n_u)``: the scene's, a learned matrix, or the scene's with a learned gain per input
+        (``learn_input_matrix="gains"``: ``B diag(input_gains())``)."""
+        if hasattr(self, "input_gains_raw"):
+            return self.nominal_input_matrix * self.input_gains_raw.exp()
+        return self.input_matrix
+
+    def input_gains(self) -> torch.Tensor | None:
+        """The learned gain per input (``learn_input_matrix="gains"``; dimensionless: the factor on the
+        imported torques, e.g. on the nominal drive gains of motor currents), None otherwise."""
+        return self.input_gains_raw.exp() if hasattr(self, "input_gains_raw") else None
 
     # ------------------------------------------------------------------ set-up
     @torch.no_grad()
@@ -225,14 +245,14 @@ class LearnedForces(nn.Module):
 
     def input_force(self, tau: torch.Tensor) -> torch.Tensor:
         """``B tau (B, dof)`` for inputs ``tau (B, n_u)`` in N m."""
-        return input_force(tau, None if self.identity_inputs else self.input_matrix)
+        return input_force(tau, None if self.identity_inputs else self.current_input_matrix())
 
     def solve_inputs(self, input_force: torch.Tensor) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` whose force ``B tau`` is closest to ``input_force (B, dof)``
         (exact for a full-rank square ``B``; least squares for an underactuated system)."""
         if self.identity_inputs:
             return input_force
-        return input_force @ torch.linalg.pinv(self.input_matrix.to(input_force.dtype)).mT
+        return input_force @ torch.linalg.pinv(self.current_input_matrix().to(input_force.dtype)).mT
 
     def force(self, qd, params_norm, tau=None, features=None, qd_norm=None) -> torch.Tensor:
         """``Q = B tau + Q_diss (+ Q_r)`` in SI, ``(B, dof)`` (the residual where ``features`` and ``qd_norm``
