@@ -125,7 +125,8 @@ class InverseDynamics(_Function):
         super().__init__(model)
         forces = model.forces
         if not forces.identity_inputs:  # LearnedForces.solve_inputs with the pseudo-inverse computed once, here
-            self.register_buffer("input_pinv", torch.linalg.pinv(forces.current_input_matrix().detach()).mT.contiguous())
+            pinv = torch.linalg.pinv(forces.current_input_matrix().detach())
+            self.register_buffer("input_pinv", pinv.mT.contiguous())
 
     def forward(self, q, qd, qdd, params):
         input_force = self.model.input_force_si(q, qd, qdd, params)  # B tau
