@@ -84,7 +84,6 @@ def test_an_identified_models_forward_dynamics_is_the_engines(arm):
     torch.testing.assert_close(fit.forward(q, qd, tau), qdd, rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.slow
 def test_open_loop_time_is_the_horizon_for_the_truth_and_short_for_a_wrong_model(arm):
     """A recording of the engine's arm driven by smooth torques; ``open_loop`` of the description
     (the truth) stays within 0.1 rad for the whole horizon from every start; the description with

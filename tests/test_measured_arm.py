@@ -116,12 +116,13 @@ def test_every_exported_function_of_the_learned_arm_equals_the_eager_model(learn
 
 @pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None, reason="no C++ compiler")
 def test_every_format_of_the_learned_arm_equals_the_eager_model(learned, tmp_path):
-    """``lnn-torch export CKPT --format pt2 aoti --functions forward_dynamics`` (the function whose package
-    once failed its first call; every function's ``.pt2``: the test above; ONNX where its optional packages
-    are installed): both formats equal to the eager model on arm states at batch 1 and 33 (AOTInductor:
-    about a minute per function on one thread, so one function here)."""
+    """``lnn-torch export CKPT --format pt2 aoti --functions mass_matrix`` (whose package once read the
+    links' inertias wrongly, so that the forward dynamics' failed its first call in Cholesky; every
+    function's ``.pt2``: the test above; ONNX where its optional packages are installed): both formats
+    equal to the eager model on arm states at batch 1 and 33 (AOTInductor: 30-60 s per function on one
+    thread, so one function here)."""
     ckpt, module = learned
-    formats, functions = ["pt2", "aoti"], ["forward_dynamics"]
+    formats, functions = ["pt2", "aoti"], ["mass_matrix"]
     assert main(["export", ckpt, "-o", str(tmp_path), "--format", *formats, "--functions", *functions]) == 0
     meta = json.loads((tmp_path / "export.json").read_text())
     assert meta["scene"]["name"] == "measured" and list(meta["functions"]) == functions

@@ -29,7 +29,7 @@ import torch
 from ..drives import COEFFICIENTS, DriveModel
 from ..errors import InputError
 from .kinematics import SerialChain, reverse_cholesky
-from .regressor import base_parameters, classical_of, parameter_vector, regressor
+from .regressor import base_parameters, classical_of, inverse_dynamics, parameter_vector, regressor
 
 _OFF = torch.triu_indices(4, 4, 1)
 
@@ -53,9 +53,13 @@ class ArmModel:
     def rigid_torque(self, q, qd, qdd) -> torch.Tensor:
         """The rigid body's and the armature's torques ``(N, n)`` (viscous friction included where the
         drive has it: it is the regressor's damping column)."""
+        if self.pi is not None:  # the recursion with the parameters, not the regressor (a tenth of the time)
+            pi = torch.as_tensor(self.pi, dtype=torch.float64).clone()
+            if "viscous" not in self.drive.forms:
+                pi[11 * self.chain.dof:] = 0.0
+            q, qd, qdd = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd))
+            return inverse_dynamics(self.chain, q, qd, qdd, pi)
         Y = _regressor(self.chain, q, qd, qdd, self.drive)
-        if self.pi is not None:
-            return Y @ torch.as_tensor(self.pi)
         return Y[..., torch.as_tensor(self.base["independent"])] @ torch.as_tensor(self.beta)  # Y_B beta
 
     def torque(self, q, qd, qdd) -> torch.Tensor:
