@@ -133,7 +133,9 @@ rows divided by its ordinary residual's standard deviation) and physically consi
 inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
 (their damping their only friction). `film_lnn` and DeLaN from the data alone are one model here: the
 recording has no parameters to condition on, so FiLM and concatenation both vanish (same seed, same
-weights); ten seconds of one robot are far too little for networks alone. Every number:
+weights); ten seconds of one robot are far too little for networks alone. A force residual beside the
+grey box (a network of the joint angles and velocities, zero at the start, L2 on its output layer) does
+not pay on this robot: validation prefers the grey box alone, and so does the held-out window. Every number:
 
     lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
         --config configs/import/real_panda.yaml -o data/real_panda.h5
