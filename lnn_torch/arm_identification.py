@@ -16,6 +16,7 @@ import time
 
 import torch
 
+from .integrators import held, rk4_step
 from .networks.calls import counting_failures
 from .report import markdown_table
 
@@ -106,18 +107,12 @@ def open_loop(forward, data, *, every: float = 0.25, limit: float = 1.0, thresho
     within = torch.full((len(starts),), float(limit), dtype=torch.float64)
     alive = torch.ones(len(starts), dtype=torch.bool)
 
-    def accel(q, qd, u):
-        return forward(q, qd, u, params)
+    def accel(q, qd, p, u):
+        return forward(q, qd, u, p)
 
     with torch.no_grad():
         for k in range(steps):
-            u = tau[:, k]
-            a1 = accel(q, qd, u)
-            a2 = accel(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u)
-            a3 = accel(q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u)
-            a4 = accel(q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u)
-            q = q + dt * qd + dt * dt / 6 * (a1 + a2 + a3)
-            qd = qd + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+            q, qd = rk4_step(held(accel, tau[:, k]), q, qd, params, dt)
             error = (q - q_true[:, k + 1]).abs().amax(-1)
             left = alive & ~(error <= threshold)  # NaN leaves too
             within[left] = k * dt

@@ -15,6 +15,7 @@ pytest.importorskip("mujoco")
 
 from lnn_torch import arm_identification as ai  # noqa: E402
 from lnn_torch.drives import DriveModel  # noqa: E402
+from lnn_torch.integrators import held, rk4_step  # noqa: E402
 from lnn_torch.robots import classical  # noqa: E402
 from lnn_torch.robots.kinematics import read_chain  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
@@ -96,15 +97,9 @@ def test_open_loop_time_is_the_horizon_for_the_truth_and_short_for_a_wrong_model
     g = arm.inverse(q0, qd[0], torch.zeros(1, 7, dtype=torch.float64))
     tau = g + 0.5 * torch.sin(3.0 * t + torch.arange(7))[None]  # (1, steps + 1, 7)
     for k in range(steps):  # RK4 of the engine with the torque held, as open_loop integrates
-        def f(x, v, u=tau[:, k]):
-            return arm.forward(x, v, u)
-        x, v = q[-1], qd[-1]
-        a1 = f(x, v)
-        a2 = f(x + 0.5 * dt * v, v + 0.5 * dt * a1)
-        a3 = f(x + 0.5 * dt * (v + 0.5 * dt * a1), v + 0.5 * dt * a2)
-        a4 = f(x + dt * (v + 0.5 * dt * a2), v + dt * a3)
-        q.append(x + dt * v + dt * dt / 6 * (a1 + a2 + a3))
-        qd.append(v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4))
+        x, v = rk4_step(held(lambda x, v, p, u: arm.forward(x, v, u), tau[:, k]), q[-1], qd[-1], None, dt)
+        q.append(x)
+        qd.append(v)
 
     data = _Recording(dt=dt, num_points=steps + 1, lengths=None, q=torch.stack(q, 1), qd=torch.stack(qd, 1),
                       tau=tau, params=torch.zeros(1, 0, dtype=torch.float64))
