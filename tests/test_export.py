@@ -110,6 +110,36 @@ def arguments(function, q, qd, params, tau, qdd):
             "gravity_force": (q, params), "friction_force": (q, qd, params)}[function]
 
 
+def assert_programs_equal_eager(module, state, dtype, functions=ex.FUNCTIONS):
+    """Each function's ``torch.export`` program of ``module`` in ``dtype`` equals the eager model at
+    ``state = (q, qd, params, tau, qdd)`` to ``TOL[dtype]``, finite."""
+    model = copy.deepcopy(module.model).to(dtype)
+    for function in functions:
+        program = ex.export_program(ex.wrap(module, function, dtype)).module()
+        with torch.no_grad():
+            out = program(*arguments(function, *state))
+            ref = eager(model, function, *state)
+        torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{function} {dtype}")
+        assert torch.isfinite(out).all()
+
+
+def assert_onnx_equals_eager(ort, module, folder, functions, states_):
+    """Each ``FUNCTION.onnx`` in ``folder`` (float64) run by ONNX Runtime on one thread equals the eager
+    model at every state ``(q, qd, params, tau, qdd)`` of ``states_`` to ``TOL[float64]``."""
+    model = copy.deepcopy(module.model).double()
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = options.inter_op_num_threads = 1
+    for function in functions:
+        session = ort.InferenceSession(str(folder / f"{function}.onnx"), options, providers=["CPUExecutionProvider"])
+        names = [i.name for i in session.get_inputs()]
+        for state in states_:
+            args = arguments(function, *state)
+            (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
+            with torch.no_grad():
+                ref = eager(model, function, *state)
+            torch.testing.assert_close(torch.from_numpy(out), ref, **TOL[torch.float64], msg=function)
+
+
 # ---------------------------------------------------------------------------- the programs
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("name", ["double_pendulum", "actuated"])
@@ -251,21 +281,10 @@ def test_onnx_programs_equal_the_eager_model_through_onnxruntime(models, tmp_pat
     ort = pytest.importorskip("onnxruntime")
     pytest.importorskip("onnxscript")
     module = models["actuated"]
-    model = copy.deepcopy(module.model).double()
-    ex.export_model(module, tmp_path, functions=["forward_dynamics", "inverse_dynamics", "mass_matrix"],
-                    formats=["onnx"], dtype="float64")
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = options.inter_op_num_threads = 1
-    for function in ("forward_dynamics", "inverse_dynamics", "mass_matrix"):
-        session = ort.InferenceSession(str(tmp_path / f"{function}.onnx"), options, providers=["CPUExecutionProvider"])
-        for batch in (1, 50):
-            q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
-            args = arguments(function, q, qd, params, tau, qdd)
-            names = [i.name for i in session.get_inputs()]
-            (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
-            with torch.no_grad():
-                ref = eager(model, function, q, qd, params, tau, qdd)
-            torch.testing.assert_close(torch.from_numpy(out), ref, **TOL[torch.float64], msg=function)
+    functions = ["forward_dynamics", "inverse_dynamics", "mass_matrix"]
+    ex.export_model(module, tmp_path, functions=functions, formats=["onnx"], dtype="float64")
+    assert_onnx_equals_eager(ort, module, tmp_path, functions,
+                             [states(module, batch, torch.float64, seed=batch) for batch in (1, 50)])
 
 
 def test_an_operator_without_onnx_translation_is_refused_in_one_line(tmp_path):
@@ -374,12 +393,4 @@ def test_the_arm_grey_box_programs_equal_the_eager_model(arm_grey_box):
     (the model's own float32: the AOTInductor test)."""
     module = arm_grey_box
     assert ex.available_functions(module) == ex.FUNCTIONS
-    for dtype in (torch.float64,):
-        model = copy.deepcopy(module.model).to(dtype)
-        q, qd, params, tau, qdd = arm_states(module, 17, dtype)
-        for function in ex.FUNCTIONS:
-            program = ex.export_program(ex.wrap(module, function, dtype)).module()
-            with torch.no_grad():
-                out = program(*arguments(function, q, qd, params, tau, qdd))
-                ref = eager(model, function, q, qd, params, tau, qdd)
-            torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{function} {dtype}")
+    assert_programs_equal_eager(module, arm_states(module, 17, torch.float64), torch.float64)

@@ -26,7 +26,13 @@ from lnn_torch.config_files import read_config  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 
 from .helpers import ROOT, run_cli  # noqa: E402
-from .test_export import TOL, arguments, assert_close_float32, eager  # noqa: E402
+from .test_export import (  # noqa: E402
+    arguments,
+    assert_close_float32,
+    assert_onnx_equals_eager,
+    assert_programs_equal_eager,
+    eager,
+)
 from .test_recordings import write_csv  # noqa: E402
 
 ROBOT = {"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"}
@@ -102,16 +108,7 @@ def test_every_exported_function_of_the_learned_arm_equals_the_eager_model(learn
     """``.pt2`` programs of every function in float64 on arm states, to 1e-10 (the model's own float32:
     the AOTInductor test)."""
     _, module = learned
-    for dtype in (torch.float64,):
-        model = copy.deepcopy(module.model).to(dtype)
-        q, qd, params, tau, qdd = arm_states(17, dtype)
-        for function in ex.FUNCTIONS:
-            program = ex.export_program(ex.wrap(module, function, dtype)).module()
-            with torch.no_grad():
-                out = program(*arguments(function, q, qd, params, tau, qdd))
-                ref = eager(model, function, q, qd, params, tau, qdd)
-            torch.testing.assert_close(out, ref, **TOL[dtype], msg=f"{function} {dtype}")
-            assert torch.isfinite(out).all()
+    assert_programs_equal_eager(module, arm_states(17, torch.float64), torch.float64)
 
 
 @pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None, reason="no C++ compiler")
@@ -144,19 +141,8 @@ def test_onnx_of_the_learned_arm_equals_the_eager_model(learned, tmp_path):
     if ex.missing_onnx_packages():
         pytest.skip(ex.onnx_requirement())
     _, module = learned
-    model = copy.deepcopy(module.model).double()
     ex.export_model(module, tmp_path, formats=["onnx"], dtype="float64")
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = options.inter_op_num_threads = 1
-    q, qd, params, tau, qdd = arm_states(9, torch.float64)
-    for function in ex.FUNCTIONS:
-        session = ort.InferenceSession(str(tmp_path / f"{function}.onnx"), options, providers=["CPUExecutionProvider"])
-        args = arguments(function, q, qd, params, tau, qdd)
-        names = [i.name for i in session.get_inputs()]
-        (out,) = session.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
-        with torch.no_grad():
-            ref = eager(model, function, q, qd, params, tau, qdd)
-        torch.testing.assert_close(torch.from_numpy(out), ref, **TOL[torch.float64], msg=function)
+    assert_onnx_equals_eager(ort, module, tmp_path, ex.FUNCTIONS, [arm_states(9, torch.float64)])
 
 
 def test_control_moves_the_arms_description_with_the_learned_model(learned, tmp_path):
