@@ -1,5 +1,7 @@
 """Helpers shared by several test modules (fixtures live in ``conftest.py``)."""
 
+import contextlib
+import io
 import os
 import subprocess
 import sys
@@ -98,8 +100,36 @@ def quiet_trainer(tmp_path, **kw):
 
 
 def run_cli(*args, cwd):
+    """``lnn-torch ARGS`` in a new process (what a user's shell runs: entry point, exit code, streams)."""
     return subprocess.run([sys.executable, "-m", "lnn_torch.cli", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=600)
+
+
+def cli_in_process(*args, cwd) -> subprocess.CompletedProcess:
+    """``lnn-torch ARGS`` through ``lnn_torch.cli.main`` in this process, in ``cwd``: the same parsing,
+    commands and exit code as ``run_cli`` without a new interpreter importing torch and Lightning for
+    each call (seconds each). ``returncode`` is what ``main`` returns (or the code of a ``SystemExit``
+    it raises); ``stdout`` and ``stderr`` hold what it printed. Any other exception propagates. The
+    process state a command may change (working directory, environment, warning filters, default
+    dtype) is restored afterwards."""
+    import warnings
+
+    from lnn_torch.cli import main
+
+    out, err, here, env, dtype = io.StringIO(), io.StringIO(), os.getcwd(), dict(os.environ), torch.get_default_dtype()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            try:
+                code = main([str(a) for a in args])
+            except SystemExit as exit_:
+                code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+    finally:
+        os.chdir(here)
+        os.environ.clear()
+        os.environ.update(env)
+        torch.set_default_dtype(dtype)
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
 def session_file(tmp_path_factory, name: str, write) -> Path:

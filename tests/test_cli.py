@@ -13,7 +13,7 @@ import torch
 from lnn_torch import LNNModule
 from lnn_torch.data.datamodule import TrajectoryDataModule
 
-from .helpers import ROOT, run_cli
+from .helpers import ROOT, cli_in_process, run_cli
 
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
@@ -35,11 +35,12 @@ def test_every_shipped_config_instantiates(config, tmp_path):
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
 def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
     """fast_dev_run of each config on a tiny dataset of its own scene (generated on the fly; the
-    shipped recordings imported with their import config for a config of measured data)."""
+    shipped recordings imported with their import config for a config of measured data). In this process
+    (``main``): ``test_cli_fit_test_predict`` runs the command as a new process."""
     data = tmp_path / "d.h5"
     if (ROOT / "configs" / "import" / config.name).exists():
         data = _imported(config, tmp_path)
-    out = run_cli("fit", "-c", str(config), f"--data.path={data}", "--data.spec.num_trajectories=10",
+    out = cli_in_process("fit", "-c", str(config), f"--data.path={data}", "--data.spec.num_trajectories=10",
                "--data.spec.duration=0.5", "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.1",
                "--trainer.fast_dev_run=true", "--trainer.enable_progress_bar=false",
                "--model.compile=false",  # one step: compiling it would only time inductor (tests/test_compile.py)
@@ -49,12 +50,14 @@ def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
 
 @pytest.mark.slow
 def test_cli_fit_test_predict(dataset, tmp_path):
+    """fit, test and predict: the first fit as a new process (the entry point a shell runs), the rest in
+    this process (``main``)."""
     common = ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
               "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
               "--model.hidden_dims=[16,16]", "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false"]
     out = run_cli("fit", *common, "--trainer.fast_dev_run=true", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
-    out = run_cli("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3",
+    out = cli_in_process("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3",
                "--trainer.check_val_every_n_epoch=1", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     ckpts = sorted(glob.glob(str(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "*.ckpt")))
@@ -68,12 +71,12 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert re.search(r"validation rollouts within 0\.1 rad \(or m\) of the data: median (≥ [\d.]+ s \(never "
                      r"exceeded\)|[\d.]+ s)", out.stdout), out.stdout[-600:]
     assert re.search(r"validation: acc\. rel\. L2 error [0-9.]+ % pooled, [0-9.]+ % per-trajectory median", out.stdout)
-    out = run_cli("test", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    out = cli_in_process("test", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "test/acc_rel_err" in out.stdout
     written = glob.glob(str(tmp_path / "lightning_logs" / "*" / "test_metrics.json"))
     assert written and "test/acc_rel_err" in json.loads(Path(written[0]).read_text())
-    out = run_cli("predict", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
+    out = cli_in_process("predict", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     files = glob.glob(str(tmp_path / "lightning_logs" / "*" / "predictions.npz"))
     assert files
@@ -89,13 +92,13 @@ def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
               "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
               "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2", "--trainer.enable_progress_bar=false",
               "--trainer.max_epochs=1", "--data.steps_per_epoch=2", f"--trainer.default_root_dir={tmp_path / 'runs'}"]
-    out = run_cli("fit", *common, cwd=tmp_path)
+    out = cli_in_process("fit", *common, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "events.*"))
     assert glob.glob(str(tmp_path / "runs" / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"))
     assert not (tmp_path / "lightning_logs").exists()
     # an explicit save_dir still wins
-    out = run_cli("fit", *common, f"--trainer.logger.init_args.save_dir={tmp_path / 'mine'}", cwd=tmp_path)
+    out = cli_in_process("fit", *common, f"--trainer.logger.init_args.save_dir={tmp_path / 'mine'}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert glob.glob(str(tmp_path / "mine" / "lightning_logs" / "version_0" / "events.*"))
 
@@ -105,7 +108,7 @@ def test_a_measured_config_without_its_imported_file_says_to_import_it(tmp_path)
     """Fitting the real-pendulum config before importing its recordings names the missing file and the
     import command (it used to fall back to generating a simulated double pendulum and then refuse the
     torque loss with an unrelated message); a spec'd dataset still generates."""
-    out = run_cli("fit", "-c", str(ROOT / "configs" / "real_double_pendulum.yaml"),
+    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "real_double_pendulum.yaml"),
                f"--data.path={tmp_path / 'absent.h5'}", "--trainer.fast_dev_run=true", cwd=tmp_path)
     assert out.returncode != 0
     assert "absent.h5 not found" in out.stderr and "lnn-torch import" in out.stderr, out.stderr[-2000:]
@@ -140,6 +143,6 @@ def _imported(config: Path, tmp_path: Path) -> Path:
             np.savetxt(recordings[-1], np.column_stack([t, q, dq, tau]), delimiter=",", header=",".join(header),
                        comments="")
     data = tmp_path / "d.h5"
-    out = run_cli("import", *map(str, recordings), "--config", str(importer), "-o", str(data), cwd=tmp_path)
+    out = cli_in_process("import", *map(str, recordings), "--config", str(importer), "-o", str(data), cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     return data

@@ -25,7 +25,7 @@ from lnn_torch.cli import main  # noqa: E402
 from lnn_torch.config_files import read_config  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 
-from .helpers import ROOT, run_cli  # noqa: E402
+from .helpers import ROOT, cli_in_process  # noqa: E402
 from .test_export import (  # noqa: E402
     arguments,
     assert_close_float32,
@@ -77,7 +77,7 @@ def learned(tmp_path_factory):
                       coulomb_velocity=0.02, label="synthetic_panda",
                       split={"train": ["arm[0.2:3.0]"], "val": ["arm[3.0:3.5]"], "test": ["arm[3.5:3.9]"]})
     data = import_recordings([csv], root / "arm.h5", spec)
-    out = run_cli("fit", "-c", str(ROOT / "configs" / "real_panda.yaml"), "--data.path", str(data),
+    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "real_panda.yaml"), "--data.path", str(data),
                   "--trainer.max_steps", "20", "--trainer.enable_progress_bar", "false", cwd=root)
     assert out.returncode == 0, out.stderr[-3000:]
     (ckpt,) = root.glob("lightning_logs/version_*/checkpoints/last.ckpt")

@@ -241,14 +241,12 @@ def test_shooting_windows_never_cross_a_recording_end(recordings):
 def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     """Import, fit (a parameter-free measured system, acceleration targets from Savitzky-Golay, and
     trajectory matching with the grey-box rigid chain), evaluate (the chain's checkpoint) with horizons
-    from many start points; all from the command line."""
-    import subprocess
-    import sys
+    from many start points; all from the command line (``lnn_torch.cli.main`` in this process)."""
+    from .helpers import cli_in_process
 
     root, files, _, _ = recordings
     data = tmp_path / "arm.h5"
-    run = lambda *a: subprocess.run([sys.executable, "-m", "lnn_torch.cli", *a], cwd=tmp_path, capture_output=True,  # noqa: E731
-                                    text=True, timeout=600)
+    run = lambda *a: cli_in_process(*a, cwd=tmp_path)  # noqa: E731
     out = run("import", *map(str, files), "-o", str(data), "--time", "stamp", "--coordinates", "angle0", "angle1",
               "--velocities", "rate0", "rate1", "--inputs", "motor0", "motor1", "--angle-units", "deg",
               "--angle-combination", "1", "1", "--split-recordings", "train=run0", "val=run1", "test=run2")
