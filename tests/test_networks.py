@@ -342,17 +342,18 @@ def test_every_variant_is_built_from_the_scene(scene, config, variant, rng):
 
 
 @pytest.mark.parametrize("activation", ACTIVATIONS)
-@pytest.mark.parametrize("with_film", [False, True])
+@pytest.mark.parametrize("with_film", [False, True, "quadratic"])
 @pytest.mark.parametrize("B", [5, 9])
 def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
     """TangentMLP (tanh layers run in sigmoid form, FiLM pairs mapped to (2 gamma, beta - gamma))
     is the plain MLP ``h = gamma act(W h + b) + beta`` of ``networks.reference`` (torch's own
     activations, FiLM's plain formula): outputs in float64, tangents against torch.func.jvp, input
     gradients against autograd. Batches of 5 and 9 rows: the products with few output columns take
-    their transposed form (``_kernels.mm_t``) only when the batch has more rows than outputs."""
+    their transposed form (``_kernels.mm_t``) only when the batch has more rows than outputs.
+    ``quadratic``: FiLM without a hidden layer (``film_hidden=0``)."""
     torch.manual_seed(0)
     net = TangentMLP(6, [24, 24], 3, activation).double()
-    film_net = FiLM(4, [24, 24]).double()
+    film_net = FiLM(4, [24, 24], film_hidden=0 if with_film == "quadratic" else 16).double()
     with torch.no_grad():
         for p in film_net.parameters():
             p.add_(0.3 * torch.randn_like(p))
@@ -382,7 +383,28 @@ def test_tangent_mlp_equals_a_plain_mlp(activation, with_film, B):
     torch.testing.assert_close(grad, ref_grad[:, :4], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}, {"shared": True}])
+def test_film_without_a_hidden_layer_is_quadratic_in_the_parameters():
+    """``film_hidden=0``: every gamma and beta is a quadratic polynomial of the parameters (third
+    differences along any line vanish, second differences do not); with a hidden layer they are not;
+    a negative width is refused."""
+    torch.manual_seed(1)
+    c, d = torch.randn(6, 3, dtype=torch.float64), torch.randn(6, 3, dtype=torch.float64)
+    for hidden, quadratic in ((0, True), (16, False)):
+        film = FiLM(3, [8, 5], film_hidden=hidden).double()
+        with torch.no_grad():
+            for p in film.parameters():
+                p.copy_(torch.randn_like(p))
+        at = [torch.cat([torch.cat(pair, -1) for pair in film(c + k * d)], -1) for k in (-1, 0, 1, 2)]
+        third = at[3] - 3 * at[2] + 3 * at[1] - at[0]
+        second = at[2] - 2 * at[1] + at[0]
+        assert second.abs().max() > 1e-2
+        assert (third.abs().max() < 1e-11) == quadratic, float(third.abs().max())
+    with pytest.raises(ValueError, match="film_hidden"):
+        FiLM(3, [8], film_hidden=-1)
+
+
+@pytest.mark.parametrize("config", [{}, {"film_mode": "layer"}, {"potential_film": False}, {"shared": True},
+                                    {"film_hidden": 0}])
 def test_chunk_conditioning_equals_per_row_conditioning(config, rng):
     """Training chunks share their parameters: FiLM once per chunk (``chunks=C``) gives the per-row
     result, values and parameter gradients (float64); parameters that vary inside a chunk are not

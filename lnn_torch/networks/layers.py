@@ -54,21 +54,41 @@ def _act(name: str):
 ACTIVATIONS = ("softplus", "tanh", "sigmoid", "isru")
 
 
+def quadratic_features(cond: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+    """``[c, c_i c_j for (i, j) in zip(rows, cols)]`` of ``cond (B, n)``: ``(B, n + len(rows))``."""
+    return torch.cat([cond, cond[..., rows] * cond[..., cols]], -1)
+
+
 class FiLM(nn.Module):
     """Feature-wise linear modulation from a conditioning vector (normalised physical parameters).
 
     ``mode="neuron"`` gives a (gamma, beta) pair per hidden neuron of each layer; ``mode="layer"``
     one scalar pair per layer (the reference design). Initialised to the identity (gamma=1, beta=0).
+
+    ``film_hidden``: the width of the one hidden (SiLU) layer of the network from the parameters to the
+    pairs; 0: no hidden layer, each gamma and beta a quadratic polynomial of the parameters (a linear
+    map of ``[c, c_i c_j for i <= j]``, ``quadratic_features``). A network of the parameters can tell
+    every training system from the next (each trajectory's parameters are its own) and so fit each
+    one's samples on its own; a polynomial cannot, and it is the form physics takes where parameters
+    enter linearly (a payload's mass and first moment enter ``T`` and ``V`` linearly).
     """
 
     def __init__(self, cond_dim: int, hidden_dims: list[int], mode: str = "neuron", film_hidden: int = 16) -> None:
         super().__init__()
         if mode not in ("neuron", "layer"):
             raise ValueError(f"FiLM mode must be 'neuron' or 'layer', got '{mode}'")
+        if film_hidden < 0:
+            raise ValueError(f"film_hidden must be >= 0 (0: quadratic in the parameters), got {film_hidden}")
         self.mode = mode
         self.sizes = [h if mode == "neuron" else 1 for h in hidden_dims]
-        self.net = nn.Sequential(nn.Linear(cond_dim, film_hidden), nn.SiLU(),
-                                 nn.Linear(film_hidden, 2 * sum(self.sizes)))
+        if film_hidden:
+            self.net = nn.Sequential(nn.Linear(cond_dim, film_hidden), nn.SiLU(),
+                                     nn.Linear(film_hidden, 2 * sum(self.sizes)))
+        else:
+            self.net = nn.Sequential(nn.Linear(cond_dim + cond_dim * (cond_dim + 1) // 2, 2 * sum(self.sizes)))
+            rows, cols = torch.triu_indices(cond_dim, cond_dim)
+            self.register_buffer("pair_rows", rows, persistent=False)
+            self.register_buffer("pair_cols", cols, persistent=False)
         # identity at initialisation (gamma = 1 + 0, beta = 0); gamma is parametrised around 1 so that
         # weight decay pulls FiLM towards the identity, not towards gamma = 0
         nn.init.zeros_(self.net[-1].weight)
@@ -85,11 +105,16 @@ class FiLM(nn.Module):
         form needs (``gamma tanh(z) + beta = 2 gamma s + beta - gamma`` with ``s = sigmoid(2 z)``);
         the map is applied to the output layer's weights, not to the ``(B, size)`` outputs.
         """
-        first, act, last = self.net
+        last = self.net[-1]
         weight, bias = last.weight, last.bias + self.gamma_offset.to(last.bias.dtype)
         if sigmoid_form:
             weight, bias = sigmoid_form_film(weight, bias, self.sigmoid_map)
-        out = affine(act(affine(cond, first.weight, first.bias)), weight, bias)  # (B, 2 sum(sizes)): [gammas | betas]
+        if len(self.net) == 1:
+            hidden = quadratic_features(cond, self.pair_rows, self.pair_cols)
+        else:
+            first, act, _ = self.net
+            hidden = act(affine(cond, first.weight, first.bias))
+        out = affine(hidden, weight, bias)  # (B, 2 sum(sizes)): [gammas | betas]
         parts = out.split(self.sizes + self.sizes, dim=-1)  # ONE split: its backward is one cat
         return list(zip(parts[: len(self.sizes)], parts[len(self.sizes):], strict=True))
 

@@ -25,8 +25,15 @@ ACTIVATIONS = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": F.softp
 
 def film_pairs(film, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """FiLM pairs ``[(gamma, beta), ...]`` of a ``FiLM`` module, each ``(B, size)``."""
-    first, _, last = film.net
-    out = F.linear(F.silu(F.linear(cond, first.weight, first.bias)), last.weight, last.bias)
+    last = film.net[-1]
+    if len(film.net) == 1:  # quadratic in the parameters
+        n = cond.shape[-1]
+        pairs = [cond[..., i] * cond[..., j] for i in range(n) for j in range(i, n)]
+        hidden = torch.cat([cond, torch.stack(pairs, -1)], -1)
+    else:
+        first = film.net[0]
+        hidden = F.silu(F.linear(cond, first.weight, first.bias))
+    out = F.linear(hidden, last.weight, last.bias)
     n = sum(film.sizes)
     g, beta = out[..., :n], out[..., n:]
     gammas, betas = (1 + g).split(film.sizes, -1), beta.split(film.sizes, -1)

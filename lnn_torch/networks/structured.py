@@ -78,7 +78,8 @@ class StructuredLagrangian(DynamicsModel):
         hidden_dims, activation, film_mode, film_hidden, diag_shift, potential_film: defaults of the
             network parts (each part's own options override them): hidden widths (default 64 x 64 for
             ``film_lnn``: the knee of the cost-accuracy front), ``tanh``/``softplus``/``sigmoid``/
-            ``isru``, FiLM per ``neuron`` or per ``layer``, the FiLM networks' width, the shift of the
+            ``isru``, FiLM per ``neuron`` or per ``layer``, the FiLM networks' width (0: no hidden layer,
+            FiLM quadratic in the parameters; ``lnn_torch.networks.layers.FiLM``), the shift of the
             Cholesky diagonal's softplus, FiLM on the potential MLP too.
         eps: ``M = F F^T + eps I``.
         mass_invariant: the Cholesky MLP's ``mass_invariant`` (coordinates the mass matrix does not
