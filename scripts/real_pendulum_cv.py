@@ -49,6 +49,10 @@ SETTINGS = {
     "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
     "rigid chain + its gravity + static friction (the configuration)": {**CHAIN, "potential": "chain",
                                                                         "dissipation": "joint+stiction"},
+    "the configuration + force residual (L2 1e-3)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                                                      "residual_force": {"weight": 1e-3}},
+    "the configuration + force residual (L2 1e-2)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                                                      "residual_force": {"weight": 1e-2}},
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }

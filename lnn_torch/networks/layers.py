@@ -59,6 +59,21 @@ def quadratic_features(cond: torch.Tensor, rows: torch.Tensor, cols: torch.Tenso
     return torch.cat([cond, cond[..., rows] * cond[..., cols]], -1)
 
 
+class QuadraticFeatures(nn.Module):
+    """``c -> [c, c_i c_j for i <= j]`` (``(B, n) -> (B, size)``): a linear layer after it is a quadratic
+    polynomial of ``c``."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.size = n + n * (n + 1) // 2
+        rows, cols = torch.triu_indices(n, n)
+        self.register_buffer("rows", rows, persistent=False)
+        self.register_buffer("cols", cols, persistent=False)
+
+    def forward(self, cond: torch.Tensor) -> torch.Tensor:
+        return quadratic_features(cond, self.rows, self.cols)
+
+
 class FiLM(nn.Module):
     """Feature-wise linear modulation from a conditioning vector (normalised physical parameters).
 

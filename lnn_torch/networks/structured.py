@@ -3,7 +3,7 @@
 
 ``M = F F^T + eps I`` with ``F = [F_1 | F_2 | ...]`` the columns of the model's kinetic parts and ``V``
 the sum of its potential parts (``lnn_torch.networks.parts``): the Cholesky MLP, the rigid planar
-chain, a sum of the two; the potential MLP, the harmonic series, the chain's gravity, sums; or one
+chain, a sum of the two; the potential MLP, the harmonic or product series, the chain's gravity, sums; or one
 shared network for both. ``film_lnn`` conditions the networks on the parameters by FiLM; ``delan``
 (Deep Lagrangian Networks, Lutter et al.) concatenates the parameters to the inputs: the same
 composition with other conditioning.
@@ -68,7 +68,9 @@ class StructuredLagrangian(DynamicsModel):
             (``lnn_torch.networks.parts``).
         potential: the potential parts: ``mlp`` (default), ``harmonic`` (``V = sum_k c_k(theta)
             phi_k(q)``, linear in the first-harmonic features of the angles: the exact form of a rigid
-            chain's gravity), ``chain`` (gravity ``g = 9.81 m/s^2`` on the rigid chain's own masses: no
+            chain's gravity), ``products`` (linear in the products of the joints' ``(1, cos, sin)``: the
+            exact form of a spatial serial arm's gravity with a payload; option ``skip``, e.g. ``[0]`` for
+            a vertical first axis), ``chain`` (gravity ``g = 9.81 m/s^2`` on the rigid chain's own masses: no
             parameter of its own, it pins the chain's lengths to metres; needs the kinetic part
             ``chain``), or a sum (``[harmonic, mlp]``, ``[chain, harmonic]``: beside the chain's
             gravity the harmonic series is a residual that decays under weight decay).

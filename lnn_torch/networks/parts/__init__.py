@@ -20,12 +20,14 @@ from .chain import ChainGravity, RigidChain
 from .cholesky import CholeskyMLP
 from .harmonic import HarmonicSeries
 from .potential_mlp import PotentialMLP
+from .products import ProductSeries
 from .shared import SharedMLP
 from .spatial import SpatialChain, SpatialGravity
 
 KINETIC_PARTS: dict[str, type[KineticPart]] = {"chain": RigidChain, "mlp": CholeskyMLP, "spatial": SpatialChain}
 POTENTIAL_PARTS: dict[str, type[PotentialPart]] = {"mlp": PotentialMLP, "harmonic": HarmonicSeries,
-                                                   "chain": ChainGravity, "spatial": SpatialGravity}
+                                                   "chain": ChainGravity, "spatial": SpatialGravity,
+                                                   "products": ProductSeries}
 SHARED_PART = SharedMLP  # both energies from one network
 
 __all__ = ["KINETIC_PARTS", "POTENTIAL_PARTS", "SHARED_PART", "BuildContext", "Part", "KineticPart",
