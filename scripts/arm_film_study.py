@@ -39,7 +39,8 @@ SETTINGS = {
     "4000 trajectories, product-series potential": [*DATA_4000, *STEPS_20K, *NARROW, *PRODUCTS],
     "4000 trajectories, 60,000 steps": [*DATA_4000, *NARROW],
     "4000 trajectories, 128 x 128": [*DATA_4000, *STEPS_20K],
-    "delan, 4000 trajectories": [*DATA_4000, *STEPS_20K, *NARROW, "--model.variant=delan"],
+    "delan, 4000 trajectories": [*DATA_4000, *STEPS_20K, *NARROW, "--model.variant=delan",
+                                 '--model.model_options={"mass_invariant": [0]}'],
     "4000 trajectories, 128 x 128, 60,000 steps (the config)": [*DATA_4000],
 }
 
