@@ -122,26 +122,33 @@ def test_evaluate_a_shipped_model_generates_its_test_split_alone_into_the_cache(
     assert main(args) == 0 and "into the cache" not in capsys.readouterr().out  # read from there afterwards
 
 
+def _arm_errors(name: str, num_trajectories: int, duration: float, stride: int = 1) -> tuple[float, float]:
+    """``(torque nMSE mean over joints, acceleration rel. L2)`` of ``pretrained:NAME`` (float64) on
+    ``num_trajectories`` arm trajectories of ``duration`` s recorded with seed 123 (no shipped model saw
+    it), every ``stride``-th point but the last."""
+    from lnn_torch.data import DatasetSpec, generate_arrays
+
+    model = load_pretrained(name).model.double()
+    arrays = generate_arrays(DatasetSpec(scene="robot_arm", num_trajectories=num_trajectories, duration=duration,
+                                         dt=0.005, seed=123))
+    q, qd, qdd, tau = (torch.from_numpy(arrays[k][:, :-1:stride]).reshape(-1, 7) for k in ("q", "qd", "qdd", "tau"))
+    params = torch.from_numpy(arrays["params"]).repeat_interleave(len(q) // num_trajectories, 0)
+    with torch.no_grad():
+        torques = model.inverse_dynamics_si(q, qd, qdd, params)
+        accelerations = model.forward_dynamics_si(q, qd, params, tau)
+    torque_nmse = ((torques - tau).pow(2).mean(0) / tau.var(0)).mean()
+    return float(torque_nmse), float((accelerations - qdd).norm() / qdd.norm())
+
+
 def test_the_shipped_arm_grey_box_explains_trajectories_of_another_seed():
     """``pretrained:robot_arm_grey_box`` (the Panda's description learned with a payload at the flange):
     on arm trajectories recorded with a seed it never saw, its inverse dynamics gives the recorded torques
     to a normalised MSE below 1e-8 (measured 1.9e-9) and its forward dynamics the engine's accelerations
     within 0.1 % (measured 0.02 %)."""
     pytest.importorskip("mujoco")
-    from lnn_torch.data import DatasetSpec, generate_arrays
-
-    module = load_pretrained("robot_arm_grey_box")
-    arrays = generate_arrays(DatasetSpec(scene="robot_arm", num_trajectories=3, duration=0.5, dt=0.005, seed=123))
-    q, qd, qdd, tau = (torch.from_numpy(arrays[k][:, :-1]).reshape(-1, 7) for k in ("q", "qd", "qdd", "tau"))
-    params = torch.from_numpy(arrays["params"]).repeat_interleave(arrays["q"].shape[1] - 1, 0)
-    model = module.model.double()
-    with torch.no_grad():
-        torques = model.inverse_dynamics_si(q, qd, qdd, params)
-        accelerations = model.forward_dynamics_si(q, qd, params, tau)
-    torque_nmse = ((torques - tau).pow(2).mean(0) / tau.var(0)).mean()
-    acceleration_error = (accelerations - qdd).norm() / qdd.norm()
-    assert torque_nmse < 1e-8, float(torque_nmse)
-    assert acceleration_error < 1e-3, float(acceleration_error)
+    torque_nmse, acceleration_error = _arm_errors("robot_arm_grey_box", 3, 0.5)
+    assert torque_nmse < 1e-8, torque_nmse
+    assert acceleration_error < 1e-3, acceleration_error
 
 
 def test_the_shipped_arm_film_lnn_explains_trajectories_of_another_seed():
@@ -151,18 +158,7 @@ def test_the_shipped_arm_film_lnn_explains_trajectories_of_another_seed():
     ``results/robot_arm/film_lnn``) and its inverse dynamics' torque nMSE below 0.15 % (measured 0.105 %;
     there 0.114 %). An untrained model's acceleration error is about 100 %."""
     pytest.importorskip("mujoco")
-    from lnn_torch.data import DatasetSpec, generate_arrays
-
-    module = load_pretrained("robot_arm_film_lnn")
-    arrays = generate_arrays(DatasetSpec(scene="robot_arm", num_trajectories=30, duration=1.0, dt=0.005, seed=123))
-    q, qd, qdd, tau = (torch.from_numpy(arrays[k][:, :-1:2]).reshape(-1, 7) for k in ("q", "qd", "qdd", "tau"))
-    params = torch.from_numpy(arrays["params"]).repeat_interleave(len(q) // 30, 0)
-    model = module.model.double()
-    with torch.no_grad():
-        torques = model.inverse_dynamics_si(q, qd, qdd, params)
-        accelerations = model.forward_dynamics_si(q, qd, params, tau)
-    torque_nmse = ((torques - tau).pow(2).mean(0) / tau.var(0)).mean()
-    acceleration_error = (accelerations - qdd).norm() / qdd.norm()
-    print(f"film_lnn on seed 123: torque nMSE {float(torque_nmse):.3g}, acc. error {float(acceleration_error):.3g}")
-    assert torque_nmse < 1.5e-3, float(torque_nmse)
-    assert acceleration_error < 0.26, float(acceleration_error)
+    torque_nmse, acceleration_error = _arm_errors("robot_arm_film_lnn", 30, 1.0, stride=2)
+    print(f"film_lnn on seed 123: torque nMSE {torque_nmse:.3g}, acc. error {acceleration_error:.3g}")
+    assert torque_nmse < 1.5e-3, torque_nmse
+    assert acceleration_error < 0.26, acceleration_error
