@@ -233,3 +233,35 @@ class TangentMLP(nn.Module):
                 W = W[:, :num_grad_inputs]
             delta = mm_t(delta * derivs[i], W.t())  # (B, H_in)
         return y, delta
+
+
+class GroupedMLP(nn.Module):
+    """``groups`` independent MLPs ``in_dim -> hidden_dims -> 1`` run as one batched pass: ``(B, groups,
+    in_dim) -> (B, groups)``, group ``g``'s output from its own inputs ``x[:, g]`` alone (a network per
+    joint, e.g. the local force residual). Default PyTorch initialisation per group (uniform in
+    ``+-1/sqrt(fan_in)``)."""
+
+    def __init__(self, groups: int, in_dim: int, hidden_dims: list[int], activation: str = "tanh") -> None:
+        super().__init__()
+        dims = [in_dim, *hidden_dims, 1]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for a, b in zip(dims[:-1], dims[1:], strict=True):
+            bound = 1 / math.sqrt(a)
+            self.weights.append(nn.Parameter(torch.empty(groups, a, b).uniform_(-bound, bound)))
+            self.biases.append(nn.Parameter(torch.empty(groups, 1, b).uniform_(-bound, bound)))
+        self._act, _ = _act(activation)
+
+    @property
+    def out_layer(self) -> tuple[nn.Parameter, nn.Parameter]:
+        """The output layer's ``(weight (groups, h, 1), bias (groups, 1, 1))``."""
+        return self.weights[-1], self.biases[-1]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = x.transpose(0, 1)  # (groups, B, in)
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = torch.baddbmm(b.to(h.dtype), h, w.to(h.dtype))
+            if i < last:
+                h = self._act(h)
+        return h[..., 0].transpose(0, 1)

@@ -22,6 +22,12 @@ training data.
   forward and inverse dynamics and in the power of the model's forces (the power-balance term counts
   its work), never in ``n``, ``g`` or ``Q_f``.
 * Its share of the torques is reported by ``lnn_torch.networks.shares.torque_shares``.
+
+``local: true`` makes it a network per coordinate instead (``layers.GroupedMLP``): ``Q_r,j`` from that
+coordinate's own angle (``sin(k q_j)``, ``cos(k q_j)``, ``k = 1..K``; a non-angle coordinate: ``q_j``),
+its own velocity and the parameters (as inputs, for either conditioning): the form of what a drive adds
+to a joint (friction of any shape in its rate, cogging and a spring in its angle, a sensor's offset),
+and far fewer inputs to overfit short recordings with. It cannot hold a force that couples joints.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from .layers import FiLM, TangentMLP
+from .layers import FiLM, GroupedMLP, TangentMLP
 from .parts.base import film_of
 
 
@@ -48,11 +54,15 @@ class ResidualForce(nn.Module):
         film_hidden: the FiLM network's width.
         harmonics: ``K`` >= 1: the sin/cos of ``k`` times the feature angles for ``k = 1..K`` as inputs.
         num_angles: the feature angles (the first ``2 num_angles`` features are their sin, then cos).
+        local: a network per coordinate of its own angle (or coordinate) and velocity and the
+            parameters (module docstring).
+        angle_idx, linear_idx: the angle and the other coordinates (``local``; the features' order:
+            the ``j``-th feature angle is the ``j``-th angle coordinate, then the non-angle coordinates).
     """
 
     def __init__(self, num_features: int, dof: int, num_params: int, conditioning: str, hidden=(32, 32),
                  weight: float = 1e-3, activation: str = "tanh", film_hidden: int = 16, harmonics: int = 1,
-                 num_angles: int = 0) -> None:
+                 num_angles: int = 0, local: bool = False, angle_idx=(), linear_idx=()) -> None:
         super().__init__()
         if not (isinstance(harmonics, int) and not isinstance(harmonics, bool) and harmonics >= 1):
             raise InputError(f"residual_force: harmonics must be an integer >= 1, got {harmonics!r}")
@@ -62,15 +72,25 @@ class ResidualForce(nn.Module):
             raise InputError(f"residual_force: hidden must be positive widths, got {hidden!r}")
         if not (isinstance(weight, (int, float)) and weight >= 0):
             raise InputError(f"residual_force: weight must be a number >= 0, got {weight!r}")
-        self.dof, self.weight = dof, float(weight)
-        self.use_film = conditioning == "film" and num_params > 0
+        if not isinstance(local, bool):
+            raise InputError(f"residual_force: local must be true or false, got {local!r}")
+        self.dof, self.weight, self.local = dof, float(weight), local
+        self.use_film = conditioning == "film" and num_params > 0 and not local
         extra = 2 * self.num_angles * (self.harmonics - 1)
         self.num_inputs = num_features + extra + dof + (0 if self.use_film else num_params)
-        self.net = TangentMLP(self.num_inputs, hidden, dof, activation)
+        self.film = None
+        if local:
+            self.register_buffer("local_inputs", self._local_columns(num_features, num_params, angle_idx, linear_idx),
+                                 persistent=False)
+            self.net = GroupedMLP(dof, self.local_inputs.shape[1], hidden, activation)
+            out_w, out_b = self.net.out_layer
+        else:
+            self.net = TangentMLP(self.num_inputs, hidden, dof, activation)
+            out_w, out_b = self.net.out.weight, self.net.out.bias
+            self.film = FiLM(num_params, hidden, "neuron", film_hidden) if self.use_film else None
         with torch.no_grad():  # exactly zero at the start
-            self.net.out.weight.zero_()
-            self.net.out.bias.zero_()
-        self.film = FiLM(num_params, hidden, "neuron", film_hidden) if self.use_film else None
+            out_w.zero_()
+            out_b.zero_()
         # SI units, set from the training data (``fit``): each coordinate's rms input force, and the
         # rms of the normalised velocities (which the network reads divided by it)
         self.register_buffer("unit", torch.ones(dof))
@@ -88,14 +108,40 @@ class ResidualForce(nn.Module):
         """``weight`` times the sum of squares of the output layer, or None with weight 0."""
         if not self.weight:
             return None
-        out = self.net.out
-        return self.weight * (out.weight.pow(2).sum() + out.bias.pow(2).sum())
+        w, b = self.net.out_layer if self.local else (self.net.out.weight, self.net.out.bias)
+        return self.weight * (w.pow(2).sum() + b.pow(2).sum())
+
+    def _local_columns(self, num_features: int, num_params: int, angle_idx, linear_idx) -> torch.Tensor:
+        """``(dof, width)``: the columns of ``[features with harmonics, velocities, parameters, 0]`` each
+        coordinate's network reads (padded with the zero column)."""
+        angle_idx, linear_idx = [int(i) for i in angle_idx], [int(i) for i in linear_idx]
+        if sorted(angle_idx + linear_idx) != list(range(self.dof)):
+            raise InputError(f"residual_force: local needs the angle and the other coordinates of all {self.dof}")
+        na, K = self.num_angles, self.harmonics
+        n_ext = num_features + 2 * na * (K - 1)
+        params = list(range(n_ext + self.dof, n_ext + self.dof + num_params))
+        zero = n_ext + self.dof + num_params
+        rows = []
+        for i in range(self.dof):
+            if i in angle_idx:
+                j = angle_idx.index(i)
+                own = [j, na + j] + [num_features + 2 * na * (k - 2) + c * na + j for k in range(2, K + 1)
+                                     for c in (0, 1)]
+            else:
+                own = [2 * na + linear_idx.index(i)]
+            rows.append(own + [n_ext + i] + params)
+        width = max(len(r) for r in rows)
+        return torch.tensor([r + [zero] * (width - len(r)) for r in rows], dtype=torch.long)
 
     def forward(self, features: torch.Tensor, qd_norm: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
         """``Q_r (B, dof)`` in SI from the model's features ``(B, F)``, normalised velocities ``(B, dof)``
         and normalised parameters ``(B, P)`` (or ``(1, P)``)."""
         v = qd_norm / self.velocity_rms.to(qd_norm.dtype)
         features = self._harmonics(features)
+        if self.local:
+            x = torch.cat([features, v, params_norm.expand(features.shape[0], -1),
+                           features.new_zeros(features.shape[0], 1)], -1)
+            return self.net(x[:, self.local_inputs]) * self.unit.to(x.dtype)
         if self.use_film:
             x = torch.cat([features, v], -1)
             film = film_of(self.film, self.net, params_norm.expand(x.shape[0], -1), None)

@@ -41,7 +41,7 @@ from .residual_force import ResidualForce
 
 # the options of ``residual_force`` (``ResidualForce``) and their defaults
 RESIDUAL_FORCE_OPTIONS = {"hidden": [32, 32], "weight": 1e-3, "activation": "tanh", "film_hidden": 16,
-                          "harmonics": 1}
+                          "harmonics": 1, "local": False}
 # options of the model that are defaults for its parts (a part's own options override them)
 _PART_DEFAULTS = ("hidden_dims", "activation", "film_mode", "film_hidden", "diag_shift", "potential_film")
 
@@ -94,7 +94,8 @@ class StructuredLagrangian(DynamicsModel):
         residual_force: None (default: none) or the options of a force residual ``Q_r`` (``true`` or ``{}``:
             the defaults): ``hidden`` widths ([32, 32]), ``weight`` of its L2 penalty (1e-3), ``activation``
             (tanh), ``film_hidden`` (16), ``harmonics`` (1: sin/cos of the angles; K: of k times them, k <=
-            K); FiLM on the parameters for ``film_lnn``, the parameters as inputs for ``delan``
+            K), ``local`` (false; true: a network per coordinate of its own angle and velocity); FiLM on the
+            parameters for ``film_lnn``, the parameters as inputs for ``delan`` and ``local``
             (``lnn_torch.networks.residual_force``). Needs a scene with forces.
 
     Options given with a value other than their default that no part of the model takes: the
@@ -179,7 +180,9 @@ class StructuredLagrangian(DynamicsModel):
         opts = {**RESIDUAL_FORCE_OPTIONS, **opts}
         self.forces.attach_residual(ResidualForce(self.num_features, self.scene.dof, self.scene.num_params,
                                                   "film" if self.conditioning == "film" else "concat", **opts,
-                                                  num_angles=int(self.angle_features.sel_angle.shape[1])))
+                                                  num_angles=int(self.angle_features.sel_angle.shape[1]),
+                                                  angle_idx=self.angle_features.angle_idx.tolist(),
+                                                  linear_idx=self.angle_features.linear_idx.tolist()))
 
     def _part_specs(self, kinetic, potential, given: dict) -> tuple[dict, dict]:
         """``{name: options}`` of the kinetic and the potential parts, with the model-level options that
