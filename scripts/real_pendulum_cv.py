@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -53,6 +54,12 @@ SETTINGS = {
                                                       "residual_force": {"weight": 1e-3}},
     "the configuration + force residual (L2 1e-2)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
                                                       "residual_force": {"weight": 1e-2}},
+    "the configuration + local force residual (L2 1e-3)": {
+        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-3}},
+    "the configuration + local force residual (L2 1e-2)": {
+        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-2}},
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }
@@ -191,7 +198,7 @@ def main() -> None:
     previous = out / "cross_validation.json"
     if args.add and previous.exists():  # the other settings' earlier results, in SETTINGS order
         old = json.loads(previous.read_text())
-        if old.get("config") != config or old["results"][LAB] != table[LAB]:
+        if old.get("config") != config or not _close(old["results"][LAB], table[LAB]):
             raise SystemExit(f"{previous} was made with other folds or another config: run without --add")
         order = [LAB] + [s for s in SETTINGS if s in old["settings"] or s in args.settings]
         settings = {**old["settings"], **result["settings"]}
@@ -203,6 +210,13 @@ def main() -> None:
     (out / "cross_validation.json").write_text(json.dumps(result, indent=1))
     write_report(result, out)
     wrote(out / "cross_validation.json", out / "cross_validation.md", written)
+
+
+def _close(a, b, rel: float = 1e-9) -> bool:
+    """Whether two results (nested dicts of numbers) are the same up to the last bits of their floats."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k], rel) for k in a)
+    return isinstance(a, (int, float)) and isinstance(b, (int, float)) and math.isclose(a, b, rel_tol=rel)
 
 
 def write_report(result: dict, out: Path, save: bool = True) -> None:

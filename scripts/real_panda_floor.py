@@ -1,0 +1,174 @@
+"""What is left to learn on the real Panda: the grey box's held-out torque error beside the part of the
+measured torque no model of the filtered state can predict, and what the state explains of the rest.
+
+Three measurements on the recording's windows (``configs/import/real_panda.yaml``: training 0.5-8.0 s,
+validation 8.0-10.5 s, held out 10.5-13.8 s), with a fitted grey box (``lnn-torch fit -c
+configs/real_panda.yaml``):
+
+1. **The torque above the targets' band**: the RMS per joint of the measured torque minus its own
+   zero-phase Butterworth low-pass at the targets' cutoff and order (10 Hz, 4th order in the config). A
+   model reads velocities and accelerations filtered at that cutoff, so what the torque holds above
+   it is error for every model unless it is motion the filter removed; item 2 tests that.
+2. **The targets' cutoff**: the same fitted grey box judged with targets filtered at other cutoffs
+   (nothing refitted): if the torque above 10 Hz were motion, higher cutoffs would lower the error.
+3. **What the state explains**: per joint, ridge regression of the grey box's torque error on features
+   of the state (the joint's own friction shapes, its load, its angle's harmonics, its acceleration;
+   every joint's accelerations, velocities, angles), fitted on the training window, the ridge weight
+   chosen on the validation window; the held-out error after the correction. A feature set that lowers
+   it is what a residual of those inputs could learn from this recording; one that raises it is what a
+   residual would overfit.
+
+    python scripts/real_panda_floor.py runs/real_panda/grey_box_vco/lightning_logs/version_0/checkpoints/last.ckpt \\
+        -o results/real_panda
+
+Writes ``floor.md`` and ``floor.json`` to ``--output-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from _cli import HelpFormatter, add_output_dir, wrote
+
+FEATURES = {
+    "its own friction shapes (tanh(v/0.02), v, tanh(v/0.2), v abs(v))": ("fric",),
+    "+ its load (abs of its gravity and of its torque, times tanh(v/0.02))": ("fric", "load"),
+    "+ its angle's harmonics (k = 1-3)": ("fric", "pos"),
+    "+ its acceleration": ("fric", "acc"),
+    "+ every joint's acceleration": ("fric", "all_acc"),
+    "+ every joint's velocity shapes": ("fric", "all_v"),
+    "+ every joint's angle (sin, cos)": ("fric", "all_q"),
+    "all of the above": ("fric", "load", "pos", "acc", "all_acc", "all_v", "all_q"),
+}
+RIDGE = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)  # times the number of rows, on standardised features
+
+
+def features(d: dict, j: int, kinds) -> torch.Tensor:
+    """The columns (a constant first) of joint ``j``'s regression from the split's state ``d``."""
+    q, v, a = d["q"][:, j], d["qd"][:, j], d["qdd"][:, j]
+    cols = [torch.ones_like(v)]
+    if "fric" in kinds:
+        cols += [torch.tanh(v / 0.02), v, torch.tanh(v / 0.2), v * v.abs()]
+    if "load" in kinds:
+        cols += [d["g"][:, j].abs() * torch.tanh(v / 0.02), d["pred"][:, j].abs() * torch.tanh(v / 0.02)]
+    if "pos" in kinds:
+        cols += [f(k * q) for k in (1, 2, 3) for f in (torch.sin, torch.cos)]
+    if "acc" in kinds:
+        cols += [a]
+    if "all_acc" in kinds:
+        cols += list(d["qdd"].T)
+    if "all_v" in kinds:
+        cols += [*torch.tanh(d["qd"].T / 0.02), *d["qd"].T]
+    if "all_q" in kinds:
+        cols += [f(d["q"][:, i]) for i in range(d["q"].shape[1]) for f in (torch.sin, torch.cos)]
+    return torch.stack(cols, -1)
+
+
+def ridge_row(splits: dict, kinds) -> dict:
+    """Per joint: the ridge weight chosen on validation and the held-out RMS after the correction."""
+    test, val, weights = [], [], []
+    for j in range(splits["train"]["q"].shape[1]):
+        X, y = features(splits["train"], j, kinds), splits["train"]["r"][:, j]
+        mu, sd = X.mean(0), X.std(0).clamp_min(1e-12)
+        mu[0], sd[0] = 0.0, 1.0
+        Xn = (X - mu) / sd
+        best = None
+        for lam in RIDGE:
+            w = torch.linalg.solve(Xn.T @ Xn + lam * len(y) * torch.eye(X.shape[1], dtype=X.dtype), Xn.T @ y)
+            errs = {s: float((splits[s]["r"][:, j] - ((features(splits[s], j, kinds) - mu) / sd) @ w).pow(2).mean()
+                             .sqrt()) for s in ("val", "test")}
+            if best is None or errs["val"] < best[1]["val"]:
+                best = (lam, errs)
+        weights.append(best[0])
+        val.append(best[1]["val"])
+        test.append(best[1]["test"])
+    return {"test": test, "test_mean": float(np.mean(test)), "val_mean": float(np.mean(val)), "ridge": weights}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("checkpoint", help="a grey box fitted on the imported recording")
+    ap.add_argument("--data", default="data/real_panda.h5", help="the imported recording")
+    ap.add_argument("--cutoffs", type=float, nargs="+", default=[5.0, 10.0, 15.0, 20.0, 30.0],
+                    help="the targets' cutoffs to judge the grey box with (Hz)")
+    add_output_dir(ap, "results/real_panda", "the folder of floor.md and floor.json")
+    args = ap.parse_args()
+    from scipy.signal import butter, sosfiltfilt
+
+    from lnn_torch.arm_identification import points
+    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.data import TrajectoryDataModule
+
+    torch.set_grad_enabled(False)
+    model = load_model(args.checkpoint).model.double()
+    targets = data_hparams(args.checkpoint)["targets"]
+    dm = TrajectoryDataModule(path=args.data, targets=targets)
+    splits = {}
+    for s in ("train", "val", "test"):
+        q, qd, qdd, tau, p = points(dm.trajectories(s))
+        pred = model.inverse_dynamics_si(q, qd, qdd, p)
+        splits[s] = {"q": q, "qd": qd, "qdd": qdd, "tau": tau, "pred": pred, "g": model.gravity_si(q, p),
+                     "r": tau - pred}
+    joints = splits["test"]["q"].shape[1]
+    grey = splits["test"]["r"].pow(2).mean(0).sqrt().tolist()
+    # 1. the measured torque above the targets' band, on the held-out window
+    test = dm.trajectories("test")
+    sos = butter(int(targets["order"]), float(targets["cutoff"]), fs=1.0 / dm.dt, output="sos")
+    above = []
+    for j in range(len(test)):
+        n = test.num_points if test.lengths is None else int(test.lengths[j])
+        tau = test.tau[j, :n].double().numpy()
+        above.append(tau - sosfiltfilt(sos, tau, axis=0))
+    above = np.sqrt(np.mean(np.concatenate(above) ** 2, 0)).tolist()
+    # 2. the targets' cutoff
+    cutoffs = {}
+    for cut in args.cutoffs:
+        other = TrajectoryDataModule(path=args.data, targets={**targets, "cutoff": cut})
+        q, qd, qdd, tau, p = points(other.trajectories("test"))
+        cutoffs[cut] = (tau - model.inverse_dynamics_si(q, qd, qdd, p)).pow(2).mean(0).sqrt().tolist()
+    # 3. what the state explains
+    ridge = {name: ridge_row(splits, kinds) for name, kinds in FEATURES.items()}
+    result = {"checkpoint": args.checkpoint, "targets": targets, "grey_box_test": grey, "above_cutoff": above,
+              "cutoffs": {str(k): v for k, v in cutoffs.items()}, "ridge": ridge}
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "floor.json").write_text(json.dumps(result, indent=1) + "\n")
+    (out / "floor.md").write_text(markdown(result, joints))
+    print(markdown(result, joints))
+    wrote(out / "floor.md", out / "floor.json")
+
+
+def _cells(values) -> str:
+    return " | ".join(f"{v:.3f}" for v in values) + f" | **{np.mean(values):.3f}**"
+
+
+def _head(joints: int, extra: tuple[str, ...] = ()) -> str:
+    names = [f"joint{j + 1}" for j in range(joints)] + ["mean", *extra]
+    return "| | " + " | ".join(names) + " |\n|---" + "|---" * len(names) + "|"
+
+
+def markdown(r: dict, joints: int) -> str:
+    t = r["targets"]
+    lines = ["# The real Panda: what is left to learn", "",
+             "Held-out window 10.5-13.8 s, N m RMS per joint (`python scripts/real_panda_floor.py CHECKPOINT`; "
+             f"the grey box `{r['checkpoint']}`; targets: {t['method']}, {t['cutoff']:g} Hz, order {t['order']}).",
+             "", _head(joints),
+             f"| the grey box's torque error | {_cells(r['grey_box_test'])} |",
+             f"| the measured torque above {t['cutoff']:g} Hz (its own low-pass removed) | "
+             f"{_cells(r['above_cutoff'])} |",
+             "", "The same grey box (nothing refitted) judged with targets filtered at other cutoffs:", "",
+             _head(joints)]
+    lines += [f"| {k} Hz | {_cells(v)} |" for k, v in r["cutoffs"].items()]
+    lines += ["", "The grey box's error after a ridge correction on features of the state, fitted on the training "
+              "window, its weight chosen on the validation window (validation mean in the last column):", "",
+              _head(joints, ("validation",))]
+    lines += [f"| {name} | {_cells(row['test'])} | {row['val_mean']:.3f} |" for name, row in r["ridge"].items()]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()
