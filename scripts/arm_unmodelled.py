@@ -2,10 +2,12 @@
 ``unmodelled``: Stribeck and load-dependent Coulomb friction, a nonlinear spring on joints 1-2, motor
 cogging, a torque-sensor offset; ``lnn_torch.robots.unmodelled``), the truth known: the grey box of the
 description (``kinetic: {spatial: {}}``, ``potential: {spatial: {}}``, learned joint friction) against
-the grey box with residuals beside it (a Cholesky MLP, a potential MLP and a force residual ``Q_r``,
-each starting at zero, FiLM on the payload; ``residual_force``), trained alike, the residual's weight
-chosen by the validation split's torque error (the grey box alone among the candidates: where no
-residual pays, the grey box is the answer and the report says so).
+the grey box with residuals beside it (``--residuals``: ``parts``, a Cholesky MLP, a potential MLP and a
+force residual ``Q_r`` of the whole state, each starting at zero, FiLM on the payload; ``alone``, that
+force residual alone; ``local``, a force network per joint of its own angle, velocity and the payload;
+``residual_force``), trained alike, the residual and its weight chosen by the validation split's
+torque error (the grey box alone among the candidates: where no residual pays, the grey box is the
+answer and the report says so).
 
 Reported on the test split: the inverse-dynamics torque error (normalised MSE per joint, mean in
 bold), open-loop rollouts driven by the recorded torques (median time within 0.1 rad); each effect's
@@ -17,8 +19,8 @@ description (the engine's arm without the effects, nothing learned) is the first
 every effect exactly.
 
     python scripts/arm_unmodelled.py -o /tmp/arm_unmodelled            # small: 200 x 2 s, 3,000 steps each
-    python scripts/arm_unmodelled.py --trajectories 1000 --duration 3 --steps 20000 --weights 1e-4 1e-3 1e-2 \\
-        -o results/robot_arm/unmodelled                                  # the full setting
+    python scripts/arm_unmodelled.py --harmonics 6 --trajectories 400 --steps 8000 --residuals parts local \\
+        -o results/robot_arm/unmodelled                                  # the report
 
 Writes ``README.md`` (the tables) and ``result.json`` to ``--output-dir``; the dataset goes to ``--data``
 (default ``data/robot_arm_unmodelled_<N>x<duration>s.h5``, generated if absent).
@@ -38,13 +40,17 @@ from _cli import ROOT, HelpFormatter, add_output_dir, wrote
 
 EFFECTS = {"friction": {}, "spring": {}, "cogging": {}, "sensor_offset": {}}
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
+# the residuals beside the grey box (--residuals) and their rows' names
+KINDS = {"parts": "residual", "alone": "residual alone", "local": "local residual"}
 
 
-def residual_options(weight: float, hidden: list[int], parts: bool, harmonics: int) -> dict:
-    """The grey box with its residuals: the force residual and (``parts``) the kinetic and potential MLPs."""
+def residual_options(weight: float, hidden: list[int], parts: bool, harmonics: int, local: bool = False) -> dict:
+    """The grey box with its residuals: the force residual (``local``: a network per joint) and (``parts``)
+    the kinetic and potential MLPs."""
     parts_spec = ({"kinetic": {"spatial": {}, "mlp": {}}, "potential": {"spatial": {}, "mlp": {}}} if parts
                   else dict(GREY_BOX))
-    return {**parts_spec, "residual_force": {"hidden": list(hidden), "weight": weight, "harmonics": harmonics}}
+    force = {"hidden": list(hidden), "weight": weight, "harmonics": harmonics, **({"local": True} if local else {})}
+    return {**parts_spec, "residual_force": force}
 
 
 # ---------------------------------------------------------------------------- training
@@ -215,8 +221,13 @@ def main() -> None:
     ap.add_argument("--hidden", type=int, nargs="+", default=[64, 64], help="the force residual's hidden widths")
     ap.add_argument("--harmonics", type=int, default=1,
                     help="the force residual reads sin/cos of k times the angles, k <= this")
-    ap.add_argument("--no-residual-parts", action="store_true",
-                    help="the force residual alone beside the grey box (no kinetic and potential MLPs)")
+    ap.add_argument("--residuals", nargs="+", choices=list(KINDS), default=["parts"],
+                    help="the residuals beside the grey box, each kind a candidate per weight: parts (a force "
+                         "residual of the whole state and the kinetic and potential MLPs), alone (that force "
+                         "residual alone), local (a force network per joint of its own angle, velocity and the "
+                         "payload)")
+    ap.add_argument("--no-residual-parts", action="store_const", const=["alone"], dest="residuals",
+                    help=argparse.SUPPRESS)  # the old spelling of --residuals alone
     ap.add_argument("--horizon", type=float, default=None, help="rollout horizon (s; default: --duration)")
     ap.add_argument("--stride", type=int, default=5, help="every stride-th point for the torque errors")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
@@ -247,9 +258,9 @@ def main() -> None:
 
     rows = {"description (engine, no effects, nothing learned)": description_row(system, splits["test"], test, args)}
     candidates = [("grey box", dict(GREY_BOX))]
-    parts = not args.no_residual_parts
-    candidates += [(f"grey box + residual (weight {w:g})", residual_options(w, args.hidden, parts, args.harmonics))
-                   for w in args.weights]
+    candidates += [(f"grey box + {KINDS[kind]} (weight {w:g})",
+                    residual_options(w, args.hidden, kind == "parts", args.harmonics, kind == "local"))
+                   for kind in args.residuals for w in args.weights]
     chosen, best = None, float("inf")
     for name, options in candidates:
         print(f"fitting {name} ({args.steps} steps)", flush=True)
