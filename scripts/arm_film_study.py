@@ -26,9 +26,11 @@ from _cli import HelpFormatter, add_output_dir, wrote
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "robot_arm.yaml"
 STEPS_20K = ["--trainer.max_steps=20000"]
-NARROW = ["--model.hidden_dims=[64,64]"]  # the config's width until now (the config: 128 x 128)
-DATA_1000 = ["--data.path=data/robot_arm.h5", "--data.spec.num_trajectories=1000", *NARROW]  # the config until now
-DATA_4000: list[str] = []  # the config: 4000 trajectories (data/robot_arm_4000.h5)
+STEPS_60K = ["--trainer.max_steps=60000"]  # the config: 100,000
+NARROW = ["--model.hidden_dims=[64,64]"]  # the width before (the config: 128 x 128)
+DATA_1000 = ["--data.path=data/robot_arm.h5", "--data.spec.num_trajectories=1000", *NARROW]  # the config before
+DATA_4000 = ["--data.path=data/robot_arm_4000.h5", "--data.spec.num_trajectories=4000"]
+DATA_12000: list[str] = []  # the config: 12000 trajectories (data/robot_arm_12000.h5)
 PRODUCTS = ['--model.model_options={"mass_invariant": [0], "film_hidden": 32, '
             '"potential": {"products": {"skip": [0], "film_hidden": 0}}}']
 SETTINGS = {
@@ -37,11 +39,13 @@ SETTINGS = {
         *DATA_1000, *STEPS_20K, '--model.model_options={"mass_invariant": [0], "film_hidden": 0}'],
     "4000 trajectories": [*DATA_4000, *STEPS_20K, *NARROW],
     "4000 trajectories, product-series potential": [*DATA_4000, *STEPS_20K, *NARROW, *PRODUCTS],
-    "4000 trajectories, 60,000 steps": [*DATA_4000, *NARROW],
+    "4000 trajectories, 60,000 steps": [*DATA_4000, *STEPS_60K, *NARROW],
     "4000 trajectories, 128 x 128": [*DATA_4000, *STEPS_20K],
     "delan, 4000 trajectories": [*DATA_4000, *STEPS_20K, *NARROW, "--model.variant=delan",
                                  '--model.model_options={"mass_invariant": [0]}'],
-    "4000 trajectories, 128 x 128, 60,000 steps (the config)": [*DATA_4000],
+    "4000 trajectories, 128 x 128, 60,000 steps": [*DATA_4000, *STEPS_60K],
+    "12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K],
+    "12000 trajectories, 128 x 128, 100,000 steps (the config)": [*DATA_12000],
 }
 
 
@@ -111,12 +115,12 @@ def main() -> None:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
-    print("| setting | " + " | ".join(["val. acc. error at 5k / 10k / 15k / 20k / 60k steps", "open loop (s), last"])
-          + " |\n|---|---|---|")
+    head = ["val. acc. error at 5k / 10k / 15k / 20k / 60k / 100k steps", "open loop (s), last"]
+    print("| setting | " + " | ".join(head) + " |\n|---|---|---|")
     for name, r in result.items():
         acc = dict((int(s), v) for s, v in r["curves"].get("val/acc_rel_err", []))
         cells = " / ".join(f"{100 * acc[k - 1]:.1f} %" if k - 1 in acc else "–"
-                           for k in (5000, 10000, 15000, 20000, 60000))
+                           for k in (5000, 10000, 15000, 20000, 60000, 100000))
         div = r["curves"].get("val/divergence_time", [[0, float("nan")]])[-1][1]
         print(f"| {name} | {cells} | {div:.2f} |")
     wrote(out / "curves.json", out / "curves.png")
