@@ -27,12 +27,27 @@ def _fit(model, system, rng, n=64):
 
 
 def _excite(model, seed=0, scale=0.3):
-    """Random weights in the residual's output layer (it starts at zero)."""
+    """Random weights in the residual's output layer (it starts at zero): its weight, then its bias."""
     gen = torch.Generator().manual_seed(seed)
-    out = model.forces.residual.net.out
     with torch.no_grad():
-        out.weight.copy_(torch.randn(out.weight.shape, generator=gen, dtype=out.weight.dtype) * scale)
-        out.bias.copy_(torch.randn(out.bias.shape, generator=gen, dtype=out.bias.dtype) * scale)
+        for p in model.forces.residual.output_layer:
+            p.copy_(torch.randn(p.shape, generator=gen, dtype=p.dtype) * scale)
+
+
+def _train_residual(model, q, qd, qdd, params, extra, steps):
+    """Train the residual alone (the physics frozen) on the model's own torques plus ``extra`` with Adam;
+    returns the mean square torque error before and after."""
+    with torch.no_grad():
+        target = model.inverse_dynamics_si(q, qd, qdd, params) + extra
+    opt = torch.optim.Adam(model.forces.residual.parameters(), lr=1e-2)
+    first = None
+    for _ in range(steps):
+        loss = (model.inverse_dynamics_si(q, qd, qdd, params) - target).pow(2).mean()
+        first = float(loss.detach()) if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return first, float(loss.detach())
 
 
 @pytest.mark.parametrize("variant", ["film_lnn", "delan"])
@@ -134,18 +149,8 @@ def test_the_residual_learns_what_the_physics_cannot(rng):
     model = build_model("film_lnn", ADP, hidden_dims=(16, 16), residual_force={"hidden": [32, 32]}).double()
     q, qd, qdd, params, _ = _fit(model, ADP, rng, n=256)
     extra = 0.3 + 0.2 * torch.sin(3 * q[:, :1]).expand(-1, 2)
-    with torch.no_grad():
-        target = model.inverse_dynamics_si(q, qd, qdd, params) + extra
-    residual = model.forces.residual
-    opt = torch.optim.Adam(residual.parameters(), lr=1e-2)
-    first = None
-    for _ in range(300):
-        loss = (model.inverse_dynamics_si(q, qd, qdd, params) - target).pow(2).mean()
-        first = float(loss.detach()) if first is None else first
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    assert float(loss.detach()) < 1e-3 * first
+    first, last = _train_residual(model, q, qd, qdd, params, extra, 300)
+    assert last < 1e-3 * first
 
 
 def test_torque_shares_report_what_each_residual_carries(rng):
@@ -210,14 +215,6 @@ def test_a_saved_model_with_a_residual_loads_its_units_and_weights(rng):
                                rtol=0, atol=0)
 
 
-def _excite_local(model, seed=0, scale=0.3):
-    """Random weights in a local residual's output layer (it starts at zero)."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.forces.residual.net.out_layer:
-            p.copy_(torch.randn(p.shape, generator=gen, dtype=p.dtype) * scale)
-
-
 def test_a_local_residual_is_a_network_per_joint_of_its_own_angle_velocity_and_the_parameters(rng):
     """``local: true``: ``Q_r,j`` is the ``j``-th network of ``[sin k q_j, cos k q_j (k <= K), qd_j / rms,
     params]`` alone, written out here with plain matrix products per joint; its Jacobians in ``q`` and
@@ -227,7 +224,7 @@ def test_a_local_residual_is_a_network_per_joint_of_its_own_angle_velocity_and_t
                         residual_force={"local": True, "harmonics": 3, "hidden": [8, 8], "weight": 0.01}).double()
     q, qd, qdd, params, tau = _fit(model, ADP, rng)
     assert (model.residual_force_si(q, qd, params) == 0).all() and float(model.regularization().detach()) == 0.0
-    _excite_local(model)
+    _excite(model)
     residual = model.forces.residual
     got = model.residual_force_si(q, qd, params)
     _, qd_n, p_n = model.normalize(q, qd, params)
@@ -263,14 +260,5 @@ def test_a_local_residual_learns_a_joints_cogging_offset_and_stribeck_friction(r
     q, qd, qdd, params, _ = _fit(model, ADP, rng, n=256)
     extra = (torch.tensor([0.3, -0.2], dtype=torch.float64) + 0.2 * torch.sin(6 * q + 1.0)
              + 0.3 * torch.tanh(qd / 0.1) * torch.exp(-(qd / 0.5) ** 2))
-    with torch.no_grad():
-        target = model.inverse_dynamics_si(q, qd, qdd, params) + extra
-    opt = torch.optim.Adam(model.forces.residual.parameters(), lr=1e-2)
-    first = None
-    for _ in range(600):
-        loss = (model.inverse_dynamics_si(q, qd, qdd, params) - target).pow(2).mean()
-        first = float(loss.detach()) if first is None else first
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    assert float(loss.detach()) < 1e-3 * first
+    first, last = _train_residual(model, q, qd, qdd, params, extra, 600)
+    assert last < 1e-3 * first

@@ -83,14 +83,12 @@ class ResidualForce(nn.Module):
             self.register_buffer("local_inputs", self._local_columns(num_features, num_params, angle_idx, linear_idx),
                                  persistent=False)
             self.net = GroupedMLP(dof, self.local_inputs.shape[1], hidden, activation)
-            out_w, out_b = self.net.out_layer
         else:
             self.net = TangentMLP(self.num_inputs, hidden, dof, activation)
-            out_w, out_b = self.net.out.weight, self.net.out.bias
             self.film = FiLM(num_params, hidden, "neuron", film_hidden) if self.use_film else None
         with torch.no_grad():  # exactly zero at the start
-            out_w.zero_()
-            out_b.zero_()
+            for p in self.output_layer:
+                p.zero_()
         # SI units, set from the training data (``fit``): each coordinate's rms input force, and the
         # rms of the normalised velocities (which the network reads divided by it)
         self.register_buffer("unit", torch.ones(dof))
@@ -108,8 +106,13 @@ class ResidualForce(nn.Module):
         """``weight`` times the sum of squares of the output layer, or None with weight 0."""
         if not self.weight:
             return None
-        w, b = self.net.out_layer if self.local else (self.net.out.weight, self.net.out.bias)
+        w, b = self.output_layer
         return self.weight * (w.pow(2).sum() + b.pow(2).sum())
+
+    @property
+    def output_layer(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The output layer's ``(weight, bias)`` (what starts at zero and what the penalty reads)."""
+        return self.net.out_layer if self.local else (self.net.out.weight, self.net.out.bias)
 
     def _local_columns(self, num_features: int, num_params: int, angle_idx, linear_idx) -> torch.Tensor:
         """``(dof, width)``: the columns of ``[features with harmonics, velocities, parameters, 0]`` each
