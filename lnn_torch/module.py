@@ -41,8 +41,8 @@ class LNNModule(L.LightningModule):
             chol^T + eps I``; ``hessian_reg``: regularisation of ``lnn``'s velocity Hessian (0 raises on
             singular Hessians); ``hnn_coordinates``: ``canonical`` (p = dL/dqd) or ``velocity``.
         model_options: further options of the variant (a dict): parts, dissipation, ...
-        lr, lr_min: AdamW learning rate, cosine-annealed to ``lr_min`` over the run (``lnn_torch.optim``).
-        weight_decay: AdamW weight decay of the network weights (physical coefficients are exempt).
+        lr, lr_min, weight_decay: AdamW learning rate, cosine-annealed to ``lr_min`` over the run
+            (``lnn_torch.optim``); weight decay of the network weights (physical coefficients are exempt).
         huber_delta: Huber threshold (normalised units).
         energy_weight: weight of the energy-conservation (with forces: power-balance) term; 0: off.
         acceleration_weight: weight of the acceleration term (0: torques alone, with ``torque_weight``).
@@ -51,30 +51,30 @@ class LNNModule(L.LightningModule):
         loss: ``acceleration`` (Huber on accelerations) or ``trajectory`` (multiple shooting: each chunk
             of ``L`` points rolled out ``L - 1`` steps from its first state with
             ``trajectory_integrator``; position errors over ``(L - 1)^2 dt^2 / 2``; no accelerations).
-        trajectory_integrator, trajectory_velocity_weight: those rollouts' integrator (``rk4``, ...) and the
-            weight of their velocity error, over ``(L - 1) dt``.
-        val_rollouts: validation trajectories rolled out at each validation.
-        val_rollout_seconds: the horizon of validation and test rollouts (s).
-        test_rollouts: test trajectories rolled out by ``test`` (-1: all of the test split).
-        val_threshold: coordinate error (rad or m) that defines the divergence time.
+        trajectory_integrator, trajectory_velocity_weight: their integrator (``rk4``, ...) and the weight of
+            their velocity error, over ``(L - 1) dt``.
+        val_rollouts, val_rollout_seconds, val_threshold: validation trajectories rolled out at each
+            validation; the horizon of validation and test rollouts (s); the coordinate error (rad or m)
+            that defines the divergence time. test_rollouts: those of ``test`` (-1: all).
         figure_every_n_epochs: log figures at every n-th validation and the last (0: never).
-        compile: compile the training pass (``perf.compile_fn``): ``"auto"`` (default) when the run
-            plans at least ``perf.AUTO_COMPILE_TRAIN_STEPS`` steps (``results/compile_rule.md``;
-            ``LNN_TORCH_COMPILE=0``: never), ``True`` always, ``False`` never; a failure warns once
-            and training continues eagerly.
+        compile: compile the training pass (``perf.compile_fn``): ``"auto"`` (default) when the run plans
+            at least ``perf.AUTO_COMPILE_TRAIN_STEPS`` steps (``results/compile_rule.md``; ``LNN_TORCH_COMPILE=0``:
+            never), ``True`` always, ``False`` never; a failure warns once and training goes on eagerly.
+        init_from: a checkpoint or ``pretrained:<name>`` of the same scene, variant and widths whose
+            weights and normaliser start the run (fine-tuning, warm restarts; the schedule starts afresh).
     """
 
     def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
                  hidden_dims: list[int] | None = None, activation: str | None = None, film_mode: str | None = None,
                  potential_film: bool | None = None, eps: float | None = None, lnn_init: bool | None = None,
                  hessian_reg: float | None = None, hnn_coordinates: str | None = None,
-                 model_options: dict | None = None, lr: float = 3e-3,
-                 lr_min: float = 3e-5, weight_decay: float = 0.0, huber_delta: float = 1.0, energy_weight: float = 0.0,
-                 torque_weight: float = 0.0, acceleration_weight: float = 1.0, loss: str = "acceleration",
-                 trajectory_integrator: str = "rk4",
+                 model_options: dict | None = None, lr: float = 3e-3, lr_min: float = 3e-5, weight_decay: float = 0.0,
+                 huber_delta: float = 1.0, energy_weight: float = 0.0, torque_weight: float = 0.0,
+                 acceleration_weight: float = 1.0, loss: str = "acceleration", trajectory_integrator: str = "rk4",
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
-                 val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto") -> None:
+                 val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto",
+                 init_from: str | None = None) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -140,13 +140,14 @@ class LNNModule(L.LightningModule):
         if scene is not None and (scene["name"] != self.system.name or scene["dof"] != self.system.dof):
             raise ValueError(f"the model is for scene '{self.system.name}' but the data hold '{scene['name']}' "
                              "(set model.scene, or let the CLI link it)")
+        if not bool(self.normalizer_fitted) and self.hparams.get("init_from"):
+            ckpt.load_start_weights(self, self.hparams.init_from)  # resuming a run loads its own state after this
         if not bool(self.normalizer_fitted):
             if dm is None or not hasattr(dm, "normalization_data"):
                 raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
             self.model.fit_normalizer(dm.normalization_data())
             self.normalizer_fitted.fill_(True)
-        if dm is not None and hasattr(dm, "dt"):
-            self.data_dt = dm.dt
+        self.data_dt = dm.dt if hasattr(dm, "dt") else self.data_dt
 
     def configure_callbacks(self):
         return [SkipNonFiniteSteps(), HParamsSummary(), EvaluationFigures()]
@@ -155,8 +156,7 @@ class LNNModule(L.LightningModule):
         configure_cpu()  # flush denormals, keep freed tensors in the heap (lnn_torch.perf)
 
     def on_train_epoch_start(self) -> None:
-        dm = getattr(self.trainer, "datamodule", None)
-        if dm is not None and hasattr(dm, "set_epoch"):
+        if hasattr(dm := getattr(self.trainer, "datamodule", None), "set_epoch"):
             dm.set_epoch(self.current_epoch)
 
     def configure_optimizers(self):

@@ -25,6 +25,7 @@ from _cli import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "robot_arm.yaml"
+RUNS = "runs/arm_film_study"
 STEPS_20K = ["--trainer.max_steps=20000"]
 STEPS_60K = ["--trainer.max_steps=60000"]  # the config: 100,000
 NARROW = ["--model.hidden_dims=[64,64]"]  # the width before (the config: 128 x 128)
@@ -33,6 +34,12 @@ DATA_4000 = ["--data.path=data/robot_arm_4000.h5", "--data.spec.num_trajectories
 DATA_12000: list[str] = []  # the config: 12000 trajectories (data/robot_arm_12000.h5)
 PRODUCTS = ['--model.model_options={"mass_invariant": [0], "film_hidden": 32, '
             '"potential": {"products": {"skip": [0], "film_hidden": 0}}}']
+
+
+def slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name).strip("_")[:60]
+
+
 SETTINGS = {
     "1000 trajectories": [*DATA_1000, *STEPS_20K],
     "1000 trajectories, FiLM quadratic in the payload": [
@@ -46,11 +53,12 @@ SETTINGS = {
     "4000 trajectories, 128 x 128, 60,000 steps": [*DATA_4000, *STEPS_60K],
     "12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K],
     "12000 trajectories, 128 x 128, 100,000 steps (the config)": [*DATA_12000],
+    "the config, then a warm restart of 60,000 steps (lr 1e-3 to 1e-5)": [
+        *STEPS_60K, f"--model.init_from={RUNS}/{slug('12000 trajectories, 128 x 128, 100,000 steps (the config)')}"
+        "/lightning_logs/version_0/checkpoints/last.ckpt", "--model.lr=1e-3", "--model.lr_min=1e-5"],
+    "delan, 12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K, "--model.variant=delan",
+                                                           '--model.model_options={"mass_invariant": [0]}'],
 }
-
-
-def slug(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name).strip("_")[:60]
 
 
 def fit(name: str, runs: Path) -> Path:
@@ -82,7 +90,7 @@ def main() -> None:
     ap.add_argument("--settings", nargs="+", default=list(SETTINGS), help="names of SETTINGS to train and compare")
     ap.add_argument("--run", action="append", default=[], metavar="NAME=RUN",
                     help="a setting's existing TensorBoard run (its folder) instead of training it; repeatable")
-    ap.add_argument("--runs", default=str(ROOT / "runs" / "arm_film_study"), help="where the runs go")
+    ap.add_argument("--runs", default=str(ROOT / RUNS), help="where the runs go")
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn"), "the folder of curves.png and curves.json")
     args = ap.parse_args()
     given = dict(item.split("=", 1) for item in args.run)

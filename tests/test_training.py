@@ -263,3 +263,45 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
     q, qd, params = torch.zeros(3, 2) + 0.3, torch.ones(3, 2), torch.tensor([[1.0, 0.6, 1.2, 1.1]]).expand(3, -1)
     with torch.no_grad():
         torch.testing.assert_close(loaded.acceleration(q, qd, params), old.acceleration(q, qd, params))
+
+
+def test_init_from_starts_a_run_from_a_checkpoints_weights_and_normaliser_with_a_fresh_schedule(dataset, tmp_path):
+    """``init_from``: the weights and normaliser of a checkpoint start the run (its normaliser altered
+    here so that a refit on the data would differ), the learning rate starts at ``lr`` again and the
+    weights then train; a checkpoint of other widths or another variant is refused in one line."""
+    from lnn_torch.errors import CheckpointError
+
+    first = LNNModule(val_rollouts=0, hidden_dims=[16, 16], compile=False)
+    trainer = quiet_trainer(tmp_path / "a", max_steps=3, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    trainer.fit(first, make_dm(dataset))
+    first.model.normalizer.time_scale.mul_(2.0)
+    trainer.save_checkpoint(tmp_path / "first.ckpt")
+    start, lrs = {}, []
+
+    class Record(L.Callback):
+        def on_train_start(self, trainer, pl_module):
+            start.update({k: v.clone() for k, v in pl_module.state_dict().items()})
+
+        def on_before_optimizer_step(self, trainer, pl_module, optimizer):
+            lrs.append(optimizer.param_groups[0]["lr"])
+
+    second = LNNModule(val_rollouts=0, hidden_dims=[16, 16], compile=False, lr=1e-3,
+                       init_from=str(tmp_path / "first.ckpt"))
+    trainer = quiet_trainer(tmp_path / "b", max_steps=3, logger=False, enable_checkpointing=False, limit_val_batches=0,
+                            callbacks=[Record()])
+    trainer.fit(second, make_dm(dataset))
+    for name, value in first.state_dict().items():
+        if name != "skipped_steps":
+            torch.testing.assert_close(start[name], value, msg=name)
+    assert lrs[0] == pytest.approx(1e-3) and trainer.global_step == 3
+    torch.testing.assert_close(second.model.normalizer.time_scale, first.model.normalizer.time_scale)
+    moved = [n for n, p in second.named_parameters() if not torch.equal(p, first.state_dict()[n])]
+    assert moved  # and it trained from there
+    for kw, match in (({"hidden_dims": [8, 8]}, "weights do not fit this model"),
+                      ({"hidden_dims": [16, 16], "variant": "delan"},
+                       "its variant is 'film_lnn', this run's is 'delan'")):
+        other = LNNModule(val_rollouts=0, compile=False, init_from=str(tmp_path / "first.ckpt"), **kw)
+        trainer = quiet_trainer(tmp_path / "c", max_steps=1, logger=False, enable_checkpointing=False,
+                                limit_val_batches=0)
+        with pytest.raises(CheckpointError, match=match):
+            trainer.fit(other, make_dm(dataset))
