@@ -155,21 +155,22 @@ def data_hparams(source: str | Path) -> dict:
 
 def load_start_weights(module, source: str | Path) -> None:
     """Start ``module`` (an ``LNNModule`` about to train) from the weights and normaliser of the
-    checkpoint ``source`` (a path or ``pretrained:<name>``) of the same scene, variant and widths:
-    fine-tuning on new data, or a warm restart of the schedule. The optimiser, the learning-rate
-    schedule and the step count start afresh. Anything else is refused in one line."""
+    checkpoint ``source`` (a path or ``pretrained:<name>``) of a model of the same variant and shape
+    (widths, options, degrees of freedom and parameters; the scene may differ: a simulated arm's model
+    fine-tuned on the real arm's recordings): fine-tuning on new data, or a warm restart of the
+    schedule. The optimiser, the learning-rate schedule and the step count start afresh. Anything else
+    is refused in one line."""
     checkpoint = read_checkpoint(source)
     theirs = checkpoint["hyper_parameters"]
-    for key in ("scene", "variant"):
-        if theirs.get(key) != module.hparams.get(key):
-            raise CheckpointError(f"init_from {source}: its {key} is {theirs.get(key)!r}, this run's is "
-                                  f"{module.hparams.get(key)!r}")
+    if theirs.get("variant") != module.hparams.get("variant"):
+        raise CheckpointError(f"init_from {source}: its variant is {theirs.get('variant')!r}, this run's is "
+                              f"{module.hparams.get('variant')!r}")
     state = {k: v for k, v in checkpoint["state_dict"].items() if k != "skipped_steps"}
     try:
         missing, unexpected = module.load_state_dict(state, strict=False)
     except RuntimeError as err:  # a tensor of another shape: other widths or options
-        raise CheckpointError(f"init_from {source}: its weights do not fit this model (other widths or model "
-                              f"options): {str(err).splitlines()[-1].strip()[:160]}") from None
+        raise CheckpointError(f"init_from {source}: its weights do not fit this model (other widths, model "
+                              f"options or degrees of freedom): {str(err).splitlines()[-1].strip()[:160]}") from None
     missing = [k for k in missing if k != "skipped_steps"]
     if missing or unexpected:
         raise CheckpointError(f"init_from {source}: its weights do not fit this model (other model options): "

@@ -60,7 +60,7 @@ class LNNModule(L.LightningModule):
         compile: compile the training pass (``perf.compile_fn``): ``"auto"`` (default) when the run plans
             at least ``perf.AUTO_COMPILE_TRAIN_STEPS`` steps (``results/compile_rule.md``; ``LNN_TORCH_COMPILE=0``:
             never), ``True`` always, ``False`` never; a failure warns once and training goes on eagerly.
-        init_from: a checkpoint or ``pretrained:<name>`` of the same scene, variant and widths whose
+        init_from: a checkpoint or ``pretrained:<name>`` of a model of the same variant and shape whose
             weights and normaliser start the run (fine-tuning, warm restarts; the schedule starts afresh).
     """
 

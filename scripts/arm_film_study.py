@@ -36,6 +36,12 @@ PRODUCTS = ['--model.model_options={"mass_invariant": [0], "film_hidden": 32, '
             '"potential": {"products": {"skip": [0], "film_hidden": 0}}}']
 
 
+# settings that start from another setting's last weights (``--model.init_from``): its steps come first
+WARM = "the config, then a warm restart of 60,000 steps (lr 1e-3 to 1e-5)"
+WARM2 = "the config, then two warm restarts of 60,000 steps (lr 1e-3 to 1e-5)"
+STARTS_AT = {WARM: 100000, WARM2: 160000}
+
+
 def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).strip("_")[:60]
 
@@ -53,9 +59,11 @@ SETTINGS = {
     "4000 trajectories, 128 x 128, 60,000 steps": [*DATA_4000, *STEPS_60K],
     "12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K],
     "12000 trajectories, 128 x 128, 100,000 steps (the config)": [*DATA_12000],
-    "the config, then a warm restart of 60,000 steps (lr 1e-3 to 1e-5)": [
+    WARM: [
         *STEPS_60K, f"--model.init_from={RUNS}/{slug('12000 trajectories, 128 x 128, 100,000 steps (the config)')}"
         "/lightning_logs/version_0/checkpoints/last.ckpt", "--model.lr=1e-3", "--model.lr_min=1e-5"],
+    WARM2: [*STEPS_60K, f"--model.init_from={RUNS}/{slug(WARM)}/lightning_logs/version_0/checkpoints/last.ckpt",
+            "--model.lr=1e-3", "--model.lr_min=1e-5"],
     "delan, 12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K, "--model.variant=delan",
                                                            '--model.model_options={"mass_invariant": [0]}'],
 }
@@ -75,14 +83,15 @@ def fit(name: str, runs: Path) -> Path:
     return run
 
 
-def curves(run: Path) -> dict:
-    """``{tag: [[step, value], ...]}`` of the validation acceleration error and open-loop time."""
+def curves(run: Path, start: int = 0) -> dict:
+    """``{tag: [[step, value], ...]}`` of the validation acceleration error and open-loop time; ``start``:
+    the steps before the run (a run from another's weights)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     acc = EventAccumulator(str(run), size_guidance={"scalars": 0})
     acc.Reload()
     tags = ("val/acc_rel_err", "val/divergence_time", "train/huber", "train/torque")
-    return {t: [[e.step, e.value] for e in acc.Scalars(t)] for t in tags if t in acc.Tags()["scalars"]}
+    return {t: [[e.step + start, e.value] for e in acc.Scalars(t)] for t in tags if t in acc.Tags()["scalars"]}
 
 
 def main() -> None:
@@ -101,7 +110,7 @@ def main() -> None:
     result = {}
     for name in names:
         run = Path(given[name]) if name in given else fit(name, Path(args.runs))
-        result[name] = {"overrides": SETTINGS[name], "curves": curves(run)}
+        result[name] = {"overrides": SETTINGS[name], "curves": curves(run, STARTS_AT.get(name, 0))}
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "curves.json").write_text(json.dumps(result, indent=1))
@@ -112,6 +121,8 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax in axes:
+        ax.set_prop_cycle(color=plt.cm.tab20.colors)  # a colour of its own for each of up to 20 settings
     for name, r in result.items():
         for ax, tag in zip(axes, ("val/acc_rel_err", "val/divergence_time"), strict=True):
             pts = r["curves"].get(tag, [])
@@ -123,12 +134,13 @@ def main() -> None:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
-    head = ["val. acc. error at 5k / 10k / 15k / 20k / 60k / 100k steps", "open loop (s), last"]
+    marks = (5000, 10000, 15000, 20000, 60000, 100000, 160000, 220000)
+    head = [f"val. acc. error at {' / '.join(f'{k // 1000}k' for k in marks)} steps", "open loop (s), last"]
     print("| setting | " + " | ".join(head) + " |\n|---|---|---|")
     for name, r in result.items():
         acc = dict((int(s), v) for s, v in r["curves"].get("val/acc_rel_err", []))
         cells = " / ".join(f"{100 * acc[k - 1]:.1f} %" if k - 1 in acc else "–"
-                           for k in (5000, 10000, 15000, 20000, 60000, 100000))
+                           for k in marks)
         div = r["curves"].get("val/divergence_time", [[0, float("nan")]])[-1][1]
         print(f"| {name} | {cells} | {div:.2f} |")
     wrote(out / "curves.json", out / "curves.png")
