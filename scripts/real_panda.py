@@ -45,6 +45,8 @@ def main() -> None:
     ap.add_argument("--command", action="append", default=[], metavar="LABEL=COMMAND",
                     help="the command that trained a model, for the report's table (repeatable)")
     add_output_dir(ap, "real_panda", "the folder of metrics.json, README.md and torques.png")
+    ap.add_argument("--note", default="", help="a paragraph that says what this comparison is, placed first "
+                    "in README.md (the text after it describes the study as configs/real_panda.yaml runs it)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--open-loop", type=float, default=1.0, help="open-loop horizon (s): how long each model, "
                     "driven by the measured torques from a start every 0.25 s of the held-out window, stays "
@@ -91,7 +93,11 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     result["commands"] = dict(item.split("=", 1) for item in args.command)
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
-    (out / "README.md").write_text(README.format(table=report(result), data=args.data, drive=args.drive))
+    text = README.format(table=report(result), data=args.data, drive=args.drive)
+    if args.note:
+        title, rest = text.split("\n\n", 1)
+        text = f"{title}\n\n{args.note}\n\n{rest}"
+    (out / "README.md").write_text(text)
     paths = [out / "metrics.json", out / "README.md"]
     if figure is not None:
         fig = torque_figure(figure)
