@@ -165,13 +165,10 @@ def load_start_weights(module, source: str | Path) -> None:
     if theirs.get("variant") != module.hparams.get("variant"):
         raise CheckpointError(f"init_from {source}: its variant is {theirs.get('variant')!r}, this run's is "
                               f"{module.hparams.get('variant')!r}")
-    state = {k: v for k, v in checkpoint["state_dict"].items() if k != "skipped_steps"}
+    state = {**checkpoint["state_dict"], "skipped_steps": module.skipped_steps}  # this run's own count
     try:
-        missing, unexpected = module.load_state_dict(state, strict=False)
-    except RuntimeError as err:  # a tensor of another shape: other widths or options
+        module.load_state_dict(state)
+    except RuntimeError as err:  # a missing, unexpected or other-shaped tensor: other widths, options or dof
+        detail = " ".join(line.strip() for line in str(err).splitlines()[1:])[:200]
         raise CheckpointError(f"init_from {source}: its weights do not fit this model (other widths, model "
-                              f"options or degrees of freedom): {str(err).splitlines()[-1].strip()[:160]}") from None
-    missing = [k for k in missing if k != "skipped_steps"]
-    if missing or unexpected:
-        raise CheckpointError(f"init_from {source}: its weights do not fit this model (other model options): "
-                              f"missing {missing[:3]}, unexpected {unexpected[:3]}")
+                              f"options or degrees of freedom): {detail}") from None

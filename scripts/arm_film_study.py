@@ -36,6 +36,7 @@ PRODUCTS = ['--model.model_options={"mass_invariant": [0], "film_hidden": 32, '
             '"potential": {"products": {"skip": [0], "film_hidden": 0}}}']
 
 
+THE_CONFIG = "12000 trajectories, 128 x 128, 100,000 steps (the config)"
 # settings that start from another setting's last weights (``--model.init_from``): its steps come first
 WARM = "the config, then a warm restart of 60,000 steps (lr 1e-3 to 1e-5)"
 WARM2 = "the config, then two warm restarts of 60,000 steps (lr 1e-3 to 1e-5)"
@@ -58,10 +59,10 @@ SETTINGS = {
                                  '--model.model_options={"mass_invariant": [0]}'],
     "4000 trajectories, 128 x 128, 60,000 steps": [*DATA_4000, *STEPS_60K],
     "12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K],
-    "12000 trajectories, 128 x 128, 100,000 steps (the config)": [*DATA_12000],
+    THE_CONFIG: [*DATA_12000],
     WARM: [
-        *STEPS_60K, f"--model.init_from={RUNS}/{slug('12000 trajectories, 128 x 128, 100,000 steps (the config)')}"
-        "/lightning_logs/version_0/checkpoints/last.ckpt", "--model.lr=1e-3", "--model.lr_min=1e-5"],
+        *STEPS_60K, f"--model.init_from={RUNS}/{slug(THE_CONFIG)}/lightning_logs/version_0/checkpoints/last.ckpt",
+        "--model.lr=1e-3", "--model.lr_min=1e-5"],
     WARM2: [*STEPS_60K, f"--model.init_from={RUNS}/{slug(WARM)}/lightning_logs/version_0/checkpoints/last.ckpt",
             "--model.lr=1e-3", "--model.lr_min=1e-5"],
     "delan, 12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K, "--model.variant=delan",

@@ -37,11 +37,14 @@ def test_every_shipped_config_fits_with_the_cli(config, tmp_path):
     """fast_dev_run of each config on a tiny dataset of its own scene (generated on the fly; the
     shipped recordings imported with their import config for a config of measured data). In this process
     (``main``): ``test_cli_fit_test_predict`` runs the command as a new process."""
+    import yaml
+
     data = tmp_path / "d.h5"
     if (ROOT / "configs" / "import" / config.name).exists():
         data = _imported(config, tmp_path)
     # a config that starts from a shipped model keeps that model's widths (its weights must fit)
-    narrow = [] if "init_from:" in config.read_text() else ["--model.hidden_dims=[8,8]"]
+    starts_from = (yaml.safe_load(config.read_text()).get("model") or {}).get("init_from")
+    narrow = [] if starts_from else ["--model.hidden_dims=[8,8]"]
     out = cli_in_process("fit", "-c", str(config), f"--data.path={data}", "--data.spec.num_trajectories=10",
                "--data.spec.duration=0.5", *narrow, "--model.val_rollout_seconds=0.1",
                "--trainer.fast_dev_run=true", "--trainer.enable_progress_bar=false",
