@@ -50,6 +50,10 @@ SETTINGS = {
     "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
     "rigid chain + its gravity + static friction (the configuration)": {**CHAIN, "potential": "chain",
                                                                         "dissipation": "joint+stiction"},
+    "the configuration + learned drive gains": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                                                "learn_input_matrix": "gains"},
+    "the configuration + learned input matrix": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                                                 "learn_input_matrix": True},
     "the configuration + force residual (L2 1e-3)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
                                                       "residual_force": {"weight": 1e-3}},
     "the configuration + force residual (L2 1e-2)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
@@ -60,6 +64,14 @@ SETTINGS = {
     "the configuration + local force residual (L2 1e-2)": {
         **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
         "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-2}},
+    "the configuration + force residual (L2 1e-1)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                                                      "residual_force": {"weight": 1e-1}},
+    "the configuration + local force residual (L2 1e-1)": {
+        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-1}},
+    "the configuration + local force residual (L2 1)": {
+        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1.0}},
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }
