@@ -153,22 +153,32 @@ def data_hparams(source: str | Path) -> dict:
     return {}
 
 
-def load_start_weights(module, source: str | Path) -> None:
+RESIDUAL = "model.forces.residual."  # the force residual's weights in an LNNModule's state
+
+
+def load_start_weights(module, source: str | Path) -> bool:
     """Start ``module`` (an ``LNNModule`` about to train) from the weights and normaliser of the
     checkpoint ``source`` (a path or ``pretrained:<name>``) of a model of the same variant and shape
     (widths, options, degrees of freedom and parameters; the scene may differ: a simulated arm's model
     fine-tuned on the real arm's recordings): fine-tuning on new data, or a warm restart of the
-    schedule. The optimiser, the learning-rate schedule and the step count start afresh. Anything else
-    is refused in one line."""
+    schedule. The optimiser, the learning-rate schedule and the step count start afresh. The one
+    difference allowed: ``module`` has a force residual (``residual_force``) and the checkpoint none
+    (a residual beside a fitted model); the residual then starts as built, at zero, and True is
+    returned (its units still to be fitted from the data). Anything else is refused in one line."""
     checkpoint = read_checkpoint(source)
     theirs = checkpoint["hyper_parameters"]
     if theirs.get("variant") != module.hparams.get("variant"):
         raise CheckpointError(f"init_from {source}: its variant is {theirs.get('variant')!r}, this run's is "
                               f"{module.hparams.get('variant')!r}")
     state = {**checkpoint["state_dict"], "skipped_steps": module.skipped_steps}  # this run's own count
+    own = module.state_dict()
+    fresh = any(k.startswith(RESIDUAL) for k in own) and not any(k.startswith(RESIDUAL) for k in state)
+    if fresh:  # their options less the residual must be this run's (the strict load below checks the shapes)
+        state.update({k: v for k, v in own.items() if k.startswith(RESIDUAL)})
     try:
         module.load_state_dict(state)
     except RuntimeError as err:  # a missing, unexpected or other-shaped tensor: other widths, options or dof
         detail = " ".join(line.strip() for line in str(err).splitlines()[1:])[:200]
         raise CheckpointError(f"init_from {source}: its weights do not fit this model (other widths, model "
                               f"options or degrees of freedom): {detail}") from None
+    return fresh

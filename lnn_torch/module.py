@@ -20,7 +20,7 @@ from .losses import acceleration_batch_loss, trajectory_batch_loss
 from .networks import build_model, registry
 from .networks.calls import model_accelerations
 from .networks.capabilities import ENERGY
-from .optim import configure_optimizer, training_progress
+from .optim import configure_optimizer, freeze_all_but, training_progress
 from .perf import configure_cpu
 from .systems import get_system
 from .training_pass import TrainingPass
@@ -61,7 +61,10 @@ class LNNModule(L.LightningModule):
             at least ``perf.AUTO_COMPILE_TRAIN_STEPS`` steps (``results/compile_rule.md``; ``LNN_TORCH_COMPILE=0``:
             never), ``True`` always, ``False`` never; a failure warns once and training goes on eagerly.
         init_from: a checkpoint or ``pretrained:<name>`` of a model of the same variant and shape whose
-            weights and normaliser start the run (fine-tuning, warm restarts; the schedule starts afresh).
+            weights and normaliser start the run (fine-tuning, warm restarts; the schedule starts afresh);
+            or of the same model without this run's force residual, which then starts at zero beside it.
+        train_only: ``"residual_force"``: only the force residual trains, the rest stays as ``init_from``
+            gave it (a residual beside a fitted grey box that cannot move its physics); None: all.
     """
 
     def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
@@ -74,7 +77,7 @@ class LNNModule(L.LightningModule):
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto",
-                 init_from: str | None = None) -> None:
+                 init_from: str | None = None, train_only: str | None = None) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -85,6 +88,7 @@ class LNNModule(L.LightningModule):
         registry.refuse_conflicts(variant, self.system, options, energy_weight, torque_weight, acceleration_weight)
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
+        freeze_all_but(self.model, train_only)
         if loss not in ("acceleration", "trajectory"):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)
@@ -141,7 +145,8 @@ class LNNModule(L.LightningModule):
             raise ValueError(f"the model is for scene '{self.system.name}' but the data hold '{scene['name']}' "
                              "(set model.scene, or let the CLI link it)")
         if not bool(self.normalizer_fitted) and self.hparams.get("init_from"):
-            ckpt.load_start_weights(self, self.hparams.init_from)  # resuming a run loads its own state after this
+            if ckpt.load_start_weights(self, self.hparams.init_from):  # resuming loads its own state after this
+                self.model.fit_residual(dm.normalization_data())  # a new residual: its units from this data
         if not bool(self.normalizer_fitted):
             if dm is None or not hasattr(dm, "normalization_data"):
                 raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
@@ -161,7 +166,8 @@ class LNNModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        return configure_optimizer(self.parameters(), self.model.coefficient_parameters(), lr=hp.lr, lr_min=hp.lr_min,
+        trained = [p for p in self.parameters() if p.requires_grad]  # all but what train_only freezes
+        return configure_optimizer(trained, self.model.coefficient_parameters(), lr=hp.lr, lr_min=hp.lr_min,
                                    weight_decay=hp.weight_decay, progress=lambda s: training_progress(self._trainer, s))
 
     # ------------------------------------------------------------------ training

@@ -1,7 +1,7 @@
 """The optimiser and its schedule: AdamW (the fused kernel where torch has one) with the physical
 coefficients exempt from weight decay, and a cosine learning rate from ``lr`` to ``lr_min`` that ends
 with the run: at its step budget or, under a ``max_time`` (Lightning's ``Timer``), its time budget,
-whichever comes first."""
+whichever comes first. And ``train_only``: which of a model's parameters train at all."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import math
 
 import torch
 
+from .errors import InputError
 from .perf import adamw
 
 
@@ -27,6 +28,23 @@ def training_progress(trainer, step: int) -> float:
             duration = elapsed + cb.time_remaining("train")
             progress = max(progress, elapsed / duration if duration > 0 else 1.0)
     return min(progress, 1.0)
+
+
+TRAINABLE_PARTS = {"residual_force": "forces.residual."}  # train_only: the names of a model's parameters it trains
+
+
+def freeze_all_but(model, part: str | None) -> None:
+    """``train_only``: with ``part`` (a name of ``TRAINABLE_PARTS``) every parameter of ``model`` outside that
+    part stops training (``requires_grad`` False); None leaves all. A model without the part is refused."""
+    if part is None:
+        return
+    if part not in TRAINABLE_PARTS:
+        raise InputError(f"train_only must be one of {', '.join(TRAINABLE_PARTS)} or null, got {part!r}")
+    names = [n for n, _ in model.named_parameters() if n.startswith(TRAINABLE_PARTS[part])]
+    if not names:
+        raise InputError(f"train_only {part}: the model has no {part} (set model_options.{part})")
+    for name, p in model.named_parameters():
+        p.requires_grad_(name.startswith(TRAINABLE_PARTS[part]))
 
 
 def configure_optimizer(parameters, coefficients, *, lr: float, lr_min: float, weight_decay: float,

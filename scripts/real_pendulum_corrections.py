@@ -27,10 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum_cv import SETTINGS  # this folder's cross-validation: its settings name the run folders
+from real_pendulum_cv import CONFIGURATION, SETTINGS  # the cross-validation's settings name its run folders
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGURATION = "rigid chain + its gravity + static friction (the configuration)"
 FEATURES = {
     "an offset": ("offset",),
     "friction shapes (tanh(v/0.02), tanh(v/0.2), v, v abs(v))": ("friction",),

@@ -39,6 +39,7 @@ from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison 
 ROOT = Path(__file__).resolve().parents[1]
 CHAIN = {"kinetic": {"chain": {"links": [[1, 0], [1, 1]]}}}
 DECAY = ["--model.weight_decay=0.1"]  # on network weights and on a residual beside the chain's gravity
+CONFIGURATION = "rigid chain + its gravity + static friction (the configuration)"
 SETTINGS = {
     "MLP potential (the default)": {"model_options": {"mass_invariant": [0]}, "args": DECAY},
     "harmonic potential": {"model_options": {"mass_invariant": [0], "potential": "harmonic"}, "args": DECAY},
@@ -72,6 +73,14 @@ SETTINGS = {
     "the configuration + local force residual (L2 1)": {
         **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
         "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1.0}},
+    "a local force residual (L2 1e-2) alone beside the fitted configuration": {
+        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                          "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-2}},
+        "beside": CONFIGURATION},
+    "a force residual (L2 1e-2) alone beside the fitted configuration": {
+        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
+                          "residual_force": {"weight": 1e-2}},
+        "beside": CONFIGURATION},
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }
@@ -79,7 +88,9 @@ SETTINGS = {
 
 def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
     """A setting's ``model.model_options`` and its other command-line overrides of the config: a setting
-    is either the options themselves or ``{"model_options": {...}, "args": ["--model.lr=...", ...]}``."""
+    is either the options themselves or ``{"model_options": {...}, "args": ["--model.lr=...", ...]}``
+    (with ``"beside": NAME``: a force residual trained alone beside the setting NAME as fitted on the same
+    fold, which the study fits first: ``--model.init_from`` its run, ``--model.train_only residual_force``)."""
     if "model_options" in setting:
         return setting["model_options"], list(setting.get("args", []))
     return setting, []
@@ -170,6 +181,13 @@ def main() -> None:
             if run_dir.exists():
                 shutil.rmtree(run_dir)
             options, extra = setting_arguments(SETTINGS[setting])
+            beside = SETTINGS[setting].get("beside")
+            if beside is not None:
+                base = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(beside)}" / "lightning_logs" / \
+                    "version_0" / "checkpoints" / "last.ckpt"
+                if not base.exists():
+                    raise SystemExit(f"{setting}: fit {beside!r} on the fold {rec} first (in --work {work})")
+                extra += [f"--model.init_from={base}", "--model.train_only=residual_force"]
             cmd = [sys.executable, "-m", "lnn_torch.cli", "fit", "-c", args.config, f"--data.path={path}",
                    f"--model.model_options={json.dumps(options)}", f"--trainer.default_root_dir={run_dir}",
                    "--trainer.enable_progress_bar=false", "--trainer.limit_val_batches=0", *extra]

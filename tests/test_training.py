@@ -14,7 +14,7 @@ from lnn_torch import LNNModule
 from lnn_torch.data import DatasetSpec, generate_dataset
 from lnn_torch.data.datamodule import TrajectoryDataModule
 
-from .helpers import ROOT, make_dm, quiet_trainer, run_cli
+from .helpers import ROOT, make_dm, quiet_trainer, random_batch, run_cli
 
 
 def _fit(dataset, tmp_path, **model_kw):
@@ -305,3 +305,47 @@ def test_init_from_starts_a_run_from_a_checkpoints_weights_and_normaliser_with_a
                                 limit_val_batches=0)
         with pytest.raises(CheckpointError, match=match):
             trainer.fit(other, make_dm(dataset))
+
+
+def test_a_residual_beside_a_fitted_model_trains_alone_from_zero(tmp_path):
+    """``init_from`` a model without a force residual into the same model with one, ``train_only:
+    residual_force``: the run starts as the fitted model (the residual at zero, its units fitted from
+    the data), only the residual trains, and every other weight and the normaliser stay as they were;
+    ``train_only`` without a residual, or of an unknown part, is refused in one line."""
+    from lnn_torch.errors import InputError
+
+    path, spec = tmp_path / "adp.h5", dict(scene="actuated_double_pendulum", num_trajectories=6, duration=1.0, seed=4)
+    generate_dataset(DatasetSpec(**spec), path)
+    scene = dict(scene="actuated_double_pendulum", val_rollouts=0, hidden_dims=[16, 16], compile=False)
+    first = LNNModule(**scene)
+    trainer = quiet_trainer(tmp_path / "a", max_steps=3, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    trainer.fit(first, make_dm(path, spec=spec))
+    trainer.save_checkpoint(tmp_path / "grey.ckpt")
+    start = {}
+
+    class Record(L.Callback):
+        def on_train_start(self, trainer, pl_module):
+            q, qd, p = random_batch(pl_module.system, np.random.default_rng(0), 5, torch.float32)
+            tau = torch.randn(5, 2)
+            with torch.no_grad():
+                start["same"] = torch.equal(pl_module.acceleration(q, qd, p, tau), first.acceleration(q, qd, p, tau))
+            start["unit"] = pl_module.model.forces.residual.unit.clone()
+
+    second = LNNModule(**scene, model_options={"residual_force": {"hidden": [8]}}, lr=1e-2,
+                       init_from=str(tmp_path / "grey.ckpt"), train_only="residual_force")
+    trainer = quiet_trainer(tmp_path / "b", max_steps=5, logger=False, enable_checkpointing=False, limit_val_batches=0,
+                            callbacks=[Record()])
+    trainer.fit(second, make_dm(path, spec=spec))
+    assert start["same"] and not torch.equal(start["unit"], torch.ones(2))  # at zero, in the data's units
+    theirs = first.state_dict()
+    for name, value in second.state_dict().items():
+        if name.startswith("model.forces.residual."):
+            continue
+        if name != "skipped_steps":
+            assert torch.equal(value, theirs[name]), name
+    out = second.model.forces.residual.output_layer[0]
+    assert out.abs().max() > 0  # the residual trained
+    with pytest.raises(InputError, match="train_only residual_force: the model has no residual_force"):
+        LNNModule(**scene, train_only="residual_force")
+    with pytest.raises(InputError, match="train_only must be one of residual_force"):
+        LNNModule(**scene, model_options={"residual_force": {}}, train_only="kinetic")

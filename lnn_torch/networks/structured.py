@@ -256,21 +256,26 @@ class StructuredLagrangian(DynamicsModel):
         friction at the description's viscous damping (and a small Coulomb level); a force residual takes
         its units from the data (each coordinate's rms input force and normalised velocity)."""
         super().fit_normalizer(stats)
-        residual = None if self.forces is None else self.forces.residual
-        if residual is not None:
-            tau = stats.get("tau")
-            B = self.scene.input_matrix
-            force_rms = None
-            if tau is not None and B is not None:
-                force = tau.double().reshape(-1, tau.shape[-1]) @ torch.tensor(B, dtype=torch.float64).T
-                force_rms = force.pow(2).mean(0).sqrt()
-            qd_norm = self.normalizer.state(stats["q"].double().reshape(-1, self.scene.dof),
-                                            stats["qd"].double().reshape(-1, self.scene.dof))[1]
-            residual.fit(force_rms, qd_norm.pow(2).mean(0).sqrt())
+        self.fit_residual(stats)
         spatial = self.part("kinetic", "spatial")
         if spatial is not None and self.forces is not None and self.forces.friction and \
                 self.forces.num_joints == spatial.dof:
             self.forces.start_at(spatial.description_damping())
+
+    def fit_residual(self, stats: dict) -> None:
+        """The force residual's units from the data ``stats`` (as ``fit_normalizer``): each coordinate's rms
+        input force and normalised velocity (with the normaliser as it is). Nothing without a residual."""
+        residual = None if self.forces is None else self.forces.residual
+        if residual is None:
+            return
+        tau, B = stats.get("tau"), self.scene.input_matrix
+        force_rms = None
+        if tau is not None and B is not None:
+            force = tau.double().reshape(-1, tau.shape[-1]) @ torch.tensor(B, dtype=torch.float64).T
+            force_rms = force.pow(2).mean(0).sqrt()
+        qd_norm = self.normalizer.state(stats["q"].double().reshape(-1, self.scene.dof),
+                                        stats["qd"].double().reshape(-1, self.scene.dof))[1]
+        residual.fit(force_rms, qd_norm.pow(2).mean(0).sqrt())
 
     def regularization(self) -> torch.Tensor | None:
         """The sum of the parts' priors (``Part.regularization``) and the force residual's penalty
