@@ -139,15 +139,24 @@ rows divided by its ordinary residual's standard deviation) and physically consi
 inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
 (their damping their only friction). `film_lnn` and DeLaN from the data alone are one model here: the
 recording has no parameters to condition on, so FiLM and concatenation both vanish (same seed, same
-weights); ten seconds of one robot are far too little for networks alone. A force residual beside the
-grey box (a network of the joint angles and velocities, zero at the start, L2 on its output layer; or
-`local`, a network per joint of its own angle and velocity) does not pay on this robot: validation
+weights); ten seconds of one robot are far too little for networks alone. A force residual trained with
+the grey box (a network of the joint angles and velocities, zero at the start, L2 on its output layer;
+or `local`, a network per joint of its own angle and velocity) does not pay on this robot: validation
 prefers the grey box alone, and so does the held-out window. Why ([floor.md](floor.md), `python
 scripts/real_panda_floor.py CHECKPOINT`): 0.22 N m of the grey box's 0.27 N m is the measured torque
 above the targets' 10 Hz band, which no model of the filtered state predicts (targets filtered at
 15-30 Hz make the error larger, so it is not motion the filter removed), and a ridge correction on any
-features of the state, chosen on the validation window, lowers the held-out mean by at most 0.004 N m:
-what is left is not a function of the state that 7.5 s of this robot can teach. Every number:
+features of the state, chosen on the validation window, lowers the held-out mean by at most 0.004 N m.
+Part of that torque is a ripple locked to the joint angle: about 241 cycles per joint revolution on
+joints 1-4, 10-16 ms behind the angle, 0.1-0.3 N m in amplitude on the training window (at this arm's
+speeds 20-60 Hz, far above the targets' band). Its amplitude does not stay constant: fitted on the
+training window, it is kept by validation on three joints and lowers the held-out mean to 0.268 N m
+only. What is left is not a function of the state that 7.5 s of this robot can teach. Trained with the
+grey box, a residual also moves its physics; trained alone beside the fitted grey box
+(`--model.init_from` its checkpoint, `--model.train_only residual_force`: the physics stays as fitted),
+the local residual comes closer (0.278 and 0.277 N m at L2 1e-2 and 1e-1) and validation even prefers
+the second by 0.004 N m, but the held-out window does not: within what this one recording can tell
+apart, no residual pays. Every number:
 
     lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
         --config configs/import/real_panda.yaml -o data/real_panda.h5
