@@ -88,7 +88,7 @@ class LNNModule(L.LightningModule):
         registry.refuse_conflicts(variant, self.system, options, energy_weight, torque_weight, acceleration_weight)
         self.model = build_model(variant, self.system, **options)
         self._model_options = options
-        freeze_all_but(self.model, train_only)
+        freeze_all_but(self.model, train_only, init_from)
         if loss not in ("acceleration", "trajectory"):
             raise ValueError(f"loss must be 'acceleration' or 'trajectory', got '{loss}'")
         self.data_dt = None  # the sampling interval of the training data (the power-balance term integrates over it)

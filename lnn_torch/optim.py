@@ -33,11 +33,14 @@ def training_progress(trainer, step: int) -> float:
 TRAINABLE_PARTS = {"residual_force": "forces.residual."}  # train_only: the names of a model's parameters it trains
 
 
-def freeze_all_but(model, part: str | None) -> None:
+def freeze_all_but(model, part: str | None, init_from: str | None) -> None:
     """``train_only``: with ``part`` (a name of ``TRAINABLE_PARTS``) every parameter of ``model`` outside that
-    part stops training (``requires_grad`` False); None leaves all. A model without the part is refused."""
+    part stops training (``requires_grad`` False); None leaves all. A model without the part, or a run
+    without ``init_from`` (whose frozen weights would stay as initialised), is refused."""
     if part is None:
         return
+    if not init_from:
+        raise InputError(f"train_only {part} needs init_from: the fitted model whose other weights stay as they are")
     if part not in TRAINABLE_PARTS:
         raise InputError(f"train_only must be one of {', '.join(TRAINABLE_PARTS)} or null, got {part!r}")
     names = [n for n, _ in model.named_parameters() if n.startswith(TRAINABLE_PARTS[part])]

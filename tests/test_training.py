@@ -311,7 +311,7 @@ def test_a_residual_beside_a_fitted_model_trains_alone_from_zero(tmp_path):
     """``init_from`` a model without a force residual into the same model with one, ``train_only:
     residual_force``: the run starts as the fitted model (the residual at zero, its units fitted from
     the data), only the residual trains, and every other weight and the normaliser stay as they were;
-    ``train_only`` without a residual, or of an unknown part, is refused in one line."""
+    ``train_only`` without a residual, of an unknown part or without ``init_from`` is refused in one line."""
     from lnn_torch.errors import InputError
 
     path, spec = tmp_path / "adp.h5", dict(scene="actuated_double_pendulum", num_trajectories=6, duration=1.0, seed=4)
@@ -345,7 +345,10 @@ def test_a_residual_beside_a_fitted_model_trains_alone_from_zero(tmp_path):
             assert torch.equal(value, theirs[name]), name
     out = second.model.forces.residual.output_layer[0]
     assert out.abs().max() > 0  # the residual trained
+    grey = str(tmp_path / "grey.ckpt")
     with pytest.raises(InputError, match="train_only residual_force: the model has no residual_force"):
-        LNNModule(**scene, train_only="residual_force")
+        LNNModule(**scene, train_only="residual_force", init_from=grey)
     with pytest.raises(InputError, match="train_only must be one of residual_force"):
-        LNNModule(**scene, model_options={"residual_force": {}}, train_only="kinetic")
+        LNNModule(**scene, model_options={"residual_force": {}}, train_only="kinetic", init_from=grey)
+    with pytest.raises(InputError, match="train_only residual_force needs init_from"):
+        LNNModule(**scene, model_options={"residual_force": {}}, train_only="residual_force")
