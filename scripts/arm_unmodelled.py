@@ -41,7 +41,8 @@ from _cli import ROOT, HelpFormatter, add_output_dir, wrote
 EFFECTS = {"friction": {}, "spring": {}, "cogging": {}, "sensor_offset": {}}
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
 # the residuals beside the grey box (--residuals) and their rows' names
-KINDS = {"parts": "residual", "alone": "residual alone", "local": "local residual"}
+KINDS = {"parts": "residual", "alone": "residual alone", "local": "local residual",
+         "local_beside": "local residual trained alone beside it"}
 
 
 def residual_options(weight: float, hidden: list[int], parts: bool, harmonics: int, local: bool = False) -> dict:
@@ -54,21 +55,27 @@ def residual_options(weight: float, hidden: list[int], parts: bool, harmonics: i
 
 
 # ---------------------------------------------------------------------------- training
-def fit(model_options: dict, dm, scene_config: dict, args) -> tuple:
+def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = None,
+        beside: Path | None = None) -> tuple:
     """A film_lnn with ``model_options`` trained as ``lnn-torch fit`` trains (acceleration and torque
     losses, the configs' optimiser and schedule) for ``args.steps`` steps; returns the module in
-    evaluation mode and the training seconds."""
+    evaluation mode and the training seconds. ``save``: its checkpoint; ``beside``: a checkpoint of the
+    fitted grey box, whose weights start the run and stay as they are (only the force residual trains:
+    ``init_from``, ``train_only: residual_force``)."""
     from lnn_torch import LNNModule
     from lnn_torch.lightning_cli import make_trainer
 
     torch.manual_seed(args.seed)
     module = LNNModule(scene="robot_arm", scene_config=scene_config, variant="film_lnn", eps=0.0,
-                       model_options=model_options, torque_weight=1.0, val_rollouts=0, lr=args.lr, lr_min=args.lr / 100)
+                       model_options=model_options, torque_weight=1.0, val_rollouts=0, lr=args.lr, lr_min=args.lr / 100,
+                       **({"init_from": str(beside), "train_only": "residual_force"} if beside else {}))
     trainer = make_trainer(max_steps=args.steps, max_epochs=-1, limit_val_batches=0, num_sanity_val_steps=0,
                            enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
                            logger=False, callbacks=[], accelerator="cpu", devices=1)
     start = time.perf_counter()
     trainer.fit(module, dm)
+    if save is not None:
+        trainer.save_checkpoint(save)
     module.eval()
     return module, time.perf_counter() - start
 
@@ -225,7 +232,7 @@ def main() -> None:
                     help="the residuals beside the grey box, each kind a candidate per weight: parts (a force "
                          "residual of the whole state and the kinetic and potential MLPs), alone (that force "
                          "residual alone), local (a force network per joint of its own angle, velocity and the "
-                         "payload)")
+                         "payload), local_beside (that network trained alone beside the fitted grey box)")
     ap.add_argument("--no-residual-parts", action="store_const", const=["alone"], dest="residuals",
                     help=argparse.SUPPRESS)  # the old spelling of --residuals alone
     ap.add_argument("--horizon", type=float, default=None, help="rollout horizon (s; default: --duration)")
@@ -259,12 +266,15 @@ def main() -> None:
     rows = {"description (engine, no effects, nothing learned)": description_row(system, splits["test"], test, args)}
     candidates = [("grey box", dict(GREY_BOX))]
     candidates += [(f"grey box + {KINDS[kind]} (weight {w:g})",
-                    residual_options(w, args.hidden, kind == "parts", args.harmonics, kind == "local"))
+                    residual_options(w, args.hidden, kind == "parts", args.harmonics, kind.startswith("local")))
                    for kind in args.residuals for w in args.weights]
     chosen, best = None, float("inf")
+    grey_box = Path(args.output_dir) / "grey_box.ckpt"  # what the residuals trained alone beside it start from
+    grey_box.parent.mkdir(parents=True, exist_ok=True)
     for name, options in candidates:
         print(f"fitting {name} ({args.steps} steps)", flush=True)
-        module, seconds = fit(options, dm, scene_config, args)
+        module, seconds = fit(options, dm, scene_config, args, save=grey_box if name == "grey box" else None,
+                              beside=grey_box if KINDS["local_beside"] in name else None)
         row = evaluate(name, module, system, splits["test"], test, args)
         row.update(val_nmse=validation_nmse(module, splits["val"]), train_seconds=seconds, options=options)
         rows[name] = row
@@ -292,6 +302,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "result.json").write_text(json.dumps(result, indent=1))
     (out / "README.md").write_text("# The arm with unmodelled effects\n\n" + markdown(result))
+    grey_box.unlink()
     wrote(out / "README.md", out / "result.json")
 
 
