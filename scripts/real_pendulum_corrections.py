@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum_cv import CONFIGURATION, SETTINGS  # the cross-validation's settings name its run folders
+from real_pendulum_cv import CONFIGURATION, SETTINGS, fold_checkpoint  # the cross-validation's runs
 
 ROOT = Path(__file__).resolve().parents[1]
 FEATURES = {
@@ -67,12 +67,11 @@ def design(r: dict, kinds) -> torch.Tensor:
     return a.reshape(-1, a.shape[-1])
 
 
-def recordings(model, path: Path, split: str) -> list[dict]:
-    """Per recording of a fold file's split: the state, torques through the targets' filter, ``M^-1`` and
-    the configuration's acceleration residual."""
+def recordings(model, path: Path, targets: dict, split: str) -> list[dict]:
+    """Per recording of a fold file's split: the state, torques through the targets' filter (the fit's own
+    ``targets``), ``M^-1`` and the configuration's acceleration residual."""
     from lnn_torch.data import TrajectoryDataModule
 
-    targets = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
     data = TrajectoryDataModule(path=str(path), targets=targets).trajectories(split, smooth_inputs=True)
     out = []
     for b, n in enumerate(data.lengths.tolist()):
@@ -93,35 +92,39 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum" / "cross_validation" / "residual"),
                    "the folder of corrections.md and corrections.json")
     args = ap.parse_args()
-    from lnn_torch.checkpoints import load_model
+    from lnn_torch.checkpoints import data_hparams, load_model
 
     torch.set_grad_enabled(False)
-    work, index = Path(args.work), list(SETTINGS).index(args.setting)
+    work = Path(args.work)
     folds = sorted(work.glob("fold_*.h5"))
     if not folds:
         raise SystemExit(f"no fold files (fold_*.h5) in {work}: run scripts/real_pendulum_cv.py --work {work} first")
     data = {}
     for path in folds:
-        ckpt = work / path.stem / f"setting_{index}" / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"
+        rec = path.stem.removeprefix("fold_")
+        ckpt = fold_checkpoint(work, rec, args.setting)
         if not ckpt.exists():
             raise SystemExit(f"missing {ckpt}: fit the setting on every fold first")
-        model = load_model(str(ckpt)).model.double()
-        data[path.stem.removeprefix("fold_")] = (recordings(model, path, "train"), recordings(model, path, "val")[0])
+        model, targets = load_model(str(ckpt)).model.double(), data_hparams(str(ckpt))["targets"]
+        data[rec] = (recordings(model, path, targets, "train"), recordings(model, path, targets, "val")[0])
     result = {"work": str(work), "setting": args.setting, "none": {}, "sets": {}}
     ref = {rec: float(held["qdd"].pow(2).sum()) for rec, (_, held) in data.items()}
     none = {rec: float(held["e"].pow(2).sum()) for rec, (_, held) in data.items()}
     result["none"] = _summary(none, ref)
     for name, kinds in FEATURES.items():
+        folds = {}  # per fold, once for every ridge weight: the normal equations and the held-out design
+        for rec, (train, held) in data.items():
+            A = torch.cat([design(r, kinds) for r in train])
+            y = torch.cat([r["e"].reshape(-1) for r in train])
+            sd = A.std(0).clamp_min(1e-12)
+            An = A / sd
+            folds[rec] = (An.T @ An, An.T @ y, len(y), sd, design(held, kinds), held["e"].reshape(-1))
         rows = {}
         for lam in RIDGE:
             err = {}
-            for rec, (train, held) in data.items():
-                A = torch.cat([design(r, kinds) for r in train])
-                y = torch.cat([r["e"].reshape(-1) for r in train])
-                sd = A.std(0).clamp_min(1e-12)
-                An = A / sd
-                w = torch.linalg.solve(An.T @ An + lam * len(y) * torch.eye(A.shape[1], dtype=A.dtype), An.T @ y) / sd
-                err[rec] = float((held["e"].reshape(-1) - design(held, kinds) @ w).pow(2).sum())
+            for rec, (gram, rhs, n, sd, Ah, eh) in folds.items():
+                w = torch.linalg.solve(gram + lam * n * torch.eye(len(sd), dtype=gram.dtype), rhs) / sd
+                err[rec] = float((eh - Ah @ w).pow(2).sum())
             rows[f"{lam:g}"] = _summary(err, ref)
         result["sets"][name] = rows
         best = min(rows.values(), key=lambda r: r["pooled"])

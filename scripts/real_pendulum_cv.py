@@ -49,8 +49,7 @@ SETTINGS = {
     "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": ["chain", "harmonic"]},
                                                       "args": DECAY},
     "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
-    "rigid chain + its gravity + static friction (the configuration)": {**CHAIN, "potential": "chain",
-                                                                        "dissipation": "joint+stiction"},
+    CONFIGURATION: {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"},
     "the configuration + learned drive gains": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
                                                 "learn_input_matrix": "gains"},
     "the configuration + learned input matrix": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
@@ -84,6 +83,17 @@ SETTINGS = {
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
 }
+
+
+def run_folder(work: Path, recording: str, setting: str) -> Path:
+    """The folder of a setting's fit on the fold that holds ``recording`` out (its checkpoint:
+    ``fold_checkpoint``)."""
+    return work / f"fold_{recording}" / f"setting_{list(SETTINGS).index(setting)}"
+
+
+def fold_checkpoint(work: Path, recording: str, setting: str) -> Path:
+    """The last checkpoint of a setting's fit on the fold that holds ``recording`` out."""
+    return run_folder(work, recording, setting) / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"
 
 
 def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
@@ -177,14 +187,13 @@ def main() -> None:
         written += [path, work / f"fold_{rec}"]
         reference = None
         for setting in args.settings:
-            run_dir = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(setting)}"
+            run_dir = run_folder(work, rec, setting)
             if run_dir.exists():
                 shutil.rmtree(run_dir)
             options, extra = setting_arguments(SETTINGS[setting])
             beside = SETTINGS[setting].get("beside")
             if beside is not None:
-                base = work / f"fold_{rec}" / f"setting_{list(SETTINGS).index(beside)}" / "lightning_logs" / \
-                    "version_0" / "checkpoints" / "last.ckpt"
+                base = fold_checkpoint(work, rec, beside)
                 if not base.exists():
                     raise SystemExit(f"{setting}: fit {beside!r} on the fold {rec} first (in --work {work})")
                 extra += [f"--model.init_from={base}", "--model.train_only=residual_force"]
@@ -196,7 +205,7 @@ def main() -> None:
             seconds[setting].append(time.perf_counter() - start)
             if done.returncode != 0:
                 raise SystemExit(f"fit failed ({setting}, held out {rec}):\n{done.stderr[-3000:]}")
-            ckpt = str(run_dir / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt")
+            ckpt = str(fold_checkpoint(work, rec, setting))
             module = load_model(ckpt)
             if reference is None:
                 saved = data_hparams(ckpt)
