@@ -9,6 +9,7 @@ import math
 
 import torch
 
+from .checkpoint_format import RESIDUAL
 from .errors import InputError
 from .perf import adamw
 
@@ -30,7 +31,8 @@ def training_progress(trainer, step: int) -> float:
     return min(progress, 1.0)
 
 
-TRAINABLE_PARTS = {"residual_force": "forces.residual."}  # train_only: the names of a model's parameters it trains
+# train_only: the names of a model's parameters it trains (in the model, not in the LNNModule around it)
+TRAINABLE_PARTS = {"residual_force": RESIDUAL.removeprefix("model.")}
 
 
 def freeze_all_but(model, part: str | None, init_from: str | None) -> None:
