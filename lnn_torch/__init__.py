@@ -24,11 +24,11 @@ def __getattr__(name):
 
         return build_model
     if name == "load_pretrained":
-        from .module import load_pretrained
+        from .checkpoints import load_pretrained
 
         return load_pretrained
     if name == "load_model":
-        from .module import load_model
+        from .checkpoints import load_model
 
         return load_model
     if name == "evaluate_model":

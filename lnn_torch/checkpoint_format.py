@@ -2,8 +2,7 @@
 model shipped in ``lnn_torch/pretrained``) points, the stamp ``LNNModule`` writes (package version
 and format), the checks that refuse what is not an lnn-torch checkpoint in one line, and the shims
 that let ``LNNModule`` load checkpoints of earlier versions. It imports nothing above itself: the
-loader, ``load_model``, lives with ``LNNModule`` (``lnn_torch.module``; also ``lnn_torch.load_model``
-and ``lnn_torch.checkpoints.load_model``)."""
+loader, ``load_model``, lives in ``lnn_torch.checkpoints`` (also ``lnn_torch.load_model``)."""
 
 from __future__ import annotations
 

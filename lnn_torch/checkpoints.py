@@ -1,12 +1,13 @@
 """Trained models from their checkpoints, for users: ``load_model(path | "pretrained:<name>")``,
 ``load_pretrained(name)``, ``data_hparams`` (the data a checkpoint was trained on) and ``output_dir``.
 
-The loader lives with ``LNNModule`` (``lnn_torch.module``); the format itself (stamp, checks, shims
-for older checkpoints) in ``lnn_torch.checkpoint_format``, a leaf. This module gathers them.
+The loader is here; the format itself (stamp, checks, shims for older checkpoints) lives in
+``lnn_torch.checkpoint_format``, a leaf, and the module it loads in ``lnn_torch.module``.
 """
 
 from __future__ import annotations
 
+from . import checkpoint_format as ckpt
 from .checkpoint_format import (  # noqa: F401 - the names this module has always given
     CHECKPOINT_FORMAT,
     PRETRAINED,
@@ -17,6 +18,28 @@ from .checkpoint_format import (  # noqa: F401 - the names this module has alway
     read_checkpoint,
     stamp,
 )
-from .module import load_model, load_pretrained  # noqa: F401
+from .errors import InputError
+from .module import LNNModule
 
 __all__ = ["load_model", "load_pretrained", "data_hparams", "output_dir", "read_checkpoint", "PRETRAINED"]
+
+
+def load_model(source, map_location="cpu") -> LNNModule:
+    """The ``LNNModule`` of a checkpoint path or ``pretrained:<name>``, in evaluation mode (SI units in
+    and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
+    lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
+    path = ckpt.resolve(source)
+    ckpt.read_checkpoint(path)
+    try:
+        model = LNNModule.load_from_checkpoint(path, map_location=map_location)
+    except InputError:
+        raise
+    except ckpt.READ_ERRORS as err:
+        raise ckpt.unreadable(path, err) from None
+    model.eval()
+    return model
+
+
+def load_pretrained(name: str = "double_pendulum", map_location="cpu") -> LNNModule:
+    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out)."""
+    return load_model(f"{ckpt.PRETRAINED}{name}", map_location)

@@ -3,7 +3,7 @@ optimiser and the schedule. The losses are pure functions (``lnn_torch.losses``:
 of ``acceleration_batch_loss`` or ``trajectory_batch_loss``); skipping non-finite steps, TensorBoard's
 HParams and figures are callbacks (``lnn_torch.callbacks``, added by ``configure_callbacks``);
 validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split, its scalars logged.
-``load_model`` reads a checkpoint (the format: ``lnn_torch.checkpoint_format``).
+``lnn_torch.checkpoints.load_model`` reads a checkpoint into it.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import torch
 
 from . import checkpoint_format as ckpt
 from .callbacks import EvaluationFigures, HParamsSummary, SkipNonFiniteSteps, writes_logs
-from .errors import InputError
 from .evaluation import evaluate_split, section_logs
 from .identification import identify
 from .losses import acceleration_batch_loss, trajectory_batch_loss
@@ -234,23 +233,3 @@ class LNNModule(L.LightningModule):
         return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
                 "qdd_true": batch["qdd"], "qdd_pred": pred}
 
-
-def load_model(source, map_location="cpu") -> LNNModule:
-    """The ``LNNModule`` of a checkpoint path or ``pretrained:<name>``, in evaluation mode (SI units in
-    and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
-    lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
-    path = ckpt.resolve(source)
-    ckpt.read_checkpoint(path)
-    try:
-        model = LNNModule.load_from_checkpoint(path, map_location=map_location)
-    except InputError:
-        raise
-    except ckpt.READ_ERRORS as err:
-        raise ckpt.unreadable(path, err) from None
-    model.eval()
-    return model
-
-
-def load_pretrained(name: str = "double_pendulum", map_location="cpu") -> LNNModule:
-    """The shipped ``LNNModule`` ``name`` in evaluation mode (SI units in and out)."""
-    return load_model(f"{ckpt.PRETRAINED}{name}", map_location)
