@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -269,17 +270,17 @@ def main() -> None:
                     residual_options(w, args.hidden, kind == "parts", args.harmonics, kind.startswith("local")))
                    for kind in args.residuals for w in args.weights]
     chosen, best = None, float("inf")
-    grey_box = Path(args.output_dir) / "grey_box.ckpt"  # what the residuals trained alone beside it start from
-    grey_box.parent.mkdir(parents=True, exist_ok=True)
-    for name, options in candidates:
-        print(f"fitting {name} ({args.steps} steps)", flush=True)
-        module, seconds = fit(options, dm, scene_config, args, save=grey_box if name == "grey box" else None,
-                              beside=grey_box if KINDS["local_beside"] in name else None)
-        row = evaluate(name, module, system, splits["test"], test, args)
-        row.update(val_nmse=validation_nmse(module, splits["val"]), train_seconds=seconds, options=options)
-        rows[name] = row
-        if row["val_nmse"] < best:
-            chosen, best = name, row["val_nmse"]
+    with tempfile.TemporaryDirectory() as scratch:  # gone however the study ends
+        grey_box = Path(scratch) / "grey_box.ckpt"  # what the residuals trained alone beside it start from
+        for name, options in candidates:
+            print(f"fitting {name} ({args.steps} steps)", flush=True)
+            module, seconds = fit(options, dm, scene_config, args, save=grey_box if name == "grey box" else None,
+                                  beside=grey_box if KINDS["local_beside"] in name else None)
+            row = evaluate(name, module, system, splits["test"], test, args)
+            row.update(val_nmse=validation_nmse(module, splits["val"]), train_seconds=seconds, options=options)
+            rows[name] = row
+            if row["val_nmse"] < best:
+                chosen, best = name, row["val_nmse"]
     grey = rows["grey box"]
     if chosen == "grey box":
         selection = ("**Chosen by the validation split: the grey box alone** (no residual lowered its validation "
@@ -302,7 +303,6 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "result.json").write_text(json.dumps(result, indent=1))
     (out / "README.md").write_text("# The arm with unmodelled effects\n\n" + markdown(result))
-    grey_box.unlink()
     wrote(out / "README.md", out / "result.json")
 
 
