@@ -124,6 +124,24 @@ def squared_errors(model, data) -> tuple[float, float]:
     return sum(e for e, _ in sums), sum(r for _, r in sums)
 
 
+def carried(model, data) -> dict | None:
+    """What the model's residuals carry on a split's recordings (``lnn_torch.networks.shares``, over their
+    own lengths): ``n`` points, and per residual, per motor, the sums of squares of its torque and of the
+    model's (N m^2: pooled over folds by adding); None for a model without residuals."""
+    from lnn_torch.networks.shares import torque_shares
+
+    if not getattr(model, "residual_names", tuple)():
+        return None
+    keep = [(b, int(n)) for b, n in enumerate(data.lengths)]
+    q, qd, qdd, tau = (torch.cat([getattr(data, k)[b, :n] for b, n in keep]).double()
+                       for k in ("q", "qd", "qdd", "tau"))
+    params = torch.cat([data.params[b].double().expand(n, -1) for b, n in keep])
+    shares = torque_shares(model, q, qd, qdd, params, tau)
+    n = len(q)
+    return {"n": n, "model": [n * r * r for r in shares["model_rms"]],
+            "residuals": {name: [n * r * r for r in s["rms"]] for name, s in shares["residuals"].items()}}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--data", default=str(ROOT / "data" / "real_double_pendulum.h5"), help="the imported recordings")
@@ -172,6 +190,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     sums = {name: {} for name in [LAB, *args.settings]}  # held-out recording: (squared error, squared reference)
     fitted = {name: {} for name in sums}  # the fold's training recordings, alike
+    carries = {name: {} for name in args.settings}  # held-out recording: what the residuals carry there
     seconds = {name: [] for name in args.settings}
     written = []  # the fold files and the folders of their training runs
     if args.folds:
@@ -216,6 +235,7 @@ def main() -> None:
             with torch.no_grad():
                 sums[setting][rec] = squared_errors(module.model, reference)
                 fitted[setting][rec] = squared_errors(module.model, seen)
+                carries[setting][rec] = carried(module.model.double(), reference)
             e, r = sums[setting][rec]
             print(f"held out {rec}: {setting:36s} {100 * np.sqrt(e / r):6.1f} %  "
                   f"(lab {100 * np.sqrt(np.divide(*sums[LAB][rec])):.1f} %)",
@@ -226,6 +246,9 @@ def main() -> None:
     table = {name: {"per_recording": {rec: float(np.sqrt(e / r)) for rec, (e, r) in per.items()},
                     "pooled": pooled(per), "training_recordings_pooled": pooled(fitted[name])}
              for name, per in sums.items()}
+    for name, per in carries.items():
+        if any(c is not None for c in per.values()):
+            table[name]["carried"] = pooled_carried(per)
     config = Path(args.config).resolve()
     config = str(config.relative_to(ROOT) if config.is_relative_to(ROOT) else config)
     result = {"config": config, "settings": {s: SETTINGS[s] for s in args.settings}, "fit_seconds": seconds,
@@ -249,6 +272,19 @@ def main() -> None:
     (out / "cross_validation.json").write_text(json.dumps(result, indent=1))
     write_report(result, out)
     wrote(out / "cross_validation.json", out / "cross_validation.md", written)
+
+
+def pooled_carried(per: dict) -> dict:
+    """Per residual, its torque's RMS per motor over all folds' held-out recordings (N m) and its share of
+    the model's torque there (the same RMS over the model's)."""
+    n = sum(c["n"] for c in per.values())
+    model = [sum(c["model"][j] for c in per.values()) for j in range(len(next(iter(per.values()))["model"]))]
+    out = {}
+    for name in next(iter(per.values()))["residuals"]:
+        ss = [sum(c["residuals"][name][j] for c in per.values()) for j in range(len(model))]
+        out[name] = {"rms": [math.sqrt(x / n) for x in ss],
+                     "share": [math.sqrt(x / m) for x, m in zip(ss, model, strict=True)]}
+    return out
 
 
 def _close(a, b, rel: float = 1e-9) -> bool:
@@ -276,6 +312,16 @@ def write_report(result: dict, out: Path, save: bool = True) -> None:
         seen = f"{100 * r['training_recordings_pooled']:.1f} %" if "training_recordings_pooled" in r else "–"
         lines.append(f"| {name} | {100 * r['pooled']:.1f} % | "
                      + " | ".join(f"{100 * r['per_recording'][rec]:.1f} %" for rec in recs) + f" | {seen} | {fit} |")
+    carriers = {name: r["carried"] for name, r in table.items() if r.get("carried")}
+    if carriers:
+        lines += ["", "What each residual carries on the held-out recordings (`lnn_torch.networks.shares`: the RMS "
+                  "over all folds of the torque it adds to the model's inverse dynamics, per motor, N m; in brackets, "
+                  "its share of the model's torque there):", "", "| model | residual | motor 1 | motor 2 |",
+                  "|---|---|---|---|"]
+        for name, carried_ in carriers.items():
+            for part, c in carried_.items():
+                lines.append(f"| {name} | {part} | " + " | ".join(
+                    f"{r:.3f} ({100 * s:.1f} %)" for r, s in zip(c["rms"], c["share"], strict=True)) + " |")
     if result.get("note"):
         lines += ["", result["note"]]
     text = "\n".join(lines) + "\n"
