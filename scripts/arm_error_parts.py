@@ -49,6 +49,7 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "error_parts"),
                    "the folder of error_parts.md and error_parts.json")
     args = ap.parse_args()
+    from lnn_torch.arm_identification import points
     from lnn_torch.checkpoints import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.evaluation import evaluate_model
@@ -57,9 +58,7 @@ def main() -> None:
     module = load_model(args.model)
     model, ref = module.model.double(), load_model(args.reference).model.double()
     test = read_dataset(args.data).trajectories("test", args.trajectories)
-    s = slice(None, None, args.stride)
-    q, qd, qdd = (getattr(test, k)[:, s].reshape(-1, test.q.shape[-1]).double() for k in ("q", "qd", "qdd"))
-    params = test.params[:, None].expand(-1, test.q[:, s].shape[1], -1).reshape(-1, test.params.shape[-1]).double()
+    q, qd, qdd, _, params = points(test, args.stride)
     mine, truth = parts(model, q, qd, qdd, params), parts(ref, q, qd, qdd, params)
     mass = params[:, 0]
     bands = {f"{lo:g}-{hi:g} kg": (mass >= lo) & ((mass < hi) if hi < BANDS[-1][1] else (mass <= hi))

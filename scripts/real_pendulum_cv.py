@@ -128,14 +128,12 @@ def carried(model, data) -> dict | None:
     """What the model's residuals carry on a split's recordings (``lnn_torch.networks.shares``, over their
     own lengths): ``n`` points, and per residual, per motor, the sums of squares of its torque and of the
     model's (N m^2: pooled over folds by adding); None for a model without residuals."""
+    from lnn_torch.arm_identification import points
     from lnn_torch.networks.shares import torque_shares
 
     if not getattr(model, "residual_names", tuple)():
         return None
-    keep = [(b, int(n)) for b, n in enumerate(data.lengths)]
-    q, qd, qdd, tau = (torch.cat([getattr(data, k)[b, :n] for b, n in keep]).double()
-                       for k in ("q", "qd", "qdd", "tau"))
-    params = torch.cat([data.params[b].double().expand(n, -1) for b, n in keep])
+    q, qd, qdd, tau, params = points(data)
     shares = torque_shares(model, q, qd, qdd, params, tau)
     n = len(q)
     return {"n": n, "model": [n * r * r for r in shares["model_rms"]],
