@@ -265,17 +265,17 @@ def main() -> None:
         splits[name] = split
 
     rows = {"description (engine, no effects, nothing learned)": description_row(system, splits["test"], test, args)}
-    candidates = [("grey box", dict(GREY_BOX))]
+    candidates = [("grey box", dict(GREY_BOX), None)]  # (row name, model options, residual kind)
     candidates += [(f"grey box + {KINDS[kind]} (weight {w:g})",
-                    residual_options(w, args.hidden, kind == "parts", args.harmonics, kind.startswith("local")))
+                    residual_options(w, args.hidden, kind == "parts", args.harmonics, kind.startswith("local")), kind)
                    for kind in args.residuals for w in args.weights]
     chosen, best = None, float("inf")
     with tempfile.TemporaryDirectory() as scratch:  # gone however the study ends
         grey_box = Path(scratch) / "grey_box.ckpt"  # what the residuals trained alone beside it start from
-        for name, options in candidates:
+        for name, options, kind in candidates:
             print(f"fitting {name} ({args.steps} steps)", flush=True)
-            module, seconds = fit(options, dm, scene_config, args, save=grey_box if name == "grey box" else None,
-                                  beside=grey_box if KINDS["local_beside"] in name else None)
+            module, seconds = fit(options, dm, scene_config, args, save=grey_box if kind is None else None,
+                                  beside=grey_box if kind == "local_beside" else None)
             row = evaluate(name, module, system, splits["test"], test, args)
             row.update(val_nmse=validation_nmse(module, splits["val"]), train_seconds=seconds, options=options)
             rows[name] = row
