@@ -84,11 +84,9 @@ def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = N
 # ---------------------------------------------------------------------------- evaluation
 def points(data, stride: int) -> dict:
     """Every ``stride``-th point of a split's trajectories, flattened: q, qd, qdd, tau ``(N, 7)``, params."""
-    sub = slice(0, None, stride)
-    B, T, _ = data.q[:, sub].shape
-    out = {k: getattr(data, k)[:, sub].reshape(B * T, -1).double() for k in ("q", "qd", "qdd", "tau")}
-    out["params"] = data.params[:, None].expand(-1, T, -1).reshape(B * T, -1).double()
-    return out
+    from lnn_torch.arm_identification import points as flatten
+
+    return dict(zip(("q", "qd", "qdd", "tau", "params"), flatten(data, stride), strict=True))
 
 
 def nmse(pred: torch.Tensor, tau: torch.Tensor) -> list[float]:
