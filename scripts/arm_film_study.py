@@ -32,6 +32,11 @@ NARROW = ["--model.hidden_dims=[64,64]"]  # the width before (the config: 128 x 
 DATA_1000 = ["--data.path=data/robot_arm.h5", "--data.spec.num_trajectories=1000", *NARROW]  # the config before
 DATA_4000 = ["--data.path=data/robot_arm_4000.h5", "--data.spec.num_trajectories=4000"]
 DATA_12000: list[str] = []  # the config: 12000 trajectories (data/robot_arm_12000.h5)
+# 12000 more trajectories (seed 1) for training, the same validation split (about 25 min on one thread):
+#   lnn-torch generate --scene robot_arm -n 12000 --duration 3 --dt 0.005 --seed 1 -o data/robot_arm_12000_seed1.h5
+#   python scripts/join_trajectories.py data/robot_arm_12000.h5 data/robot_arm_12000_seed1.h5 \
+#       -o data/robot_arm_24000.h5
+DATA_24000 = ["--data.path=data/robot_arm_24000.h5", "--data.spec.num_trajectories=24000"]
 PRODUCTS = ['--model.model_options={"mass_invariant": [0], "film_hidden": 32, '
             '"potential": {"products": {"skip": [0], "film_hidden": 0}}}']
 
@@ -40,7 +45,9 @@ THE_CONFIG = "12000 trajectories, 128 x 128, 100,000 steps (the config)"
 # settings that start from another setting's last weights (``--model.init_from``): its steps come first
 WARM = "the config, then a warm restart of 60,000 steps (lr 1e-3 to 1e-5)"
 WARM2 = "the config, then two warm restarts of 60,000 steps (lr 1e-3 to 1e-5)"
-STARTS_AT = {WARM: 100000, WARM2: 160000}
+WARM3 = "the config, then three warm restarts of 60,000 steps (lr 1e-3 to 1e-5)"
+WARM3_MORE = "the config, two warm restarts, then a third on 24000 trajectories (12000 more)"
+STARTS_AT = {WARM: 100000, WARM2: 160000, WARM3: 220000, WARM3_MORE: 220000}
 
 
 def slug(name: str) -> str:
@@ -65,6 +72,11 @@ SETTINGS = {
         "--model.lr=1e-3", "--model.lr_min=1e-5"],
     WARM2: [*STEPS_60K, f"--model.init_from={RUNS}/{slug(WARM)}/lightning_logs/version_0/checkpoints/last.ckpt",
             "--model.lr=1e-3", "--model.lr_min=1e-5"],
+    WARM3: [*STEPS_60K, f"--model.init_from={RUNS}/{slug(WARM2)}/lightning_logs/version_0/checkpoints/last.ckpt",
+            "--model.lr=1e-3", "--model.lr_min=1e-5"],
+    WARM3_MORE: [*DATA_24000, *STEPS_60K,
+                 f"--model.init_from={RUNS}/{slug(WARM2)}/lightning_logs/version_0/checkpoints/last.ckpt",
+                 "--model.lr=1e-3", "--model.lr_min=1e-5"],
     "delan, 12000 trajectories, 128 x 128, 60,000 steps": [*DATA_12000, *STEPS_60K, "--model.variant=delan",
                                                            '--model.model_options={"mass_invariant": [0]}'],
 }
@@ -135,7 +147,7 @@ def main() -> None:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
-    marks = (5000, 10000, 15000, 20000, 60000, 100000, 160000, 220000)
+    marks = (5000, 10000, 15000, 20000, 60000, 100000, 160000, 220000, 280000)
     head = [f"val. acc. error at {' / '.join(f'{k // 1000}k' for k in marks)} steps", "open loop (s), last"]
     print("| setting | " + " | ".join(head) + " |\n|---|---|---|")
     for name, r in result.items():
