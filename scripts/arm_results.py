@@ -60,7 +60,8 @@ def description_row(system, test, horizon: float) -> dict:
 
 
 def markdown(result: dict) -> str:
-    lines = [f"Test split of `{result['data']}` ({result['num_test']} trajectories of {result['seconds']:g} s, "
+    split = result.get("split", "test").capitalize()
+    lines = [f"{split} split of `{result['data']}` ({result['num_test']} trajectories of {result['seconds']:g} s, "
              f"every 5th point for the errors); rollouts with RK4 at the data's dt, driven by the recorded torques, "
              f"from each trajectory's first state, over {result['horizon']:g} s. Command: `{result['command']}`", "",
              "| model | torque nMSE, mean over joints | torque nMSE per joint (1-7) | acceleration rel. L2 | "
@@ -81,11 +82,13 @@ def markdown(result: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
-    ap.add_argument("--data", required=True, help="the arm's dataset (.h5); its test split is used")
+    ap.add_argument("--data", required=True, help="the arm's dataset (.h5); its test split is used (--split)")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT", help="a row (repeatable)")
     ap.add_argument("--description-row", action="store_true",
                     help="first row: the shipped description in the engine (for a perturbed arm's data)")
-    ap.add_argument("--test-trajectories", type=int, default=100, help="test trajectories (at most)")
+    ap.add_argument("--split", choices=("test", "val", "train"), default="test",
+                    help="the split to judge on (val or train: how far a model fits the trajectories it saw)")
+    ap.add_argument("--test-trajectories", type=int, default=100, help="the split's first trajectories (at most)")
     ap.add_argument("--horizon", type=float, default=3.0, help="rollout horizon, s")
     add_output_file(ap, str(ROOT / "results" / "robot_arm" / "table.md"),
                     "the Markdown table (the JSON is written beside it)")
@@ -97,12 +100,13 @@ def main() -> None:
 
     data = read_dataset(args.data)
     spec = data.spec
-    test = data.trajectories("test", args.test_trajectories)
+    test = data.trajectories(args.split, args.test_trajectories)
     system = get_system("robot_arm", **spec.get("scene_config", {}))
-    result = {"data": args.data, "num_test": len(test), "seconds": spec["duration"],
+    result = {"data": args.data, "split": args.split, "num_test": len(test), "seconds": spec["duration"],
               "horizon": args.horizon, "rows": {},
               "command": "python scripts/arm_results.py " + " ".join(
-                  [f"--data {args.data}"] + (["--description-row"] if args.description_row else [])
+                  [f"--data {args.data}"] + ([f"--split {args.split}"] if args.split != "test" else [])
+                  + (["--description-row"] if args.description_row else [])
                   + [f'--model "{m}"' for m in args.model]
                   + [f"--test-trajectories {args.test_trajectories} --horizon {args.horizon:g} "
                      f"--output {args.output}"])}
