@@ -2,7 +2,9 @@
 every held-out row of ``scripts/arm_results.py`` (its JSON files) on one plot, and the least-squares line
 ``t = a + b ln(1 / error)`` through the learned models' rows. The line says what acceleration error an
 open-loop time asks for; the grey box's row (which differs from the engine only by the integrator and
-the torques held over each sample) tests whether the line holds down to it.
+the torques held over each sample) tests whether the line holds down to it. ``--physics``: rows of
+physics models with known errors (``scripts/arm_perturbed_grey_box.py``), shown and left out of the fit:
+whether a model of the exact form with the same acceleration error stays within 0.1 rad as long.
 
     python scripts/arm_open_loop_vs_error.py results/robot_arm/film_lnn/heldout.json \\
         results/robot_arm/film_lnn/heldout_4000.json -o results/robot_arm/film_lnn/open_loop
@@ -42,24 +44,32 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("results", nargs="+", help="JSON files of scripts/arm_results.py (the same test data)")
     ap.add_argument("--reference", default="grey box", help="the row of the physics model (left out of the fit)")
+    ap.add_argument("--physics", nargs="+", default=[],
+                    help="JSON files of physics models' rows (the same test data), left out of the fit")
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "open_loop"),
                    "the folder of open_loop.md and open_loop.png")
     args = ap.parse_args()
     table = rows(args.results)
+    physics = set(rows(args.physics)) if args.physics else set()
     learned = {k: v for k, v in table.items() if k != args.reference}
+    table.update(rows([*args.results, *args.physics]))
     if len(learned) < 3:
         raise SystemExit(f"need at least 3 learned rows to fit a line, got {len(learned)}")
     x = np.array([math.log(1 / e) for e, _ in learned.values()])
     t = np.array([s for _, s in learned.values()])
     b, a = np.polyfit(x, t, 1)
     resid = t - (a + b * x)
-    lines = [f"Held-out rows of {', '.join(f'`{p}`' for p in args.results)}; "
-             f"`python scripts/arm_open_loop_vs_error.py {' '.join(args.results)}`.", "",
+    files = [*args.results, *args.physics]
+    command = " ".join(args.results) + (f" --physics {' '.join(args.physics)}" if args.physics else "")
+    lines = [f"Held-out rows of {', '.join(f'`{p}`' for p in files)}; "
+             f"`python scripts/arm_open_loop_vs_error.py {command}`.", "",
              "| model | acceleration rel. L2 | open loop within 0.1 rad, median | the line's time |",
              "|---|---|---|---|"]
     for name, (e, s) in sorted(table.items(), key=lambda kv: -kv[1][0]):
         lines.append(f"| {name} | {100 * e:.3g} % | {s:.2f} s | {a + b * math.log(1 / e):.2f} s |")
-    lines += ["", f"The line through the {len(learned)} learned rows: t = {a:.3f} s + {b:.3f} s x ln(1 / error) "
+    left_out = f" (the {len(physics)} physics models' rows left out)" if physics else ""
+    lines += ["", f"The line through the {len(learned)} learned rows{left_out}: "
+              f"t = {a:.3f} s + {b:.3f} s x ln(1 / error) "
               f"(residuals' RMS {np.sqrt(np.mean(resid ** 2)):.3f} s): {b * math.log(2):.3f} s more for each "
               "halving of the acceleration error.", "",
               "| open loop asked for | acceleration error the line gives |", "|---|---|"]
@@ -73,16 +83,21 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    fig, ax = plt.subplots(figsize=(10.5, 4.5))
     for name, (e, s) in table.items():
-        ax.plot(100 * e, s, "s" if name == args.reference else "o", label=name)
+        if name not in physics:
+            ax.plot(100 * e, s, "s" if name == args.reference else "o", label=name)
+    for i, name in enumerate(sorted(physics)):  # one entry in the legend for all of them
+        e, s = table[name]
+        label = f"the grey box, inertials perturbed ({len(physics)} rows)" if i == 0 else None
+        ax.plot(100 * e, s, "x", color="0.3", label=label)
     grid = np.logspace(math.log10(min(e for e, _ in table.values())), math.log10(max(e for e, _ in table.values())))
     ax.plot(100 * grid, a + b * np.log(1 / grid), "k--", lw=1, label="the line (learned rows)")
     ax.set(xscale="log", xlabel="held-out acceleration error, rel. L2 (%)",
            ylabel="open loop within 0.1 rad, median (s)")
-    ax.legend(fontsize=6)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
-    fig.savefig(out / "open_loop.png", dpi=110)
+    fig.savefig(out / "open_loop.png", dpi=110, bbox_inches="tight")
     print("\n".join(lines))
     wrote(out / "open_loop.md", out / "open_loop.png")
 
