@@ -49,17 +49,16 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "open_loop"),
                    "the folder of open_loop.md and open_loop.png")
     args = ap.parse_args()
-    table = rows(args.results)
-    physics = set(rows(args.physics)) if args.physics else set()
-    learned = {k: v for k, v in table.items() if k != args.reference}
-    table.update(rows([*args.results, *args.physics]))
+    files = [*args.results, *args.physics]
+    table = rows(files)
+    physics = set(rows(args.physics))
+    learned = {k: v for k, v in table.items() if k != args.reference and k not in physics}
     if len(learned) < 3:
         raise SystemExit(f"need at least 3 learned rows to fit a line, got {len(learned)}")
     x = np.array([math.log(1 / e) for e, _ in learned.values()])
     t = np.array([s for _, s in learned.values()])
     b, a = np.polyfit(x, t, 1)
     resid = t - (a + b * x)
-    files = [*args.results, *args.physics]
     command = " ".join(args.results) + (f" --physics {' '.join(args.physics)}" if args.physics else "")
     lines = [f"Held-out rows of {', '.join(f'`{p}`' for p in files)}; "
              f"`python scripts/arm_open_loop_vs_error.py {command}`.", "",

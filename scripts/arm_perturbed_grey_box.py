@@ -21,12 +21,10 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
-from pathlib import Path
 
 import torch
-from _cli import ROOT, HelpFormatter, add_output_file, wrote
-from arm_results import evaluate, markdown  # this folder's evaluation of arm models
+from _cli import ROOT, HelpFormatter, add_output_file
+from arm_results import add_row, evaluate, save  # this folder's evaluation of arm models
 
 NOISE = (1e-4, 1.5e-4, 3e-4, 1e-3, 2e-3)
 
@@ -65,15 +63,9 @@ def main() -> None:
             raw = module.model.kinetic.spatial.raw
             with torch.no_grad():
                 raw.add_(s * noise.to(raw.dtype))
-            name = f"grey box, inertials perturbed (noise {s:g}, seed {seed})"
-            result["rows"][name] = evaluate(module.model, module.system, test, args.horizon)
-            print(name, json.dumps({k: v for k, v in result["rows"][name].items() if k != "torque_nrmse"}), flush=True)
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(markdown(result))
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    print(markdown(result))
-    wrote(out, out.with_suffix(".json"))
+            add_row(result, f"grey box, inertials perturbed (noise {s:g}, seed {seed})",
+                    evaluate(module.model, module.system, test, args.horizon))
+    save(result, args.output)
 
 
 if __name__ == "__main__":

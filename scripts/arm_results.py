@@ -80,6 +80,22 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def add_row(result: dict, name: str, row: dict) -> None:
+    """Add a model's row to ``result`` and print it (the torque's root-mean-square errors left out)."""
+    result["rows"][name] = row
+    print(name, json.dumps({k: v for k, v in row.items() if k != "torque_nrmse"}), flush=True)
+
+
+def save(result: dict, output) -> None:
+    """Write the table (Markdown) to ``output`` and its JSON beside it; print the table and the paths."""
+    out = Path(output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(markdown(result))
+    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    print(markdown(result))
+    wrote(out, out.with_suffix(".json"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--data", required=True, help="the arm's dataset (.h5); its test split is used (--split)")
@@ -115,14 +131,8 @@ def main() -> None:
     for item in args.model:
         name, _, path = item.partition("=")
         module = load_model(path)
-        result["rows"][name] = evaluate(module.model, module.system, test, args.horizon)
-        print(name, json.dumps({k: v for k, v in result["rows"][name].items() if k != "torque_nrmse"}), flush=True)
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(markdown(result))
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    print(markdown(result))
-    wrote(out, out.with_suffix(".json"))
+        add_row(result, name, evaluate(module.model, module.system, test, args.horizon))
+    save(result, args.output)
 
 
 if __name__ == "__main__":
