@@ -72,7 +72,8 @@ def assert_fast_path_is_the_references(model, system, qn, qdn, pn) -> None:
     """A structured model's fast accelerations equal, to 1e-10 (float64), the readable model's by the
     generic Hessian solve and by torch.func jvp/vjp + LAPACK Cholesky, under the same generalised
     force (random inputs for a scene with inputs)."""
-    tau_n = torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64) if system.num_inputs else None
+    tau_n = (torch.randn(qn.shape[0], system.num_inputs, dtype=torch.float64).to(qn.device) if system.num_inputs
+             else None)
     force = model.force_norm(qn, qdn, pn, tau_n)
     assert (force is None) == (not system.has_forces)
     fast = model.acceleration_norm(qn, qdn, pn, tau_n)

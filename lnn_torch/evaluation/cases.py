@@ -28,12 +28,13 @@ def _ood(ctx: EvalContext) -> SectionResult:
     cases = system.ood_cases()
     if not cases:
         return skip(f"scene '{system.name}' defines no out-of-distribution cases")
-    f64 = lambda key: torch.tensor([c[key] for c in cases], dtype=torch.float64)  # noqa: E731
+    device = ctx.data.q.device
+    f64 = lambda key: torch.tensor([c[key] for c in cases], dtype=torch.float64, device=device)  # noqa: E731
     params, q0, qd0 = f64("params"), f64("q0"), f64("qd0")
     dt, _, _, _ = ctx.grid()
     n = int(round((ctx.horizon or ctx.data.dt * (ctx.data.num_points - 1)) / dt))
     # an actuated scene's cases are free motion: inputs off
-    tau = None if not system.num_inputs else torch.zeros(len(cases), n + 1, system.num_inputs, dtype=torch.float64)
+    tau = None if not system.num_inputs else q0.new_zeros(len(cases), n + 1, system.num_inputs)
     steps_tau = None if tau is None else tau[:, :n]
     qt, qdt = reference_rollout(system, q0, qd0, params, dt, n, tau=steps_tau)
     qm, qdm = model_rollout(ctx.model, q0, qd0, params, dt, n, ctx.integrator, tau=steps_tau)

@@ -15,6 +15,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import torch
+
 from ..data.trajectories import Trajectories
 from ..networks.calls import model_rollout
 from ..report import scalar_rows
@@ -148,7 +150,19 @@ def _inputs_note(system) -> str:
 
 def _figure(draw: Callable, *args, **kwargs) -> Callable[[dict], object]:
     """A figure builder ``fn(result)``: ``draw(*args, **kwargs)`` (a figure of ``lnn_torch.plots``),
-    drawn only when the builder is called."""
+    drawn only when the builder is called, with tensors copied to the host (a model evaluated on a
+    GPU: matplotlib reads host memory)."""
     def build(result: dict):
-        return draw(*args, **kwargs)
+        return draw(*map(host, args), **{k: host(v) for k, v in kwargs.items()})
     return build
+
+
+def host(x):
+    """``x`` with every tensor in it (in dicts, lists and tuples too) copied to the CPU, for drawing."""
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu()
+    if isinstance(x, dict):
+        return {k: host(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(host(v) for v in x)
+    return x

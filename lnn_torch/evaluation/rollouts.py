@@ -18,7 +18,7 @@ from ..ground_truth import reference_rollout
 from ..metrics import divergence_time, energy_drift, power_balance_error, quartiles
 from ..plots import drift_figure, error_growth_figure, trajectory_figure
 from ..report import pct, quartile_cell, table_row
-from .registry import EvalContext, SectionResult, _closed_form, _figure, _inputs_note, _units, section
+from .registry import EvalContext, SectionResult, _closed_form, _figure, _inputs_note, _units, host, section
 
 
 @section("rollouts")
@@ -41,8 +41,8 @@ def _rollouts(ctx: EvalContext) -> SectionResult:
 
     def error_growth(result):
         exact = result["_arrays"].get("q_exact")  # the predictability section's, where it was computed
-        return error_growth_figure(arrays["q_true"], arrays["q_model"], exact, arrays["dt"], system.angle_mask,
-                                   result.get("perturbation", 1e-6), _units(system).strip("()"))
+        return error_growth_figure(host(arrays["q_true"]), host(arrays["q_model"]), host(exact), arrays["dt"],
+                                   system.angle_mask, result.get("perturbation", 1e-6), _units(system).strip("()"))
 
     figures = {"trajectory.png": _figure(trajectory_figure, arrays["q_true"][0], arrays["q_model"][0], arrays["dt"],
                                          system.coord_names, system.coord_units),

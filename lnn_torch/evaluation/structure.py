@@ -160,7 +160,7 @@ def _free_decay(ctx: EvalContext) -> SectionResult:
     dt = rollouts["grid_dt"]
     q0 = data.q[: len(rollouts["params"]), 0]
     params = rollouts["params"]
-    zeros = None if not system.num_inputs else torch.zeros(len(q0), n, system.num_inputs, dtype=q0.dtype)
+    zeros = None if not system.num_inputs else q0.new_zeros(len(q0), n, system.num_inputs)
     qt, qdt = reference_rollout(system, q0, torch.zeros_like(q0), params, dt, n, tau=zeros)
     qm, qdm = model_rollout(model, q0, torch.zeros_like(q0), params, dt, n, ctx.integrator, tau=zeros)
     E_true = system.energy(qt, qdt, params[:, None].expand(-1, n + 1, -1))

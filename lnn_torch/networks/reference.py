@@ -59,7 +59,7 @@ def features(model, q_norm: torch.Tensor) -> torch.Tensor:
     linear = [i for i, a in enumerate(model.scene.angle_mask) if not a]
     qa = q_norm[..., angles]
     if model.scene.angle_combinations:
-        combos = torch.tensor(model.scene.angle_combinations, dtype=q_norm.dtype)
+        combos = torch.tensor(model.scene.angle_combinations, dtype=q_norm.dtype, device=q_norm.device)
         qa = torch.cat([qa, (combos * q_norm[..., None, :]).sum(-1)], -1)
     return torch.cat([torch.sin(qa), torch.cos(qa), q_norm[..., linear]], -1)
 

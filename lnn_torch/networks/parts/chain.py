@@ -126,7 +126,7 @@ class RigidChain(KineticPart):
         joint i (the readable reference of ``factor`` and ``gravity``)."""
         p = self.parameters_of(params_norm)
         phi = q_norm @ self.link_map.to(q_norm.dtype).T
-        out, joint = [], torch.zeros(*q_norm.shape[:-1], 2, dtype=q_norm.dtype)
+        out, joint = [], q_norm.new_zeros(*q_norm.shape[:-1], 2)
         for i in range(self.num_links):
             s, c = torch.sin(phi[..., i]), torch.cos(phi[..., i])
             along, across = p["along"][..., i], p["across"][..., i]

@@ -47,7 +47,7 @@ def chol_from(raw: torch.Tensor, draw: torch.Tensor | None, diag: torch.Tensor, 
 def reference_chol(entries: torch.Tensor, dof: int, shift: float) -> torch.Tensor:
     """The plain form of ``chol_from``: entries ``(B, n_chol)`` (the dof diagonal entries, then the rest
     row-major) -> ``(B, dof, dof)``."""
-    rows, cols = torch.tril_indices(dof, dof)
+    rows, cols = torch.tril_indices(dof, dof, device=entries.device)
     diagonal = rows == cols
     rows = torch.cat([rows[diagonal], rows[~diagonal]])
     cols = torch.cat([cols[diagonal], cols[~diagonal]])
