@@ -1,5 +1,5 @@
 """The GPU path: the same physics on a CUDA device as on the CPU. Skipped where torch sees no CUDA
-device (CI has none); ``benchmarks/benchmark_gpu.py`` times this path.
+device (CI has none); ``benchmarks/benchmark_gpu.py`` times this path (``results/gpu/README.md``).
 
 On the GPU, in float64: the fast structured solve equals the readable references (torch.func and the
 generic Hessian solve), the shipped models give the CPU's accelerations, torques and rollouts, a
@@ -35,6 +35,19 @@ def test_the_fast_path_on_cuda_is_the_references_and_the_cpus(scene, variant):
     system = get_system(scene)
     model = perturbed(build_model(variant, system, hidden_dims=(32, 32)).double())
     qn, qdn, pn = normalized_batch(model, system, np.random.default_rng(0), 256)
+    cpu = model.acceleration_norm(qn, qdn, pn)
+    model.to(CUDA)
+    qn, qdn, pn = qn.to(CUDA), qdn.to(CUDA), pn.to(CUDA)
+    assert_fast_path_is_the_references(model, system, qn, qdn, pn)
+    _close(model.acceleration_norm(qn, qdn, pn), cpu, 1e-10)
+
+
+def test_the_planar_chain_grey_box_on_cuda_is_the_references_and_the_cpus():
+    """The grey-box chain (kinetic and potential parts ``chain``, absolute link angles) on the GPU."""
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, kinetic={"chain": {"links": [[1, 0], [0, 1]]}},
+                                  potential="chain", hidden_dims=(32, 32)).double())
+    qn, qdn, pn = normalized_batch(model, system, np.random.default_rng(4), 256)
     cpu = model.acceleration_norm(qn, qdn, pn)
     model.to(CUDA)
     qn, qdn, pn = qn.to(CUDA), qdn.to(CUDA), pn.to(CUDA)
