@@ -77,16 +77,17 @@ def calls_per_run(fn: Callable[[], object], seconds: float = 0.02) -> int:
 
 # ---------------------------------------------------------------------------- candidates in turn
 def in_turn(candidates: dict, rounds: int, measure: Callable[[Callable[[], object]], object],
-            progress: Callable[[int], None] | None = None) -> dict:
+            progress: Callable[[int], object] | None = None, values: dict | None = None) -> dict:
     """``{name: [measure(fn) of each round]}`` for ``candidates`` ``{name: fn}``: each of ``rounds`` rounds
     measures every candidate once, in the dict's order. ``progress(r)`` is called after round ``r``
-    (1-based), e.g. to print it."""
-    values = {name: [] for name in candidates}
+    (1-based), e.g. to print it; when it returns True no further round starts (a time budget).
+    ``values``: the dict to fill (``progress`` may read the rounds so far from it)."""
+    values = {name: [] for name in candidates} if values is None else values
     for r in range(rounds):
         for name, fn in candidates.items():
             values[name].append(measure(fn))
-        if progress is not None:
-            progress(r + 1)
+        if progress is not None and progress(r + 1) is True:
+            break
     return values
 
 
