@@ -93,6 +93,25 @@ def test_import_round_trip_resamples_converts_and_records_provenance(recordings)
     f2 = read_dataset(import_recordings(files, root / "noqd.h5", spec2))
     assert torch.isnan(f2.trajectories(None).qd).all() and f2.num_inputs == 0
     assert sorted(np.concatenate(list(f2.splits.values())).tolist()) == [0, 1, 2]
+    # the fractions as a dict of the parts give the same split; a recording named alone is a list of one
+    spec3 = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], angle_units="deg",
+                       split={"train": 0.34, "val": 0.33, "test": 0.33}, seed=1)
+    f3 = read_dataset(import_recordings(files, root / "dict_fractions.h5", spec3))
+    assert {k: v.tolist() for k, v in f3.splits.items()} == {k: v.tolist() for k, v in f2.splits.items()}
+    spec4 = ImportSpec(time="stamp", coordinates=["angle0", "angle1"], split={"train": "run0", "test": ["run1"]})
+    assert read_dataset(import_recordings(files[:2], root / "named.h5", spec4)).splits["train"].tolist() == [0]
+
+
+@pytest.mark.parametrize("split, message", [
+    ({"train": 0.7}, r"split must be three fractions summing to 1"),
+    ({"train": ["run0"], "val": 0.5}, r"split: val must be a list of recording names or windows"),
+    ({"train": ["run0"], "holdout": ["run1"]}, r"split: unknown part\(s\) 'holdout' \(train, val, test\)"),
+])
+def test_a_malformed_split_is_refused_in_one_line(recordings, split, message, tmp_path):
+    _, files, _, _ = recordings
+    with pytest.raises(InputError, match=message):
+        import_recordings(files[:2], tmp_path / "x.h5", ImportSpec(time="stamp", coordinates=["angle0", "angle1"],
+                                                                   split=split))
 
 
 @pytest.mark.parametrize("problem, message", [
@@ -188,6 +207,15 @@ def test_derivative_estimates_recover_exact_derivatives_of_clean_signals(method,
         derivatives.settings({"method": "kalman"})
     with pytest.raises(InputError, match="cutoff"):
         derivatives.estimate(arrays["q"][0], 0.002, derivatives.settings({"method": "butterworth", "cutoff": 400}))
+    # settings given on the command line arrive as text (--data.targets.cutoff=25): read as numbers and flags
+    assert derivatives.settings({"method": "butterworth", "cutoff": "25", "order": "2",
+                                 "use_measured_velocity": "false"}) == {
+        "method": "butterworth", "use_measured_velocity": False, "cutoff": 25.0, "order": 2}
+    for bad, message in (({"cutoff": "fast"}, "targets cutoff must be a number, got 'fast'"),
+                         ({"order": 2.5}, "targets order must be a whole number"),
+                         ({"use_measured_velocity": "maybe"}, "use_measured_velocity must be true or false")):
+        with pytest.raises(InputError, match=message):
+            derivatives.settings({"method": "butterworth", **bad})
 
 
 # ---------------------------------------------------------------------------- trajectory matching

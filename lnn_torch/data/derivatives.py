@@ -35,15 +35,40 @@ def settings(targets: dict | str | None) -> dict | None:
     method = targets.get("method")
     if method not in METHODS:
         raise InputError(f"targets method must be one of file, {', '.join(METHODS)}; got {method!r}")
-    out = {"method": method, "use_measured_velocity": bool(targets.get("use_measured_velocity", True)),
+    out = {"method": method, "use_measured_velocity": _flag(targets.get("use_measured_velocity", True)),
            **DEFAULTS[method], **{k: v for k, v in targets.items() if k not in ("method", "use_measured_velocity")}}
     unknown = set(out) - {"method", "use_measured_velocity", *DEFAULTS[method]}
     if unknown:
         raise InputError(f"targets method '{method}' takes no setting {', '.join(sorted(unknown))}")
+    for key in DEFAULTS[method]:  # a command-line override (--data.targets.cutoff=25) arrives as text
+        out[key] = _number(key, out[key], integer=key in ("order", "window", "polyorder"))
     if method == "savgol" and (int(out["window"]) % 2 == 0 or int(out["window"]) <= int(out["polyorder"])):
         raise InputError("savgol window must be odd and larger than polyorder, "
                          f"got {out['window']}, {out['polyorder']}")
     return out
+
+
+def _flag(value) -> bool:
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+        return value.strip().lower() == "true"
+    if isinstance(value, (bool, int)):
+        return bool(value)
+    raise InputError(f"targets use_measured_velocity must be true or false, got {value!r}")
+
+
+def _number(key: str, value, integer: bool):
+    """A targets setting as a number (``lam`` may be None: chosen by the spline's own criterion)."""
+    if value is None and key == "lam":
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"targets {key} must be a number, got {value!r}") from None
+    if integer:
+        if number != int(number):
+            raise InputError(f"targets {key} must be a whole number, got {value!r}")
+        return int(number)
+    return number
 
 
 def _smooth(x: np.ndarray, dt: float, s: dict, deriv: int) -> np.ndarray:

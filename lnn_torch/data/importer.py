@@ -81,7 +81,8 @@ class ImportSpec:
         max_gap: the longest interval between two time stamps accepted, s (default 25 x the median).
         split: ``{"train": [...], "val": [...], "test": [...]}`` of recording names (file stems) or time
             windows ``"name[start:end]"`` (s of its time column; an end may be left out), or three
-            fractions of the recordings (seeded by ``seed``).
+            fractions of the recordings (seeded by ``seed``): ``[0.7, 0.15, 0.15]`` or
+            ``{"train": 0.7, "val": 0.15, "test": 0.15}``.
         window_context: seconds of the recording kept on each side of a time window (for filters).
         label: the system's name (recorded).
     """
@@ -335,6 +336,7 @@ WINDOW = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<start>[^:\]]*):(?P<end>[^\]]*)\]$
 def _entries(names: list[str], split, seed: int, durations: list[float]) -> tuple[list[tuple], dict]:
     """The dataset's entries ``(recording index, start s or None, end s or None, name)`` and the split
     over them: whole recordings (named, or seeded fractions), or time windows ``name[start:end]``."""
+    split = _split_form(split)
     if not isinstance(split, dict) or not any(WINDOW.match(str(item).strip()) for items in split.values()
                                               for item in (items or [])):
         entries = [(i, None, None, n) for i, n in enumerate(names)]  # every recording, in the files' order
@@ -391,6 +393,27 @@ def _by_name(names: list[str], split: dict) -> dict:
         raise InputError("split: a recording is named in more than one split")
     if not len(out["train"]):
         raise InputError("split: no training recording")
+    return out
+
+
+def _split_form(split):
+    """``split`` as ``_entries`` reads it: a dict of fractions (``{train: 0.7, val: 0.15, test: 0.15}``)
+    becomes the list of three; a dict's values must be lists (or one name); anything else is refused."""
+    if not isinstance(split, dict):
+        return split
+    unknown = sorted(set(split) - {"train", "val", "test"})
+    if unknown:
+        raise InputError(f"split: unknown part(s) {', '.join(map(repr, unknown))} (train, val, test)")
+    if split and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in split.values()):
+        return [float(split.get(part, 0.0)) for part in ("train", "val", "test")]
+    out = {}
+    for part, items in split.items():
+        if isinstance(items, str):
+            items = [items]
+        if items is not None and not isinstance(items, (list, tuple)):
+            raise InputError(f"split: {part} must be a list of recording names or windows (or every part a "
+                             f"fraction), got {items!r}")
+        out[part] = items
     return out
 
 
