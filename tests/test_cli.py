@@ -135,7 +135,8 @@ def _imported(config: Path, tmp_path: Path) -> Path:
     if not recordings:
         spec = yaml.safe_load(importer.read_text())
         names = sorted({w.split("[")[0] for part in spec["split"].values() for w in part})
-        end = max(float(w.split(":")[1].rstrip("]")) for part in spec["split"].values() for w in part if ":" in w)
+        ends = [float(w.split(":")[1].rstrip("]")) for part in spec["split"].values() for w in part if ":" in w]
+        end = max(ends, default=5.0)  # recordings named whole: 5 s each
         t = np.arange(0.0, end + 0.5, spec.get("dt", 0.01))
         dof = len(spec["coordinates"])
         k = np.arange(1, dof + 1)[None]
