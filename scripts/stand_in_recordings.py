@@ -14,6 +14,12 @@ fractions) and nothing the package's scene knows (no conventions, parameters or 
 
 ``--pendubot``: only the first joint driven (one input; its input matrix ``[[1], [0]]``).
 ``--positions-only``: no velocity columns. ``--noise S``: Gaussian noise of S rad on the angles.
+
+The simulation's exact signals go to ``truth.npz`` beside the recordings (a lab never has them), so
+that a model trained on the recordings is judged against the machine itself, on the dataset's test
+recordings, at the exact states and torques:
+
+    python scripts/stand_in_recordings.py --score CHECKPOINT data/stand_in.h5 -o runs/stand_in
 """
 
 from __future__ import annotations
@@ -40,11 +46,42 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--noise", type=float, default=0.0, help="Gaussian noise on the angles, rad")
     ap.add_argument("--seed", type=int, default=3, help="the simulation's seed (the noise's: seed + 1)")
     ap.add_argument("--overwrite", action="store_true", help="replace existing files")
+    ap.add_argument("--score", nargs=2, metavar=("CHECKPOINT", "DATASET"),
+                    help="instead: a model's acceleration and torque errors against the exact signals of the "
+                         "dataset's test recordings (truth.npz in the output folder)")
     return ap
+
+
+def score(checkpoint: str, dataset: str, folder: Path) -> dict:
+    """``{acc_rel_err, torque_nrmse}`` of the model against the simulation's exact accelerations and
+    torques (its inverse dynamics at the exact accelerations) at the exact states of the dataset's test
+    recordings, every point."""
+    import torch
+
+    from lnn_torch import load_model
+    from lnn_torch.data import read_dataset
+
+    truth = np.load(folder / "truth.npz")
+    test = read_dataset(dataset).splits["test"]
+    q, qd, qdd, tau = (torch.from_numpy(truth[k][test].reshape(-1, truth[k].shape[-1])) for k in ("q", "qd", "qdd",
+                                                                                                    "tau"))
+    model = load_model(checkpoint).model.double()
+    params = q.new_zeros(len(q), 0)
+    with torch.no_grad():
+        a = model.acceleration(q, qd, params, tau)
+        torques = model.inverse_dynamics_si(q, qd, qdd, params)
+    return {"acc_rel_err": float((a - qdd).norm() / qdd.norm()),
+            "torque_nrmse": float((torques - tau).norm() / tau.norm()), "test_recordings": len(test)}
 
 
 def main() -> None:
     args = parser().parse_args()
+    if args.score:
+        result = score(*args.score, Path(args.output_dir))
+        print(f"against the exact signals of {result['test_recordings']} test recordings: acceleration error "
+              f"{100 * result['acc_rel_err']:.2f} %, inverse-dynamics torque error "
+              f"{100 * result['torque_nrmse']:.2f} %")
+        return
     import yaml
 
     from lnn_torch.data import DatasetSpec, generate_arrays
@@ -81,10 +118,11 @@ def main() -> None:
     if args.pendubot:
         config["input_matrix"] = [[1], [0]]
     config |= {"friction": True, "split": {"train": 0.7, "val": 0.15, "test": 0.15}}
+    np.savez(out / "truth.npz", **{k: arrays[k] for k in ("t", "q", "qd", "qdd", "tau")})
     config_path.write_text(f"# written by scripts/stand_in_recordings.py: {args.recordings} recordings of one "
                            f"simulated machine\n" + yaml.safe_dump(config, sort_keys=False, default_flow_style=None))
     print(f"import them with: lnn-torch import {out}/run_*.csv --config {config_path} -o DATASET.h5")
-    wrote(config_path, f"{out}/run_*.csv ({args.recordings} files)")
+    wrote(config_path, out / "truth.npz", f"{out}/run_*.csv ({args.recordings} files)")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ def _write(out: Path, *args: str) -> Path:
     run = subprocess.run([sys.executable, str(SCRIPT), "-o", str(out), "--recordings", "4", "--duration", "0.5",
                           *args], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert f"wrote {out}/import.yaml" in run.stdout
+    assert f"wrote {out}/import.yaml, {out}/truth.npz" in run.stdout
     return out / "import.yaml"
 
 
@@ -37,6 +37,9 @@ def test_the_stand_in_recordings_import_as_one_machine(tmp_path):
     qd = f.trajectories(None).qd
     assert np.isfinite(qd.numpy()).all()  # measured velocities
     assert sum(len(v) for v in f.splits.values()) == 4
+    truth = np.load(tmp_path / "full" / "truth.npz")  # the exact signals, for --score
+    np.testing.assert_allclose(f.trajectories(None).q.numpy(), truth["q"], rtol=0, atol=1e-8)
+    assert truth["qdd"].shape == truth["q"].shape and truth["tau"].shape[-1] == 2
     # the pendubot, positions only and noisy: one input on the first joint, no velocities
     config = _write(tmp_path / "pendubot", "--pendubot", "--positions-only", "--noise", "1e-3")
     assert yaml.safe_load(config.read_text())["input_matrix"] == [[1], [0]]
