@@ -163,6 +163,6 @@ def host(x):
         return x.detach().cpu()
     if isinstance(x, dict):
         return {k: host(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
+    if type(x) in (list, tuple):  # not a named tuple's own type: left as it is
         return type(x)(host(v) for v in x)
     return x
