@@ -15,7 +15,7 @@ Calls: ``accel B`` (B accelerations, no autograd; the arm's with random torques)
 points, the arm's as single points, as their configs train; the original's on B consecutive points),
 ``rollout`` (RK4, 1024 trajectories, 100 steps of 5 ms).
 
-    python benchmarks/benchmark_gpu.py -o results/benchmark_gpu.md        # needs a CUDA device
+    python benchmarks/benchmark_gpu.py                       # needs a CUDA device; results/gpu/benchmark_gpu.md
     LNN_JAX_ORIGINAL_SRC=../jax_original/src_checkout/src python benchmarks/benchmark_gpu.py ...
 
 Writes the Markdown table and, beside it, the JSON of every round.
@@ -55,13 +55,14 @@ def gpu_info() -> dict:
 
 
 def synced(fn, device):
+    """``fn`` followed by a device synchronisation on a GPU (``fn`` itself elsewhere)."""
     import torch
 
     def call():
         fn()
         torch.cuda.synchronize()
 
-    return call if device.type == "cuda" else lambda: fn()
+    return call if device.type == "cuda" else fn
 
 
 def states(system, n: int, seed: int):
@@ -137,7 +138,7 @@ def torch_calls(name: str, device, compiled: bool, only=None) -> dict:
     return out
 
 
-def original_calls() -> dict:
+def original_calls() -> tuple[dict, object]:
     """The released original's accelerations and training step on JAX's default device (the GPU)."""
     import jax_original as harness
 
@@ -164,7 +165,7 @@ def original_calls() -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
-    add_output_file(ap, "results/benchmark_gpu.md", "the Markdown report (the JSON beside it)")
+    add_output_file(ap, "results/gpu/benchmark_gpu.md", "the Markdown report (the JSON beside it)")
     ap.add_argument("--rounds", type=int, default=5, help="rounds, each timing every candidate in turn")
     ap.add_argument("--calls", type=int, default=5, help="timed calls per candidate, call and round")
     ap.add_argument("--no-original", action="store_true", help="without the JAX original")

@@ -33,13 +33,7 @@ def test_the_fast_path_on_cuda_is_the_references_and_the_cpus(scene, variant):
     if scene == "robot_arm":
         pytest.importorskip("mujoco")
     system = get_system(scene)
-    model = perturbed(build_model(variant, system, hidden_dims=(32, 32)).double())
-    qn, qdn, pn = normalized_batch(model, system, np.random.default_rng(0), 256)
-    cpu = model.acceleration_norm(qn, qdn, pn)
-    model.to(CUDA)
-    qn, qdn, pn = qn.to(CUDA), qdn.to(CUDA), pn.to(CUDA)
-    assert_fast_path_is_the_references(model, system, qn, qdn, pn)
-    _close(model.acceleration_norm(qn, qdn, pn), cpu, 1e-10)
+    _fast_path_on_cuda(perturbed(build_model(variant, system, hidden_dims=(32, 32)).double()), system, 0)
 
 
 def test_the_planar_chain_grey_box_on_cuda_is_the_references_and_the_cpus():
@@ -47,7 +41,12 @@ def test_the_planar_chain_grey_box_on_cuda_is_the_references_and_the_cpus():
     system = get_system("double_pendulum")
     model = perturbed(build_model("film_lnn", system, kinetic={"chain": {"links": [[1, 0], [0, 1]]}},
                                   potential="chain", hidden_dims=(32, 32)).double())
-    qn, qdn, pn = normalized_batch(model, system, np.random.default_rng(4), 256)
+    _fast_path_on_cuda(model, system, 4)
+
+
+def _fast_path_on_cuda(model, system, seed: int) -> None:
+    """On the GPU the model's fast solve is its references' and the CPU's, to 1e-10 (float64)."""
+    qn, qdn, pn = normalized_batch(model, system, np.random.default_rng(seed), 256)
     cpu = model.acceleration_norm(qn, qdn, pn)
     model.to(CUDA)
     qn, qdn, pn = qn.to(CUDA), qdn.to(CUDA), pn.to(CUDA)
