@@ -167,6 +167,36 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 
 
+def model_torque(model):
+    """``(q, qd, qdd, params) -> torque`` (float64, N m) of a model's inverse dynamics, without gradients."""
+    def torque(q, qd, qdd, params):
+        with torch.no_grad():
+            return model.inverse_dynamics(*(x.to(model.dtype) for x in (q, qd, qdd, params))).double()
+    return torque
+
+
+def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> dict:
+    """Rows ``LABEL + velocity feedback`` (``torque_errors`` on ``split``, with ``val_rms_mean`` and the
+    ``feedback`` gains): each predictor ``(q, qd, qdd, params) -> torque`` (``model_torque``, or a classical
+    fit's ``torque``) with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``)
+    fitted on its training-split error and kept where the validation split prefers it. No open loop: the
+    feedback is not a force of the state. Needs estimated targets and recorded velocities."""
+    from . import velocity_feedback
+
+    splits = {s: points(datamodule.trajectories(s)) for s in dict.fromkeys(("train", "val", split))}
+    bands = {s: velocity_feedback.of_split(datamodule, s) for s in splits}
+    rows = {}
+    for label, torque in predictors.items():
+        error = {s: tau - torque(q, qd, qdd, p) for s, (q, qd, qdd, tau, p) in splits.items()}
+        fb = velocity_feedback.fit(error["train"], bands["train"], error["val"], bands["val"])
+        tau = splits[split][3]
+        row = torque_errors(tau - error[split] + fb.torque(bands[split]), tau, names)
+        row["val_rms_mean"] = sum(fb.val_rms_after) / len(fb.val_rms_after)
+        row["feedback"] = fb.report()
+        rows[f"{label} + velocity feedback"] = row
+    return rows
+
+
 def markdown(result: dict) -> str:
     """The held-out table: one row per model, RMS per joint and the mean in N m."""
     names = result["joints"]

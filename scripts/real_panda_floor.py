@@ -24,6 +24,12 @@ configs/real_panda.yaml``):
    torque error of the real Panda holds such a ripple (about 241 cycles per revolution on joints 1-4:
    well above the targets' band at the arm's speeds); whether it is a function of the state that this
    recording can teach is what the held-out row says.
+5. **The robot's feedback on its measured velocity** (``lnn_torch.velocity_feedback``): per joint, the
+   grey box's torque error against the recorded velocity's part above the targets' band (recorded
+   velocity less the targets' smoothed one), one gain per joint by least squares on the training window,
+   kept where it lowers the validation error; the same with the velocity derived from the angles instead
+   of the recorded one (positions differentiated, ``use_measured_velocity: false``, at a 200 Hz cutoff)
+   tells whether the angles show that motion.
 
     python scripts/real_panda_floor.py runs/real_panda/grey_box_vco/lightning_logs/version_0/checkpoints/last.ckpt \\
         -o results/real_panda
@@ -134,6 +140,7 @@ def main() -> None:
                     help="the angle-locked ripple's search: cycles per joint revolution")
     add_output_dir(ap, "results/real_panda", "the folder of floor.md and floor.json")
     args = ap.parse_args()
+    from lnn_torch import velocity_feedback
     from lnn_torch.arm_identification import points
     from lnn_torch.checkpoints import data_hparams, load_model
     from lnn_torch.data import TrajectoryDataModule
@@ -164,8 +171,19 @@ def main() -> None:
     ridge = {name: ridge_row(splits, kinds) for name, kinds in FEATURES.items()}
     # 4. an angle-locked ripple
     locked = ripple(splits, np.arange(*args.ripple_k))
+    # 5. the robot's feedback on its measured velocity, and the same from the angles' own derivative
+    bands = {"the recorded velocity": {s: velocity_feedback.of_split(dm, s) for s in splits}}
+    fine = TrajectoryDataModule(path=args.data, targets={**targets, "cutoff": 200.0, "use_measured_velocity": False})
+    bands["the angles' derivative"] = {s: points(fine.trajectories(s))[1] - splits[s]["qd"] for s in splits}
+    feedback = {}
+    for name, b in bands.items():
+        fb = velocity_feedback.fit(splits["train"]["r"], b["train"], splits["val"]["r"], b["val"])
+        test = (splits["test"]["r"] + b["test"] * fb.gains).pow(2).mean(0).sqrt().tolist()
+        feedback[name] = {**fb.report(), "test": test, "test_mean": float(np.mean(test)),
+                          "val_mean": float(np.mean(fb.val_rms_after))}
     result = {"checkpoint": args.checkpoint, "targets": targets, "grey_box_test": grey, "above_cutoff": above,
-              "cutoffs": {str(k): v for k, v in cutoffs.items()}, "ridge": ridge, "ripple": locked}
+              "cutoffs": {str(k): v for k, v in cutoffs.items()}, "ridge": ridge, "ripple": locked,
+              "feedback": feedback}
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "floor.json").write_text(json.dumps(result, indent=1) + "\n")
@@ -209,6 +227,13 @@ def markdown(r: dict, joints: int) -> str:
                   "| amplitude on the training window | " + " | ".join(f"{a:.3f}" for a in rp["amplitude"]) + " | | |",
                   "| kept by validation | " + " | ".join("yes" if k else "no" for k in rp["kept"]) + " | | |",
                   f"| the grey box's error with it | {_cells(rp['test'])} | {rp['val_mean']:.3f} |"]
+    if "feedback" in r:
+        lines += ["", "The robot's feedback on its measured velocity: the grey box's error against the velocity's part "
+                  f"above {t['cutoff']:g} Hz, one gain D per joint (torque -D times that part; N m s/rad) fitted on "
+                  "the training window, kept where it lowers the validation error:", "", _head(joints, ("validation",))]
+        for name, fb in r["feedback"].items():
+            lines += [f"| D from {name} | " + " | ".join(f"{g:.1f}" for g in fb["gains"]) + " | | |",
+                      f"| the grey box's error with it | {_cells(fb['test'])} | {fb['val_mean']:.3f} |"]
     return "\n".join(lines) + "\n"
 
 

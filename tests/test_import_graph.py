@@ -13,7 +13,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "lnn_torch"
 # places a package's submodules (the most specific name wins).
 LAYERS = [
     ("foundations", ["errors", "perf", "config_files", "pretrained", "checkpoint_format", "integrators", "dynamics",
-                     "forces", "drives", "excitation", "metrics", "report", "data.trajectories", "data.derivatives",
+                     "forces", "drives", "velocity_feedback", "excitation", "metrics", "report", "data.trajectories",
+                     "data.derivatives",
                      "networks.normalization", "networks._kernels"]),
     ("physics", ["robots", "robots.*", "systems", "systems.*", "ground_truth", "recording", "identified"]),
     ("models", ["networks", "networks.*"]),

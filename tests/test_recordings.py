@@ -1,6 +1,7 @@
 """Measured recordings: import, a system without parameters or closed form, derivative estimates,
 trajectory matching, and the command line from CSV files to an evaluated checkpoint."""
 
+import dataclasses
 import gzip
 import hashlib
 import json
@@ -262,6 +263,32 @@ def test_shooting_windows_never_cross_a_recording_end(recordings):
     for batch in dm.train_dataloader():
         assert torch.isfinite(batch["q"]).all() and torch.isfinite(batch["qd"]).all()
         assert torch.isfinite(batch["qdd"]).all() and torch.isfinite(batch["tau"]).all()
+
+
+def test_recorded_velocities_are_the_files_point_for_point_with_the_smoothed_ones(recordings):
+    """``recorded_velocities``: the velocities as the file holds them (resampled, in rad/s), cut to each
+    entry's window like ``trajectories``, whose velocities are the targets' smoothed ones."""
+    from lnn_torch import TrajectoryDataModule
+
+    root, files, _, spec = recordings
+    windowed = dataclasses.replace(spec, split={"train": ["run0[0.1:2.0]"], "val": ["run1[0.5:1.5]", "run2"],
+                                                "test": []})
+    path = import_recordings(files, root / "recorded_qd.h5", windowed, overwrite=True)
+    f = read_dataset(path)
+    dm = TrajectoryDataModule(path=str(path), targets={"method": "butterworth", "cutoff": 10.0})
+    recorded, smoothed = dm.recorded_velocities("val"), dm.trajectories("val")
+    assert recorded.shape == smoothed.qd.shape and recorded.dtype == torch.float64
+    with f.open() as h:
+        qd, windows = h["qd"][:], h["windows"][:]
+    for j, idx in enumerate(f.splits["val"]):
+        a, b = windows[idx]
+        n = int(smoothed.lengths[j])
+        assert n == b - a
+        np.testing.assert_allclose(recorded[j, :n].numpy(), qd[idx, a:b], rtol=0, atol=1e-12)
+        assert torch.isnan(recorded[j, n:]).all()
+        assert not np.allclose(recorded[j, :n].numpy(), smoothed.qd[j, :n].numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="needs estimated targets"):
+        TrajectoryDataModule(path=str(path)).recorded_velocities("val")
 
 
 # ---------------------------------------------------------------------------- end to end from the CLI

@@ -12,9 +12,10 @@ A model of a measured robot arm (recordings imported with its robot description,
 find) is identified the way robotics labs do it instead: classical least squares on the base
 parameters with the model's drive model (ordinary, weighted, physically consistent;
 ``lnn_torch.arm_identification``), fitted on the dataset's training split, beside the model, as the
-held-out joint-torque error per joint in N m on ``--split`` (default test).
+held-out joint-torque error per joint in N m on ``--split`` (default test); ``--feedback`` adds each
+with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``).
 
-    lnn-torch identify runs/real_panda/.../last.ckpt data/real_panda.h5
+    lnn-torch identify runs/real_panda/.../last.ckpt data/real_panda.h5 --feedback
 
 The recording is a trajectory of a dataset file (``--split``, ``--trajectory``; generated files know
 the true parameters, and the report gives the errors) or a CSV file (a time column and a column per
@@ -77,6 +78,11 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--noise", type=float, default=0.0,
                      help="add Gaussian noise of this std to the observed positions (studies; default 0)")
     fit.add_argument("--seed", type=int, default=0)
+    arm = ap.add_argument_group("a measured arm")
+    arm.add_argument("--feedback", action="store_true",
+                     help="also the model and each fit with the robot's feedback on its measured velocity (one gain "
+                          "per joint on the recorded velocity above the targets' band, fitted on the training split, "
+                          "kept where the validation split prefers it; lnn_torch.velocity_feedback)")
     ap.add_argument("--output-dir", "-o", default=None,
                     help="where the report goes (default: identification/<recording>, with the split and trajectory "
                          "of a dataset file, so that identifying another recording keeps this one's report)")
@@ -199,9 +205,9 @@ def _measured_arm(system) -> bool:
 
 def _identify_arm(module, args) -> int:
     """Classical identification of a measured arm beside its model (module docstring)."""
-    from ..arm_identification import compare_on_arm, fit_classical, markdown
+    from ..arm_identification import compare_on_arm, feedback_rows, fit_classical, markdown, model_torque
     from ..checkpoints import data_hparams
-    from ..data import TrajectoryDataModule
+    from ..data import TrajectoryDataModule, read_dataset
 
     path = Path(args.recording)
     if path.suffix not in (".h5", ".hdf5"):
@@ -212,6 +218,13 @@ def _identify_arm(module, args) -> int:
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
     fits = fit_classical(module.system, dm.trajectories("train"), drive=friction)
     result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
+    if args.feedback:
+        if targets == "file" or not read_dataset(path).measured:
+            raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
+                             "recording or the model was not trained on estimated targets")
+        predictors = {module.model.variant: model_torque(module.model),
+                      **{label: (lambda q, qd, qdd, p, fit=fit: fit.torque(q, qd, qdd)) for label, fit in fits.items()}}
+        result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result}

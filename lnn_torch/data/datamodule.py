@@ -55,6 +55,7 @@ class _Source:
         self.lengths = (np.asarray(file.read("lengths"))[self.indices] if "lengths" in names
                         else np.full(len(self.indices), file.num_points))
         self._arrays = None
+        self.recorded_qd = None  # (N, T, dof) as recorded, where targets were estimated from recorded velocities
         self._handle, self._pid = None, None
         if self.in_memory:
             order = np.argsort(np.argsort(self.indices))
@@ -65,6 +66,8 @@ class _Source:
                     raise ValueError(f"{file.path} has no accelerations (measured recordings): set data.targets to a "
                                      f"derivative method ({', '.join(derivatives.METHODS)}) or train by trajectory "
                                      "matching")
+                if "qd" in arrays:  # the velocities as recorded, before the targets' smoothing
+                    self.recorded_qd = np.array(arrays["qd"], dtype=np.float64)
                 arrays["qd"], arrays["qdd"] = self._estimate(arrays["q"], arrays["qd"], file.dt, targets)
             if smooth_inputs and targets is not None and "tau" in arrays:
                 tau = np.array(arrays["tau"], dtype=np.float64)
@@ -72,7 +75,12 @@ class _Source:
                     tau[j, :n] = derivatives.smooth_inputs(tau[j, :n], file.dt, targets)
                 arrays["tau"] = tau
             if "windows" in names:
-                arrays = self._cut(arrays, np.asarray(file.read("windows"))[self.indices])
+                windows = np.asarray(file.read("windows"))[self.indices]
+                if self.recorded_qd is not None:
+                    self.recorded_qd = self._cut({"qd": self.recorded_qd}, windows)["qd"]
+                arrays = self._cut(arrays, windows)
+            if self.recorded_qd is not None:
+                self.recorded_qd = torch.as_tensor(self.recorded_qd, dtype=dtype)
             self._arrays = {k: torch.as_tensor(v, dtype=dtype) for k, v in arrays.items()}
 
     def _cut(self, arrays: dict, windows: np.ndarray) -> dict:
@@ -288,6 +296,19 @@ class TrajectoryDataModule(L.LightningDataModule):
             f = self._open()
             self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets, smooth)
         return self._sources[key]
+
+    def recorded_velocities(self, split: str = "val") -> torch.Tensor:
+        """The velocities of a split as recorded (float64 ``(N, T, dof)``, NaN after each trajectory's
+        length), point for point with ``trajectories(split)``, whose velocities are the targets' smoothed
+        ones: their difference is what the recorded velocity holds above the targets' band
+        (``lnn_torch.velocity_feedback``). Needs estimated targets and recorded velocities."""
+        if self.targets is None:
+            raise ValueError("recorded_velocities needs estimated targets (data.targets): without them the "
+                             "file's velocities are the ones used")
+        src = self.source(split, torch.float64, False)
+        if src.recorded_qd is None:
+            raise ValueError(f"{self.path} records no velocities: there is no recorded velocity to compare")
+        return src.recorded_qd[:, : int(src.lengths.max())]
 
     @property
     def scene(self) -> dict:
