@@ -289,6 +289,11 @@ def test_recorded_velocities_are_the_files_point_for_point_with_the_smoothed_one
         assert not np.allclose(recorded[j, :n].numpy(), smoothed.qd[j, :n].numpy(), atol=1e-6)
     with pytest.raises(ValueError, match="needs estimated targets"):
         TrajectoryDataModule(path=str(path)).recorded_velocities("val")
+    positions_only = dataclasses.replace(windowed, velocities=None)
+    path = import_recordings(files, root / "no_recorded_qd.h5", positions_only, overwrite=True)
+    without = TrajectoryDataModule(path=str(path), targets={"method": "butterworth", "cutoff": 10.0})
+    with pytest.raises(ValueError, match=r"records no velocities \(its 'val' split\)"):
+        without.recorded_velocities("val")
 
 
 # ---------------------------------------------------------------------------- end to end from the CLI

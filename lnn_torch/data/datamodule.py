@@ -306,9 +306,11 @@ class TrajectoryDataModule(L.LightningDataModule):
             raise ValueError("recorded_velocities needs estimated targets (data.targets): without them the "
                              "file's velocities are the ones used")
         src = self.source(split, torch.float64, False)
-        if src.recorded_qd is None:
-            raise ValueError(f"{self.path} records no velocities: there is no recorded velocity to compare")
-        return src.recorded_qd[:, : int(src.lengths.max())]
+        recorded = None if src.recorded_qd is None else src.recorded_qd[:, : int(src.lengths.max())]
+        if recorded is None or any(not torch.isfinite(recorded[j, :n]).all() for j, n in enumerate(src.lengths)):
+            raise ValueError(f"{self.path} records no velocities (its '{split}' split): there is no recorded "
+                             "velocity to compare")
+        return recorded
 
     @property
     def scene(self) -> dict:
