@@ -209,7 +209,8 @@ filtered state, but most of it follows the recorded velocity's part above the ba
 less the targets' smoothed one): per joint, the measured torque holds `-D` times it, with one gain `D`
 fitted on the training window's error of each model and kept where the validation window prefers it.
 The gains come out at 22-31 N m s/rad on joints 1-4 and 5-7 on joints 5-6 (`metrics.json`, each row's
-`feedback`), the order of the damping of the robot's joint impedance controller; the angles' own
+`feedback`; fitted on each window alone 22-41 on joints 1-4 and 5-7 on 5-6: `floor.md`), the order of the damping
+of the robot's joint impedance controller; the angles' own
 derivative above the band predicts none of it ([floor.md](floor.md)): consistent with the controller
 answering the velocity it measures with torque whose motion is too small to show in the angles. It is
 not a force of the state, so it has no open loop and no place in a simulation: it is what a model of

@@ -179,8 +179,9 @@ def main() -> None:
     for name, b in bands.items():
         fb = velocity_feedback.fit(splits["train"]["r"], b["train"], splits["val"]["r"], b["val"])
         test = (splits["test"]["r"] + b["test"] * fb.gains).pow(2).mean(0).sqrt().tolist()
+        alone = {s: (-(b[s] * splits[s]["r"]).sum(0) / b[s].pow(2).sum(0)).tolist() for s in splits}
         feedback[name] = {**fb.report(), "test": test, "test_mean": float(np.mean(test)),
-                          "val_mean": float(np.mean(fb.val_rms_after))}
+                          "val_mean": float(np.mean(fb.val_rms_after)), "gains_per_window": alone}
     result = {"checkpoint": args.checkpoint, "targets": targets, "grey_box_test": grey, "above_cutoff": above,
               "cutoffs": {str(k): v for k, v in cutoffs.items()}, "ridge": ridge, "ripple": locked,
               "feedback": feedback}
@@ -234,6 +235,12 @@ def markdown(r: dict, joints: int) -> str:
         for name, fb in r["feedback"].items():
             lines += [f"| D from {name} | " + " | ".join(f"{g:.1f}" for g in fb["gains"]) + " | | |",
                       f"| the grey box's error with it | {_cells(fb['test'])} | {fb['val_mean']:.3f} |"]
+        fb = next(iter(r["feedback"].values()))
+        lines += ["", "The recorded velocity's gains fitted on each window alone (N m s/rad):", "",
+                  "| window | " + " | ".join(f"joint{j + 1}" for j in range(joints)) + " |",
+                  "|---" * (joints + 1) + "|"]
+        lines += [f"| {w} | " + " | ".join(f"{g:.1f}" for g in gains) + " |"
+                  for w, gains in fb["gains_per_window"].items()]
     return "\n".join(lines) + "\n"
 
 
