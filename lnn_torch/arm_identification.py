@@ -175,15 +175,23 @@ def model_torque(model):
     return torque
 
 
+def classical_torque(fit):
+    """``(q, qd, qdd, params) -> torque`` of a classical fit (``ArmModel``; the parameters unused)."""
+    return lambda q, qd, qdd, params: fit.torque(q, qd, qdd)
+
+
 def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> dict:
     """Rows ``LABEL + velocity feedback`` (``torque_errors`` on ``split``, with ``val_rms_mean`` and the
-    ``feedback`` gains): each predictor ``(q, qd, qdd, params) -> torque`` (``model_torque``, or a classical
-    fit's ``torque``) with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``)
-    fitted on its training-split error and kept where the validation split prefers it. No open loop: the
-    feedback is not a force of the state. Needs estimated targets and recorded velocities."""
+    ``feedback`` gains): each predictor ``(q, qd, qdd, params) -> torque`` (``model_torque``,
+    ``classical_torque``) with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``)
+    fitted on its training-split error and kept where the validation split prefers it (so a row's
+    ``val_rms_mean`` is on the split that chose its gains). No open loop: the feedback is not a force of
+    the state. Needs estimated targets and recorded velocities."""
     from . import velocity_feedback
 
-    splits = {s: points(datamodule.trajectories(s)) for s in dict.fromkeys(("train", "val", split))}
+    # the recorded torques (never smoothed: the band the gains are fitted to is above the smoothing)
+    splits = {s: points(datamodule.trajectories(s, smooth_inputs=False))
+              for s in dict.fromkeys(("train", "val", split))}
     bands = {s: velocity_feedback.of_split(datamodule, s) for s in splits}
     rows = {}
     for label, torque in predictors.items():

@@ -16,8 +16,9 @@ on validation points (a gain that does not pay is zero: the correction never hur
 per point (N, dof), SI: rad/s, N m, N m s/rad.
 
 On the real Panda (``scripts/real_panda_floor.py``, ``results/real_panda/floor.md``) the gains come out
-at 23-32 N m s/rad on joints 1-4 and 5-7 on joints 5-6, the order of the damping of the robot's joint
-impedance controller; the angles' own derivatives above the band predict none of it.
+at 22-31 N m s/rad on joints 1-4 and 5-7 on joints 5-6 (22-41 and 5-7 fitted on each window alone),
+the order of the damping of the robot's joint impedance controller; the angles' own derivatives above
+the band predict almost none of it.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ def _check(name: str, x: torch.Tensor, like: torch.Tensor | None = None) -> torc
         raise InputError(f"{name} must be (points, joints), got shape {tuple(x.shape)}")
     if like is not None and x.shape != like.shape:
         raise InputError(f"{name} has shape {tuple(x.shape)}, expected {tuple(like.shape)}")
+    if x.shape[0] == 0:
+        raise InputError(f"{name} has no points")
     if not torch.isfinite(x).all():
         raise InputError(f"{name} holds NaN or infinite values")
     return x

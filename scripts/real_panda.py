@@ -59,6 +59,7 @@ def main() -> None:
                     "within 0.1 rad of the recording (censored there)")
     args = ap.parse_args()
     from lnn_torch.arm_identification import (
+        classical_torque,
         compare_on_arm,
         description_model,
         feedback_rows,
@@ -88,8 +89,9 @@ def main() -> None:
     result = compare_on_arm(None, system, test, fits, descriptions, open_loop_limit=args.open_loop)
     on_val = compare_on_arm(None, system, val, fits, descriptions)
     figure = None
+    modules = {label: load_model(path) for label, path in models.items()}
     for label, path in models.items():
-        module = load_model(path)
+        module = modules[label]
         on_test = compare_on_arm(module.model, system, test, {}, {}, open_loop_limit=args.open_loop)
         result["rows"][label] = {**on_test["rows"][module.model.variant],
                                  "checkpoint": path}
@@ -106,19 +108,15 @@ def main() -> None:
     for label, row in result["rows"].items():
         row["val_rms_mean"] = on_val["rows"][label]["rms_mean"]
     if args.feedback:
-        predictors = {label: lambda q, qd, qdd, p, fit=fit: fit.torque(q, qd, qdd) for label, fit in fits.items()}
-        predictors.update({label: model_torque(load_model(path).model) for label, path in models.items()})
+        predictors = {label: classical_torque(fit) for label, fit in fits.items()}
+        predictors.update({label: model_torque(modules[label].model) for label in models})
         result["rows"].update(feedback_rows(dm, predictors, result["joints"]))
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     result["commands"] = dict(item.split("=", 1) for item in args.command)
+    result.update(data=args.data, targets=targets)
     if args.add and (out / "metrics.json").exists():
-        before = json.loads((out / "metrics.json").read_text())
-        for label, row in before["rows"].items():
-            if label not in result["rows"]:
-                result["rows"][label] = row
-                if label in before.get("commands", {}):
-                    result["commands"].setdefault(label, before["commands"][label])
+        _merge(result, json.loads((out / "metrics.json").read_text()), out / "metrics.json")
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
     text = README.format(table=report(result), data=args.data, drive=args.drive)
     if args.note:
@@ -134,6 +132,26 @@ def main() -> None:
         paths.append(out / "torques.png")
     print(report(result))
     wrote(paths)
+
+
+FEEDBACK = " + velocity feedback"
+
+
+def _merge(result: dict, before: dict, path) -> None:
+    """``--add``: the rows of an earlier ``metrics.json`` this run does not compute, with their commands (a
+    recomputed row keeps its earlier command unless given again); an earlier feedback row of a recomputed
+    model is dropped (it belonged to the earlier fit). Refused where the earlier table was judged on other
+    data, targets or points."""
+    for key in ("data", "targets", "test_points"):
+        if key in before and before[key] != result[key]:
+            raise SystemExit(f"--add: {path} was made with {key} {before[key]!r}, this run has {result[key]!r}; "
+                             "write to another folder")
+    for label, row in before["rows"].items():
+        recomputed_base = label.endswith(FEEDBACK) and label[: -len(FEEDBACK)] in result["rows"]
+        if label not in result["rows"] and not recomputed_base:
+            result["rows"][label] = row
+        if label in result["rows"] and label in before.get("commands", {}):
+            result["commands"].setdefault(label, before["commands"][label])
 
 
 def _carried(model, data, joints) -> dict | None:
@@ -215,9 +233,9 @@ derivative above the band predicts none of it ([floor.md](floor.md)): consistent
 answering the velocity it measures with torque whose motion is too small to show in the angles. It is
 not a force of the state, so it has no open loop and no place in a simulation: it is what a model of
 the measured torque (identification, collision detection, external-torque estimation) should add
-beside any rigid-body model. With it the grey box reaches 0.238 N m and least squares fitted on
-0.5-10.5 s 0.239 N m: it helps every model alike, and with it the classical anchor and the grey box are
-equal. Every number:
+beside any rigid-body model. With it the grey box reaches 0.238 N m, least squares 0.263 (fitted on
+0.5-10.5 s, 0.239): it helps every model alike. A feedback row's validation mean is on the window that
+chose its gains. Every number:
 
     lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
         --config configs/import/real_panda.yaml -o data/real_panda.h5

@@ -1,7 +1,7 @@
 """What is left to learn on the real Panda: the grey box's held-out torque error beside the part of the
 measured torque no model of the filtered state can predict, and what the state explains of the rest.
 
-Three measurements on the recording's windows (``configs/import/real_panda.yaml``: training 0.5-8.0 s,
+Five measurements on the recording's windows (``configs/import/real_panda.yaml``: training 0.5-8.0 s,
 validation 8.0-10.5 s, held out 10.5-13.8 s), with a fitted grey box (``lnn-torch fit -c
 configs/real_panda.yaml``):
 
@@ -28,8 +28,8 @@ configs/real_panda.yaml``):
    grey box's torque error against the recorded velocity's part above the targets' band (recorded
    velocity less the targets' smoothed one), one gain per joint by least squares on the training window,
    kept where it lowers the validation error; the same with the velocity derived from the angles instead
-   of the recorded one (positions differentiated, ``use_measured_velocity: false``, at a 200 Hz cutoff)
-   tells whether the angles show that motion.
+   of the recorded one (the positions' derivative at a 200 Hz cutoff less the same at the targets'
+   cutoff, ``use_measured_velocity: false``) tells whether the angles show that motion.
 
     python scripts/real_panda_floor.py runs/real_panda/grey_box_vco/lightning_logs/version_0/checkpoints/last.ckpt \\
         -o results/real_panda
@@ -173,8 +173,12 @@ def main() -> None:
     locked = ripple(splits, np.arange(*args.ripple_k))
     # 5. the robot's feedback on its measured velocity, and the same from the angles' own derivative
     bands = {"the recorded velocity": {s: velocity_feedback.of_split(dm, s) for s in splits}}
-    fine = TrajectoryDataModule(path=args.data, targets={**targets, "cutoff": 200.0, "use_measured_velocity": False})
-    bands["the angles' derivative"] = {s: points(fine.trajectories(s))[1] - splits[s]["qd"] for s in splits}
+    # the angles' own: their derivative at 200 Hz less their derivative through the targets' smoothing
+    from_angles = {**targets, "use_measured_velocity": False}
+    fine, smooth = (TrajectoryDataModule(path=args.data, targets={**from_angles, **cut})
+                    for cut in ({"cutoff": 200.0}, {}))
+    bands["the angles' derivative"] = {s: points(fine.trajectories(s))[1] - points(smooth.trajectories(s))[1]
+                                       for s in splits}
     feedback = {}
     for name, b in bands.items():
         fb = velocity_feedback.fit(splits["train"]["r"], b["train"], splits["val"]["r"], b["val"])

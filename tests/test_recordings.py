@@ -292,8 +292,24 @@ def test_recorded_velocities_are_the_files_point_for_point_with_the_smoothed_one
     positions_only = dataclasses.replace(windowed, velocities=None)
     path = import_recordings(files, root / "no_recorded_qd.h5", positions_only, overwrite=True)
     without = TrajectoryDataModule(path=str(path), targets={"method": "butterworth", "cutoff": 10.0})
-    with pytest.raises(ValueError, match=r"records no velocities \(its 'val' split\)"):
+    with pytest.raises(ValueError, match=r"a recording of its 'val' split has no recorded velocities"):
         without.recorded_velocities("val")
+
+
+def test_feedback_rows_read_the_recorded_torques_whatever_the_inputs_smoothing(recordings):
+    """``arm_identification.feedback_rows`` fits its gains to the recorded torques' band above the targets':
+    a datamodule that smooths its training inputs (``smooth_inputs``) gives the same rows."""
+    from lnn_torch import TrajectoryDataModule
+    from lnn_torch.arm_identification import feedback_rows
+
+    root, files, _, spec = recordings
+    path = import_recordings(files, root / "feedback_rows.h5", spec, overwrite=True)
+    targets = {"method": "butterworth", "cutoff": 10.0}
+    half = lambda q, qd, qdd, p: 0.5 * torch.ones_like(q)  # noqa: E731  (a model that misses everything)
+    rows = [feedback_rows(TrajectoryDataModule(path=str(path), targets=targets, smooth_inputs=smooth), {"half": half},
+                          ["q1", "q2"], split="val")["half + velocity feedback"] for smooth in (False, True)]
+    assert rows[0]["rms_mean"] == rows[1]["rms_mean"] and rows[0]["feedback"] == rows[1]["feedback"]
+    assert len(rows[0]["feedback"]["gains"]) == 2 and all(map(math.isfinite, rows[0]["feedback"]["gains"]))
 
 
 # ---------------------------------------------------------------------------- end to end from the CLI

@@ -205,7 +205,14 @@ def _measured_arm(system) -> bool:
 
 def _identify_arm(module, args) -> int:
     """Classical identification of a measured arm beside its model (module docstring)."""
-    from ..arm_identification import compare_on_arm, feedback_rows, fit_classical, markdown, model_torque
+    from ..arm_identification import (
+        classical_torque,
+        compare_on_arm,
+        feedback_rows,
+        fit_classical,
+        markdown,
+        model_torque,
+    )
     from ..checkpoints import data_hparams
     from ..data import TrajectoryDataModule, read_dataset
 
@@ -215,15 +222,15 @@ def _identify_arm(module, args) -> int:
                          "for the fits, --split to judge them), not a single CSV")
     targets = data_hparams(args.checkpoint).get("targets", "file")
     dm = TrajectoryDataModule(path=str(path), targets=targets)
+    if args.feedback and (dm.targets is None or not read_dataset(path).measured):
+        raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
+                         "recording or the model was not trained on estimated targets")
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
     fits = fit_classical(module.system, dm.trajectories("train"), drive=friction)
     result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
     if args.feedback:
-        if targets == "file" or not read_dataset(path).measured:
-            raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
-                             "recording or the model was not trained on estimated targets")
         predictors = {module.model.variant: model_torque(module.model),
-                      **{label: (lambda q, qd, qdd, p, fit=fit: fit.torque(q, qd, qdd)) for label, fit in fits.items()}}
+                      **{label: classical_torque(fit) for label, fit in fits.items()}}
         result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)

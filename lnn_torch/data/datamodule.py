@@ -308,8 +308,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         src = self.source(split, torch.float64, False)
         recorded = None if src.recorded_qd is None else src.recorded_qd[:, : int(src.lengths.max())]
         if recorded is None or any(not torch.isfinite(recorded[j, :n]).all() for j, n in enumerate(src.lengths)):
-            raise ValueError(f"{self.path} records no velocities (its '{split}' split): there is no recorded "
-                             "velocity to compare")
+            raise ValueError(f"{self.path}: a recording of its '{split}' split has no recorded velocities: there "
+                             "is no recorded velocity to compare")
         return recorded
 
     @property
