@@ -176,3 +176,5 @@ def test_identify_command_on_a_dataset_trajectory_and_a_csv(tmp_path, capsys):
     assert "no column 'a', 'b'" in capsys.readouterr().err
     assert main(["identify", "pretrained:double_pendulum", str(data), "--trajectory", "9", "-o", str(out2)]) == 2
     assert "out of range" in capsys.readouterr().err
+    assert main(["identify", "pretrained:double_pendulum", str(data), "--feedback", "-o", str(out2)]) == 2
+    assert "--feedback is for a model of a measured robot arm" in capsys.readouterr().err

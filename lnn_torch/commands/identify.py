@@ -163,6 +163,9 @@ def main(argv: list[str]) -> int:
     system = module.system
     if _measured_arm(system):
         return _identify_arm(module, args)
+    if args.feedback:
+        raise InputError(f"--feedback is for a model of a measured robot arm (recordings imported with its "
+                         f"description); {args.checkpoint} is a model of the scene {system.name}")
     obs = read_observation(args.recording, system, split=args.split, trajectory=args.trajectory, start=args.start,
                            duration=args.duration, use=args.use, time=args.time, coordinates=args.coordinates,
                            velocities=args.velocities, inputs=args.inputs)
