@@ -13,6 +13,7 @@ on: the DataModule's ``targets``), SI units.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import torch
 
@@ -148,9 +149,8 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
         return row
 
     if model is not None:
+        pred = model_torque(model)(q, qd, qdd, params)
         with torch.no_grad(), counting_failures(model):
-            pred = model.inverse_dynamics(q.to(model.dtype), qd.to(model.dtype), qdd.to(model.dtype),
-                                          params.to(model.dtype)).double()
             rows[getattr(model, "variant", "model")] = with_open_loop(torque_errors(pred, tau, names),
                                                                       model_forward(model))
     for label, fit in fits.items():
@@ -168,9 +168,10 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
 
 
 def model_torque(model):
-    """``(q, qd, qdd, params) -> torque`` (float64, N m) of a model's inverse dynamics, without gradients."""
+    """``(q, qd, qdd, params) -> torque`` (float64, N m) of a model's inverse dynamics, without gradients
+    (NaN where a model's accelerations are undefined: ``counting_failures``)."""
     def torque(q, qd, qdd, params):
-        with torch.no_grad():
+        with torch.no_grad(), counting_failures(model):
             return model.inverse_dynamics(*(x.to(model.dtype) for x in (q, qd, qdd, params))).double()
     return torque
 
@@ -178,6 +179,16 @@ def model_torque(model):
 def classical_torque(fit):
     """``(q, qd, qdd, params) -> torque`` of a classical fit (``ArmModel``; the parameters unused)."""
     return lambda q, qd, qdd, params: fit.torque(q, qd, qdd)
+
+
+def feedback_band(datamodule, split: str) -> torch.Tensor:
+    """``velocity_feedback.band`` at the valid points of a split of a ``TrajectoryDataModule`` with estimated
+    targets, flattened like ``points``: the recorded velocity less the targets' smoothed one ``(N, dof)``."""
+    from . import velocity_feedback
+
+    data = datamodule.trajectories(split)
+    recorded = replace(data, qd=datamodule.recorded_velocities(split))
+    return velocity_feedback.band(points(recorded)[1], points(data)[1])
 
 
 def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> dict:
@@ -192,7 +203,7 @@ def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> d
     # the recorded torques (never smoothed: the band the gains are fitted to is above the smoothing)
     splits = {s: points(datamodule.trajectories(s, smooth_inputs=False))
               for s in dict.fromkeys(("train", "val", split))}
-    bands = {s: velocity_feedback.of_split(datamodule, s) for s in splits}
+    bands = {s: feedback_band(datamodule, s) for s in splits}
     rows = {}
     for label, torque in predictors.items():
         error = {s: tau - torque(q, qd, qdd, p) for s, (q, qd, qdd, tau, p) in splits.items()}

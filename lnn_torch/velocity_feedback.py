@@ -9,7 +9,8 @@ to show in the angles (at 20-60 Hz a torque of 0.2 N m moves a 1 kg m^2 link by 
 model of the state can predict it; the recorded velocity's band above the targets' does, with one gain
 per joint.
 
-``band`` is that part of the recorded velocity; ``fit`` finds the gains ``D`` per joint by least squares
+``band`` is that part of the recorded velocity (``arm_identification.feedback_band`` reads it from a
+dataset split); ``fit`` finds the gains ``D`` per joint by least squares
 on a model's torque error over training points and keeps a joint's gain only where it lowers the error
 on validation points (a gain that does not pay is zero: the correction never hurts on validation);
 ``VelocityFeedback.torque`` is the correction to add to the model's inverse dynamics. Everything is
@@ -72,6 +73,13 @@ class VelocityFeedback:
                 "val_rms_after": self.val_rms_after}
 
 
+def least_squares(error: torch.Tensor, band_: torch.Tensor) -> torch.Tensor:
+    """The least-squares gains ``D (dof,)`` of ``error ≈ -D band`` per joint over the points (zero where the
+    band is zero), no validation: ``fit`` is the one that keeps only what pays."""
+    power = band_.pow(2).sum(0)
+    return torch.where(power > 0, -(band_ * error).sum(0) / power.clamp_min(1e-300), 0.0)
+
+
 def fit(error_train: torch.Tensor, band_train: torch.Tensor, error_val: torch.Tensor,
         band_val: torch.Tensor) -> VelocityFeedback:
     """The gains of ``error ≈ -D band`` per joint, by least squares on the training points, each kept
@@ -83,20 +91,10 @@ def fit(error_train: torch.Tensor, band_train: torch.Tensor, error_val: torch.Te
     band_val = _check("validation velocity band", band_val, error_val)
     if error_val.shape[1] != error_train.shape[1]:
         raise InputError(f"validation has {error_val.shape[1]} joints, training {error_train.shape[1]}")
-    power = band_train.pow(2).sum(0)
-    gains = torch.where(power > 0, -(band_train * error_train).sum(0) / power.clamp_min(1e-300), 0.0)
+    gains = least_squares(error_train, band_train)
     before = error_val.pow(2).mean(0).sqrt()
     after = (error_val + band_val * gains).pow(2).mean(0).sqrt()
     kept = after < before
     gains = torch.where(kept, gains, 0.0)
     return VelocityFeedback(gains, kept.tolist(), before.tolist(), torch.where(kept, after, before).tolist())
 
-
-def of_split(datamodule, split: str) -> torch.Tensor:
-    """``band`` at every valid point of a split of a ``TrajectoryDataModule`` with estimated targets,
-    flattened like ``arm_identification.points(datamodule.trajectories(split))`` ``(N, dof)``."""
-    data = datamodule.trajectories(split)
-    recorded = datamodule.recorded_velocities(split)
-    lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
-    flat = lambda x: torch.cat([x[j, :n] for j, n in enumerate(lengths)])  # noqa: E731
-    return band(flat(recorded), flat(data.qd.double()))

@@ -101,8 +101,7 @@ def main() -> None:
             result["rows"][label]["carried"] = carried
         if figure is None:
             q, qd, qdd, tau, params = points(test)
-            with torch.no_grad():
-                pred = module.model.inverse_dynamics(q.float(), qd.float(), qdd.float(), params.float()).double()
+            pred = model_torque(module.model)(q, qd, qdd, params)
             figure = {"t": torch.arange(len(q)) * dm.dt, "measured": tau, "predicted": pred,
                       "names": result["joints"]}
     for label, row in result["rows"].items():

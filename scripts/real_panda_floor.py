@@ -141,7 +141,7 @@ def main() -> None:
     add_output_dir(ap, "results/real_panda", "the folder of floor.md and floor.json")
     args = ap.parse_args()
     from lnn_torch import velocity_feedback
-    from lnn_torch.arm_identification import points
+    from lnn_torch.arm_identification import feedback_band, points
     from lnn_torch.checkpoints import data_hparams, load_model
     from lnn_torch.data import TrajectoryDataModule
 
@@ -172,7 +172,7 @@ def main() -> None:
     # 4. an angle-locked ripple
     locked = ripple(splits, np.arange(*args.ripple_k))
     # 5. the robot's feedback on its measured velocity, and the same from the angles' own derivative
-    bands = {"the recorded velocity": {s: velocity_feedback.of_split(dm, s) for s in splits}}
+    bands = {"the recorded velocity": {s: feedback_band(dm, s) for s in splits}}
     # the angles' own: their derivative at 200 Hz less their derivative through the targets' smoothing
     from_angles = {**targets, "use_measured_velocity": False}
     fine, smooth = (TrajectoryDataModule(path=args.data, targets={**from_angles, **cut})
@@ -183,7 +183,7 @@ def main() -> None:
     for name, b in bands.items():
         fb = velocity_feedback.fit(splits["train"]["r"], b["train"], splits["val"]["r"], b["val"])
         test = (splits["test"]["r"] + b["test"] * fb.gains).pow(2).mean(0).sqrt().tolist()
-        alone = {s: (-(b[s] * splits[s]["r"]).sum(0) / b[s].pow(2).sum(0)).tolist() for s in splits}
+        alone = {s: velocity_feedback.least_squares(splits[s]["r"], b[s]).tolist() for s in splits}
         feedback[name] = {**fb.report(), "test": test, "test_mean": float(np.mean(test)),
                           "val_mean": float(np.mean(fb.val_rms_after)), "gains_per_window": alone}
     result = {"checkpoint": args.checkpoint, "targets": targets, "grey_box_test": grey, "above_cutoff": above,
