@@ -82,6 +82,33 @@ def test_a_urdf_keeps_its_flange_link_and_takes_payloads_there(tmp_path):
     assert path.read_text() == URDF  # never edited
 
 
+MJCF_SITE = """<mujoco><compiler angle="degree"/><worldbody>
+  <body name="l1" pos="0 0 0.1"><joint name="j1" axis="0 0 1"/>
+    <inertial pos="0 0 0.1" mass="1" diaginertia="0.01 0.01 0.01"/>
+    <body name="l2" pos="0 0 0.3"><joint name="j2" axis="1 0 0"/>
+      <inertial pos="0 0.1 0" mass="1" diaginertia="0.01 0.01 0.01"/>
+      <site name="flange" pos="0 0.2 0.05" {orientation}/></body></body></worldbody></mujoco>
+"""
+
+
+@pytest.mark.parametrize("orientation", ['euler="30 0 0"', 'axisangle="1 0 0 30"', 'zaxis="0 -0.5 0.8660254037844386"'])
+def test_a_site_flange_keeps_its_orientation_however_it_is_written(tmp_path, orientation):
+    """A payload's centre of mass is in the flange's frame: a site rotated by euler, axisangle or zaxis is
+    the same frame as the site written as a quaternion (30 degrees about x)."""
+    half = math.radians(15)
+    quat = f'quat="{math.cos(half)} {math.sin(half)} 0 0"'
+    arms = {}
+    for key, text in (("quat", quat), ("other", orientation)):
+        path = tmp_path / f"{key}.xml"
+        path.write_text(MJCF_SITE.format(orientation=text))
+        arms[key] = MujocoArm({"source": str(path), "flange": "flange"})
+    q = np.array([[0.3, -0.7], [1.1, 0.4]])
+    payload = [1.5, 0.02, 0.08, -0.03]
+    tau = {k: a.gravity_torque(q, payload) for k, a in arms.items()}
+    assert (tau["quat"] - arms["quat"].gravity_torque(q)).abs().max() > 0.1  # the payload counts
+    torch.testing.assert_close(tau["other"], tau["quat"], rtol=0, atol=1e-12)
+
+
 def test_descriptions_round_trip_and_bad_ones_are_refused_in_one_line():
     d = ArmDescription.of({"source": "franka_panda", "remove": "hand", "armature": "zero", "tool": [1, 0, 0, 0.1]})
     assert ArmDescription.of(d.to_json()) == d and ArmDescription.of(d.to_dict()) == d

@@ -205,7 +205,10 @@ class ArmDescription:
             raise InputError(f"robot description {path}: no body or site '{self.flange}' for the flange (bodies: "
                              f"{', '.join(n for n in names if n != 'world')}"
                              + (f"; sites: {', '.join(sites)})" if sites else ")"))
-        return site.parent, list(site.pos), list(site.quat)
+        quat = list(site.quat)
+        if site.alt.type != _mujoco().mjtOrientation.mjORIENTATION_QUAT:  # euler, axisangle, xyaxes or zaxis
+            quat = list(spec.resolve_orientation(spec.compiler.degree, spec.compiler.eulerseq, site.alt))
+        return site.parent, list(site.pos), quat
 
     @staticmethod
     def _leaf(spec, path):
