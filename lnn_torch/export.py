@@ -62,6 +62,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
+import math
 import platform
 from pathlib import Path
 
@@ -521,6 +522,18 @@ def describe_function(fn: _Function, system) -> dict:
                                          "units": outputs[2], "description": outputs[3]}}
 
 
+def _bounds(values: torch.Tensor, kinds, floor: float | None = None) -> list:
+    """Trusted-range bounds for JSON: None where unbounded (a parameter taken exactly), a lower bound of
+    a nonnegative parameter at least ``floor``."""
+    out = []
+    for v, kind in zip(values.tolist(), kinds, strict=True):
+        if not math.isfinite(v):
+            out.append(None)
+        else:
+            out.append(max(v, floor) if floor is not None and kind in ("nonnegative", "positive") else v)
+    return out
+
+
 def describe(module, functions: dict, source: str = "", files: dict | None = None) -> dict:
     """What ``lnn-torch export`` writes beside the programs: each function's inputs and output, the scene's
     conventions, the model, the trusted parameter range and the versions that wrote them. ``functions``:
@@ -538,9 +551,9 @@ def describe(module, functions: dict, source: str = "", files: dict | None = Non
                   "param_names": list(system.param_names), "param_units": list(system.param_units),
                   "input_names": list(system.input_names),
                   "input_matrix": None if not system.num_inputs else system.input_matrix().tolist()},
-        "trusted_params": {"low": low.tolist(), "high": high.tolist(),
+        "trusted_params": {"low": _bounds(low, system.kinds, 0.0), "high": _bounds(high, system.kinds),
                            "note": "beyond this range the model conditions on the nearest trusted values; the "
-                                   "programs do not warn"},
+                                   "programs do not warn (null: a parameter taken exactly, at any value)"},
         "batch": {"min": 1, "max": MAX_BATCH},
         "notes": "the programs check nothing (shapes, NaN, parameter signs, valid states): "
                  "lnn_torch.load_model checks them. Load a .pt2 with torch.export.load(path).module() and call it "

@@ -6,6 +6,8 @@ case, and physical consistency for every value of the raw parameters."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -86,6 +88,25 @@ def test_with_the_true_parameters_the_grey_box_has_the_engines_accelerations_and
     q, qd, qdd, tau, payload = _batch(arm, seed=1)
     assert _rel(model.acceleration(q, qd, payload, tau), arm.forward(q, qd, tau, payload)) < 1e-9
     assert _rel(model.inverse_dynamics(q, qd, qdd, payload), arm.inverse(q, qd, qdd, payload)) < 1e-9
+
+
+def test_a_payload_beyond_the_training_range_is_taken_exactly(arm, float64):
+    """The payload is a rigid body on the last link, not a network's input: trained on 0-2 kg, the grey
+    box's torques at 9 and 30 kg are still the engine's (no clamp to the networks' trusted range, no
+    warning), and the trusted range says so."""
+    model = _grey_box().double()
+    q, qd, qdd, _, payload = _batch(arm, n=6, seed=3)
+    train = payload.clone()
+    train[:, 0] = torch.linspace(0.0, 2.0, 6)
+    model.fit_normalizer({"q": q, "qd": qd, "qdd": qdd, "params": train})
+    heavy = payload.clone()
+    heavy[:3, 0], heavy[3:, 0] = 9.0, 30.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tau = model.gravity_si(q, heavy)
+    assert _rel(tau, arm.gravity_torque(q, heavy)) < 1e-9
+    low, high = model.normalizer.trusted_range()
+    assert torch.isinf(low).all() and torch.isinf(high).all()
 
 
 @pytest.mark.parametrize("residual", [False, True])

@@ -12,7 +12,8 @@ ratios); parameters that may be zero (friction coefficients) are z-scored as the
 conditioning networks see them clamped to ``TRUST`` standard deviations (uniformly sampled training
 parameters span about 1.7): far beyond what it was trained on a model is conditioned on the nearest
 trusted values instead of extrapolating its FiLM networks without bound (``untrusted`` names them;
-the models warn with ``UntrustedParameterWarning``).
+the models warn with ``UntrustedParameterWarning``). Parameters that a physics part takes exactly (a
+grey box's payload, a rigid body added to its last link) are marked ``exact`` and never clamped.
 ``accel_rms`` (per coordinate, normalised units) only weights the loss.
 
 Generalised forces (scenes with inputs or friction): a force ``Q`` (N m per coordinate) enters the
@@ -41,6 +42,9 @@ class Normalizer(nn.Module):
         self.all_log = all(k == "positive" for k in kinds)
         self.register_buffer("param_log", torch.tensor([k == "positive" for k in kinds], dtype=torch.bool),
                              persistent=False)
+        # parameters a physics part takes exactly (a grey box's payload): never clamped (set by the model)
+        self.register_buffer("exact", torch.zeros(num_params, dtype=torch.bool), persistent=False)
+        self.any_exact = False  # a Python flag (no data-dependent branch for torch.export)
         self.register_buffer("angle_mask", torch.tensor(list(angle_mask), dtype=torch.bool))
         self.register_buffer("coord_shift", torch.zeros(dof))
         self.register_buffer("coord_scale", torch.ones(dof))
@@ -97,14 +101,23 @@ class Normalizer(nn.Module):
         return q_norm, qd_norm
 
     def params(self, params):
-        """Normalised parameters, clamped to ``TRUST`` standard deviations."""
+        """Normalised parameters, clamped to ``TRUST`` standard deviations (except the ``exact`` ones)."""
         z = (self._transform(params) - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
-        return z.clamp(-self.TRUST, self.TRUST)
+        clamped = z.clamp(-self.TRUST, self.TRUST)
+        return torch.where(self.exact.to(z.device), z, clamped) if self.any_exact else clamped
+
+    def mark_exact(self) -> None:
+        """Every parameter is taken exactly by a physics part (a grey box's payload): never clamped."""
+        self.exact.fill_(True)
+        self.any_exact = bool(self.num_params)
 
     def trusted_range(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(low, high)`` ``(P,)``: the SI parameters the conditioning networks see unclamped."""
+        """``(low, high)`` ``(P,)``: the SI parameters the conditioning networks see unclamped (the ``exact``
+        ones: -inf, inf)."""
         bound = torch.full_like(self.param_log_mean, self.TRUST)
-        return self.params_to_phys(-bound), self.params_to_phys(bound)
+        low, high = self.params_to_phys(-bound), self.params_to_phys(bound)
+        exact = self.exact.to(low.device)
+        return low.masked_fill(exact, -float("inf")), high.masked_fill(exact, float("inf"))
 
     @torch.no_grad()
     def untrusted(self, params: torch.Tensor, names, units) -> str | None:
@@ -113,7 +126,7 @@ class Normalizer(nn.Module):
         if not self.num_params:
             return None
         z = (self._transform(params.double()) - self.param_log_mean.double()) / self.param_log_std.double()
-        out = (z.abs() > self.TRUST).any(0)
+        out = (z.abs() > self.TRUST).any(0) & ~self.exact.to(z.device)
         if not out.any():
             return None
         low, high = self.trusted_range()

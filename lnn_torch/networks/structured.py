@@ -149,6 +149,8 @@ class StructuredLagrangian(DynamicsModel):
         self._parts = (*self.kinetic.values(), *self.potential.values())
         for part in self._parts:
             part.attach_normalizer(self.normalizer)
+            if getattr(part, "takes_params_exactly", False):  # e.g. the spatial arm's payload: never clamped
+                self.normalizer.mark_exact()
         self._kinetic_parts = tuple(self.kinetic.values())
         self._potential_parts = self._kinetic_parts if self.shared else tuple(self.potential.values())
         self._num_kinetic = 0 if self.shared else len(self._kinetic_parts)

@@ -39,23 +39,6 @@ def _load_chain(description) -> K.SerialChain:
     return K.read_chain(load_description(description))
 
 
-def payload_pseudo_inertia(payload: torch.Tensor) -> torch.Tensor:
-    """``J (B, 4, 4)`` of payloads ``(B, 4)`` (point masses) or ``(B, 10)`` (with inertia about the centre of
-    mass), in the payload's frame; a negative mass is taken as zero."""
-    m = payload[:, 0].clamp_min(0)
-    c = payload[:, 1:4]
-    sigma = m[:, None, None] * c[:, :, None] * c[:, None, :]
-    if payload.shape[1] == 10:
-        ixx, iyy, izz, ixy, ixz, iyz = payload[:, 4:].unbind(-1)
-        I = torch.stack([torch.stack([ixx, ixy, ixz], -1), torch.stack([ixy, iyy, iyz], -1),
-                         torch.stack([ixz, iyz, izz], -1)], -2)
-        tr = (ixx + iyy + izz)[:, None, None]
-        sigma = sigma + 0.5 * tr * torch.eye(3, dtype=payload.dtype, device=payload.device) - I
-    top = torch.cat([sigma, (m[:, None] * c)[..., None]], -1)
-    bottom = torch.cat([m[:, None] * c, m[:, None]], -1)[:, None]
-    return torch.cat([top, bottom], -2)
-
-
 class SpatialChain(KineticPart):
     """``spatial``: the mass-matrix factor of the arm of a robot description (module docstring).
 
@@ -90,6 +73,7 @@ class SpatialChain(KineticPart):
         if ctx.num_params and chain.flange is None:
             raise InputError(f"robot description {description} has no body 'payload' for the scene's payload")
         self.num_links, self.dof, self.payload = chain.dof, chain.dof, bool(ctx.num_params)
+        self.takes_params_exactly = self.payload  # the payload is a rigid body on the last link, at any value
         self.learn = bool(learn)
         self.prior = float(prior)
         if not (self.prior >= 0):
@@ -183,7 +167,7 @@ class SpatialChain(KineticPart):
         if payload is None:
             return J, L
         Xf = self.const("flange", payload.to(dtype))
-        last = J[:, -1] + Xf @ payload_pseudo_inertia(payload.to(dtype)) @ Xf.T  # (B, 4, 4)
+        last = J[:, -1] + Xf @ K.payload_pseudo_inertia(payload.to(dtype)) @ Xf.T  # (B, 4, 4)
         B = payload.shape[0]
         J = torch.cat([J.expand(B, -1, -1, -1)[:, :-1], last[:, None]], 1)
         L = torch.cat([L.expand(B, -1, -1, -1)[:, :-1], K.inertia_factor(last)[:, None]], 1)
