@@ -57,10 +57,12 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
     time in ``info["fit_seconds"]``."""
     from .robots import classical
+    from .robots.regressor import payload_torque
 
     chain = arm_chain(system)
-    parts = [points(t, stride)[:4] for t in (train if isinstance(train, (list, tuple)) else [train])]
-    X = [torch.cat(column) for column in zip(*parts, strict=True)]
+    parts = [points(t, stride) for t in (train if isinstance(train, (list, tuple)) else [train])]
+    q, qd, qdd, tau, params = (torch.cat(column) for column in zip(*parts, strict=True))
+    X = [q, qd, qdd, tau - payload_torque(chain, q, qd, qdd, params)]  # the arm's own torques: payloads are known
     name = classical.DriveModel.of(drive).name
     fits, out = {}, {}
     for method in methods:
@@ -154,13 +156,13 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             rows[getattr(model, "variant", "model")] = with_open_loop(torque_errors(pred, tau, names),
                                                                       model_forward(model))
     for label, fit in fits.items():
-        rows[label] = with_open_loop({**torque_errors(fit.torque(q, qd, qdd), tau, names),
+        rows[label] = with_open_loop({**torque_errors(fit.torque(q, qd, qdd, params), tau, names),
                                       "fit_seconds": fit.info.get("fit_seconds")},
-                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u))
+                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u, p))
     for label, fit in (descriptions if descriptions is not None
                        else {"description as written": description_model(system)}).items():
-        rows[label] = with_open_loop(torque_errors(fit.torque(q, qd, qdd), tau, names),
-                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u))
+        rows[label] = with_open_loop(torque_errors(fit.torque(q, qd, qdd, params), tau, names),
+                                     lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u, p))
     train_points = next((f.info.get("train_points") for f in fits.values()), None)
     return {"joints": names, "test_points": len(q), "train_points": train_points, "rows": rows,
             "fits": {k: v.report() for k, v in fits.items()},
@@ -177,8 +179,9 @@ def model_torque(model):
 
 
 def classical_torque(fit):
-    """``(q, qd, qdd, params) -> torque`` of a classical fit (``ArmModel``; the parameters unused)."""
-    return lambda q, qd, qdd, params: fit.torque(q, qd, qdd)
+    """``(q, qd, qdd, params) -> torque`` of a classical fit (``ArmModel``; the parameters: the payload each
+    point carries at the flange, known)."""
+    return lambda q, qd, qdd, params: fit.torque(q, qd, qdd, params)
 
 
 def feedback_band(datamodule, split: str) -> torch.Tensor:

@@ -31,6 +31,8 @@ def test_linear_inverse_dynamics_is_the_engines(setup):
     assert (regressor.inverse_dynamics(chain, q, qd, qdd, pi) - true).abs().max() <= 1e-10 * true.abs().max()
     Y = regressor.regressor(chain, q, qd, qdd)
     assert Y.shape == (40, 7, 84)
+    torch.testing.assert_close(Y, regressor.reference_regressor(chain, q, qd, qdd), rtol=0,
+                               atol=1e-12 * float(Y.abs().max()))
     assert ((Y @ pi) - true).abs().max() <= 1e-10 * true.abs().max()
     J_back = regressor.pseudo_inertia_of(regressor.classical_of(chain.J))
     torch.testing.assert_close(J_back, chain.J, rtol=1e-14, atol=1e-14)
@@ -47,3 +49,10 @@ def test_least_squares_recovers_the_base_parameters(setup):
     assert not base["map"][:, names.index("joint1.m")].any()
     beta = regressor.least_squares(Y, arm.inverse(q, qd, qdd), base)
     np.testing.assert_allclose(beta, base["map"] @ pi.numpy(), rtol=1e-8, atol=1e-10)
+
+
+def test_the_regressor_in_blocks_is_the_regressor_at_once(setup, monkeypatch):
+    _, chain, q, qd, qdd = setup
+    whole = regressor.regressor(chain, q, qd, qdd)
+    monkeypatch.setattr(regressor, "ROWS", 16)  # 40 states: blocks of 16, 16 and 8
+    torch.testing.assert_close(regressor.regressor(chain, q, qd, qdd), whole, rtol=0, atol=0)

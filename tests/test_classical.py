@@ -120,3 +120,28 @@ class _Recording:
 
     def __len__(self) -> int:
         return len(self.q)
+
+
+def test_a_known_payload_per_recording_is_taken_off_before_the_fit_and_put_back_after(arm):
+    """Recordings that carry different known payloads (``parameters`` of an import): the payload's torque
+    (``regressor.payload_torque``) is the engine's, least squares on the arm's own torques (the payload's
+    taken off) recovers every recording's torques with its payload, and the forward dynamics with it are
+    the engine's."""
+    from lnn_torch.robots.regressor import payload_torque
+
+    arm, chain = arm
+    rng = np.random.default_rng(7)
+    q, qd, qdd, _ = samples(arm, 300, 4)
+    payload = torch.tensor(np.c_[rng.uniform(0, 3, 300), rng.uniform(-0.05, 0.05, (300, 2)), rng.uniform(0, 0.1, 300)])
+    tau = arm.inverse(q, qd, qdd, payload) + DriveModel.of(DRIVE).torque(qd, FRICTION)
+    added = payload_torque(chain, q, qd, qdd, payload)
+    torch.testing.assert_close(added, arm.inverse(q, qd, qdd, payload) - arm.inverse(q, qd, qdd), rtol=0,
+                               atol=1e-9 * float(tau.abs().max()))
+    fit = classical.least_squares(chain, q[:250], qd[:250], qdd[:250], (tau - added)[:250], drive=DRIVE)
+    held_out = slice(250, 300)
+    assert (fit.torque(q[held_out], qd[held_out], qdd[held_out], payload[held_out]) - tau[held_out]).abs().max() \
+        <= 1e-7 * tau.abs().max()
+    assert (fit.torque(q[held_out], qd[held_out], qdd[held_out]) - tau[held_out]).abs().max() > 0.1  # it matters
+    tau_h = tau[held_out]
+    qdd_fit = fit.forward(q[held_out], qd[held_out], tau_h, payload[held_out])
+    torch.testing.assert_close(qdd_fit, qdd[held_out], rtol=1e-6, atol=1e-6)

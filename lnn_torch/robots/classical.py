@@ -29,7 +29,7 @@ import torch
 from ..drives import COEFFICIENTS, DriveModel
 from ..errors import InputError
 from .kinematics import SerialChain, reverse_cholesky
-from .regressor import base_parameters, classical_of, inverse_dynamics, parameter_vector, regressor
+from .regressor import base_parameters, classical_of, inverse_dynamics, parameter_vector, payload_torque, regressor
 
 _OFF = torch.triu_indices(4, 4, 1)
 
@@ -50,9 +50,12 @@ class ArmModel:
     weights: np.ndarray | None = None  # the per-joint row weights of a weighted fit
     info: dict = field(default_factory=dict)
 
-    def rigid_torque(self, q, qd, qdd) -> torch.Tensor:
+    def rigid_torque(self, q, qd, qdd, payload=None) -> torch.Tensor:
         """The rigid body's and the armature's torques ``(N, n)`` (viscous friction included where the
-        drive has it: it is the regressor's damping column)."""
+        drive has it: it is the regressor's damping column); with ``payload (N, 4 or 10)`` (per row, at the
+        flange; None: none) its torques too (``regressor.payload_torque``)."""
+        if payload is not None:
+            return self.rigid_torque(q, qd, qdd) + payload_torque(self.chain, q, qd, qdd, payload)
         if self.pi is not None:  # the recursion with the parameters, not the regressor (a tenth of the time)
             pi = torch.as_tensor(self.pi, dtype=torch.float64).clone()
             if "viscous" not in self.drive.forms:
@@ -62,25 +65,30 @@ class ArmModel:
         Y = _regressor(self.chain, q, qd, qdd, self.drive)
         return Y[..., torch.as_tensor(self.base["independent"])] @ torch.as_tensor(self.beta)  # Y_B beta
 
-    def torque(self, q, qd, qdd) -> torch.Tensor:
-        """The joint torques ``(N, n)`` (N m) that give ``qdd`` at ``(q, qd)``."""
+    def torque(self, q, qd, qdd, payload=None) -> torch.Tensor:
+        """The joint torques ``(N, n)`` (N m) that give ``qdd`` at ``(q, qd)`` (carrying ``payload (N, 4 or
+        10)`` at the flange, one per row; None: none)."""
         qd = torch.as_tensor(qd, dtype=torch.float64)
         coefficients = {k: torch.as_tensor(v) for k, v in self.friction.items()}
-        return self.rigid_torque(q, qd, qdd) + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)})
+        return (self.rigid_torque(q, qd, qdd, payload)
+                + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)}))
 
-    def forward(self, q, qd, tau) -> torch.Tensor:
+    def forward(self, q, qd, tau, payload=None) -> torch.Tensor:
         """The accelerations ``(N, n)`` under the joint torques ``tau`` (N m): ``M(q) qdd = tau - h(q, qd)``
         with ``h`` the torque at zero acceleration (friction included) and ``M``'s columns the rigid
         torques of unit accelerations at rest less those at zero acceleration (the friction and gravity
-        cancel). A least-squares fit's ``M`` need not be positive definite: a singular one gives NaN."""
+        cancel); ``payload`` as in ``torque``. A least-squares fit's ``M`` need not be positive definite:
+        a singular one gives NaN."""
         q, qd, tau = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, tau))
         n, dof = q.shape
         eye = torch.eye(dof, dtype=q.dtype)
         rest = torch.zeros_like(qd)
-        still = self.rigid_torque(q, rest, rest)
-        unit = self.rigid_torque(q.repeat_interleave(dof, 0), rest.repeat_interleave(dof, 0), eye.repeat(n, 1))
+        rows = None if payload is None else torch.as_tensor(payload, dtype=torch.float64)
+        still = self.rigid_torque(q, rest, rest, rows)
+        unit = self.rigid_torque(q.repeat_interleave(dof, 0), rest.repeat_interleave(dof, 0), eye.repeat(n, 1),
+                                 None if rows is None else rows.repeat_interleave(dof, 0))
         M = (unit.view(n, dof, dof) - still[:, None]).mT  # column i: the torques of qdd = e_i
-        h = self.torque(q, qd, rest)
+        h = self.torque(q, qd, rest, rows)
         solution, info = torch.linalg.solve_ex(0.5 * (M + M.mT), (tau - h)[..., None])
         return torch.where((info == 0)[:, None], solution[..., 0], torch.nan)
 

@@ -80,6 +80,23 @@ def pseudo_inertia(mass: float, com, inertia_com) -> np.ndarray:
     return J
 
 
+def payload_pseudo_inertia(payload: torch.Tensor) -> torch.Tensor:
+    """``J (B, 4, 4)`` of payloads ``(B, 4)`` (point masses) or ``(B, 10)`` (with inertia about the centre of
+    mass), in the payload's frame; a negative mass is taken as zero."""
+    m = payload[:, 0].clamp_min(0)
+    c = payload[:, 1:4]
+    sigma = m[:, None, None] * c[:, :, None] * c[:, None, :]
+    if payload.shape[1] == 10:
+        ixx, iyy, izz, ixy, ixz, iyz = payload[:, 4:].unbind(-1)
+        I = torch.stack([torch.stack([ixx, ixy, ixz], -1), torch.stack([ixy, iyy, iyz], -1),
+                         torch.stack([ixz, iyz, izz], -1)], -2)
+        tr = (ixx + iyy + izz)[:, None, None]
+        sigma = sigma + 0.5 * tr * torch.eye(3, dtype=payload.dtype, device=payload.device) - I
+    top = torch.cat([sigma, (m[:, None] * c)[..., None]], -1)
+    bottom = torch.cat([m[:, None] * c, m[:, None]], -1)[:, None]
+    return torch.cat([top, bottom], -2)
+
+
 def read_chain(model, payload_body: str | None = "payload") -> SerialChain:
     """The ``SerialChain`` of a compiled MuJoCo model (``mujoco.MjModel``): its hinge joints in tree
     order; bodies without joints welded to their moving ancestor (their inertia folded into it; those

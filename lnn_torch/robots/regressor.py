@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .kinematics import SerialChain, poses_and_twists
+from .kinematics import SerialChain, payload_pseudo_inertia, poses_and_twists
 
 LINK_NAMES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "mcx", "mcy", "mcz", "m")
 
@@ -59,9 +59,30 @@ def parameter_vector(J: torch.Tensor, armature: torch.Tensor, damping: torch.Ten
 def inverse_dynamics(chain: SerialChain, q, qd, qdd, pi: torch.Tensor) -> torch.Tensor:
     """``tau (B, n)`` at states ``(B, n)`` for the parameter vector ``pi (12 n,)`` (module docstring)."""
     n = chain.dof
-    T, S = poses_and_twists(chain, q)
     J = pseudo_inertia_of(pi[: 10 * n].reshape(n, 10))
     armature, damping = pi[10 * n: 11 * n], pi[11 * n:]
+    return rigid_body_torque(chain, q, qd, qdd, J) + armature * qdd + damping * qd
+
+
+def payload_torque(chain: SerialChain, q, qd, qdd, payload: torch.Tensor) -> torch.Tensor:
+    """``tau (B, n)``: the joint torques that carrying a payload at the flange adds, one payload per row
+    ``(B, 4)`` (mass, centre of mass in the flange frame) or ``(B, 10)`` (and its inertia about the centre
+    of mass): its rigid body's inverse dynamics, exact (zero without a flange or with a zero payload)."""
+    q, qd, qdd, payload = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd, payload))
+    if chain.flange is None or payload.shape[-1] == 0:
+        return torch.zeros_like(q)
+    n = chain.dof
+    Xf = chain.flange.to(q.dtype)
+    J = q.new_zeros(q.shape[0], n, 4, 4)
+    J[:, -1] = Xf @ payload_pseudo_inertia(payload) @ Xf.T
+    return rigid_body_torque(chain, q, qd, qdd, J)
+
+
+def _motion(chain: SerialChain, q, qd, qdd):
+    """``(D (B, k, i, 4, 4), Tdd (B, i, 4, 4), upto (k, i))``: the module docstring's ``D_ki``, ``Tdd_i`` and
+    the mask ``k <= i``."""
+    n = chain.dof
+    T, S = poses_and_twists(chain, q)
     idx = torch.arange(n)
     lo, hi = torch.minimum(idx[:, None], idx[None, :]), torch.maximum(idx[:, None], idx[None, :])
     P = S[:, lo] @ S[:, hi]  # (B, l, m, 4, 4)
@@ -69,17 +90,50 @@ def inverse_dynamics(chain: SerialChain, q, qd, qdd, pi: torch.Tensor) -> torch.
     upto = (idx[:, None] <= idx[None, :]).to(q.dtype)  # [l, i]: l <= i
     A = (torch.einsum("blmxy,lmi,bl,bm->bixy", P, below, qd, qd)
          + torch.einsum("blxy,li,bl->bixy", S, upto, qdd))  # (B, i, 4, 4)
-    Tdd = A @ T
-    D = torch.einsum("bkxy,biyz->bkixz", S, T)  # (B, k, i, 4, 4)
-    inertial = torch.einsum("bkixy,iyz,bixz->bki", D, J, Tdd)  # tr(D J Tdd^T)
+    return torch.einsum("bkxy,biyz->bkixz", S, T), A @ T, upto
+
+
+def rigid_body_torque(chain: SerialChain, q, qd, qdd, J: torch.Tensor) -> torch.Tensor:
+    """``tau (B, n)`` of the links alone (no armature, no damping) with pseudo-inertias ``J (n, 4, 4)``, or
+    one set per row ``(B, n, 4, 4)``."""
+    D, Tdd, upto = _motion(chain, q, qd, qdd)
+    Jb = J.expand(q.shape[0], -1, -1, -1) if J.ndim == 3 else J  # (B, n, 4, 4)
+    inertial = torch.einsum("bkixy,biyz,bixz->bki", D, Jb, Tdd)  # tr(D J Tdd^T)
     g = torch.cat([chain.gravity.to(q.dtype), q.new_zeros(1)])
-    weight = torch.einsum("x,bkixy,iy->bki", g, D, J[:, :, 3])
-    tau = ((inertial - weight) * upto[None]).sum(-1)
-    return tau + armature * qdd + damping * qd
+    weight = torch.einsum("x,bkixy,biy->bki", g, D, Jb[:, :, :, 3])
+    return ((inertial - weight) * upto[None]).sum(-1)
+
+
+ROWS = 2048  # states per block of the regressor (its memory: about 50 kB per state for seven joints)
 
 
 def regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
-    """``Y (B, n, 12 n)`` with ``tau = Y pi`` (exact: the torques are linear in ``pi``)."""
+    """``Y (B, n, 12 n)`` with ``tau = Y pi`` (exact: the torques are linear in ``pi``): in closed form,
+    ``d tau_k / d J_i = D_ki^T Tdd_i - (D_ki^T g~) e_4^T`` (``k <= i``) mapped to the classical ten by the
+    linear ``pseudo_inertia_of``, then ``qdd_k`` and ``qd_k`` for the armature and damping; computed in
+    blocks of ``ROWS`` states (``reference_regressor``: the same by forward-mode derivatives)."""
+    q, qd, qdd = (torch.as_tensor(x) for x in (q, qd, qdd))
+    n = chain.dof
+    # d J / d pi of one link: (16, 10), the same linear map for every link
+    dJ = pseudo_inertia_of(torch.eye(10, dtype=q.dtype)).reshape(10, 16).T
+    g = torch.cat([chain.gravity.to(q.dtype), q.new_zeros(1)])
+    e4 = torch.zeros(4, dtype=q.dtype)
+    e4[3] = 1.0
+    blocks = []
+    for lo in range(0, q.shape[0], ROWS):
+        rows = slice(lo, lo + ROWS)
+        D, Tdd, upto = _motion(chain, q[rows], qd[rows], qdd[rows])
+        W = (torch.einsum("bkixy,bixz->bkiyz", D, Tdd)
+             - torch.einsum("x,bkixy,z->bkiyz", g, D, e4)) * upto[None, :, :, None, None]  # (B, k, i, 4, 4)
+        links = (W.flatten(-2) @ dJ).flatten(-2)  # (B, k, 10 n)
+        eye = torch.eye(n, dtype=q.dtype)
+        blocks.append(torch.cat([links, eye * qdd[rows, :, None], eye * qd[rows, :, None]], -1))
+    return torch.cat(blocks) if blocks else q.new_zeros(0, n, 12 * n)
+
+
+def reference_regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
+    """``regressor`` by its definition: the forward-mode derivatives of ``inverse_dynamics`` along each
+    parameter (84 passes of the recursion per state: for tests)."""
     p = 12 * chain.dof
     zero = torch.zeros(p, dtype=q.dtype)
     basis = torch.eye(p, dtype=q.dtype)
