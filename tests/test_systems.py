@@ -283,3 +283,18 @@ def test_parameter_kinds_positive_nonnegative_and_real():
         check_param_signs(torch.tensor([[1.0, -0.1, -3.0]]), kinds, names, "s")
     with pytest.raises(InputError, match=r"unknown parameter kind\(s\) \['nonegative'\]"):
         check_param_signs(torch.ones(1, 3), ("positive", "nonegative", "real"), names, "s")
+
+
+def test_a_dataset_whose_scene_a_model_cannot_take_is_named():
+    """``System.mismatch``: what a file's recorded scene has that a model of another scene cannot take
+    (``lnn-torch evaluate`` refuses such a file in one line)."""
+    cart = dict(dof=2, angle_mask=[False, True], input_matrix=[[1.0], [0.0]], input_names=["force"])
+    system = get_system("measured", **cart)
+    assert system.mismatch(system.describe()) is None
+    assert "scene 'double_pendulum'" in system.mismatch(get_system("double_pendulum").describe())
+    one = get_system("measured", dof=1, input_matrix=[[1.0]], input_names=["tau"]).describe()
+    assert "coordinates 1, where the model has 2" in system.mismatch(one)
+    angles = get_system("measured", **{**cart, "angle_mask": [True, True]}).describe()
+    assert "angle mask" in system.mismatch(angles)
+    pole = get_system("measured", **{**cart, "input_matrix": [[0.0], [1.0]]}).describe()
+    assert "input matrix [[0.0], [1.0]]" in system.mismatch(pole)

@@ -134,8 +134,10 @@ def main(argv: list[str]) -> int:
     saved = data_hparams(args.checkpoint)
     data = args.data or _data_file(saved, args.split)
     f = read_dataset(data)
-    if f.attrs["scene"] != module.system.name:
-        raise ValueError(f"{data} holds scene '{f.attrs['scene']}' but the checkpoint models '{module.system.name}'")
+    problem = module.system.mismatch(f.scene)
+    if problem:
+        raise InputError(f"{data} does not fit the checkpoint's model of '{module.system.name}': the file holds "
+                         f"{problem}")
     # the reference as in training: the file's accelerations, or the checkpoint's derivative estimates
     dm = TrajectoryDataModule(path=str(data), spec=None if f.measured else dict(f.spec),
                               targets=saved.get("targets", "file"))

@@ -232,6 +232,28 @@ class System(abc.ABC):
             **self.describe_forces(),
         }
 
+    def mismatch(self, recorded: dict) -> str | None:
+        """What a dataset's recorded scene (its ``describe()``, the file's ``scene_json``) has that a model
+        of this scene cannot take (the scene, coordinates, angles, parameters, inputs and their matrix),
+        in words; None when a model of this scene can be evaluated on it."""
+        mine = self.describe()
+        if recorded.get("name") != mine["name"]:
+            return f"scene '{recorded.get('name')}', not '{mine['name']}'"
+        for key, what in (("dof", "coordinates"), ("angle_mask", "angle mask (which coordinates are angles)"),
+                          ("param_names", "parameters"), ("input_names", "inputs")):
+            if key not in recorded:  # an older file that does not record it
+                continue
+            theirs, ours = recorded.get(key), mine.get(key)
+            if key in ("param_names", "input_names"):
+                theirs, ours = len(theirs or []), len(ours or [])
+            if theirs != ours:
+                return f"{what} {recorded.get(key)}, where the model has {mine.get(key)}"
+        B_file, B_model = recorded.get("input_matrix"), mine.get("input_matrix")
+        if B_file is not None and B_model is not None and not torch.allclose(
+                torch.tensor(B_file, dtype=torch.float64), torch.tensor(B_model, dtype=torch.float64)):
+            return f"input matrix {B_file}, where the model has {B_model}"
+        return None
+
     def describe_forces(self) -> dict:
         """The generalised forces a model of this scene needs: inputs and their matrix, friction and
         its joint map (empty for a conservative scene)."""
