@@ -123,3 +123,13 @@ def test_descriptions_round_trip_and_bad_ones_are_refused_in_one_line():
                        ({"sourse": "franka_panda"}, "unknown key")):
         with pytest.raises(InputError, match=match):
             ArmDescription.of(bad).compile()
+
+
+def test_a_continuous_joint_turns_all_the_way_round(tmp_path):
+    path = tmp_path / "continuous.urdf"
+    path.write_text(URDF.replace('type="revolute"><parent link="l1"/>', 'type="continuous"><parent link="l1"/>')
+                    .replace('<limit lower="-2" upper="2" effort="10" velocity="2"/>', ''))
+    arm = MujocoArm({"source": str(path), "flange": "tool0"})
+    torch.testing.assert_close(arm.joint_range, torch.tensor([[-3.0, 3.0], [-math.pi, math.pi]], dtype=torch.float64))
+    q = arm.sample_q(np.random.default_rng(0), 200)
+    assert q[:, 1].min() < -2.5 and q[:, 1].max() > 2.5

@@ -122,6 +122,7 @@ def _progress():
 def main(argv: list[str]) -> int:
     from ..checkpoints import data_hparams, load_model, output_dir
     from ..data import TrajectoryDataModule, read_dataset
+    from ..errors import InputError
     from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu, quiet_compile_logs
 

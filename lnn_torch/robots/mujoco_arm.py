@@ -5,12 +5,12 @@ for these; about 3-4 us per state), and the engine's own RK4 integration of one 
 a held torque (``start``/``hold``: data generation).
 
 Conventions: ``q`` the joint angles of the description (rad; its zero configuration and axes; the
-Panda's q = 0 lies outside joint 4's range), ``qd`` rad/s, torques N m at the joints, gravity -9.81
-m/s^2 along world z. The payload is a rigid body at the flange: ``payload = (mass, cx, cy, cz)`` (kg,
-centre of mass in m in the flange frame) and optionally the six entries of its inertia about its centre
-of mass in that frame ``(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)`` (kg m^2; default a point mass). A method
-given no payload computes the arm with the description's own (massless in the shipped ones); no payload
-carries over between calls.
+Panda's q = 0 lies outside joint 4's range), ``qd`` rad/s, torques N m at the joints, gravity the
+description's (MuJoCo's default: -9.81 m/s^2 along world z). The payload is a rigid body at the flange:
+``payload = (mass, cx, cy, cz)`` (kg, centre of mass in m in the flange frame) and optionally the six
+entries of its inertia about its centre of mass in that frame ``(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)`` (kg m^2;
+default a point mass). A method given no payload computes the arm with the description's own (massless in
+the shipped ones); no payload carries over between calls.
 
     M qdd + bias(q, qd) = tau + passive(qd)      (passive = -damping qd; armature is in M)
 
@@ -37,6 +37,7 @@ inequality (a rigid body's); each joint's armature times U(0.7, 1.3) and damping
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 
 import numpy as np
@@ -105,7 +106,10 @@ class MujocoArm:
         self.joint_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt))
         self.body_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody))
         self.actuator_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(m.nu))
-        self.joint_range = torch.tensor(m.jnt_range, dtype=torch.float64)
+        # a joint without limits (a URDF's continuous joint: MuJoCo's range [0, 0]) turns all the way round
+        limited = torch.tensor(m.jnt_limited, dtype=torch.bool)[:, None]
+        self.joint_range = torch.where(limited, torch.tensor(m.jnt_range, dtype=torch.float64),
+                                       torch.tensor([-math.pi, math.pi], dtype=torch.float64))
         self.armature = torch.tensor(m.dof_armature, dtype=torch.float64)
         self.damping = torch.tensor(m.dof_damping, dtype=torch.float64)
         self.gravity = torch.tensor(m.opt.gravity, dtype=torch.float64)

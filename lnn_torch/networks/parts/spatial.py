@@ -244,8 +244,8 @@ class SpatialChain(KineticPart):
 
 
 class SpatialGravity(PotentialPart):
-    """``spatial``: gravity (the description's vector, 9.81 m/s^2 down its z) on the masses of the kinetic
-    part ``spatial`` and the payload; no parameter of its own."""
+    """``spatial``: gravity (the description's vector; MuJoCo's default 9.81 m/s^2 down world z) on the masses
+    of the kinetic part ``spatial`` and the payload; no parameter of its own."""
 
     name = "spatial"
     needs_angles = True
