@@ -120,7 +120,7 @@ def test_a_malformed_split_is_refused_in_one_line(recordings, split, message, tm
     ("decreasing", r"run\.csv: line 5: time decreases"),
     ("duplicate", r"run\.csv: line 5: time repeats"),
     ("nan", r"run\.csv: line 4: NaN or Inf in column 'angle0'"),
-    ("text", r"run\.csv: line 4: a value of .* is missing or not a number"),
+    ("text", r"run\.csv: line 4: column 'angle0': 'abc' is not a number$"),
     ("gap", r"run\.csv: line 6: a gap of 0\.05 s after t = 0\.006 s exceeds max_gap 0\.01 s"),
 ])
 def test_import_refusals_name_the_file_and_line_and_write_nothing(problem, message, tmp_path):

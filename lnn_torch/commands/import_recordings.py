@@ -1,10 +1,12 @@
 """``lnn-torch import``: CSV recordings of a real system -> an lnn_torch HDF5 dataset.
 
-One CSV per recording (``.csv`` or ``.csv.gz``), a header row naming the columns. Name the columns of
-time, coordinates and (optionally) velocities and inputs; declare the units and the angle
+One CSV per recording (``.csv`` or ``.csv.gz``; ``,``, ``;`` or tab delimited, as the header shows), a
+header row naming the columns. Name the columns of time, coordinates and (optionally) velocities and
+inputs; declare the units (``--time-units``, ``--angle-units``, ``--length-units``) and the angle
 convention. Each recording is linearly interpolated onto a uniform grid (``--dt``; default the
-median sampling interval) and split by recording (``--split`` fractions, seeded, or
-``--split-recordings``). Settings can also come from a YAML file (``--config``; the fields of
+median sampling interval, the same in every recording) and split by recording (``--split``
+fractions, seeded, or ``--split-recordings``; a recording is named by its file name without ``.gz``
+and ``.csv``). Settings can also come from a YAML file (``--config``; the fields of
 ``lnn_torch.data.importer.ImportSpec``), which the command line overrides.
 
     lnn-torch import recordings/*.csv -o data/arm.h5 --coordinates pos1 pos2 --velocities vel1 vel2 \\
@@ -26,7 +28,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("files", nargs="+", help="CSV recordings (globs are expanded)")
     ap.add_argument("--output", "-o", required=True, help="the HDF5 dataset to write")
     ap.add_argument("--config", default=None, help="YAML (or JSON) with ImportSpec fields")
-    ap.add_argument("--time", default=None, help="time column, s (default 'time')")
+    ap.add_argument("--time", default=None, help="time column (default 'time')")
+    ap.add_argument("--time-units", choices=("s", "ms", "us", "ns"), default=None,
+                    help="the time column's unit (default s)")
     ap.add_argument("--coordinates", nargs="+", default=None, help="coordinate columns")
     ap.add_argument("--velocities", nargs="+", default=None, help="measured velocity columns (optional)")
     ap.add_argument("--inputs", nargs="+", default=None, help="input columns, e.g. motor torques in N m (optional)")
@@ -38,6 +42,12 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--input-names", nargs="+", default=None)
     ap.add_argument("--angle-mask", nargs="+", type=int, default=None, help="1 for an angle coordinate, 0 for a length")
     ap.add_argument("--angle-units", choices=("rad", "deg"), default=None)
+    ap.add_argument("--length-units", choices=("m", "cm", "mm"), default=None,
+                    help="unit of the coordinates that are lengths and their velocities (default m)")
+    ap.add_argument("--delimiter", default=None, help="the files' delimiter, one character or 'tab' (default: "
+                    "the header's, ';' if it holds one, else a tab if it holds one, else ',')")
+    ap.add_argument("--decimal", choices=("auto", ".", ","), default=None,
+                    help="decimal mark (default auto: decimal commas too where the delimiter is not ',')")
     ap.add_argument("--conventions", default=None, help="the angle convention in words (recorded)")
     ap.add_argument("--angle-combination", nargs="+", type=float, action="append", default=None,
                     help="an extra feature angle as coefficients over the coordinates (repeatable), e.g. 1 1")
@@ -47,7 +57,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-gap", type=float, default=None, help="longest accepted interval between time stamps, s")
     ap.add_argument("--split", type=float, nargs=3, default=None, metavar=("TRAIN", "VAL", "TEST"))
     ap.add_argument("--split-recordings", nargs="+", default=None, metavar="PART=NAME,NAME",
-                    help="e.g. train=run1,run2 val=run3 test=run4 (names: file stems)")
+                    help="e.g. train=run1,run2 val=run3 test=run4 (names: file names without .gz, .csv)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--label", default=None, help="the system's name (recorded)")
     ap.add_argument("--overwrite", action="store_true")
@@ -62,11 +72,13 @@ def spec_from_args(args):
         from ..config_files import read_config
 
         fields = read_config(args.config, "import config")
-    flags = {"time": args.time, "coordinates": args.coordinates, "velocities": args.velocities, "inputs": args.inputs,
+    flags = {"time": args.time, "time_units": args.time_units, "coordinates": args.coordinates,
+             "velocities": args.velocities, "inputs": args.inputs,
              "currents": args.currents, "drive_gains": args.drive_gains, "robot": args.robot,
              "coord_names": args.coord_names, "input_names": args.input_names,
              "angle_mask": None if args.angle_mask is None else [bool(a) for a in args.angle_mask],
-             "angle_units": args.angle_units, "conventions": args.conventions,
+             "angle_units": args.angle_units, "length_units": args.length_units, "delimiter": args.delimiter,
+             "decimal": args.decimal, "conventions": args.conventions,
              "angle_combinations": args.angle_combination, "coulomb_velocity": args.coulomb_velocity, "dt": args.dt,
              "max_gap": args.max_gap, "seed": args.seed, "label": args.label}
     fields.update({k: v for k, v in flags.items() if v is not None})
@@ -90,6 +102,20 @@ def spec_from_args(args):
     return ImportSpec(**fields)
 
 
+def slow_sampling_note(provenance: dict) -> str | None:
+    """One line when a recording's median sampling interval is 0.5 s or more (time stamps in ms, us or ns
+    read as seconds?), suggesting ``time_units``; else None."""
+    sources = provenance.get("sources", [])
+    slow = [(s["file"], s["timing"]["median_interval_s"]) for s in sources
+            if (s.get("timing") or {}).get("median_interval_s", 0.0) >= 0.5]
+    if not slow:
+        return None
+    units = provenance.get("settings", {}).get("time_units", "s")
+    listing = ", ".join(f"{name} {interval:.4g} s" for name, interval in slow)
+    return (f"note: median sampling interval {listing} (time column read in {units}): if its stamps are in ms, us "
+            "or ns, set time_units (--time-units)")
+
+
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
     from ..data.importer import import_recordings, resampling_report
@@ -101,7 +127,11 @@ def main(argv: list[str]) -> int:
     f = read_dataset(path)
     names = json.loads(f.attrs["recordings"])
     splits = "; ".join(f"{k}: {', '.join(names[i] for i in v)}" for k, v in f.splits.items())
-    for line in resampling_report(json.loads(f.attrs["provenance"])):
+    provenance = json.loads(f.attrs["provenance"])
+    for line in resampling_report(provenance):
         print(line)
+    note = slow_sampling_note(provenance)
+    if note:
+        print(note)
     print(f"wrote {path} ({f.num_trajectories} recordings, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
     return 0

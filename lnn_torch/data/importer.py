@@ -1,34 +1,47 @@
 """Import measured recordings (one CSV per recording) into the project's HDF5 schema.
 
+Each recording is a text table (``.csv``, ``.tsv``, ``.txt`` or ``.dat``, or any of them gzip-compressed,
+``.csv.gz``), named by its file name without those extensions (``exp_2024.05.01_a.csv``:
+``exp_2024.05.01_a``): a header row naming the columns (after comment lines starting with ``#`` and
+blank lines; a UTF-8 byte-order mark, as Excel writes, is dropped), then one row per sample. The
+delimiter is the header's: ``;`` if it holds one, else a tab if it holds one, else ``,`` (or
+``delimiter``); with a ``;`` or tab delimiter, numbers may have decimal commas (``decimal``).
+
 Each recording is resampled onto a uniform grid: every column (coordinates, velocities, inputs) is
 linearly interpolated at ``t_0 + k dt`` from the first time stamp to the last (``dt`` defaults to
-the median sampling interval, rounded to 0.1 ms). Irregular stamps and gaps are repaired this way and
-reported (``resampling_report``: the intervals, the gaps above twice the median, the largest); only a
-gap longer than ``max_gap`` (default 25 median intervals) is refused, with the number and size of such
-gaps. Units are converted to SI (degrees to radians for angle coordinates and their velocities; motor
-currents times known drive gains to N m). Recordings keep their own lengths: the file pads them with
-NaN and records ``lengths``.
+the median sampling interval, rounded to 0.1 ms; recordings whose median intervals differ by more
+than 2 % and round to different intervals need ``dt`` set). Irregular stamps and gaps are repaired
+this way and reported (``resampling_report``: the intervals, the gaps above twice the median, the
+largest); only a gap longer than ``max_gap`` (default 25 median intervals) is refused, with the number
+and size of such gaps. Units are converted to SI (time stamps in ``time_units`` to s; degrees to radians for angle
+coordinates and their velocities; lengths in ``length_units`` to m for the other coordinates and
+their velocities; motor currents times known drive gains to N m). Recordings keep their own lengths:
+the file pads them with NaN and records ``lengths``.
 
 The split is by recording (named by the user, or seeded fractions) or by time window inside a
-recording (``"run[0.5:10.5]"``: its samples at 0.5 s <= t < 10.5 s of its time column): each window is
-an entry of its own, stored with up to ``window_context`` s of the recording on each side for the
-derivative filters and its own span in ``windows`` (the DataModule cuts each entry to its window after
-estimating derivatives). Windows of different splits may not overlap.
+recording (``"run[0.5:10.5]"``: its samples 0.5 s <= t - t_0 < 10.5 s, seconds from the recording's
+first sample ``t_0``, whatever its time column's values): each window is an entry of its own, stored
+with up to ``window_context`` s of the recording on each side for the derivative filters and its own
+span in ``windows`` (the DataModule cuts each entry to its window after estimating derivatives).
+Windows of different splits may not overlap.
 
 Known parameters per recording (``parameters``: e.g. the payload a robot arm carried in each, or a
 named tool) are stored with each entry, and a robot arm's description (``robot``) with the scene:
 models condition on the parameters as on a simulated scene's, a grey box reads the description.
 
-Refused, with one line naming the file and the line of the CSV, before anything is written: a
-missing column, a time that does not increase (or repeats), a NaN or unreadable value, a gap longer
-than ``max_gap``, an existing output (unless ``overwrite``). The file records the provenance:
-source names, SHA-256 checksums, the resampling report and every setting.
+Refused, with one line naming the file and the line of the file (and the column), before anything
+is written: a missing column or a named column that the header holds twice, a time that does not
+increase (or repeats), an empty, unreadable, NaN or Inf value, a gap longer than ``max_gap``, an
+entry (recording or window) of fewer than 16 samples after resampling, an existing output (unless
+``overwrite``). The file records the provenance: source names, SHA-256 checksums, the resampling
+report and every setting.
 """
 
 from __future__ import annotations
 
 import csv
 import hashlib
+import itertools
 import json
 import math
 import re
@@ -44,9 +57,15 @@ from ..systems import get_system
 from .hdf5 import check_writable, write_dataset
 
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per unit
+TIME_UNITS = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}  # stamps per second (divided by)
+DECIMALS = ("auto", ".", ",")
+EXTENSIONS = (".csv", ".tsv", ".txt", ".dat")  # removed (after .gz) from a file's name to name its recording
 ARM_PARAMS = ("payload_mass", "payload_x", "payload_y", "payload_z", "payload_ixx", "payload_iyy", "payload_izz",
               "payload_ixy", "payload_ixz", "payload_iyz")
 MAX_GAP_INTERVALS = 25  # the default max_gap, in median sampling intervals
+MIN_SAMPLES = 16  # the fewest samples of an entry (a recording or a window) after resampling
+DT_SPREAD = 0.02  # the relative spread of median intervals beyond which the default dt needs them to round alike
 
 
 @dataclass
@@ -55,7 +74,9 @@ class ImportSpec:
 
     Attributes:
         coordinates: the columns of the generalised coordinates, in order.
-        time: the column of time stamps, s.
+        time: the column of time stamps, in ``time_units``.
+        time_units: the time column's unit: ``s`` (default), ``ms``, ``us`` or ``ns`` (velocities are per
+            second whatever it is).
         velocities: the columns of measured velocities (None: not measured).
         inputs: the columns of the inputs, e.g. measured motor torques in N m (None: unactuated).
         currents: instead of ``inputs``, motor current columns (A), turned into torques by ``drive_gains``
@@ -63,10 +84,17 @@ class ImportSpec:
         coord_names, input_names: names (default ``q1..``, ``tau1..``; a robot arm's: its joints').
         angle_mask: which coordinates are angles (default all).
         angle_units: ``rad`` or ``deg`` for the angle coordinates and their velocities.
+        length_units: ``m`` (default), ``cm`` or ``mm`` for the other coordinates (lengths) and their
+            velocities.
+        delimiter: the files' delimiter, one character (``tab`` for a tab); default (None): each file's
+            header's, ``;`` if it holds one, else a tab if it holds one, else ``,``.
+        decimal: the decimal mark: ``auto`` (default: ``.``, and ``,`` too where the delimiter is not
+            ``,``), ``.`` or ``,``.
         conventions: the angle convention in words (recorded; e.g. joint-relative angles).
         angle_combinations: further feature angles as rows of coefficients (e.g. ``[[1, 1]]``: the
             absolute angle of link 2 of a chain measured in joint angles).
-        input_matrix: ``(dof, n_u)`` (default: input ``j`` acts on coordinate ``j``).
+        input_matrix: ``(dof, n_u)`` (default: input ``j`` acts on coordinate ``j``); an input acting
+            only on lengths is a force, N (``length_units`` do not apply to it), otherwise a torque, N m.
         friction: models of the system learn joint friction; ``joint_map``: the joint rates
             ``D qd`` it acts on (default identity); ``coulomb_velocity``: its smoothing, rad/s.
         robot: a robot arm's description as the robot it is (``lnn_torch.robots.description``: a shipped
@@ -77,18 +105,22 @@ class ImportSpec:
             the names default to the payload at its flange, ``payload_mass, payload_x, payload_y,
             payload_z`` (kg, m; ten values with the inertia about the centre of mass). A recording
             without values carries zeros (no payload).
-        dt: resampling interval, s (default: the median interval of the first recording, rounded).
+        dt: resampling interval, s (default: the median interval of the first recording, rounded to 0.1
+            ms; refused, asking for ``dt``, where the recordings' median intervals differ by over 2 % and
+            round to different intervals).
         max_gap: the longest interval between two time stamps accepted, s (default 25 x the median).
-        split: ``{"train": [...], "val": [...], "test": [...]}`` of recording names (file stems) or time
-            windows ``"name[start:end]"`` (s of its time column; an end may be left out), or three
-            fractions of the recordings (seeded by ``seed``): ``[0.7, 0.15, 0.15]`` or
-            ``{"train": 0.7, "val": 0.15, "test": 0.15}``.
+        split: ``{"train": [...], "val": [...], "test": [...]}`` of recording names (file names without
+            ``.gz`` and ``.csv``/``.tsv``/``.txt``/``.dat``) or time windows ``"name[start:end]"``
+            (seconds from the recording's first sample, not values of its time column; an end may be
+            left out), or three fractions of the recordings (seeded by ``seed``): ``[0.7, 0.15, 0.15]``
+            or ``{"train": 0.7, "val": 0.15, "test": 0.15}``. Every entry needs 16 samples or more.
         window_context: seconds of the recording kept on each side of a time window (for filters).
         label: the system's name (recorded).
     """
 
     coordinates: list[str]
     time: str = "time"
+    time_units: str = "s"
     velocities: list[str] | None = None
     inputs: list[str] | None = None
     currents: list[str] | None = None
@@ -97,6 +129,9 @@ class ImportSpec:
     input_names: list[str] | None = None
     angle_mask: list[bool] | None = None
     angle_units: str = "rad"
+    length_units: str = "m"
+    delimiter: str | None = None
+    decimal: str = "auto"
     conventions: str = ""
     angle_combinations: list[list[float]] | None = None
     input_matrix: list[list[float]] | None = None
@@ -139,6 +174,16 @@ class ImportSpec:
             self._arm_joints()
         if self.angle_units not in ANGLE_UNITS:
             raise InputError(f"import: angle_units must be one of {', '.join(ANGLE_UNITS)}, got '{self.angle_units}'")
+        for name, known in (("time_units", TIME_UNITS), ("length_units", LENGTH_UNITS), ("decimal", DECIMALS)):
+            if getattr(self, name) not in known:
+                raise InputError(f"import: {name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
+        if self.delimiter is not None:
+            sep = _separator(self.delimiter)
+            if sep is None:
+                raise InputError(f"import: delimiter must be one character (or 'tab'), not a quote, '#' or a line "
+                                 f"break; got {self.delimiter!r}")
+            if sep == "," and self.decimal == ",":
+                raise InputError("import: decimal ',' needs a delimiter other than ','")
         for name in ("dt", "max_gap"):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
@@ -234,83 +279,172 @@ class ImportSpec:
                           param_units=decl.get("units"), param_kinds=decl.get("kinds"), description=description)
 
 
-def read_csv_columns(path: Path, columns: list[str]) -> np.ndarray:
+def recording_name(path: str | Path) -> str:
+    """A recording's name: its file's name without ``.gz``, then without ``.csv``, ``.tsv``, ``.txt`` or
+    ``.dat`` (``run.csv.gz`` and ``run.csv``: ``run``; ``exp_2024.05.01_a.csv``: ``exp_2024.05.01_a``)."""
+    name = Path(path).name
+    if name.lower().endswith(".gz") and len(name) > 3:
+        name = name[:-3]
+    ext = next((e for e in EXTENSIONS if name.lower().endswith(e)), None)
+    return name[:-len(ext)] if ext is not None and len(name) > len(ext) else name
+
+
+def _separator(delimiter: str | None) -> str | None:
+    """A ``delimiter`` setting as the character it is (``tab``: a tab; None: detected per file), or None
+    if it cannot be one."""
+    sep = "\t" if delimiter in ("tab", "\\t") else delimiter
+    return sep if isinstance(sep, str) and len(sep) == 1 and sep not in "\"#\r\n" else None
+
+
+def _shown(sep: str) -> str:
+    return "tab" if sep == "\t" else repr(sep)
+
+
+def read_csv_columns(path: Path, columns: list[str], delimiter: str | None = None, decimal: str = "auto") -> np.ndarray:
     """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; comment lines starting
-    with ``#`` before the header) as float64 ``(rows, len(columns))``; errors name the file and line."""
+    with ``#`` before the header) as float64 ``(rows, len(columns))``; errors name the file and line
+    (``read_csv_table`` says which; ``delimiter``, ``decimal``: as ``ImportSpec``'s)."""
+    return read_csv_table(path, columns, delimiter, decimal)[0]
+
+
+_read_csv = read_csv_columns  # the former private name, kept for callers
+
+
+def read_csv_table(path: Path, columns: list[str], delimiter: str | None = None,
+                   decimal: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+    """``(values (rows, len(columns)) float64, lines (rows,) int64)``: the named columns of a CSV file
+    and the line of the file each data row ends on. The delimiter is ``delimiter`` (one character or
+    ``tab``), or else the header's: ``;`` if it holds one, else a tab if it holds one, else ``,``;
+    ``decimal`` (``auto``, ``.``, ``,``): ``auto`` reads decimal commas where the delimiter is not ``,``.
+    Text is UTF-8 (a byte-order mark is dropped), gzip-compressed where the name ends in ``.gz``."""
+    path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
     import gzip
 
     opener = gzip.open if path.suffix == ".gz" else open
     try:
-        return _parse_csv(path, opener, columns)
+        return _parse_csv(path, opener, columns, delimiter, decimal)
     except EOFError:
         raise InputError(f"{path}: truncated (the compressed file ends early)") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file (undecodable bytes)") from None
+    except csv.Error as err:
+        raise InputError(f"{path}: not a readable CSV file ({err})") from None
     except OSError as err:  # gzip.BadGzipFile, ...
         raise InputError(f"{path}: cannot read it ({err})") from None
 
 
-_read_csv = read_csv_columns  # the former private name, kept for callers
-
-
-def _parse_csv(path: Path, opener, columns: list[str]) -> np.ndarray:
-    with opener(path, "rt", newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-            while header and header[0].startswith("#"):  # comment lines before the header
-                header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError(f"{path}: the file is empty") from None
-        missing = [c for c in columns if c not in header]
+def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
+               decimal: str) -> tuple[np.ndarray, np.ndarray]:
+    with opener(path, "rt", encoding="utf-8-sig", newline="") as fh:
+        before = 0  # comment and blank lines before the header
+        for header_line in fh:
+            if header_line.strip() and not header_line.lstrip().startswith("#"):
+                break
+            before += 1
+        else:
+            raise InputError(f"{path}: the file is empty" if not before else
+                             f"{path}: no header row (only comment or blank lines)")
+        sep = _separator(delimiter) if delimiter is not None else (
+            ";" if ";" in header_line else "\t" if "\t" in header_line else ",")
+        if sep is None:
+            raise InputError(f"{path}: delimiter must be one character (or 'tab'), got {delimiter!r}")
+        if decimal not in DECIMALS:
+            raise InputError(f"{path}: decimal must be one of {', '.join(DECIMALS)}, got {decimal!r}")
+        if decimal == "," and sep == ",":
+            raise InputError(f"{path}: decimal ',' needs a delimiter other than ',' (the header is read with ',')")
+        commas = decimal == "," or (decimal == "auto" and sep != ",")
+        reader = csv.reader(itertools.chain([header_line], fh), delimiter=sep)
+        header = [h.strip() for h in next(reader)]
+        at = before + 1
+        missing = [c for c in dict.fromkeys(columns) if c not in header]
         if missing:
-            raise InputError(f"{path}: no column {', '.join(repr(c) for c in missing)} (columns: {', '.join(header)})")
+            hint = "; set delimiter if the file uses another" if len(header) == 1 else ""
+            raise InputError(f"{path}: no column {', '.join(repr(c) for c in missing)} in the header on line {at} "
+                             f"(delimiter {_shown(sep)}; columns: {', '.join(header)}){hint}")
+        twice = [c for c in dict.fromkeys(columns) if header.count(c) > 1]
+        if twice:
+            raise InputError(f"{path}: line {at}: the header names column {twice[0]!r} {header.count(twice[0])} times "
+                             "(which one is meant?): rename the others")
         index = [header.index(c) for c in columns]
-        rows = []
-        for line, row in enumerate(reader, start=2):
+        rows, lines = [], []
+        for row in reader:
             if not row or not "".join(row).strip():
                 continue
+            line = before + reader.line_num  # the file's line (the row's last, if a quoted cell spans lines)
             try:
-                values = [float(row[i]) for i in index]
+                values = [float(row[i].replace(",", ".")) if commas else float(row[i]) for i in index]
             except (ValueError, IndexError):
-                raise InputError(f"{path}: line {line}: a value of {', '.join(columns)} is missing or not a "
-                                 "number") from None
+                raise InputError(_cell_error(path, line, row, header, columns, index, commas)) from None
             bad = [c for c, v in zip(columns, values, strict=True) if not math.isfinite(v)]
             if bad:
                 raise InputError(f"{path}: line {line}: NaN or Inf in column {bad[0]!r}")
             rows.append(values)
+            lines.append(line)
     if len(rows) < 2:
         raise InputError(f"{path}: fewer than two data rows")
-    return np.asarray(rows, dtype=np.float64)
+    return np.asarray(rows, dtype=np.float64), np.asarray(lines, dtype=np.int64)
 
 
-def _checked_time(path: Path, t: np.ndarray, max_gap: float | None) -> dict:
+def _cell_error(path: Path, line: int, row: list[str], header: list[str], columns: list[str], index: list[int],
+                commas: bool) -> str:
+    """The one line that names the first cell of ``row`` (of the named ``columns``) that is not a number."""
+    for c, i in zip(columns, index, strict=True):
+        if i >= len(row):
+            return (f"{path}: line {line}: no value in column {c!r} (the row has {len(row)} cells, the header "
+                    f"{len(header)})")
+        cell = row[i].strip()
+        try:
+            float(cell.replace(",", ".") if commas else cell)
+        except ValueError:
+            if not cell:
+                return f"{path}: line {line}: column {c!r} is empty"
+            hint = (" (decimal commas are read with decimal ',' or 'auto' and a delimiter other than ',')"
+                    if "," in cell and not commas else "")
+            return f"{path}: line {line}: column {c!r}: {cell!r} is not a number{hint}"
+    return f"{path}: line {line}: a value of {', '.join(columns)} is missing or not a number"
+
+
+def _checked_time(path: Path, t: np.ndarray, max_gap: float | None, lines: np.ndarray | None = None) -> dict:
     """Raise for a time that does not increase or gaps beyond ``max_gap`` (default ``MAX_GAP_INTERVALS``
-    median intervals; the count and the largest named); else the recording's timing: samples,
+    median intervals; the count and the largest named), naming the line of the file (``lines``: each
+    sample's; default: the header on line 1, one sample a line); else the recording's timing: samples,
     duration, median, smallest and largest interval, and the gaps above twice the median (count,
     largest, their total), which resampling interpolates across."""
+    if lines is None:
+        lines = np.arange(len(t)) + 2
     steps = np.diff(t)
     bad = np.nonzero(steps <= 0)[0]
     if bad.size:
         i = int(bad[0])
         what = "repeats" if steps[i] == 0 else "decreases"
-        raise InputError(f"{path}: line {i + 3}: time {what} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
+        raise InputError(f"{path}: line {lines[i + 1]}: time {what} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
     median = float(np.median(steps))
     limit = max_gap if max_gap is not None else MAX_GAP_INTERVALS * median
     gaps = np.nonzero(steps > limit)[0]
     if gaps.size:
         i = int(gaps[0])
         more = f" ({gaps.size} such gaps, the largest {steps.max():.4g} s)" if gaps.size > 1 else ""
-        raise InputError(f"{path}: line {i + 3}: a gap of {steps[i]:.4g} s after t = {t[i]:.6g} s exceeds max_gap "
-                         f"{limit:.4g} s{more}: too long to interpolate across (split the recording there, or "
+        raise InputError(f"{path}: line {lines[i + 1]}: a gap of {steps[i]:.4g} s after t = {t[i]:.6g} s exceeds "
+                         f"max_gap {limit:.4g} s{more}: too long to interpolate across (split the recording there, or "
                          "raise max_gap)")
     long = steps[steps > 2 * median]
     return {"samples": len(t), "duration_s": float(t[-1] - t[0]), "median_interval_s": median,
             "min_interval_s": float(steps.min()), "max_interval_s": float(steps.max()),
             "gaps": int(long.size), "largest_gap_s": float(long.max()) if long.size else 0.0,
             "gap_seconds": float(long.sum()), "max_gap_s": float(limit)}
+
+
+def _input_units(B: np.ndarray, angle: np.ndarray) -> list[str]:
+    """Each input's unit: ``N`` if its column of the input matrix acts only on lengths, ``N m`` if only on
+    angles (or on nothing), ``N or N m`` if on both."""
+    units = []
+    for column in np.asarray(B, dtype=np.float64).T:
+        acts = column != 0
+        on_angles, on_lengths = bool((acts & angle).any()), bool((acts & ~angle).any())
+        units.append("N or N m" if on_angles and on_lengths else "N" if on_lengths else "N m")
+    return units
 
 
 def resampling_report(provenance: dict) -> list[str]:
@@ -434,27 +568,37 @@ def _fractions(names: list[str], split, seed: int) -> dict:
 def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bool = False) -> Path:
     """Read, check and resample the recordings, and write the dataset file (atomically).
 
-    ``files``: CSV paths, one recording each (its name is the file's stem). Returns the path written.
+    ``files``: CSV paths, one recording each (its name: ``recording_name``). Returns the path written.
     """
     files = [Path(f) for f in files]
     if not files:
         raise InputError("import: no recordings given")
-    stems = [f.name.split(".")[0] for f in files]  # run.csv and run.csv.gz are both "run"
+    stems = [recording_name(f) for f in files]  # run.csv and run.csv.gz are both "run"
     if len(set(stems)) != len(stems):
-        raise InputError(f"import: recording names (file names before the first dot) must be unique: {stems}")
+        raise InputError(f"import: recording names (file names without .gz and {', '.join(EXTENSIONS)}) must be "
+                         f"unique: {stems}")
     output = check_writable(output, overwrite)  # before any work
     decl, param_table = spec.parameter_table(stems)
     system = spec.system(decl)
     dof, n_u = system.dof, system.num_inputs
     columns = [spec.time, *spec.coordinates, *(spec.velocities or []), *spec.input_columns]
     angle = np.array(system.angle_mask)
-    unit = np.where(angle, ANGLE_UNITS[spec.angle_units], 1.0)
+    unit = np.where(angle, ANGLE_UNITS[spec.angle_units], LENGTH_UNITS[spec.length_units])
     gains = np.asarray(spec.drive_gains, dtype=np.float64) if spec.currents else np.ones(n_u)
     records, timing = [], []
     for f in files:
-        raw = read_csv_columns(f, columns)
-        timing.append(_checked_time(f, raw[:, 0], spec.max_gap))
+        raw, lines = read_csv_table(f, columns, spec.delimiter, spec.decimal)
+        if spec.time_units != "s":
+            raw[:, 0] = raw[:, 0] / TIME_UNITS[spec.time_units]
+        timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines))
         records.append(raw)
+    medians = [tm["median_interval_s"] for tm in timing]
+    own = {round(m, 4) or m for m in medians}  # each recording's default dt alone (jitter moves a median by ~1 %)
+    if spec.dt is None and max(medians) > (1 + DT_SPREAD) * min(medians) and len(own) > 1:
+        listing = ", ".join(f"{f.name} {1e3 * m:.4g} ms" for f, m in zip(files, medians, strict=True))
+        raise InputError(f"import: the recordings' median sampling intervals differ by more than "
+                         f"{100 * DT_SPREAD:g} % ({listing}): set dt, the resampling interval in s (--dt; e.g. "
+                         f"{min(medians):.4g} for the fastest), rather than thin the faster recordings")
     dt = spec.dt or round(timing[0]["median_interval_s"], 4) or timing[0]["median_interval_s"]
     resampled = []
     for raw in records:
@@ -467,14 +611,22 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     for i, start, end, name in entries:
         L = len(resampled[i])
         if start is None and end is None:
+            if L < MIN_SAMPLES:
+                raise InputError(f"import: recording {name!r} holds {L} samples at dt = {dt:g} s, fewer than "
+                                 f"{MIN_SAMPLES}: too short to train or evaluate on")
             pieces.append((i, 0, L))
             windows.append((0, L))
             continue
-        a = 0 if start is None else int(np.ceil(start / dt - 1e-9))
+        a = 0 if start is None else max(0, int(np.ceil(start / dt - 1e-9)))  # seconds from the first sample
         b = L if end is None else min(L, int(np.ceil(end / dt - 1e-9)))  # [start, end): no sample in two windows
-        if b - a < 2:
-            raise InputError(f"split: window {name!r} holds fewer than two samples of {stems[i]} "
-                             f"({L * dt:.4g} s long)")
+        if b <= a:
+            t0 = float(records[i][0, 0])
+            origin = (f"; windows count seconds from the recording's first sample, t = {t0:.6g} s" if abs(t0) > dt
+                      else "")
+            raise InputError(f"split: window {name!r} holds no sample of {stems[i]} ({L * dt:.4g} s long){origin}")
+        if b - a < MIN_SAMPLES:
+            raise InputError(f"split: window {name!r} holds {b - a} samples of {stems[i]} at dt = {dt:g} s, fewer "
+                             f"than {MIN_SAMPLES}: too short to train or evaluate on")
         lo, hi = max(0, a - context), min(L, b + context)
         pieces.append((i, lo, hi))
         windows.append((a - lo, b - lo))
@@ -511,8 +663,9 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     if spec.currents:
         provenance["inputs"] = {"from": "motor currents (A) times drive_gains (N m per A)", "columns": spec.currents,
                                 "drive_gains": [float(g) for g in gains]}
+    input_units = _input_units(system.input_matrix().numpy(), angle) if n_u else []
     units = {"t": "s", "q": list(system.coord_units), "qd": [u + "/s" for u in system.coord_units],
-             "params": list(system.param_units), "tau": ["N m"] * n_u}
+             "params": list(system.param_units), "tau": input_units}
     attrs = {"scene": system.name, "scene_json": json.dumps(system.describe(), sort_keys=True),
              "conventions": system.conventions, "units": json.dumps(units), "gravity": float("nan"),
              "param_names": json.dumps(list(system.param_names)), "measured": True,
@@ -520,7 +673,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
              "provenance": json.dumps(provenance), "targets": "none (measured)",
              "package_version": __version__, "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     if n_u:
-        attrs["inputs"] = json.dumps({"names": list(system.input_names), "units": ["N m"] * n_u,
+        attrs["inputs"] = json.dumps({"names": list(system.input_names), "units": input_units,
                                       "input_matrix": system.input_matrix().tolist(),
                                       "hold": "measured; linearly interpolated onto the grid, held over each step"})
     return write_dataset(output, arrays, splits, attrs, overwrite=overwrite)

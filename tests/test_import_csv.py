@@ -1,0 +1,269 @@
+"""CSV recordings as users write them (``lnn_torch.data.importer``): time stamps in ms, lengths in mm,
+semicolon- or tab-delimited files with decimal commas, a byte-order mark, comment and blank lines,
+recordings sampled at different rates, dotted file names, short recordings and windows, and forces
+on length coordinates; every refusal one line naming the file, the line of the file and the column."""
+
+import gzip
+import json
+
+import numpy as np
+import pytest
+
+from lnn_torch.cli import main
+from lnn_torch.data import read_dataset
+from lnn_torch.data.importer import ImportSpec, import_recordings, read_csv_table, recording_name
+from lnn_torch.errors import InputError
+
+N = 200  # samples of a recording (0.4 s at 2 ms)
+
+
+def signals(t: np.ndarray) -> dict:
+    """Two coordinates (an angle ``a``, rad, and a length ``x``, m) and two inputs, at times ``t`` (s)."""
+    return {"a": np.sin(1.3 * t), "x": 0.5 * np.cos(2.1 * t), "ta": np.cos(0.7 * t), "fx": np.sin(0.9 * t)}
+
+
+def text(t: np.ndarray, cols: dict, sep: str = ",", decimal: str = ".", before: str = "", blank_every: int = 0) -> str:
+    """A CSV table of ``time`` and ``cols`` (``before``: lines ahead of the header; a blank line after every
+    ``blank_every`` rows)."""
+    names = ["time", *cols]
+    rows = np.stack([t, *(np.asarray(cols[n], dtype=np.float64) for n in cols)], -1)
+    lines = [sep.join(names)]
+    for k, r in enumerate(rows):
+        lines.append(sep.join(repr(float(v)).replace(".", decimal) for v in r))
+        if blank_every and (k + 1) % blank_every == 0:
+            lines.append("")
+    return before + "\n".join(lines) + "\n"
+
+
+def spec(**kw) -> ImportSpec:
+    return ImportSpec(**{"coordinates": ["a", "x"], "inputs": ["ta", "fx"], "angle_mask": [True, False],
+                         "split": [1.0, 0.0, 0.0], **kw})
+
+
+def arrays(path) -> dict:
+    f = read_dataset(path)
+    return {k: np.asarray(f.read(k)) for k in ("t", "q", "tau", "lengths")}
+
+
+T = np.arange(N) * 0.002
+
+
+@pytest.fixture
+def reference(tmp_path):
+    """The recording in s and m, comma-delimited, imported: what every other form must reproduce."""
+    path = tmp_path / "ref" / "run.csv"
+    path.parent.mkdir()
+    path.write_text(text(T, signals(T)))
+    return arrays(import_recordings([path], tmp_path / "ref.h5", spec()))
+
+
+# ---------------------------------------------------------------------------- 1. time and length units
+def test_time_and_length_units_convert_to_seconds_and_metres(reference, tmp_path):
+    cols = signals(T)
+    cols["x"] = 1000 * cols["x"]  # mm
+    path = tmp_path / "run.csv"
+    path.write_text(text(1000 * T, cols))  # ms
+    got = arrays(import_recordings([path], tmp_path / "ms.h5", spec(time_units="ms", length_units="mm")))
+    assert read_dataset(tmp_path / "ms.h5").dt == pytest.approx(0.002)
+    for k in ("t", "lengths"):
+        np.testing.assert_array_equal(got[k], reference[k])
+    for k in ("q", "tau"):  # stamps divided by 1000 may differ from the seconds' in the last bit
+        np.testing.assert_allclose(got[k], reference[k], rtol=0, atol=1e-12)
+    # velocities in mm/s per second of time, whatever the time column's unit; nanoseconds and cm too
+    cols = signals(T) | {"da": 1.3 * np.cos(1.3 * T), "dx": 100 * -1.05 * np.sin(2.1 * T)}
+    cols["x"] = 100 * cols["x"]
+    path.write_text(text((1e9 * T).round(), cols))
+    f = read_dataset(import_recordings([path], tmp_path / "ns.h5", spec(time_units="ns", length_units="cm",
+                                                                         velocities=["da", "dx"])))
+    qd = np.asarray(f.read("qd"))[0]
+    np.testing.assert_allclose(qd[:, 1], -1.05 * np.sin(2.1 * T), atol=1e-12)
+    np.testing.assert_allclose(qd[:, 0], 1.3 * np.cos(1.3 * T), atol=1e-12)
+    assert json.loads(f.attrs["provenance"])["settings"]["time_units"] == "ns"
+    for bad, message in (({"time_units": "min"}, "time_units must be one of s, ms, us, ns, got 'min'"),
+                         ({"length_units": "in"}, "length_units must be one of m, cm, mm, got 'in'")):
+        with pytest.raises(InputError, match=message):
+            spec(**bad)
+
+
+def test_the_import_command_reads_units_and_notes_a_slow_sampling_interval(tmp_path, capsys):
+    path = tmp_path / "run.csv"
+    path.write_text(text(1000 * T, signals(T)))  # ms stamps
+    base = ["import", str(path), "--coordinates", "a", "x", "--angle-mask", "1", "0", "--inputs", "ta", "fx",
+            "--split", "1", "0", "0"]
+    assert main([*base, "-o", str(tmp_path / "s.h5")]) == 0  # read as seconds: accepted, with a note
+    out = capsys.readouterr().out.strip().splitlines()
+    notes = [line for line in out if line.startswith("note:")]
+    assert len(notes) == 1 and "run.csv 2 s" in notes[0] and "time_units" in notes[0], out
+    assert main([*base, "-o", str(tmp_path / "ms.h5"), "--time-units", "ms", "--length-units", "cm"]) == 0
+    assert "note:" not in capsys.readouterr().out
+    f = read_dataset(tmp_path / "ms.h5")
+    assert f.dt == pytest.approx(0.002)
+    np.testing.assert_allclose(np.asarray(f.read("q"))[0, :, 1], 0.005 * np.cos(2.1 * T), atol=1e-15)
+
+
+# ---------------------------------------------------------------------------- 2. the default dt
+def test_recordings_at_different_rates_need_dt_and_agreeing_ones_keep_the_first_median(tmp_path):
+    """Median intervals 2 ms and 1 ms: refused without dt (the 1 ms recording would be thinned to 2 ms);
+    2 ms and 2.03 ms (1.5 %), or 2 ms and 1.96 ms (2 %, but both round to 2 ms): dt = 2 ms as before."""
+    slow = tmp_path / "a_slow.csv"
+    fast = tmp_path / "b_fast.csv"
+    slow.write_text(text(T, signals(T)))
+    t_fast = np.arange(2 * N) * 0.001
+    fast.write_text(text(t_fast, signals(t_fast)))
+    out = tmp_path / "x.h5"
+    with pytest.raises(InputError) as err:
+        import_recordings([slow, fast], out, spec())
+    message = str(err.value)
+    assert "\n" not in message and "a_slow.csv 2 ms" in message and "b_fast.csv 1 ms" in message
+    assert "differ by more than 2 %" in message and "set dt" in message and not out.exists()
+    assert read_dataset(import_recordings([slow, fast], out, spec(dt=0.001))).dt == 0.001
+    # within 2 %: the rounded median of the first, as before
+    close = tmp_path / "c_close.csv"
+    t_close = np.arange(N) * 0.00203
+    close.write_text(text(t_close, signals(t_close)))
+    assert read_dataset(import_recordings([close, slow], tmp_path / "y.h5", spec())).dt == 0.002
+    # more than 2 % apart but each rounding to the same interval (jittered stamps): that interval
+    t_close = np.arange(N) * 0.00196
+    close.write_text(text(t_close, signals(t_close)))
+    assert read_dataset(import_recordings([close, slow], tmp_path / "z.h5", spec())).dt == 0.002
+
+
+# ---------------------------------------------------------------------------- 3. and 4. delimiters, decimals, BOM
+@pytest.mark.parametrize("form", ["semicolon", "tab", "explicit", "bom", "bom_gz", "semicolon_gz"])
+def test_delimiters_decimal_commas_and_a_byte_order_mark_read_as_the_plain_csv(reference, tmp_path, form):
+    sep = {"semicolon": ";", "semicolon_gz": ";", "tab": "\t", "explicit": "|"}.get(form, ",")
+    body = text(T, signals(T), sep=sep, decimal="," if sep in ";\t" else ".")
+    name = "run.csv.gz" if form.endswith("_gz") else "run.csv"
+    path = tmp_path / name
+    encoding = "utf-8-sig" if form.startswith("bom") else "utf-8"
+    if name.endswith(".gz"):
+        with gzip.open(path, "wt", encoding=encoding) as fh:
+            fh.write(body)
+    else:
+        path.write_text(body, encoding=encoding)
+    kw = {"delimiter": "|"} if form == "explicit" else {}
+    got = arrays(import_recordings([path], tmp_path / "x.h5", spec(**kw)))
+    for k in reference:
+        np.testing.assert_array_equal(got[k], reference[k])
+
+
+def test_a_misread_delimiter_or_decimal_is_named_in_one_line(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(text(T, signals(T), sep="|"))
+    with pytest.raises(InputError, match=r"run\.csv: no column 'time', 'a', 'x', 'ta', 'fx' in the header on line 1 "
+                                         r"\(delimiter ','; columns: time\|a\|x\|ta\|fx\); set delimiter"):
+        import_recordings([path], tmp_path / "x.h5", spec())
+    path.write_text(text(T, signals(T), sep=";", decimal=","))
+    with pytest.raises(InputError, match=r"run\.csv: line 2: column 'time': '0,0' is not a number \(decimal commas"):
+        import_recordings([path], tmp_path / "x.h5", spec(decimal="."))
+    path.write_text(text(T, signals(T), sep="\t", decimal=","))
+    values, _ = read_csv_table(path, ["time", "x"], delimiter="tab", decimal=",")
+    np.testing.assert_array_equal(values[:, 1], signals(T)["x"])
+    with pytest.raises(InputError, match="decimal ',' needs a delimiter other than ','"):
+        spec(delimiter=",", decimal=",")
+    with pytest.raises(InputError, match="delimiter must be one character"):
+        spec(delimiter=";;")
+
+
+# ---------------------------------------------------------------------------- 5. line numbers
+def test_errors_name_the_files_own_lines_past_comments_and_blank_lines(tmp_path):
+    before = "# rig 3, 2024-05-01\n# units: s, rad, m\n"  # the header is line 3
+    path = tmp_path / "run.csv"
+    t = T.copy()
+    t[30] = t[29]  # the 31st row: line 3 + 31 + 3 blank lines (one after every 10 rows)
+    path.write_text(text(t, signals(T), before=before, blank_every=10))
+    with pytest.raises(InputError, match=r"run\.csv: line 37: time repeats"):
+        import_recordings([path], tmp_path / "x.h5", spec())
+    t = T.copy()
+    t[25:] += 0.1  # a gap before the 26th row: line 3 + 26 + 2
+    path.write_text(text(t, signals(T), before=before, blank_every=10))
+    with pytest.raises(InputError, match=r"run\.csv: line 31: a gap of 0\.102 s"):
+        import_recordings([path], tmp_path / "x.h5", spec(max_gap=0.01))
+    cols = signals(T)
+    cols["x"][11] = np.nan  # the 12th row: line 3 + 12 + 1
+    path.write_text(text(T, cols, before=before, blank_every=10))
+    with pytest.raises(InputError, match=r"run\.csv: line 16: NaN or Inf in column 'x'"):
+        import_recordings([path], tmp_path / "x.h5", spec())
+    path.write_text(text(T, signals(T), before=before + "\n", blank_every=10))  # a blank line before the header too
+    _, lines = read_csv_table(path, ["time", "a"])
+    assert lines[:3].tolist() == [5, 6, 7] and lines[10] == 16 and len(lines) == N
+
+
+# ---------------------------------------------------------------------------- 6. and 7. cells and columns
+@pytest.mark.parametrize("problem, message", [
+    ("empty", r"run\.csv: line 4: column 'x' is empty$"),
+    ("text", r"run\.csv: line 4: column 'ta': 'n/a' is not a number$"),
+    ("short", r"run\.csv: line 4: no value in column 'fx' \(the row has 4 cells, the header 5\)$"),
+    ("twice", r"run\.csv: line 1: the header names column 'x' 2 times"),
+])
+def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
+    path = tmp_path / "run.csv"
+    lines = text(T, signals(T)).splitlines()
+    cells = lines[3].split(",")
+    if problem == "empty":
+        cells[2] = " "
+    elif problem == "text":
+        cells[3] = "n/a"
+    elif problem == "short":
+        cells = cells[:4]
+    else:
+        lines[0] = lines[0].replace("fx", "x")
+    lines[3] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=message):
+        import_recordings([path], tmp_path / "x.h5", spec(inputs=["ta", "x"] if problem == "twice" else ["ta", "fx"]))
+    if problem == "twice":  # a repeated column that is not read is no matter
+        f = read_dataset(import_recordings([path], tmp_path / "y.h5", spec(coordinates=["a", "ta"], inputs=None)))
+        np.testing.assert_array_equal(np.asarray(f.read("q"))[0, :, 1], signals(T)["ta"])
+
+
+# ---------------------------------------------------------------------------- 8. names
+def test_a_recording_is_named_by_its_file_name_without_its_extensions(tmp_path):
+    assert [recording_name(n) for n in ("run.csv", "run.csv.gz", "run.tsv", "run.TXT", "run.dat.gz", "run.log",
+                                        "exp_2024.05.01_a.csv", "exp_2024.05.01_a.csv.gz", "v1.2_run.gz")] == [
+        "run", "run", "run", "run", "run", "run.log", "exp_2024.05.01_a", "exp_2024.05.01_a", "v1.2_run"]
+    files = []
+    for name in ("exp_2024.05.01_a.csv", "exp_2024.05.01_b.csv.gz"):
+        files.append(tmp_path / name)
+        body = text(T, signals(T))
+        if name.endswith(".gz"):
+            with gzip.open(files[-1], "wt") as fh:
+                fh.write(body)
+        else:
+            files[-1].write_text(body)
+    split = {"train": ["exp_2024.05.01_a"], "val": ["exp_2024.05.01_b[0.1:0.3]"]}
+    f = read_dataset(import_recordings(files, tmp_path / "x.h5", spec(split=split)))
+    assert json.loads(f.attrs["recordings"]) == ["exp_2024.05.01_a", "exp_2024.05.01_b[0.1:0.3]"]
+
+
+# ---------------------------------------------------------------------------- 9. and 10. short entries, windows
+def test_short_recordings_and_windows_are_refused_and_windows_count_from_the_first_sample(tmp_path):
+    path = tmp_path / "tiny.csv"
+    path.write_text(text(T[:10], signals(T[:10])))
+    long = tmp_path / "long.csv"
+    long.write_text(text(T, signals(T)))
+    with pytest.raises(InputError, match=r"recording 'tiny' holds 10 samples at dt = 0\.002 s, fewer than 16"):
+        import_recordings([long, path], tmp_path / "x.h5", spec(split={"train": ["long"], "val": ["tiny"]}))
+    with pytest.raises(InputError, match=r"window 'long\[0\.1:0\.12\]' holds 10 samples of long at dt = 0\.002 s, "
+                                         r"fewer than 16"):
+        import_recordings([long], tmp_path / "x.h5", spec(split={"train": ["long[0:0.1]"], "val": ["long[0.1:0.12]"]}))
+    # a time column of epoch seconds: windows are seconds from the first sample, and an empty one says so
+    epoch = tmp_path / "epoch.csv"
+    epoch.write_text(text(1.7e9 + T, signals(T)))
+    with pytest.raises(InputError, match=r"window 'epoch\[1700000000\.1:1700000000\.3\]' holds no sample of epoch "
+                                         r"\([0-9.]+ s long\); windows count seconds from the recording's first "
+                                         r"sample, t = 1\.7e\+09 s"):
+        import_recordings([epoch], tmp_path / "x.h5", spec(split={"train": ["epoch[1700000000.1:1700000000.3]"]}))
+    f = read_dataset(import_recordings([epoch], tmp_path / "x.h5", spec(split={"train": ["epoch[0.1:0.3]"]})))
+    assert json.loads(f.attrs["provenance"])["entries"][0]["window"] == [50, 150]  # 0.1-0.3 s after the first
+
+
+# ---------------------------------------------------------------------------- 11. input units
+def test_inputs_acting_on_lengths_are_forces(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(text(T, signals(T)))
+    f = read_dataset(import_recordings([path], tmp_path / "x.h5", spec()))
+    assert json.loads(f.attrs["inputs"])["units"] == ["N m", "N"]
+    assert json.loads(f.attrs["units"])["tau"] == ["N m", "N"]
+    f = read_dataset(import_recordings([path], tmp_path / "y.h5", spec(input_matrix=[[1, 1], [0, 1]])))
+    assert json.loads(f.attrs["inputs"])["units"] == ["N m", "N or N m"]
