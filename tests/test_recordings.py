@@ -219,6 +219,22 @@ def test_derivative_estimates_recover_exact_derivatives_of_clean_signals(method,
             derivatives.settings({"method": "butterworth", **bad})
 
 
+def test_the_butterworth_estimate_holds_up_to_the_recordings_ends():
+    """A smooth motion (two sines, 200 Hz, 10 Hz cutoff, as the shipped configs filter): within the first
+    and last 0.1 s the accelerations are within 2 % (measured 2.0 %; 0.05 % inside): the ends are extended
+    by a fitted cubic before the zero-phase filter (an odd reflection made the curvature zero at each
+    end: 39 % error there)."""
+    dt = 0.005
+    t = np.arange(0.0, 4.0, dt)
+    q = np.stack([0.8 * np.sin(2 * np.pi * 0.7 * t + 0.4), 0.5 * np.sin(2 * np.pi * 1.3 * t + 1.1)], -1)
+    qdd = -np.stack([0.8 * (2 * np.pi * 0.7) ** 2 * np.sin(2 * np.pi * 0.7 * t + 0.4),
+                     0.5 * (2 * np.pi * 1.3) ** 2 * np.sin(2 * np.pi * 1.3 * t + 1.1)], -1)
+    _, est = derivatives.estimate(q, dt, derivatives.settings({"method": "butterworth", "cutoff": 10.0}))
+    ends = np.r_[0:20, len(t) - 20:len(t)]
+    rel = np.linalg.norm(est[ends] - qdd[ends]) / np.linalg.norm(qdd[ends])
+    assert rel < 0.04, rel
+
+
 # ---------------------------------------------------------------------------- trajectory matching
 def test_trajectory_matching_gradient_equals_finite_differences(tmp_path):
     """The multiple-shooting loss differentiates through the rollout: its gradient with respect to a

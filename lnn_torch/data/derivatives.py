@@ -4,7 +4,9 @@ accelerations. Zero-phase methods only (no lag):
 * ``finite_difference``: second-order central differences (``np.gradient``), of the positions (twice),
   or of the measured velocities once: what the reference design does; noise is amplified by 1/dt^2;
 * ``butterworth``: a zero-phase low-pass (``scipy.signal.butter`` + ``filtfilt``, ``order``,
-  ``cutoff`` in Hz) of the positions (or of the measured velocities), then central differences;
+  ``cutoff`` in Hz) of the positions (or of the measured velocities), then central differences; each
+  end is first extended by the cubic fitted to its last period of the cutoff (``_extended``), so the
+  derivatives hold up to the recording's ends;
 * ``savgol``: Savitzky-Golay fits (``window`` in samples, ``polyorder``) giving the smoothed signal and
   its derivatives directly;
 * ``spline``: a smoothing spline per coordinate (``scipy.interpolate.make_smoothing_spline``,
@@ -94,10 +96,32 @@ def _smooth(x: np.ndarray, dt: float, s: dict, deriv: int) -> np.ndarray:
             raise InputError(f"butterworth cutoff must lie in (0, {nyquist:g}) Hz (the Nyquist frequency), "
                              f"got {s['cutoff']}")
         b, a = butter(int(s["order"]), s["cutoff"] / nyquist)
-        y = filtfilt(b, a, x, axis=0, padlen=min(3 * max(len(a), len(b)), len(x) - 1))
+        settle = max(4, int(round(1.0 / (s["cutoff"] * dt))))  # samples in one period of the cutoff
+        padded, pad = _extended(x, 3 * settle, settle)
+        y = filtfilt(b, a, padded, axis=0, padlen=min(3 * max(len(a), len(b)), len(padded) - 1))
+        y = y[pad:len(y) - pad]
     for _ in range(deriv):
         y = np.gradient(y, dt, axis=0, edge_order=2)
     return y
+
+
+def _extended(x: np.ndarray, pad: int, fit: int) -> tuple[np.ndarray, int]:
+    """``x (T, n)`` extended at each end by ``pad`` samples of the cubic fitted (least squares) to its
+    ``fit`` samples there, and ``pad`` (0 for a series too short to fit). A zero-phase filter's start-up
+    transient then runs in the extension: the usual odd reflection keeps value and slope at an end but
+    makes the curvature zero there, so the second derivative of the filtered signal was wrong within
+    about a period of the cutoff of each end."""
+    fit = min(fit, len(x))
+    if fit < 8 or pad < 1:
+        return x, 0
+    t = np.arange(fit, dtype=np.float64) - (fit - 1) / 2  # centred: a well-conditioned fit
+    V = np.vander(t, 4)
+    ends = []
+    for block, steps in ((x[:fit], np.arange(-pad, 0) - (fit - 1) / 2),
+                         (x[len(x) - fit:], np.arange(fit, fit + pad) - (fit - 1) / 2)):
+        coef = np.linalg.lstsq(V, block.reshape(fit, -1), rcond=None)[0]
+        ends.append((np.vander(steps, 4) @ coef).reshape(pad, *x.shape[1:]))
+    return np.concatenate([ends[0], x, ends[1]]), pad
 
 
 def estimate(q: np.ndarray, dt: float, s: dict, qd: np.ndarray | None = None):
