@@ -133,3 +133,31 @@ def test_a_continuous_joint_turns_all_the_way_round(tmp_path):
     torch.testing.assert_close(arm.joint_range, torch.tensor([[-3.0, 3.0], [-math.pi, math.pi]], dtype=torch.float64))
     q = arm.sample_q(np.random.default_rng(0), 200)
     assert q[:, 1].min() < -2.5 and q[:, 1].max() > 2.5
+
+
+def test_an_import_config_names_its_description_relative_to_itself(tmp_path, monkeypatch):
+    """``robot: {source: two.urdf}`` in an import config beside the URDF, imported from another folder:
+    the dataset records the file's absolute path, so the data (and models trained on it) find it from
+    anywhere."""
+    import json
+
+    from lnn_torch.cli import main
+    from lnn_torch.data import read_dataset
+
+    arm_dir = tmp_path / "my_arm"
+    arm_dir.mkdir()
+    (arm_dir / "two.urdf").write_text(URDF)
+    t = np.arange(60) * 0.01
+    rows = ["time,j1,j2,tau1,tau2"] + [f"{x},{0.1 * np.sin(x)},{0.2 * np.cos(x)},0.5,0.1" for x in t]
+    (arm_dir / "run.csv").write_text("\n".join(rows) + "\n")
+    (arm_dir / "import.yaml").write_text(
+        "coordinates: [j1, j2]\ninputs: [tau1, tau2]\nrobot: {source: two.urdf, flange: tool0}\n"
+        "split: {train: [run]}\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert main(["import", str(arm_dir / "run.csv"), "--config", str(arm_dir / "import.yaml"), "-o", "arm.h5"]) == 0
+    robot = json.loads(read_dataset(elsewhere / "arm.h5").attrs["scene_json"])["config"]["description"]
+    assert robot["source"] == str((arm_dir / "two.urdf").resolve())
+    with pytest.raises(InputError, match="no such file, and not a shipped one"):
+        MujocoArm({"source": "missing.urdf"})

@@ -432,7 +432,7 @@ def test_a_payload_out_of_limits_a_wrong_dof_or_bad_options_are_refused_in_one_l
         (lambda: get_system("robot_arm", harmonics=0), "harmonics must be an integer >= 1"),
         (lambda: get_system("robot_arm", velocity_fraction=1.5), r"velocity_fraction must be in \(0, 1\]"),
         (lambda: get_system("robot_arm", torque_limits=[87.0] * 6), "torque_limits must be 7 positive numbers"),
-        (lambda: get_system("robot_arm", description="ur5"), "neither a shipped one"),
+        (lambda: get_system("robot_arm", description="ur5"), "not a shipped one"),
         (lambda: get_system("robot_arm", description=str(moon)), r"has gravity \[0.0, 0.0, -1.62\] m/s\^2"),
     ]
     for call, message in cases:

@@ -87,7 +87,7 @@ def test_a_payload_set_at_run_time_equals_one_written_in_the_description(arm, tm
 
 
 def test_bad_input_is_refused_in_one_line(arm, tmp_path):
-    with pytest.raises(InputError, match="neither a shipped one"):
+    with pytest.raises(InputError, match="not a shipped one"):
         MujocoArm("ur5")
     with pytest.raises(InputError, match="q must have shape"):
         arm.mass_matrix(np.zeros((2, 6)))

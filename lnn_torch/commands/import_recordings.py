@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+from pathlib import Path
 
 from ..errors import InputError
 
@@ -64,6 +65,23 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def resolved_robot(robot, base: Path):
+    """A robot description setting (a name, a path, or a dict with ``source``) whose file path, where
+    relative, is taken relative to ``base`` (the import config's folder) when the file is there, else to
+    the working folder, and written absolute: the dataset (and every checkpoint trained on it) then
+    finds the description from any folder. A shipped name stays as it is."""
+    from ..robots import DESCRIPTIONS
+
+    source = robot.get("source") if isinstance(robot, dict) else robot
+    if not isinstance(source, str) or source in DESCRIPTIONS or Path(source).is_absolute():
+        return robot
+    for candidate in (base / source, Path(source)):
+        if candidate.exists():
+            absolute = str(candidate.resolve())
+            return {**robot, "source": absolute} if isinstance(robot, dict) else absolute
+    return robot
+
+
 def spec_from_args(args):
     from ..data.importer import ImportSpec
 
@@ -72,9 +90,12 @@ def spec_from_args(args):
         from ..config_files import read_config
 
         fields = read_config(args.config, "import config")
+        if fields.get("robot") is not None:
+            fields["robot"] = resolved_robot(fields["robot"], Path(args.config).resolve().parent)
     flags = {"time": args.time, "time_units": args.time_units, "coordinates": args.coordinates,
              "velocities": args.velocities, "inputs": args.inputs,
-             "currents": args.currents, "drive_gains": args.drive_gains, "robot": args.robot,
+             "currents": args.currents, "drive_gains": args.drive_gains,
+             "robot": None if args.robot is None else resolved_robot(args.robot, Path.cwd()),
              "coord_names": args.coord_names, "input_names": args.input_names,
              "angle_mask": None if args.angle_mask is None else [bool(a) for a in args.angle_mask],
              "angle_units": args.angle_units, "length_units": args.length_units, "delimiter": args.delimiter,

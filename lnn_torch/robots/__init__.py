@@ -23,5 +23,6 @@ def description_path(name: str | Path) -> Path:
     if not path.exists():
         from ..errors import InputError
 
-        raise InputError(f"robot description {name} is neither a shipped one ({', '.join(DESCRIPTIONS)}) nor a file")
+        raise InputError(f"robot description {name}: no such file, and not a shipped one ({', '.join(DESCRIPTIONS)}); "
+                         "a dataset or checkpoint names the description file it was made from by its path")
     return path
