@@ -87,6 +87,11 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert files
     pred = np.load(files[0])
     assert pred["qdd_pred"].shape == pred["qdd_true"].shape and pred["qdd_pred"].shape[-1] == 2
+    # a run shorter than its validation interval says so, instead of printing no validation at all
+    out = cli_in_process("fit", *common, "--trainer.max_epochs=1", "--data.steps_per_epoch=3",
+                         "--trainer.check_val_every_n_epoch=4", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "validation: none ran (every 4 epochs, 12 steps" in out.stdout, out.stdout[-600:]
 
 
 @pytest.mark.slow
