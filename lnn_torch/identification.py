@@ -146,7 +146,9 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
         raise InputError(f"method must be acceleration, trajectory or both, got '{method}'")
     dof, P = system.dof, system.num_params
     if P == 0:
-        raise InputError(f"scene '{system.name}' has no parameters to identify")
+        raise InputError(f"scene '{system.name}' has no parameters to identify (a measured system has those its "
+                         "import declares per recording, e.g. a robot arm's payload; this one declares none)"
+                         if system.name == "measured" else f"scene '{system.name}' has no parameters to identify")
     t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
     if q.ndim != 3 or q.shape[2] != dof:
         raise InputError(f"q must be (N, T, {dof}) for scene '{system.name}' (dof {dof}), got {tuple(q.shape)}")
