@@ -362,6 +362,9 @@ def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
     assert "horizons" in metrics and "acc_rel_err" in metrics and "energy_drift" not in metrics
     h = metrics["horizons"]
     assert h["num_starts"] >= 2 and math.isfinite(h["error@0.1s"]["median"])
+    # the report says what the errors are against: the checkpoint's estimate of the recordings' accelerations
+    assert "Reference accelerations: " in (tmp_path / "eval" / "report.md").read_text()
+    assert metrics["reference"] != "the file's accelerations"
 
 
 def test_smoothed_inputs_reach_the_training_split_only(recordings):

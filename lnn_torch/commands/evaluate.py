@@ -55,7 +55,8 @@ def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
     sections = result.get("_sections", {}).values()
     lines = [f"# Evaluation: {clean['variant']} on {clean.get('data', '?')} ({clean.get('split', '?')} split, "
              f"{clean['num_trajectories']} trajectories)", "",
-             f"Rollouts: {clean['integrator']}, dt = {clean['dt']:g} s, horizon {clean['horizon_s']:g} s.", "",
+             f"Rollouts: {clean['integrator']}, dt = {clean['dt']:g} s, horizon {clean['horizon_s']:g} s."
+             + (f" Reference accelerations: {clean['reference']}." if clean.get("reference") else ""), "",
              *table_header(["metric", "value"])]
     for s in sections:
         lines += s.rows
@@ -146,7 +147,10 @@ def main(argv: list[str]) -> int:
                             sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps,
                             progress=_progress())
-    result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split, **result}
+    from ..data import derivatives
+
+    result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split,
+              "reference": derivatives.describe(dm.targets), **result}
     out_dir = output_dir(args.checkpoint, args.output_dir, "evaluation")
     files = write_report(result, out_dir, module.system)
     print((out_dir / "report.md").read_text())
