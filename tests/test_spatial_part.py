@@ -107,6 +107,14 @@ def test_a_payload_beyond_the_training_range_is_taken_exactly(arm, float64):
     assert _rel(tau, arm.gravity_torque(q, heavy)) < 1e-9
     low, high = model.normalizer.trusted_range()
     assert torch.isinf(low).all() and torch.isinf(high).all()
+    # the networks beside it (here the friction coefficients' network) still read the trusted range
+    with torch.no_grad():
+        model.forces.coefficient_net[-1].weight.normal_(0.0, 0.5)
+    far = heavy.clone()
+    far[:, 0] = 300.0
+    pn_heavy, pn_far = model.normalizer.params(heavy[3:]), model.normalizer.params(far[3:])
+    torch.testing.assert_close(model.forces.coefficients(pn_heavy)[0], model.forces.coefficients(pn_far)[0])
+    assert not torch.allclose(model.gravity_si(q[3:], heavy[3:]), model.gravity_si(q[3:], far[3:]))
 
 
 @pytest.mark.parametrize("residual", [False, True])

@@ -58,6 +58,7 @@ from torch import nn
 
 from ..drives import DriveModel
 from ..forces import dissipative_force, holding_torque, identity_or_none, input_force, joint_friction, stick_weight
+from .normalization import trusted
 
 DISSIPATION = ("joint", "joint+rayleigh", "joint+stiction")
 _INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1 of their unit
@@ -183,7 +184,7 @@ class LearnedForces(nn.Module):
 
     # ------------------------------------------------------------------ the forces (SI)
     def _raw(self, params_norm: torch.Tensor) -> torch.Tensor:
-        return self.coefficient_net(params_norm) if hasattr(self, "coefficient_net") else self.coefficients_raw
+        return self.coefficient_net(trusted(params_norm)) if hasattr(self, "coefficient_net") else self.coefficients_raw
 
     def coefficients(self, params_norm: torch.Tensor):
         """Friction coefficients ``(b, c)``, each ``(B, num_joints)`` (or ``(num_joints,)`` without
@@ -241,7 +242,7 @@ class LearnedForces(nn.Module):
             D = None if self.identity_joints else self.joint_map
             Q = dissipative_force(qd, D, lambda r: self.friction_torque(r, params_norm))
         if self.rayleigh is not None:
-            entries = self.rayleigh(torch.cat([features, qd_norm, params_norm.expand(qd.shape[0], -1)], -1))
+            entries = self.rayleigh(torch.cat([features, qd_norm, trusted(params_norm).expand(qd.shape[0], -1)], -1))
             chol = entries.new_zeros(qd.shape[0], self.dof * self.dof).index_copy(-1, self.tril_index, entries)
             chol = chol.view(-1, self.dof, self.dof)
             Q = Q - (chol @ (chol.mT @ qd[..., None]))[..., 0] * self.units[0].to(qd.dtype)

@@ -162,3 +162,10 @@ class Normalizer(nn.Module):
     def momentum_to_norm(self, p):
         """Canonical momenta: ``p_norm = p * coord_scale / momentum_scale`` (keeps (q_norm, p_norm) canonical)."""
         return p * (self.coord_scale.to(p.dtype) / self.momentum_scale.to(p.dtype))
+
+
+def trusted(params_norm: torch.Tensor) -> torch.Tensor:
+    """What a network conditioned on the parameters reads: the normalised parameters within ``TRUST``
+    standard deviations (unchanged where ``Normalizer.params`` already clamped them; the ``exact`` ones,
+    which a physics part takes at any value, clamped here for the networks beside it)."""
+    return params_norm.clamp(-Normalizer.TRUST, Normalizer.TRUST)

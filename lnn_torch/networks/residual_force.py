@@ -37,6 +37,7 @@ from torch import nn
 
 from ..errors import InputError
 from .layers import FiLM, GroupedMLP, TangentMLP
+from .normalization import trusted
 from .parts.base import film_of
 
 
@@ -141,6 +142,7 @@ class ResidualForce(nn.Module):
         and normalised parameters ``(B, P)`` (or ``(1, P)``)."""
         v = qd_norm / self.velocity_rms.to(qd_norm.dtype)
         features = self._harmonics(features)
+        params_norm = trusted(params_norm)  # what the networks read
         if self.local:
             x = torch.cat([features, v, params_norm.expand(features.shape[0], -1),
                            features.new_zeros(features.shape[0], 1)], -1)

@@ -32,6 +32,7 @@ from torch import nn
 
 from ...errors import InputError
 from ..layers import FiLM
+from ..normalization import trusted
 
 
 @dataclass(frozen=True)
@@ -190,8 +191,8 @@ def film_of(film_net, net, params_norm: torch.Tensor, chunks: int | None):
     if film_net is None:
         return None
     if chunks is None:
-        return film_net(params_norm, net.sigmoid_form)
-    cond = params_norm.view(chunks, -1, params_norm.shape[-1])[:, 0]
+        return film_net(trusted(params_norm), net.sigmoid_form)
+    cond = trusted(params_norm).view(chunks, -1, params_norm.shape[-1])[:, 0]
     return [(g[:, None], b[:, None]) for g, b in film_net(cond, net.sigmoid_form)]
 
 

@@ -38,6 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ...errors import InputError
+from ..normalization import trusted
 from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm, option
 
 _SOFTPLUS_THIRD = math.log(math.expm1(0.3))
@@ -151,7 +152,7 @@ class RigidChain(KineticPart):
         """The chain's parameters in normalised units, each ``(B, .)`` or ``(1, .)`` (no scene parameters):
         ``mass (n) >= 0``, centre of mass ``along, across (n)``, ``length (n - 1)``, and ``const``: the
         factor ``L_K (dof, dof)`` of the constant part ``K = L_K L_K^T``."""
-        raw = self.raw.to(params_norm.dtype)[None] if self.net is None else self.net(params_norm)
+        raw = self.raw.to(params_norm.dtype)[None] if self.net is None else self.net(trusted(params_norm))
         n, dof = self.num_links, self.dof
         mass, along, across, length, tri = raw.split([n, n, n, n - 1, len(self.const_rows)], -1)
         diag = (self.const_rows == self.const_cols).to(tri.device)

@@ -15,6 +15,7 @@ from ...errors import InputError
 from .. import reference
 from .._kernels import one
 from ..layers import TangentMLP
+from ..normalization import trusted
 from .base import BuildContext, FiLMConditioned, KineticPart, PartInputs, option
 
 
@@ -111,7 +112,7 @@ class CholeskyMLP(FiLMConditioned, KineticPart):
         return [self.net.out.bias] if self.residual else []
 
     def _inputs(self, phi, params_norm):
-        return phi if self.film is not None else torch.cat([phi, params_norm], -1)
+        return phi if self.film is not None else torch.cat([phi, trusted(params_norm)], -1)
 
     def factor(self, inputs: PartInputs, cond):
         phi, dphi = inputs.phi, inputs.dphi
@@ -125,6 +126,6 @@ class CholeskyMLP(FiLMConditioned, KineticPart):
     def reference_factor(self, q_norm, params_norm, phi):
         if self.index is not None:
             phi = phi[..., self.index]
-        film = None if self.film is None else reference.film_pairs(self.film, params_norm)
+        film = None if self.film is None else reference.film_pairs(self.film, trusted(params_norm))
         entries = reference.mlp(self.net, self._inputs(phi, params_norm), film)  # (B, n_chol)
         return reference_chol(entries, self.dof, self.diag_shift)

@@ -8,6 +8,7 @@ import torch
 
 from .. import reference
 from ..layers import TangentMLP
+from ..normalization import trusted
 from .base import BuildContext, FiLMConditioned, PartInputs, PotentialPart, PotentialTerm, option
 
 
@@ -32,12 +33,12 @@ class PotentialMLP(FiLMConditioned, PotentialPart):
             torch.nn.init.zeros_(self.net.out.weight)
 
     def potential(self, inputs: PartInputs, cond, grad: bool) -> PotentialTerm:
-        x = torch.cat([inputs.phi, inputs.params_norm], -1)
+        x = torch.cat([inputs.phi, trusted(inputs.params_norm)], -1)
         if not grad:
             return PotentialTerm(self.net(x, None, cond)[0][..., 0])
         V, dV_dphi = self.net.value_and_input_grad(x, cond, num_grad_inputs=self.num_features)
         return PotentialTerm(V, dV_dphi=dV_dphi)
 
     def reference_potential(self, q_norm, params_norm, phi, gravity):
-        film = None if self.film is None else reference.film_pairs(self.film, params_norm)
-        return reference.mlp(self.net, torch.cat([phi, params_norm], -1), film)[..., 0]
+        film = None if self.film is None else reference.film_pairs(self.film, trusted(params_norm))
+        return reference.mlp(self.net, torch.cat([phi, trusted(params_norm)], -1), film)[..., 0]

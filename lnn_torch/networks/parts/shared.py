@@ -10,6 +10,7 @@ from torch import nn
 
 from .. import reference
 from ..layers import TangentMLP
+from ..normalization import trusted
 from .base import BuildContext, FiLMConditioned, KineticPart, PartInputs, PotentialPart, PotentialTerm, option
 from .cholesky import chol_from, cholesky_scatter, reference_chol
 
@@ -37,7 +38,7 @@ class SharedMLP(FiLMConditioned, KineticPart, PotentialPart):
         """``(chol, dchol, V, dV/dq)`` from one pass, once per evaluation."""
         def compute():
             n = self.dof ** 2
-            x = torch.cat([inputs.phi, inputs.params_norm], -1)
+            x = torch.cat([inputs.phi, trusted(inputs.params_norm)], -1)
             y, dy = self.net(x, inputs.dphi, cond, out_map=self.scatter.to(x.dtype))
             chol, dchol = chol_from(y[:, :n], None if dy is None else dy[..., :n], self.diag, self.diag_shift, self.dof)
             return chol, dchol, y[:, n], (None if dy is None else dy[..., n].mT)
@@ -53,8 +54,8 @@ class SharedMLP(FiLMConditioned, KineticPart, PotentialPart):
         return PotentialTerm(V, dV_dq=dV if grad else None)
 
     def _reference_outputs(self, params_norm, phi):
-        film = None if self.film is None else reference.film_pairs(self.film, params_norm)
-        return reference.mlp(self.net, torch.cat([phi, params_norm], -1), film)
+        film = None if self.film is None else reference.film_pairs(self.film, trusted(params_norm))
+        return reference.mlp(self.net, torch.cat([phi, trusted(params_norm)], -1), film)
 
     def reference_factor(self, q_norm, params_norm, phi):
         return reference_chol(self._reference_outputs(params_norm, phi)[..., :-1], self.dof, self.diag_shift)
