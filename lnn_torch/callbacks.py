@@ -126,8 +126,9 @@ class FitSummary(L.Callback):
             lines.append(f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
                          f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")
         if not m and trainer.limit_val_batches != 0:
-            every = (trainer.check_val_every_n_epoch or 1) * max(trainer.num_training_batches, 1)
-            lines.append(f"  validation: none ran (every {trainer.check_val_every_n_epoch} epochs, {every} steps; "
+            epochs = trainer.check_val_every_n_epoch or 1
+            every = epochs * max(trainer.num_training_batches, 1)
+            lines.append(f"  validation: none ran (every {epochs} epochs, {every} steps; "
                          f"set --trainer.check_val_every_n_epoch lower for a shorter run)")
         if last is not None:
             configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"

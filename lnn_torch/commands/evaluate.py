@@ -122,7 +122,7 @@ def _progress():
 
 def main(argv: list[str]) -> int:
     from ..checkpoints import data_hparams, load_model, output_dir
-    from ..data import TrajectoryDataModule, read_dataset
+    from ..data import TrajectoryDataModule, derivatives, read_dataset
     from ..errors import InputError
     from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu, quiet_compile_logs
@@ -147,8 +147,6 @@ def main(argv: list[str]) -> int:
                             sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps,
                             progress=_progress())
-    from ..data import derivatives
-
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split,
               "reference": derivatives.describe(dm.targets), **result}
     out_dir = output_dir(args.checkpoint, args.output_dir, "evaluation")

@@ -593,13 +593,13 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
         timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines))
         records.append(raw)
     medians = [tm["median_interval_s"] for tm in timing]
-    own = {round(m, 4) or m for m in medians}  # each recording's default dt alone (jitter moves a median by ~1 %)
-    if spec.dt is None and max(medians) > (1 + DT_SPREAD) * min(medians) and len(own) > 1:
+    own = [round(m, 4) or m for m in medians]  # each recording's default dt alone (jitter moves a median by ~1 %)
+    if spec.dt is None and max(medians) > (1 + DT_SPREAD) * min(medians) and len(set(own)) > 1:
         listing = ", ".join(f"{f.name} {1e3 * m:.4g} ms" for f, m in zip(files, medians, strict=True))
         raise InputError(f"import: the recordings' median sampling intervals differ by more than "
                          f"{100 * DT_SPREAD:g} % ({listing}): set dt, the resampling interval in s (--dt; e.g. "
                          f"{min(medians):.4g} for the fastest), rather than thin the faster recordings")
-    dt = spec.dt or round(timing[0]["median_interval_s"], 4) or timing[0]["median_interval_s"]
+    dt = spec.dt or own[0]
     resampled = []
     for raw in records:
         t = raw[:, 0]

@@ -13,7 +13,7 @@ conditioning networks see them clamped to ``TRUST`` standard deviations (uniform
 parameters span about 1.7): far beyond what it was trained on a model is conditioned on the nearest
 trusted values instead of extrapolating its FiLM networks without bound (``untrusted`` names them;
 the models warn with ``UntrustedParameterWarning``). Parameters that a physics part takes exactly (a
-grey box's payload, a rigid body added to its last link) are marked ``exact`` and never clamped.
+grey box's payload, a rigid body added to its last link) are ``exact``: never clamped.
 ``accel_rms`` (per coordinate, normalised units) only weights the loss.
 
 Generalised forces (scenes with inputs or friction): a force ``Q`` (N m per coordinate) enters the
@@ -42,9 +42,9 @@ class Normalizer(nn.Module):
         self.all_log = all(k == "positive" for k in kinds)
         self.register_buffer("param_log", torch.tensor([k == "positive" for k in kinds], dtype=torch.bool),
                              persistent=False)
-        # parameters a physics part takes exactly (a grey box's payload): never clamped (set by the model)
-        self.register_buffer("exact", torch.zeros(num_params, dtype=torch.bool), persistent=False)
-        self.any_exact = False  # a Python flag (no data-dependent branch for torch.export)
+        # True where a physics part takes every parameter exactly (a grey box's payload): never clamped. A
+        # Python flag set by the model (``mark_exact``), so torch.export sees no data-dependent branch
+        self.exact = False
         self.register_buffer("angle_mask", torch.tensor(list(angle_mask), dtype=torch.bool))
         self.register_buffer("coord_shift", torch.zeros(dof))
         self.register_buffer("coord_scale", torch.ones(dof))
@@ -103,30 +103,28 @@ class Normalizer(nn.Module):
     def params(self, params):
         """Normalised parameters, clamped to ``TRUST`` standard deviations (except the ``exact`` ones)."""
         z = (self._transform(params) - self.param_log_mean.to(params.dtype)) / self.param_log_std.to(params.dtype)
-        clamped = z.clamp(-self.TRUST, self.TRUST)
-        return torch.where(self.exact.to(z.device), z, clamped) if self.any_exact else clamped
+        return z if self.exact else z.clamp(-self.TRUST, self.TRUST)
 
     def mark_exact(self) -> None:
         """Every parameter is taken exactly by a physics part (a grey box's payload): never clamped."""
-        self.exact.fill_(True)
-        self.any_exact = bool(self.num_params)
+        self.exact = True
 
     def trusted_range(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(low, high)`` ``(P,)``: the SI parameters the conditioning networks see unclamped (the ``exact``
         ones: -inf, inf)."""
         bound = torch.full_like(self.param_log_mean, self.TRUST)
-        low, high = self.params_to_phys(-bound), self.params_to_phys(bound)
-        exact = self.exact.to(low.device)
-        return low.masked_fill(exact, -float("inf")), high.masked_fill(exact, float("inf"))
+        if self.exact:
+            return torch.full_like(bound, -float("inf")), torch.full_like(bound, float("inf"))
+        return self.params_to_phys(-bound), self.params_to_phys(bound)
 
     @torch.no_grad()
     def untrusted(self, params: torch.Tensor, names, units) -> str | None:
         """A sentence naming the parameters of ``params (B, P)`` beyond the trusted range (the first
         offending value of each) and the bounds the model conditions on; None when all are inside."""
-        if not self.num_params:
+        if not self.num_params or self.exact:
             return None
         z = (self._transform(params.double()) - self.param_log_mean.double()) / self.param_log_std.double()
-        out = (z.abs() > self.TRUST).any(0) & ~self.exact.to(z.device)
+        out = (z.abs() > self.TRUST).any(0)
         if not out.any():
             return None
         low, high = self.trusted_range()

@@ -97,6 +97,13 @@ def payload_pseudo_inertia(payload: torch.Tensor) -> torch.Tensor:
     return torch.cat([top, bottom], -2)
 
 
+def payload_at_flange(flange: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
+    """``J (B, 4, 4)``: payloads ``(B, 4 or 10)`` (``payload_pseudo_inertia``) in the last body's frame, the
+    flange's pose ``flange (4, 4)`` in it."""
+    Xf = flange.to(payload.dtype)
+    return Xf @ payload_pseudo_inertia(payload) @ Xf.T
+
+
 def read_chain(model, payload_body: str | None = "payload") -> SerialChain:
     """The ``SerialChain`` of a compiled MuJoCo model (``mujoco.MjModel``): its hinge joints in tree
     order; bodies without joints welded to their moving ancestor (their inertia folded into it; those

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .kinematics import SerialChain, payload_pseudo_inertia, poses_and_twists
+from .kinematics import SerialChain, payload_at_flange, poses_and_twists
 
 LINK_NAMES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "mcx", "mcy", "mcz", "m")
 
@@ -71,10 +71,8 @@ def payload_torque(chain: SerialChain, q, qd, qdd, payload: torch.Tensor) -> tor
     q, qd, qdd, payload = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd, payload))
     if chain.flange is None or payload.shape[-1] == 0:
         return torch.zeros_like(q)
-    n = chain.dof
-    Xf = chain.flange.to(q.dtype)
-    J = q.new_zeros(q.shape[0], n, 4, 4)
-    J[:, -1] = Xf @ payload_pseudo_inertia(payload) @ Xf.T
+    J = q.new_zeros(q.shape[0], chain.dof, 4, 4)
+    J[:, -1] = payload_at_flange(chain.flange, payload)
     return rigid_body_torque(chain, q, qd, qdd, J)
 
 
@@ -119,6 +117,7 @@ def regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
     g = torch.cat([chain.gravity.to(q.dtype), q.new_zeros(1)])
     e4 = torch.zeros(4, dtype=q.dtype)
     e4[3] = 1.0
+    eye = torch.eye(n, dtype=q.dtype)
     blocks = []
     for lo in range(0, q.shape[0], ROWS):
         rows = slice(lo, lo + ROWS)
@@ -126,7 +125,6 @@ def regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
         W = (torch.einsum("bkixy,bixz->bkiyz", D, Tdd)
              - torch.einsum("x,bkixy,z->bkiyz", g, D, e4)) * upto[None, :, :, None, None]  # (B, k, i, 4, 4)
         links = (W.flatten(-2) @ dJ).flatten(-2)  # (B, k, 10 n)
-        eye = torch.eye(n, dtype=q.dtype)
         blocks.append(torch.cat([links, eye * qdd[rows, :, None], eye * qd[rows, :, None]], -1))
     return torch.cat(blocks) if blocks else q.new_zeros(0, n, 12 * n)
 

@@ -166,8 +166,7 @@ class SpatialChain(KineticPart):
         payload = self.payload_si(params_norm)
         if payload is None:
             return J, L
-        Xf = self.const("flange", payload.to(dtype))
-        last = J[:, -1] + Xf @ K.payload_pseudo_inertia(payload.to(dtype)) @ Xf.T  # (B, 4, 4)
+        last = J[:, -1] + K.payload_at_flange(self.const("flange", payload.to(dtype)), payload.to(dtype))  # (B, 4, 4)
         B = payload.shape[0]
         J = torch.cat([J.expand(B, -1, -1, -1)[:, :-1], last[:, None]], 1)
         L = torch.cat([L.expand(B, -1, -1, -1)[:, :-1], K.inertia_factor(last)[:, None]], 1)
