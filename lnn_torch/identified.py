@@ -10,6 +10,13 @@ of inertia ``Ir`` behind a gear ratio ``gr`` at each joint, and per-joint viscou
 
     M11 = I1 + I2 + m2 l1^2 + 2 m2 l1 r2 cos q2 + gr^2 Ir + Ir,  M12 = I2 + m2 l1 r2 cos q2 - gr Ir,
     M22 = I2 + gr^2 Ir,  M qdd = G(q) + tau - c(q, qd) - b qd - cf arctan(k qd).
+
+The torques are linear in ten base parameters (``BASE``): ``A = M11 - 2 K cos q2``, ``B = M12 - K cos
+q2``, ``C = M22``, ``K = m2 l1 r2``, the gravity moments ``P1 = m1 r1 + m2 l1`` and ``P2 = m2 r2``, and the
+friction ``b1, b2, cf1, cf2``: the model computes with them, ``base_regressor`` is the matrix ``Y(q, qd,
+qdd)`` with ``tau = Y beta``, and ``RigidArmModel.least_squares`` is the classical identification of them
+from recorded states, accelerations and torques (least squares of the torque error, or of the
+acceleration error it causes).
 """
 
 from __future__ import annotations
@@ -21,6 +28,22 @@ import torch
 from .integrators import rollout
 
 KEYS = ("m1", "m2", "l1", "r1", "r2", "I1", "I2", "Ir", "gr", "b1", "b2", "cf1", "cf2", "g")
+BASE = ("A", "B", "C", "K", "P1", "P2", "b1", "b2", "cf1", "cf2")
+
+
+def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0) -> torch.Tensor:
+    """``Y (..., 2, 10)`` with the joint torques ``tau = Y beta`` for the base parameters ``beta`` in the
+    order of ``BASE`` (module docstring), at joint angles ``q``, velocities ``qd`` and accelerations
+    ``qdd`` (``(..., 2)``; ``q2`` relative to link 1, angles from the downward vertical)."""
+    c2, s2 = torch.cos(q[..., 1]), torch.sin(q[..., 1])
+    s1, s12 = torch.sin(q[..., 0]), torch.sin(q[..., 0] + q[..., 1])
+    w1, w2 = qd[..., 0], qd[..., 1]
+    a1, a2 = qdd[..., 0], qdd[..., 1]
+    zero = torch.zeros_like(a1)
+    row1 = [a1, a2, zero, 2 * c2 * a1 + c2 * a2 - s2 * (2 * w1 * w2 + w2**2), g * s1, g * s12,
+            w1, zero, torch.atan(coulomb_slope * w1), zero]
+    row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, torch.atan(coulomb_slope * w2)]
+    return torch.stack([torch.stack(row1, -1), torch.stack(row2, -1)], -2)
 
 
 class RigidArmModel:
@@ -34,6 +57,68 @@ class RigidArmModel:
                            cf2=cf2, g=g)
         self.coulomb_slope = float(coulomb_slope)
         self.l2 = None if l2 is None else float(l2)  # for drawing only (link 2's length is not in its dynamics)
+        rotor = gr**2 * Ir
+        self.base = dict(A=I1 + I2 + m2 * l1**2 + rotor + Ir, B=I2 - gr * Ir, C=I2 + rotor, K=m2 * l1 * r2,
+                         P1=m1 * r1 + m2 * l1, P2=m2 * r2, b1=b1, b2=b2, cf1=cf1, cf2=cf2)
+
+    @classmethod
+    def from_base(cls, base, g: float = 9.81, coulomb_slope: float = 100.0,
+                  variant: str | None = None) -> RigidArmModel:
+        """The model of given base parameters (a dict of ``BASE``, or its ten values in that order). Its
+        physical ``values`` are one of the many sets with these base parameters (``gr = r1 = r2 = 1``),
+        not an identification of each."""
+        if not isinstance(base, dict):
+            base = dict(zip(BASE, (float(v) for v in base), strict=True))
+        b = {k: float(base[k]) for k in BASE}
+        if b["P2"] == 0:
+            raise ValueError("base parameters with P2 = m2 r2 = 0 (no gravity moment on link 2) have no model here")
+        I2, Ir = (b["B"] + b["C"]) / 2, (b["C"] - b["B"]) / 2
+        model = cls(m1=b["P1"] - b["K"], m2=b["P2"], l1=b["K"] / b["P2"], r1=1.0, r2=1.0,
+                    I1=b["A"] - I2 - b["K"] ** 2 / b["P2"] - 2 * Ir, I2=I2, Ir=Ir, gr=1.0, b1=b["b1"], b2=b["b2"],
+                    cf1=b["cf1"], cf2=b["cf2"], g=g, coulomb_slope=coulomb_slope)
+        model.base = b  # exactly the given ones (not recomputed through the values above)
+        if variant is not None:
+            model.variant = variant
+        return model
+
+    @classmethod
+    def least_squares(cls, q, qd, qdd, tau, g: float = 9.81, coulomb_slope: float = 100.0,
+                      space: str = "torque", iterations: int = 50) -> RigidArmModel:
+        """The classical identification of the ten base parameters from points ``(n, 2)`` each (float64
+        advised). ``space="torque"``: ordinary least squares of the torque error, both joints' rows stacked
+        (the textbook fit). ``space="acceleration"``: the error ``M^-1 (Y beta - tau)``, which is the
+        acceleration error, with ``M`` the mass matrix of the previous fit (iteratively reweighted from the
+        torque fit, until the parameters change by less than 1e-10 relative): the torques weighted as the
+        accelerations they cause, the criterion a learned model of the accelerations is fitted by.
+        ``ValueError`` in one line if the points hold non-finite values, do not determine the parameters, or
+        a fit's mass matrix is not positive definite at every point."""
+        if space not in ("torque", "acceleration"):
+            raise ValueError(f"least squares: space must be 'torque' or 'acceleration', got {space!r}")
+        Y = base_regressor(q, qd, qdd, g, coulomb_slope).double()  # (n, 2, 10)
+        tau = tau.double()
+        if not (torch.isfinite(Y).all() and torch.isfinite(tau).all()):
+            raise ValueError("least squares: the states, accelerations or torques hold NaN or infinite values")
+        rank = int(torch.linalg.matrix_rank(Y.reshape(-1, len(BASE))))
+        if rank < len(BASE):
+            raise ValueError(f"least squares: the recordings determine {rank} of the {len(BASE)} base parameters "
+                             "(too little motion)")
+
+        def solve(weight=None):
+            A, b = (Y, tau[..., None]) if weight is None else (weight @ Y, weight @ tau[..., None])
+            return torch.linalg.lstsq(A.reshape(-1, len(BASE)), b.reshape(-1, 1)).solution[:, 0]
+
+        beta = solve()
+        for _ in range(iterations if space == "acceleration" else 0):
+            M = cls.from_base(beta.tolist(), g, coulomb_slope).mass_matrix(q.double())
+            if not bool((torch.linalg.eigvalsh(M)[..., 0] > 0).all()):
+                raise ValueError("least squares in accelerations: a fit's mass matrix is not positive definite at "
+                                 "every point (too little motion to weigh the torques by it)")
+            previous, beta = beta, solve(torch.linalg.inv(M))
+            if float((beta - previous).norm()) <= 1e-10 * float(beta.norm()):
+                break
+        variant = ("least squares (rigid body + friction)" if space == "torque"
+                   else "least squares in accelerations (rigid body + friction)")
+        return cls.from_base(beta.tolist(), g, coulomb_slope, variant=variant)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> RigidArmModel:
@@ -47,35 +132,35 @@ class RigidArmModel:
         return cls(**{k: float(values[k]) for k in KEYS}, l2=values.get("l2"))
 
     def _mass(self, q):
-        v = self.values
+        b = self.base
         c2 = torch.cos(q[..., 1])
-        k = v["m2"] * v["l1"] * v["r2"]
-        rotor = v["gr"] ** 2 * v["Ir"]
-        M11 = v["I1"] + v["I2"] + v["m2"] * v["l1"] ** 2 + 2 * k * c2 + rotor + v["Ir"]
-        M12 = v["I2"] + k * c2 - v["gr"] * v["Ir"]
-        M22 = v["I2"] + rotor + 0 * c2
-        return M11, M12, M22
+        return b["A"] + 2 * b["K"] * c2, b["B"] + b["K"] * c2, b["C"] + 0 * c2
 
     def mass_matrix(self, q, params=None):
         M11, M12, M22 = self._mass(q)
         return torch.stack([torch.stack([M11, M12], -1), torch.stack([M12, M22], -1)], -2)
 
     def acceleration(self, q, qd, params=None, tau=None, check: bool = False):
-        v = self.values
+        b, g = self.base, self.values["g"]
         M11, M12, M22 = self._mass(q)
-        h = v["m2"] * v["l1"] * v["r2"] * torch.sin(q[..., 1])
+        h = b["K"] * torch.sin(q[..., 1])
         w1, w2 = qd[..., 0], qd[..., 1]
         s1, s12 = torch.sin(q[..., 0]), torch.sin(q[..., 0] + q[..., 1])
-        g2 = -v["g"] * v["m2"] * v["r2"] * s12
-        g1 = -v["g"] * (v["m1"] * v["r1"] + v["m2"] * v["l1"]) * s1 + g2
-        friction = [v[f"b{j}"] * qd[..., j - 1] + v[f"cf{j}"] * torch.atan(self.coulomb_slope * qd[..., j - 1])
-                    for j in (1, 2)]
-        rhs1 = h * (2 * w1 * w2 + w2**2) + g1 - friction[0]
-        rhs2 = -h * w1**2 + g2 - friction[1]
+        g2 = -g * b["P2"] * s12
+        g1 = -g * b["P1"] * s1 + g2
+        friction = -self.friction_force(q, qd)
+        rhs1 = h * (2 * w1 * w2 + w2**2) + g1 - friction[..., 0]
+        rhs2 = -h * w1**2 + g2 - friction[..., 1]
         if tau is not None:
             rhs1, rhs2 = rhs1 + tau[..., 0], rhs2 + tau[..., 1]
         det = M11 * M22 - M12 * M12
         return torch.stack([M22 * rhs1 - M12 * rhs2, M11 * rhs2 - M12 * rhs1], -1) / det[..., None]
+
+    def torque(self, q, qd, qdd, params=None):
+        """Inverse dynamics: the joint torques ``(..., 2)`` that give accelerations ``qdd`` at ``(q, qd)``
+        (through ``base_regressor``)."""
+        beta = torch.tensor([self.base[k] for k in BASE], dtype=q.dtype, device=q.device)
+        return base_regressor(q, qd, qdd, self.values["g"], self.coulomb_slope) @ beta
 
     def positions(self, q, params=None):
         """The elbow and the tip ``(..., 2, 2)`` (x right, y up; m) for drawing; None without ``l2``."""
@@ -88,17 +173,17 @@ class RigidArmModel:
 
     def friction_force(self, q, qd, params=None):
         """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint."""
-        v = self.values
-        return -torch.stack([v[f"b{j}"] * qd[..., j - 1] + v[f"cf{j}"] * torch.atan(self.coulomb_slope * qd[..., j - 1])
+        b = self.base
+        return -torch.stack([b[f"b{j}"] * qd[..., j - 1] + b[f"cf{j}"] * torch.atan(self.coulomb_slope * qd[..., j - 1])
                              for j in (1, 2)], -1)
 
     def energy(self, q, qd, params=None):
         """``T + V`` in J, the rotors' kinetic energy included (``V = 0`` with both links hanging down)."""
-        v = self.values
+        b = self.base
         M = self.mass_matrix(q)
         T = 0.5 * torch.einsum("...i,...ij,...j->...", qd, M, qd)
         c1, c12 = torch.cos(q[..., 0]), torch.cos(q[..., 0] + q[..., 1])
-        V = v["g"] * ((v["m1"] * v["r1"] + v["m2"] * v["l1"]) * (1 - c1) + v["m2"] * v["r2"] * (1 - c12))
+        V = self.values["g"] * (b["P1"] * (1 - c1) + b["P2"] * (1 - c12))
         return T + V
 
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
