@@ -158,3 +158,43 @@ def test_evaluation_plots_and_stability_do_not_import_each_other_in_a_circle():
 
 
 # ---------------------------------------------------------------------------- scenes own their cases
+
+
+class _Measured:
+    """A scene seen as measured recordings (no closed form), otherwise itself."""
+
+    closed_form = False
+
+    def __init__(self, system):
+        self._system = system
+
+    def __getattr__(self, name):
+        return getattr(self._system, name)
+
+
+def test_measured_rollouts_stop_once_every_one_has_diverged_with_the_same_numbers(trajectories):
+    """For measured recordings the rollout runs in 1 s segments and stops once every trajectory has left the
+    largest threshold: the same states as one long rollout up to there, the same divergence times; a model
+    that stays close rolls out the whole horizon."""
+    system = get_system("double_pendulum")
+
+    class Pushed(ClosedForm):  # 50 rad/s^2 off: every rollout leaves 0.5 rad within 0.2 s
+        def acceleration(self, q, qd, params, tau=None, check=False):
+            return system.acceleration(q, qd, params) + 50.0
+
+        def rollout(self, q0, qd0, params, dt, num_steps, method="rk4", tau=None):
+            return lnn_torch.rollout(self.acceleration, q0, qd0, params, dt, num_steps, method)
+
+    data = trajectories.head(6)
+    for model, stops in ((Pushed(system), True), (ClosedForm(system), False)):
+        whole = evaluate_model(model, system, data, horizon=2.0, sections=("rollouts",))
+        measured = evaluate_model(model, _Measured(system), data, horizon=2.0, sections=("rollouts",))
+        q_whole, q_measured = whole["_arrays"]["q_model"], measured["_arrays"]["q_model"]
+        assert q_whole.shape == (6, 401, 2)
+        assert q_measured.shape == ((6, 201, 2) if stops else (6, 401, 2))
+        assert ("rollout_stopped_at_s" in measured) == stops
+        torch.testing.assert_close(q_measured, q_whole[:, : q_measured.shape[1]], rtol=0, atol=0)
+        for thr in (0.1, 0.5):
+            key = f"divergence_time@{thr:g}"
+            assert measured[key]["model"] == whole[key]["model"]
+    assert measured["divergence_time@0.1"]["model"]["median"] == pytest.approx(2.0)  # the exact model stays

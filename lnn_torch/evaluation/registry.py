@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ..data.trajectories import Trajectories
+from ..metrics import coordinate_error
 from ..networks.calls import model_rollout
 from ..report import scalar_rows
 
@@ -113,20 +114,43 @@ class EvalContext:
         """The model's rollouts of the first ``num_rollouts`` trajectories from their true initial
         states, driven by the recorded inputs: ``q_true``, ``qd_true``, ``q``, ``qd`` (each ``(B,
         steps + 1, dof)`` on the compared grid), ``tau`` (the inputs over each grid interval, or
-        None), ``params``, ``grid_dt`` and the wall time. A rollout step finer than the data's holds
-        each recorded input over its sub-steps (exact); a coarser one holds the input at its start."""
+        None), ``params``, ``grid_dt``, the wall time and ``stopped_early``. A rollout step finer than
+        the data's holds each recorded input over its sub-steps (exact); a coarser one holds the input
+        at its start.
+
+        For measured recordings (no closed form: the divergence times are all the sections read of the
+        rollouts) the rollout runs in segments of about one second and stops at the end of the first
+        segment in which every trajectory has left the largest threshold: what comes after changes no
+        figure the report gives, and a real arm's model leaves it within a second of a recording
+        minutes long. ``steps`` is then the grid steps actually rolled out (every rollout continues
+        exactly from where the segment before ended: the same numbers as one long rollout)."""
         if self._rollouts is None:
             data = self.data.head(self.num_rollouts)
             dt, stride, sub, steps = self.grid()
             q_true = data.q[:, : steps * stride + 1 : stride]
             qd_true = data.qd[:, : steps * stride + 1 : stride]
             tau = None if data.tau is None else data.tau[:, : steps * stride : stride]
+            segment = steps if self.system.closed_form else max(1, int(round(1.0 / (stride * self.data.dt))))
             start = time.perf_counter()
-            q, qd = model_rollout(self.model, q_true[:, 0], qd_true[:, 0], data.params, dt, steps * sub,
-                                  self.integrator, None if tau is None else tau.repeat_interleave(sub, 1))
-            self._rollouts = {"q_true": q_true, "qd_true": qd_true, "q": q[:, ::sub], "qd": qd[:, ::sub], "tau": tau,
-                              "params": data.params, "grid_dt": stride * self.data.dt,
-                              "seconds": time.perf_counter() - start}
+            qs, qds, done, stopped = [q_true[:, :1]], [qd_true[:, :1]], 0, False
+            while done < steps:
+                n = min(segment, steps - done)
+                u = None if tau is None else tau[:, done : done + n].repeat_interleave(sub, 1)
+                q, qd = model_rollout(self.model, qs[-1][:, -1], qds[-1][:, -1], data.params, dt, n * sub,
+                                      self.integrator, u)
+                qs.append(q[:, sub::sub])
+                qds.append(qd[:, sub::sub])
+                done += n
+                if done < steps:
+                    err = coordinate_error(torch.cat(qs, 1), q_true[:, : done + 1], self.system.angle_mask)
+                    if bool((~(err <= max(self.thresholds))).any(1).all()):  # NaN counts as beyond
+                        stopped = True
+                        break
+            self._rollouts = {"q_true": q_true[:, : done + 1], "qd_true": qd_true[:, : done + 1],
+                              "q": torch.cat(qs, 1), "qd": torch.cat(qds, 1),
+                              "tau": None if tau is None else tau[:, :done], "params": data.params,
+                              "grid_dt": stride * self.data.dt, "seconds": time.perf_counter() - start,
+                              "stopped_early": stopped}
         return self._rollouts
 
 
