@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 import torch
 from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum import LAB, PARAMS, squared_sums  # this folder's comparison script
+from real_pendulum import LAB, LEAST_SQUARES, PARAMS, least_squares, squared_sums  # this folder's comparison script
 
 ROOT = Path(__file__).resolve().parents[1]
 CHAIN = {"kinetic": {"chain": {"links": [[1, 0], [1, 1]]}}}
@@ -186,7 +186,8 @@ def main() -> None:
     lab = RigidArmModel.from_yaml(PARAMS)
     work, out = Path(args.work), Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    sums = {name: {} for name in [LAB, *args.settings]}  # held-out recording: (squared error, squared reference)
+    # held-out recording: (squared error, squared reference)
+    sums = {name: {} for name in [LAB, *LEAST_SQUARES.values(), *args.settings]}
     fitted = {name: {} for name in sums}  # the fold's training recordings, alike
     carries = {name: {} for name in args.settings}  # held-out recording: what the residuals carry there
     seconds = {name: [] for name in args.settings}
@@ -230,6 +231,9 @@ def main() -> None:
                 reference = dm.trajectories("val", smooth_inputs=True)
                 seen = dm.trajectories("train", smooth_inputs=True)
                 sums[LAB][rec], fitted[LAB][rec] = squared_errors(lab, reference), squared_errors(lab, seen)
+                for space, name in LEAST_SQUARES.items():
+                    ls = least_squares(seen, space)
+                    sums[name][rec], fitted[name][rec] = squared_errors(ls, reference), squared_errors(ls, seen)
             with torch.no_grad():
                 sums[setting][rec] = squared_errors(module.model, reference)
                 fitted[setting][rec] = squared_errors(module.model, seen)
@@ -260,12 +264,13 @@ def main() -> None:
         old = json.loads(previous.read_text())
         if old.get("config") != config or not _close(old["results"][LAB], table[LAB]):
             raise SystemExit(f"{previous} was made with other folds or another config: run without --add")
-        order = [LAB] + [s for s in SETTINGS if s in old["settings"] or s in args.settings]
+        order = [s for s in SETTINGS if s in old["settings"] or s in args.settings]
         settings = {**old["settings"], **result["settings"]}
         seconds = {**old["fit_seconds"], **seconds}
         results = {**old["results"], **table}
-        result = {"config": config, "settings": {s: settings[s] for s in order[1:]},
-                  "fit_seconds": {s: seconds[s] for s in order[1:]}, "results": {s: results[s] for s in order},
+        result = {"config": config, "settings": {s: settings[s] for s in order},
+                  "fit_seconds": {s: seconds[s] for s in order},
+                  "results": {s: results[s] for s in [LAB, *LEAST_SQUARES.values(), *order] if s in results},
                   **({"note": old["note"]} if "note" in old else {})}
     (out / "cross_validation.json").write_text(json.dumps(result, indent=1))
     write_report(result, out)
