@@ -15,8 +15,8 @@ The torques are linear in ten base parameters (``BASE``): ``A = M11 - 2 K cos q2
 q2``, ``C = M22``, ``K = m2 l1 r2``, the gravity moments ``P1 = m1 r1 + m2 l1`` and ``P2 = m2 r2``, and the
 friction ``b1, b2, cf1, cf2``: the model computes with them, ``base_regressor`` is the matrix ``Y(q, qd,
 qdd)`` with ``tau = Y beta``, and ``RigidArmModel.least_squares`` is the classical identification of them
-from recorded states, accelerations and torques (least squares of the torque error, or of the
-acceleration error it causes).
+from recorded states, accelerations and torques (least squares of the torque error, linear; or of the
+acceleration error it causes, nonlinear in the mass matrix's parameters: ``acceleration_error_fit``).
 """
 
 from __future__ import annotations
@@ -44,6 +44,56 @@ def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0) ->
             w1, zero, torch.atan(coulomb_slope * w1), zero]
     row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, torch.atan(coulomb_slope * w2)]
     return torch.stack([torch.stack(row1, -1), torch.stack(row2, -1)], -2)
+
+
+def _positive_definite(beta: torch.Tensor) -> bool:
+    """Whether the mass matrix of base parameters ``beta`` is positive definite at every angle: ``C > 0``
+    and its determinant, concave in ``cos q2``, positive at ``cos q2 = -1`` and ``1``."""
+    A, B, C, K = (float(x) for x in beta[:4])
+    return C > 0 and all((A + 2 * K * c) * C - (B + K * c) ** 2 > 0 for c in (-1.0, 1.0))
+
+
+def acceleration_errors(beta: torch.Tensor, Y: torch.Tensor, tau: torch.Tensor, cos_q2: torch.Tensor) -> torch.Tensor:
+    """``M(beta)^-1 (Y beta - tau)`` ``(n, 2)``: the model's acceleration minus the given one at each point
+    (``Y (n, 2, 10)`` the base regressor of the points, ``cos_q2 (n,)``)."""
+    A, B, C, K = beta[0], beta[1], beta[2], beta[3]
+    M11, M12 = A + 2 * K * cos_q2, B + K * cos_q2
+    e = Y @ beta - tau
+    det = M11 * C - M12 * M12
+    return torch.stack([C * e[:, 0] - M12 * e[:, 1], M11 * e[:, 1] - M12 * e[:, 0]], -1) / det[:, None]
+
+
+def acceleration_error_fit(Y: torch.Tensor, tau: torch.Tensor, cos_q2: torch.Tensor, beta: torch.Tensor,
+                           iterations: int = 200) -> torch.Tensor:
+    """The base parameters minimising the summed squared acceleration error (``acceleration_errors``),
+    nonlinear in the mass matrix's four: Levenberg-Marquardt from ``beta`` (e.g. the torque fit), steps
+    kept only where they lower the error and the mass matrix stays positive definite at every angle; it
+    stops when a step changes the error by less than 1e-12 relative."""
+    from torch.func import jacfwd
+
+    def residual(b):
+        return acceleration_errors(b, Y, tau, cos_q2).reshape(-1)
+
+    r = residual(beta)
+    cost, damping = float(r @ r), 1e-3
+    for _ in range(iterations):
+        J = jacfwd(residual)(beta)
+        JTJ, grad = J.T @ J, J.T @ r
+        while damping < 1e12:
+            step = torch.linalg.solve(JTJ + damping * torch.diag(torch.diag(JTJ)), -grad)
+            trial = beta + step
+            if _positive_definite(trial):
+                r_trial = residual(trial)
+                if float(r_trial @ r_trial) <= cost:
+                    break
+            damping *= 4
+        else:
+            return beta  # no step lowers the error: a minimum
+        improvement = cost - float(r_trial @ r_trial)
+        beta, r, cost, damping = trial, r_trial, float(r_trial @ r_trial), max(damping / 3, 1e-9)
+        if improvement <= 1e-12 * cost:
+            break
+    return beta
 
 
 class RigidArmModel:
@@ -83,15 +133,13 @@ class RigidArmModel:
 
     @classmethod
     def least_squares(cls, q, qd, qdd, tau, g: float = 9.81, coulomb_slope: float = 100.0,
-                      space: str = "torque", iterations: int = 50) -> RigidArmModel:
+                      space: str = "torque") -> RigidArmModel:
         """The classical identification of the ten base parameters from points ``(n, 2)`` each (float64
         advised). ``space="torque"``: ordinary least squares of the torque error, both joints' rows stacked
-        (the textbook fit). ``space="acceleration"``: the error ``M^-1 (Y beta - tau)``, which is the
-        acceleration error, with ``M`` the mass matrix of the previous fit (iteratively reweighted from the
-        torque fit, until the parameters change by less than 1e-10 relative): the torques weighted as the
-        accelerations they cause, the criterion a learned model of the accelerations is fitted by.
-        ``ValueError`` in one line if the points hold non-finite values, do not determine the parameters, or
-        a fit's mass matrix is not positive definite at every point."""
+        (the textbook fit). ``space="acceleration"``: least squares of the acceleration error the torques
+        cause, ``|M(beta)^-1 (Y beta - tau)|^2`` (``acceleration_error_fit``), the criterion a learned model
+        of the accelerations is fitted by. ``ValueError`` in one line if the points hold non-finite values,
+        do not determine the parameters, or the fit's mass matrix is not positive definite at every angle."""
         if space not in ("torque", "acceleration"):
             raise ValueError(f"least squares: space must be 'torque' or 'acceleration', got {space!r}")
         Y = base_regressor(q, qd, qdd, g, coulomb_slope).double()  # (n, 2, 10)
@@ -102,22 +150,14 @@ class RigidArmModel:
         if rank < len(BASE):
             raise ValueError(f"least squares: the recordings determine {rank} of the {len(BASE)} base parameters "
                              "(too little motion)")
-
-        def solve(weight=None):
-            A, b = (Y, tau[..., None]) if weight is None else (weight @ Y, weight @ tau[..., None])
-            return torch.linalg.lstsq(A.reshape(-1, len(BASE)), b.reshape(-1, 1)).solution[:, 0]
-
-        beta = solve()
-        for _ in range(iterations if space == "acceleration" else 0):
-            M = cls.from_base(beta.tolist(), g, coulomb_slope).mass_matrix(q.double())
-            if not bool((torch.linalg.eigvalsh(M)[..., 0] > 0).all()):
-                raise ValueError("least squares in accelerations: a fit's mass matrix is not positive definite at "
-                                 "every point (too little motion to weigh the torques by it)")
-            previous, beta = beta, solve(torch.linalg.inv(M))
-            if float((beta - previous).norm()) <= 1e-10 * float(beta.norm()):
-                break
+        beta = torch.linalg.lstsq(Y.reshape(-1, len(BASE)), tau.reshape(-1, 1)).solution[:, 0]
+        if not _positive_definite(beta):
+            raise ValueError("least squares: the torque fit's mass matrix is not positive definite at every angle "
+                             "(too little motion, or a model of another form)")
+        if space == "acceleration":
+            beta = acceleration_error_fit(Y, tau, torch.cos(q[..., 1].double()), beta)
         variant = ("least squares (rigid body + friction)" if space == "torque"
-                   else "least squares in accelerations (rigid body + friction)")
+                   else "least squares of the accelerations (rigid body + friction)")
         return cls.from_base(beta.tolist(), g, coulomb_slope, variant=variant)
 
     @classmethod

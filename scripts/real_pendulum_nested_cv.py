@@ -6,12 +6,13 @@ study judges that rule, not one fixed residual. The outer loop holds each non-te
 (as ``scripts/real_pendulum_cv.py``); on the other five, an inner leave-one-recording-out
 cross-validation fits every candidate (``--candidates``, names of that script's ``SETTINGS``: the first
 is the physics alone) and a rule picks one (``choose``: the lowest pooled inner error, or the physics
-alone unless a residual is better by one standard error); the pick, fitted on all five, predicts the
+alone unless a residual's paired inner-fold differences favour it by more than one standard error); the
+pick, fitted on all five, predicts the
 held-out recording, which no choice saw. The pooled error of those predictions is the rule's
 cross-validated error, beside each candidate's own and beside classical least squares fitted to the same
 five recordings (``scripts/real_pendulum.py``'s ``least_squares``) and the lab's identified model.
 
-    python scripts/real_pendulum_nested_cv.py           # 42 fits of 35-65 s; --jobs 2 runs two at a time
+    python scripts/real_pendulum_nested_cv.py           # 42 fits, two at a time: about 45 min on two cores
     python scripts/real_pendulum_nested_cv.py --report-only
 
 Writes ``nested.json`` and ``nested.md`` to ``--output-dir``; the fits stay in ``--work`` (a fit whose
@@ -21,6 +22,7 @@ checkpoint is there is not run again: delete the folder after changing the data 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import shutil
@@ -39,16 +41,18 @@ from real_pendulum_cv import CONFIGURATION, SETTINGS, fold_file, setting_argumen
 ROOT = Path(__file__).resolve().parents[1]
 RESIDUAL = "the configuration + local force residual (L2 1)"
 RULES = {"lowest": "chosen by inner cross-validation: the lowest pooled error",
-         "one_se": "chosen by inner cross-validation: physics alone unless a residual is better by one standard error"}
+         "one_se": "chosen by inner cross-validation: physics alone unless a residual is better by one standard error "
+                   "of the paired differences"}
 
 
 def choose(inner: dict, candidates: list[str]) -> dict[str, str]:
     """Each rule's choice from the inner folds' errors (``inner[candidate]``: per inner fold, (squared
     error, squared reference)). ``lowest``: the lowest pooled error (a tie keeps the earlier candidate).
     ``one_se``: the physics alone (the first candidate) unless another's relative error is lower on average
-    over the inner folds by more than one standard error of the paired differences (the usual one-standard-
-    error rule of model selection, paired because every candidate sees the same folds); of those that are,
-    the lowest pooled error."""
+    over the inner folds by more than one standard error of the paired differences (a paired variant of
+    the one-standard-error rule of model selection, which keeps the simplest model within one standard
+    error of the best; paired because every candidate sees the same folds); of those that are, the
+    lowest pooled error."""
     pooled = {s: float(np.sqrt(sum(e for e, _ in v) / sum(r for _, r in v))) for s, v in inner.items()}
     lowest = min(candidates, key=lambda s: (pooled[s], candidates.index(s)))
     base = np.sqrt([e / r for e, r in inner[candidates[0]]])
@@ -62,8 +66,10 @@ def choose(inner: dict, candidates: list[str]) -> dict[str, str]:
 
 
 def fit_folder(work: Path, train: list[str], setting: str) -> Path:
-    """Where a setting's fit on the recordings ``train`` lives (beside it, its fold files ``held_NAME.h5``)."""
-    return work / f"train_{'+'.join(train)}" / f"setting_{list(SETTINGS).index(setting)}"
+    """Where a setting's fit on the recordings ``train`` lives (beside it, its fold files ``held_NAME.h5``),
+    named by a digest of the setting's options: a changed setting is fitted again, never mistaken for another."""
+    digest = hashlib.sha1(json.dumps(SETTINGS[setting], sort_keys=True).encode()).hexdigest()[:12]
+    return work / f"train_{'+'.join(train)}" / f"setting_{digest}"
 
 
 def checkpoint(folder: Path) -> Path:
@@ -77,8 +83,9 @@ def fit(args, names, train: list[int], held: int, setting: str) -> tuple[Path, P
     train_names = [names[i] for i in train]
     folder = fit_folder(Path(args.work), train_names, setting)
     path = folder.parent / f"held_{names[held]}.h5"
+    timing = folder / "fit_seconds.txt"
     if checkpoint(folder).exists():
-        return path, checkpoint(folder), float("nan")
+        return path, checkpoint(folder), float(timing.read_text()) if timing.exists() else float("nan")
     if folder.exists():
         shutil.rmtree(folder)
     options, extra = setting_arguments(SETTINGS[setting])
@@ -91,7 +98,9 @@ def fit(args, names, train: list[int], held: int, setting: str) -> tuple[Path, P
     done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     if done.returncode != 0:
         raise SystemExit(f"fit failed ({setting} on {train_names}):\n{done.stderr[-3000:]}")
-    return path, checkpoint(folder), time.perf_counter() - start
+    seconds = time.perf_counter() - start
+    timing.write_text(f"{seconds:.1f}\n")
+    return path, checkpoint(folder), seconds
 
 
 def main() -> None:

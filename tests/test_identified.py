@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from lnn_torch.identified import BASE, RigidArmModel, base_regressor
+from lnn_torch.identified import BASE, RigidArmModel, acceleration_errors, base_regressor
 
 TRUE = RigidArmModel(m1=0.62, m2=0.55, l1=0.21, r1=0.18, r2=0.31, I1=0.027, I2=0.051, Ir=1e-4, gr=6.0, b1=0.004,
                      b2=0.002, cf1=0.09, cf2=0.07)
@@ -68,6 +68,13 @@ def test_least_squares_refuses_what_the_data_cannot_determine():
     q = torch.zeros(50, 2, dtype=torch.float64)
     with pytest.raises(ValueError, match="determine"):
         RigidArmModel.least_squares(q, q, q, q)
+    # torques of a model whose mass matrix is not positive definite (C < 0) fit a model no better
+    q, qd, tau = states(300, seed=6)
+    wrong = RigidArmModel.from_base({**TRUE.base, "C": -0.05})
+    Y = base_regressor(q, qd, TRUE.acceleration(q, qd, None, tau))
+    beta = torch.tensor([wrong.base[k] for k in BASE], dtype=torch.float64)
+    with pytest.raises(ValueError, match="positive definite"):
+        RigidArmModel.least_squares(q, qd, TRUE.acceleration(q, qd, None, tau), Y @ beta)
     bad = torch.full((50, 2), float("nan"), dtype=torch.float64)
     with pytest.raises(ValueError, match="NaN"):
         RigidArmModel.least_squares(bad, bad, bad, bad)
@@ -93,5 +100,15 @@ def test_least_squares_in_accelerations_recovers_the_model_and_weighs_by_the_mas
 
     assert acc_err(by_acc) < acc_err(by_torque)
     assert torque_err(by_torque) < torque_err(by_acc)
+    # a minimum of the acceleration error: its gradient there is zero to round-off (at the torque fit it is not)
+    Y, cos_q2 = base_regressor(q, qd, noisy), torch.cos(q[:, 1])
+
+    def gradient(model):
+        beta = torch.tensor([model.base[k] for k in BASE], dtype=torch.float64, requires_grad=True)
+        acceleration_errors(beta, Y, tau, cos_q2).pow(2).sum().backward()
+        return beta.grad
+
+    scale = torch.tensor([TRUE.base[k] for k in BASE], dtype=torch.float64).abs()
+    assert float((gradient(by_acc) * scale).abs().max()) < 1e-6 * float((gradient(by_torque) * scale).abs().max())
     with pytest.raises(ValueError, match="space"):
         RigidArmModel.least_squares(q, qd, qdd, tau, space="energy")

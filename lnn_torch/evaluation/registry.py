@@ -118,12 +118,13 @@ class EvalContext:
         the data's holds each recorded input over its sub-steps (exact); a coarser one holds the input
         at its start.
 
-        For measured recordings (no closed form: the divergence times are all the sections read of the
-        rollouts) the rollout runs in segments of about one second and stops at the end of the first
-        segment in which every trajectory has left the largest threshold: what comes after changes no
-        figure the report gives, and a real arm's model leaves it within a second of a recording
-        minutes long. ``steps`` is then the grid steps actually rolled out (every rollout continues
-        exactly from where the segment before ended: the same numbers as one long rollout)."""
+        For measured recordings (no closed form: no energy to follow along the rollouts) the rollout runs
+        in segments, the first of about one second, each next one twice as long, and stops at the end of
+        the first segment in which every trajectory has left the largest threshold: the divergence times
+        are those of the whole rollout, and a real arm's model leaves the threshold within a second of a
+        recording minutes long. The arrays then end there (``steps`` the grid steps rolled out; the
+        trajectory figure and the non-finite fraction cover that span). Every segment continues exactly
+        from where the one before ended: the same numbers as one long rollout."""
         if self._rollouts is None:
             data = self.data.head(self.num_rollouts)
             dt, stride, sub, steps = self.grid()
@@ -141,6 +142,7 @@ class EvalContext:
                 qs.append(q[:, sub::sub])
                 qds.append(qd[:, sub::sub])
                 done += n
+                segment *= 2
                 if done < steps:
                     err = coordinate_error(torch.cat(qs, 1), q_true[:, : done + 1], self.system.angle_mask)
                     if bool((~(err <= max(self.thresholds))).any(1).all()):  # NaN counts as beyond

@@ -36,11 +36,13 @@ def _rollouts(ctx: EvalContext) -> SectionResult:
     cap = (r["q"].shape[1] - 1) * r["grid_dt"]
     rows = [table_row([f"time to {thr:g} {_units(system)} error, model{_inputs_note(system)}: median [q25, q75] (s)",
                        quartile_cell(out[f"divergence_time@{thr:g}"]["model"], cap)]) for thr in ctx.thresholds]
-    rows.append(table_row(["non-finite rollouts", pct(out["rollout_non_finite_fraction"])]))
+    span = f" within the first {cap:g} s" if r["stopped_early"] else ""
+    rows.append(table_row([f"non-finite rollouts{span}", pct(out["rollout_non_finite_fraction"])]))
     if r["stopped_early"]:
         out["rollout_stopped_at_s"] = cap
-        rows.append(table_row(["rollouts stopped once every one had left "
-                               f"{max(ctx.thresholds):g} {_units(system)} (measured recordings) after (s)", f"{cap:g}"]))
+        units = _units(system)
+        rows.append(table_row([f"rollouts stopped once every one had left {max(ctx.thresholds):g} {units} "
+                               "(measured recordings) after (s)", f"{cap:g}"]))
     arrays = out["_arrays"]
 
     def error_growth(result):
