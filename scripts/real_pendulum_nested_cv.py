@@ -167,6 +167,26 @@ def main() -> None:
             return squared_errors(model if model is not None else load_model(str(ckpt)).model,
                                   dm.trajectories("val", smooth_inputs=True))
 
+    def open_loop(pair, setting, model=None) -> list[float]:
+        """The time (s) within 0.1 rad of the pair's held-out recording from each of its start points (every
+        0.25 s, 4 s at most; driven by the recorded torques, RK4 at the data's step, as
+        ``scripts/real_pendulum.py``) of ``setting``'s fit (or of ``model``)."""
+        from lnn_torch.metrics import divergence_time
+
+        _, ckpt, _ = done[(training(pair), setting)]
+        module = load_model(str(ckpt))
+        model = model if model is not None else module.model
+        data = TrajectoryDataModule(path=str(ckpt.parents[4] / f"held_{names[held(pair)]}.h5"),
+                                    targets=data_hparams(str(ckpt)).get("targets", "file")).trajectories("val")
+        n, step, length = int(round(4.0 / data.dt)), int(round(0.25 / data.dt)), int(data.lengths[0])
+        starts = torch.arange(0, length - n, step)
+        window = starts[:, None] + torch.arange(n + 1)
+        q_true = data.q[0][window]
+        with torch.no_grad():
+            q, _ = model.rollout(q_true[:, 0], data.qd[0][starts], data.params[:1].expand(len(starts), -1), data.dt, n,
+                                 "rk4", tau=data.tau[0][window[:, :-1]])
+        return divergence_time(q, q_true, data.dt, 0.1, module.system.angle_mask).tolist()
+
     def seen(pair):
         """The pair's training recordings (the torques filtered like the reference)."""
         path = fit_folder(Path(args.work), [names[i] for i in training(pair)], args.candidates[0]).parent
@@ -180,11 +200,13 @@ def main() -> None:
         inner = {s: [errors((outer, i), s) for i in rest] for s in args.candidates}
         inner_pooled = {s: float(np.sqrt(sum(e for e, _ in v) / sum(r for _, r in v))) for s, v in inner.items()}
         chosen = choose(inner, args.candidates)
+        fixed = {LAB: lab, **{name: least_squares(seen((outer, None)), space) for space, name in LEAST_SQUARES.items()}}
         held_out = {s: errors((outer, None), s) for s in args.candidates}
-        held_out[LAB] = errors((outer, None), args.candidates[0], lab)
-        for space, name in LEAST_SQUARES.items():
-            held_out[name] = errors((outer, None), args.candidates[0], least_squares(seen((outer, None)), space))
+        held_out.update({name: errors((outer, None), args.candidates[0], m) for name, m in fixed.items()})
+        times = {s: open_loop((outer, None), s) for s in args.candidates}
+        times.update({name: open_loop((outer, None), args.candidates[0], m) for name, m in fixed.items()})
         folds[names[outer]] = {
+            "open_loop_times": times,
             "inner_pooled": inner_pooled,
             "inner_per_recording": {s: {names[i]: float(np.sqrt(e / r)) for i, (e, r) in zip(rest, v, strict=True)}
                                     for s, v in inner.items()},
@@ -228,6 +250,18 @@ def write_report(result: dict, out: Path) -> None:
     for name, sums in rows.items():
         lines.append(f"| {name} | {pooled(sums):.1f} % | "
                      + " | ".join(f"{100 * np.sqrt(e / r):.1f} %" for e, r in sums) + " |")
+    if "open_loop_times" in folds[recs[0]]:
+        times = {name: [folds[rec]["open_loop_times"][name] for rec in recs]
+                 for name in [LAB, *LEAST_SQUARES.values(), *candidates]}
+        for rule, name in RULES.items():
+            times[name] = [folds[rec]["open_loop_times"][folds[rec]["chosen"][rule]] for rec in recs]
+        lines += ["", "Open loop on the held-out recordings: the time within 0.1 rad from each start point (every "
+                  "0.25 s, 4 s at most; driven by the recorded torques, RK4 at the data's 2 ms step), median over all "
+                  "folds' start points and per recording:", "",
+                  "| model | all | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
+        for name, per in times.items():
+            lines.append(f"| {name} | {np.median(np.concatenate(per)):.2f} s | "
+                         + " | ".join(f"{np.median(t):.2f} s" for t in per) + " |")
     lines += ["", "What the inner cross-validation saw (pooled over the five inner folds) and chose:", "",
               "| held out | " + " | ".join(candidates) + " | chosen: lowest | chosen: one standard error |",
               "|---|" + "---|" * (len(candidates) + 2)]
