@@ -10,7 +10,8 @@ alone unless a residual's paired inner-fold differences favour it by more than o
 pick, fitted on all five, predicts the
 held-out recording, which no choice saw. The pooled error of those predictions is the rule's
 cross-validated error, beside each candidate's own and beside classical least squares fitted to the same
-five recordings (``scripts/real_pendulum.py``'s ``least_squares``) and the lab's identified model.
+five recordings (``scripts/real_pendulum.py``'s ``least_squares``) and the lab's identified model; with
+each model's open-loop time on the held-out recording (within 0.1 rad, driven by the recorded torques).
 
     python scripts/real_pendulum_nested_cv.py           # 42 fits, two at a time: about 45 min on two cores
     python scripts/real_pendulum_nested_cv.py --report-only
