@@ -99,6 +99,16 @@ def _divergence(module, seconds: float) -> str:
     return f"validation rollouts within {thr:g} rad (or m) of the data: median {held}"
 
 
+def per_coordinate(metrics: dict, names) -> str | None:
+    """The validation acceleration error of each coordinate, in words, for a system of three coordinates or
+    more (an arm: the pooled figure can be one wrist joint of tiny inertia); None where the metrics lack one
+    or the system has fewer."""
+    keys = [f"val/acc_rel_err_{n}" for n in names or ()]
+    if len(keys) < 3 or not all(k in metrics for k in keys):
+        return None
+    return "per coordinate " + ", ".join(f"{n} {100 * metrics[k]:.3g} %" for n, k in zip(names, keys, strict=True))
+
+
 class FitSummary(L.Callback):
     """Prints, at the end of ``fit``, where the TensorBoard run and the checkpoints are and the last
     validation metrics, with the command that tests the last checkpoint."""
@@ -122,6 +132,9 @@ class FitSummary(L.Callback):
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
                          + (f"; {_divergence(pl_module, m['val/divergence_time'])}" if "val/divergence_time" in m
                             else ""))
+        coordinates = per_coordinate(m, getattr(getattr(pl_module, "system", None), "coord_names", None))
+        if coordinates is not None:
+            lines.append(f"  validation: acc. rel. L2 error {coordinates}")
         if "val/torque_rms" in m:
             lines.append(f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
                          f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")

@@ -1,0 +1,37 @@
+"""The end-of-fit summary (``lnn_torch.callbacks.FitSummary``): on a system of three coordinates or more it
+names each coordinate's validation acceleration error, so that a pooled figure one wrist joint dominates
+is read as what it is."""
+
+from types import SimpleNamespace
+
+import torch
+
+from lnn_torch.callbacks import FitSummary, per_coordinate
+
+
+def metrics(names, values, pooled=19.47):
+    return {"val/acc_rel_err": pooled, "val/acc_rel_err_traj_median": pooled,
+            **{f"val/acc_rel_err_{n}": v for n, v in zip(names, values, strict=True)}}
+
+
+def test_per_coordinate_names_each_coordinate_of_an_arm_and_nothing_for_fewer_than_three():
+    names = [f"joint{j}" for j in range(1, 8)]
+    line = per_coordinate(metrics(names, [0.02, 0.01, 0.03, 0.02, 0.05, 30.1, 0.04]), names)
+    assert line == ("per coordinate joint1 2 %, joint2 1 %, joint3 3 %, joint4 2 %, joint5 5 %, joint6 3.01e+03 %, "
+                    "joint7 4 %")
+    assert per_coordinate(metrics(["q1", "q2"], [0.01, 0.02]), ["q1", "q2"]) is None
+    assert per_coordinate(metrics(names[:6], [0.1] * 6), names) is None  # one missing: nothing half-said
+    assert per_coordinate({}, None) is None
+
+
+def test_the_fit_summary_prints_the_per_coordinate_line(capsys):
+    names = ["joint1", "joint2", "joint3"]
+    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=5, callbacks=[],
+                              checkpoint_callbacks=[], limit_val_batches=1.0,
+                              callback_metrics={k: torch.tensor(v) for k, v in
+                                                metrics(names, [0.02, 0.5, 12.0]).items()})
+    module = SimpleNamespace(system=SimpleNamespace(coord_names=names), hparams={})
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "validation: acc. rel. L2 error 1947.00 % pooled" in out
+    assert "validation: acc. rel. L2 error per coordinate joint1 2 %, joint2 50 %, joint3 1.2e+03 %" in out
