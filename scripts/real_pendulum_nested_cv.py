@@ -23,6 +23,7 @@ checkpoint is there is not run again: delete the folder after changing the data 
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -127,6 +128,7 @@ def main() -> None:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
     from lnn_torch.checkpoints import data_hparams, load_model
     from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.evaluation import evaluate_model
     from lnn_torch.identified import RigidArmModel
     from lnn_torch.perf import configure_cpu
 
@@ -157,36 +159,35 @@ def main() -> None:
                         workers.map(lambda job: fit(args, names, list(job[0]), job[1], job[2]), fits), strict=True))
     lab = RigidArmModel.from_yaml(PARAMS)
 
+    @functools.cache
+    def module_of(ckpt: Path):
+        return load_model(str(ckpt))
+
+    def held_out_data(pair, smooth: bool):
+        """The pair's held-out recording (its torques filtered like the reference where ``smooth``)."""
+        ckpt = done[(training(pair), args.candidates[0])][1]
+        return TrajectoryDataModule(path=str(ckpt.parents[4] / f"held_{names[held(pair)]}.h5"),
+                                    targets=data_hparams(str(ckpt)).get("targets", "file")).trajectories(
+                                        "val", smooth_inputs=smooth)
+
+    def model_of(pair, setting, model=None):
+        """``model``, or ``setting``'s fit on the pair's training recordings."""
+        return model if model is not None else module_of(done[(training(pair), setting)][1]).model
+
     def errors(pair, setting, model=None) -> tuple[float, float]:
         """Summed squared error and reference on the pair's held-out recording of ``setting``'s fit on its
         training recordings (or of ``model``)."""
-        _, ckpt, _ = done[(training(pair), setting)]
-        path = ckpt.parents[4] / f"held_{names[held(pair)]}.h5"
-        saved = data_hparams(str(ckpt))
-        dm = TrajectoryDataModule(path=str(path), targets=saved.get("targets", "file"))
         with torch.no_grad():
-            return squared_errors(model if model is not None else load_model(str(ckpt)).model,
-                                  dm.trajectories("val", smooth_inputs=True))
+            return squared_errors(model_of(pair, setting, model), held_out_data(pair, smooth=True))
 
     def open_loop(pair, setting, model=None) -> list[float]:
         """The time (s) within 0.1 rad of the pair's held-out recording from each of its start points (every
-        0.25 s, 4 s at most; driven by the recorded torques, RK4 at the data's step, as
-        ``scripts/real_pendulum.py``) of ``setting``'s fit (or of ``model``)."""
-        from lnn_torch.metrics import divergence_time
-
-        _, ckpt, _ = done[(training(pair), setting)]
-        module = load_model(str(ckpt))
-        model = model if model is not None else module.model
-        data = TrajectoryDataModule(path=str(ckpt.parents[4] / f"held_{names[held(pair)]}.h5"),
-                                    targets=data_hparams(str(ckpt)).get("targets", "file")).trajectories("val")
-        n, step, length = int(round(4.0 / data.dt)), int(round(0.25 / data.dt)), int(data.lengths[0])
-        starts = torch.arange(0, length - n, step)
-        window = starts[:, None] + torch.arange(n + 1)
-        q_true = data.q[0][window]
-        with torch.no_grad():
-            q, _ = model.rollout(q_true[:, 0], data.qd[0][starts], data.params[:1].expand(len(starts), -1), data.dt, n,
-                                 "rk4", tau=data.tau[0][window[:, :-1]])
-        return divergence_time(q, q_true, data.dt, 0.1, module.system.angle_mask).tolist()
+        0.25 s, 4 s at most; driven by the recorded torques, RK4 at the data's step: the ``horizons`` section
+        as ``scripts/real_pendulum.py`` runs it) of ``setting``'s fit (or of ``model``)."""
+        system = module_of(done[(training(pair), args.candidates[0])][1]).system
+        r = evaluate_model(model_of(pair, setting, model), system, held_out_data(pair, smooth=False),
+                           sections=("horizons",), thresholds=(0.1,), start_every=0.25, time_limit=4.0)
+        return r["_horizons_arrays"]["time_to@0.1"].tolist()
 
     def seen(pair):
         """The pair's training recordings (the torques filtered like the reference)."""

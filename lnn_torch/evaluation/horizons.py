@@ -45,8 +45,10 @@ def _horizons(ctx: EvalContext) -> SectionResult:
         e = err[:, int(round(h / dt))]
         e = torch.where(torch.isfinite(e), e, torch.full_like(e, float("inf")))
         out[f"error@{h:g}s"] = {"median": float(e.median()), "p90": float(torch.quantile(e.double(), 0.9))}
+    arrays = {"trajectory": js}  # per start point: its trajectory, and its time within each threshold
     for thr in ctx.thresholds:
-        out[f"time_to@{thr:g}"] = quartiles(divergence_time(q, q_true, dt, thr, ctx.system.angle_mask))
+        arrays[f"time_to@{thr:g}"] = divergence_time(q, q_true, dt, thr, ctx.system.angle_mask)
+        out[f"time_to@{thr:g}"] = quartiles(arrays[f"time_to@{thr:g}"])
     hs = [f"error@{h:g}s" for h in horizons]
     units = _units(ctx.system)
     block = ["", f"Open-loop from {out['num_starts']} start points (every {every:g} s of each trajectory)"
@@ -60,4 +62,4 @@ def _horizons(ctx: EvalContext) -> SectionResult:
                      for thr in ctx.thresholds) + ".")
     logs = {"divergence_time": out[f"time_to@{ctx.thresholds[0]:g}"]["median"],
             "error_at_horizon": out[hs[-1]]["median"]}
-    return SectionResult({"horizons": out}, blocks=block, logs=logs)
+    return SectionResult({"horizons": out, "_horizons_arrays": arrays}, blocks=block, logs=logs)
