@@ -14,6 +14,9 @@ from .errors import CheckpointError
 from .pretrained import HERE, available, info
 
 PRETRAINED = "pretrained:"
+# the checkpoint's entry of the compiled robot descriptions its model was built from
+# (``robots.description.compiled_copies``)
+DESCRIPTION_COPIES = "robot_descriptions"
 
 # The layout of what ``LNNModule`` saves (``stamp``): raised when a change makes older code unable to
 # read new checkpoints, so that such code refuses them in one line instead of failing inside.

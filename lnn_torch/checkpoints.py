@@ -29,7 +29,11 @@ def load_model(source, map_location="cpu") -> LNNModule:
     and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
     lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
     path = ckpt.resolve(source)
-    ckpt.read_checkpoint(path)
+    copies = ckpt.read_checkpoint(path).get(ckpt.DESCRIPTION_COPIES)
+    if copies:  # the robot descriptions it was built from, where their files are gone
+        from .robots.description import register_copies
+
+        register_copies(copies, f"checkpoint {path}")
     try:
         model = LNNModule.load_from_checkpoint(path, map_location=map_location)
     except InputError:

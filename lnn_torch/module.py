@@ -21,6 +21,7 @@ from .networks.calls import model_accelerations
 from .networks.capabilities import ENERGY
 from .optim import configure_optimizer, freeze_all_but, training_progress
 from .perf import configure_cpu
+from .robots.description import compiled_copies
 from .systems import get_system
 from .training_pass import TrainingPass
 
@@ -95,11 +96,18 @@ class LNNModule(L.LightningModule):
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))  # callbacks.SkipNonFiniteSteps
         self.training_pass = TrainingPass(self.training_terms, compile)  # compiled where it pays
         self._last_batch = self.evaluation = None  # the step's batch; the last validation's result (its figures)
+        self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
 
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """The model's widths even where left to the variant's default, and the package's stamp."""
+        """The model's widths even where left to the variant's default, the compiled robot descriptions
+        it was built from (``robots.description.compiled_copies``) and the package's stamp."""
         ckpt.record_widths(checkpoint, self.model)
+        if self._description_copies is None:
+            self._description_copies = compiled_copies({"scene_config": self.hparams.get("scene_config"),
+                                                        "model_options": self.hparams.get("model_options")})
+        if self._description_copies:
+            checkpoint[ckpt.DESCRIPTION_COPIES] = self._description_copies
         ckpt.stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:

@@ -12,17 +12,24 @@ the changes to the model it compiles.
 The compiled model carries a massless body ``payload`` at the flange (the payload a scene or a model
 sets at run time) and, with a ``tool``, a body ``tool`` there with the tool's mass, centre of mass and
 inertia (flange frame).
+
+A checkpoint carries the compiled model of every description file its model was built from
+(``compiled_copies``, MuJoCo's binary model, a few kB to a few MB): loaded where that file is gone
+(another machine, a moved folder), the model is built from the copy (``register_copies``), and where
+the file is there but compiles to another arm than the copy, a warning says so.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from . import description_path
+from . import DESCRIPTIONS, description_path
 
 PAYLOAD_BODY = "payload"
 TOOL_BODY = "tool"
@@ -108,6 +115,11 @@ class ArmDescription:
                    damping=_joint_setting(value.get("damping", "as_written"), "damping"))
 
     @property
+    def path(self) -> Path:
+        """The description's file (a shipped one's in the package), whether or not it is there."""
+        return DESCRIPTIONS.get(self.source, Path(self.source))
+
+    @property
     def as_written(self) -> bool:
         """Whether this is the description file itself, unchanged."""
         return self == ArmDescription(source=self.source)
@@ -138,6 +150,9 @@ class ArmDescription:
         ``payload`` body at the flange and the ``tool`` there; ``InputError`` in one line naming what
         the description lacks."""
         mujoco = _mujoco()
+        copy = _COPIES.get(self.to_json())
+        if copy is not None and self.source not in DESCRIPTIONS and not Path(self.source).exists():
+            return _from_copy(self, copy)
         path = description_path(self.source)
         try:
             spec = mujoco.MjSpec.from_file(str(path))
@@ -228,3 +243,99 @@ class ArmDescription:
             raise InputError(f"robot description {path}: name the flange (a body or site where payloads attach); "
                              f"the chain ends in {', '.join(b.name for b in leaves)}")
         return leaves[0]
+
+
+# ---------------------------------------------------------------------------- copies in checkpoints
+# The compiled copies registered from checkpoints (``register_copies``), by the description's JSON:
+# {"mjb": MuJoCo's binary model, "mujoco": the version that wrote it, "where": the checkpoint}.
+_COPIES: dict[str, dict] = {}
+# the arrays that make two compiled arms the same arm for the dynamics (kinematics, inertia, joints)
+_SAME_ARM = ("body_parentid", "body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat", "body_inertia",
+             "jnt_type", "jnt_axis", "jnt_pos", "dof_armature", "dof_damping", "opt.gravity")
+
+
+def _mjb(model) -> bytes:
+    mujoco = _mujoco()
+    buffer = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return buffer.tobytes()
+
+
+def _model_of(copy: dict):
+    return _mujoco().MjModel.from_binary_path("arm.mjb", {"arm.mjb": copy["mjb"]})
+
+
+def _from_copy(description: ArmDescription, copy: dict):
+    """The compiled model of ``description`` from the copy a checkpoint carries (its file is gone)."""
+    mujoco = _mujoco()
+    if copy["mujoco"] != mujoco.__version__:
+        raise InputError(f"robot description {description.source}: no such file, and the copy {copy['where']} "
+                         f"carries was compiled by MuJoCo {copy['mujoco']} (this is {mujoco.__version__}): restore "
+                         f"the file or install mujoco=={copy['mujoco']}")
+    if not copy.get("warned"):
+        copy["warned"] = True
+        warnings.warn(f"robot description {description.source}: no such file; using the compiled copy "
+                      f"{copy['where']} carries", stacklevel=3)
+    return _model_of(copy)
+
+
+def _field(model, name: str):
+    obj = model
+    for part in name.split("."):
+        obj = getattr(obj, part)
+    return np.asarray(obj)
+
+
+def same_arm(a, b) -> bool:
+    """Whether two compiled models are the same arm for the dynamics (``_SAME_ARM`` to 1e-12)."""
+    return all(_field(a, k).shape == _field(b, k).shape and np.allclose(_field(a, k), _field(b, k), rtol=0, atol=1e-12)
+               for k in _SAME_ARM)
+
+
+def descriptions_in(settings) -> list[ArmDescription]:
+    """The robot descriptions a model's settings name (every ``description`` key, at any depth of its
+    scene configuration and model options), each once."""
+    found: list[ArmDescription] = []
+
+    def walk(value):
+        if isinstance(value, dict):
+            for key, item in value.items():
+                if key == "description" and item is not None:
+                    d = ArmDescription.of(item)
+                    if d not in found:
+                        found.append(d)
+                else:
+                    walk(item)
+        elif isinstance(value, (list, tuple)):
+            for item in value:
+                walk(item)
+
+    walk(settings)
+    return found
+
+
+def compiled_copies(settings) -> dict:
+    """What a checkpoint carries of the description files ``settings`` names (``descriptions_in``; the
+    shipped ones are in the package): the description's JSON -> ``{"mjb": bytes, "mujoco": version}``."""
+    mujoco = _mujoco() if descriptions_in(settings) else None
+    return {d.to_json(): {"mjb": _mjb(d.compile()), "mujoco": mujoco.__version__}
+            for d in descriptions_in(settings) if d.source not in DESCRIPTIONS}
+
+
+def register_copies(copies: dict, where: str) -> None:
+    """Make the compiled copies a checkpoint carries (``compiled_copies``; ``where`` names it) available to
+    ``ArmDescription.compile`` where their files are gone; a warning where a file is there but compiles
+    to another arm than the copy (the checkpoint was trained on the arm of the copy)."""
+    for key, copy in (copies or {}).items():
+        description = ArmDescription.of(key)
+        entry = {"mjb": bytes(copy["mjb"]), "mujoco": str(copy["mujoco"]), "where": where}
+        _COPIES[key] = entry
+        if not Path(description.source).exists() or entry["mujoco"] != _mujoco().__version__:
+            continue
+        try:
+            differs = not same_arm(description.compile(), _model_of(entry))
+        except (InputError, ValueError):
+            differs = True
+        if differs:
+            warnings.warn(f"robot description {description.source} is not the arm {where} was trained with (its "
+                          "compiled copy there): the model is built from the file as it is now", stacklevel=2)

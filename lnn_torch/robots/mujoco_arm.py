@@ -44,7 +44,6 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from . import description_path
 from .description import PAYLOAD_BODY, ArmDescription
 
 # the perturbation's factors and offsets (module docstring)
@@ -81,7 +80,7 @@ class MujocoArm:
     def __init__(self, description="franka_panda", perturbation: int | None = None, forces=None) -> None:
         mujoco = _mujoco()
         self.description = ArmDescription.of(description)
-        self.path = description_path(self.description.source)
+        self.path = self.description.path
         self.model = self.description.compile()
         m = self.model
         _check_serial_arm(m, self.path)
