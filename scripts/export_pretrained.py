@@ -1,7 +1,8 @@
 """Export a trained checkpoint as a shipped model: ``lnn_torch/pretrained/<name>.ckpt`` + ``<name>.json``.
 
 The exported file keeps what ``LNNModule.load_from_checkpoint`` needs (weights, normalisation
-buffers, hyper-parameters) and drops the optimizer and scheduler states.
+buffers, hyper-parameters, the compiled robot descriptions of description files) and drops the
+optimizer and scheduler states.
 
     python scripts/export_pretrained.py lightning_logs/double_pendulum/version_0/checkpoints/last.ckpt \\
         --name double_pendulum --command "lnn-torch fit -c configs/double_pendulum.yaml" \\
@@ -34,7 +35,7 @@ def main() -> None:
         raise SystemExit(f"{out} exists; pass --overwrite to replace it")
     ckpt = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
     slim = {k: ckpt[k] for k in ("state_dict", "hyper_parameters", "pytorch-lightning_version", "epoch", "global_step",
-                                 "lnn_torch")
+                                 "lnn_torch", "robot_descriptions")
             if k in ckpt}
     slim["state_dict"] = {k: v.clone() for k, v in slim["state_dict"].items()}
     torch.save(slim, out)

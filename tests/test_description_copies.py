@@ -37,9 +37,10 @@ def grey_box_checkpoint(folder, out):
 
 def states(n=16, seed=0):
     g = torch.Generator().manual_seed(seed)
-    q = 0.5 * torch.randn(n, 7, generator=g, dtype=torch.float64)
-    qd, tau = torch.randn(n, 7, generator=g, dtype=torch.float64), 5 * torch.randn(n, 7, generator=g, dtype=torch.float64)
-    payload = torch.rand(n, 4, generator=g, dtype=torch.float64) * torch.tensor([2.0, 0.2, 0.2, 0.2]) - torch.tensor([0.0, 0.1, 0.1, 0.1])
+    draw = lambda: torch.randn(n, 7, generator=g, dtype=torch.float64)  # noqa: E731
+    q, qd, tau = 0.5 * draw(), draw(), 5 * draw()
+    payload = torch.rand(n, 4, generator=g, dtype=torch.float64)  # mass 0-2 kg, centre of mass within 0.1 m
+    payload = payload * torch.tensor([2.0, 0.2, 0.2, 0.2]) - torch.tensor([0.0, 0.1, 0.1, 0.1])
     return q, qd, payload.double(), tau
 
 
