@@ -101,3 +101,33 @@ def test_the_copy_is_refused_in_one_line_under_another_mujoco_version(tmp_path, 
     shutil.rmtree(tmp_path / "arm4")
     with pytest.raises(InputError, match=r"compiled by MuJoCo 0\.0\.1 .*install mujoco==0\.0\.1"):
         load_model(str(tmp_path / "model.ckpt"))
+
+
+def test_a_dataset_whose_description_file_is_gone_still_builds_its_models(tmp_path):
+    """Recordings imported with a description file carry its compiled copy: with the file gone, the
+    file's scene still builds the grey box (what ``fit`` does), with the same mass matrix."""
+    from lnn_torch.data import read_dataset
+    from lnn_torch.data.importer import ImportSpec, import_recordings
+
+    from .test_measured_arm import record
+
+    folder = tmp_path / "arm5"
+    folder.mkdir()
+    xml = folder / "my_panda.xml"
+    shutil.copy(DESCRIPTIONS["franka_panda"], xml)
+    robot = {"source": str(xml), "remove": ["hand"], "armature": "zero", "damping": "zero"}
+    csv = record(tmp_path / "arm.csv", seconds=0.5, robot=robot)
+    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                      velocities=[f"dq{j}" for j in range(1, 8)], robot=robot, friction=True, label="my_panda",
+                      split={"train": ["arm[0.0:0.3]"], "val": ["arm[0.3:0.4]"], "test": ["arm[0.4:0.5]"]})
+    path = import_recordings([csv], tmp_path / "arm.h5", spec)
+    scene = read_dataset(path).scene
+    module = LNNModule(scene="measured", scene_config=scene["config"], model_options=GREY_BOX, eps=0.0).double()
+    q = 0.3 * torch.randn(8, 7, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    before = module.model.mass_matrix(q, torch.zeros(8, 0, dtype=torch.float64))
+    shutil.rmtree(folder)
+    with pytest.warns(UserWarning, match="no such file; using the compiled copy dataset file .*arm.h5 carries"):
+        scene = read_dataset(path).scene
+        module = LNNModule(scene="measured", scene_config=scene["config"], model_options=GREY_BOX, eps=0.0).double()
+    after = module.model.mass_matrix(q, torch.zeros(8, 0, dtype=torch.float64))
+    torch.testing.assert_close(after, before, rtol=1e-12, atol=1e-12)

@@ -36,6 +36,9 @@ carry encoder noise). Files written before ``tau`` existed read as unactuated. I
 the measurements), a scene ``measured`` (with each recording's known parameters, if any, and a robot
 arm's description), ``lengths``, ``recordings`` (the entries' names: recordings or time windows) and
 ``provenance`` (sources, checksums, each recording's timing and what resampling did, every setting).
+A file whose scene names robot description files carries their compiled models in the group
+``robot_descriptions`` (one byte array each, attributes ``description`` and ``mujoco``; read where the
+file is gone: ``lnn_torch.robots.description``).
 """
 
 from __future__ import annotations
@@ -89,6 +92,7 @@ def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, ove
                 grp.create_dataset(name, data=np.asarray(splits[name], dtype=np.int64))
             for key, value in attrs.items():
                 f.attrs[key] = value
+            _write_description_copies(f, attrs)
             f.attrs["format"] = FORMAT
             f.attrs["format_version"] = FORMAT_VERSION
             f.attrs["complete"] = True
@@ -213,9 +217,38 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
             if "tau" in f and f["tau"].shape[:2] != (n, t):
                 raise DatasetFileError(f"{path} is malformed: 'tau' has shape {f['tau'].shape}, "
                                        f"expected {(n, t)} + (n_u,)")
+            copies = _read_description_copies(f)
     except OSError as err:
         raise DatasetFileError(f"cannot read {path}: {err}") from None
+    if copies:
+        from ..robots.description import register_copies
+
+        register_copies(copies, f"dataset file {path}")
     return TrajectoryFile(path, attrs, splits, n, t, dof, num_params, num_inputs)
+
+
+DESCRIPTION_GROUP = "robot_descriptions"
+
+
+def _write_description_copies(f, attrs: dict) -> None:
+    """The compiled robot descriptions the file's scene names (``robots.description.compiled_copies``)."""
+    if "scene_json" not in attrs:
+        return
+    from ..robots.description import compiled_copies
+
+    copies = compiled_copies(json.loads(attrs["scene_json"]))
+    if copies:
+        group = f.create_group(DESCRIPTION_GROUP)
+        for i, (key, copy) in enumerate(copies.items()):
+            data = group.create_dataset(str(i), data=np.frombuffer(copy["mjb"], dtype=np.uint8))
+            data.attrs["description"], data.attrs["mujoco"] = key, copy["mujoco"]
+
+
+def _read_description_copies(f) -> dict:
+    if DESCRIPTION_GROUP not in f:
+        return {}
+    return {str(d.attrs["description"]): {"mjb": d[()].tobytes(), "mujoco": str(d.attrs["mujoco"])}
+            for d in f[DESCRIPTION_GROUP].values()}
 
 
 def write_arrays(path: str | Path, arrays: dict, attrs: dict, overwrite: bool = False) -> Path:

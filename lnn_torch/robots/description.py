@@ -13,10 +13,11 @@ The compiled model carries a massless body ``payload`` at the flange (the payloa
 sets at run time) and, with a ``tool``, a body ``tool`` there with the tool's mass, centre of mass and
 inertia (flange frame).
 
-A checkpoint carries the compiled model of every description file its model was built from
-(``compiled_copies``, MuJoCo's binary model, a few kB to a few MB): loaded where that file is gone
-(another machine, a moved folder), the model is built from the copy (``register_copies``), and where
-the file is there but compiles to another arm than the copy, a warning says so.
+A checkpoint carries the compiled model of every description file its model was built from, and a
+dataset file that of the description its scene names (``compiled_copies``, MuJoCo's binary model, a few
+kB to a few MB): loaded where that file is gone (another machine, a moved folder), the model is built
+from the copy (``register_copies``), and where the file is there but compiles to another arm than the
+copy, a warning says so.
 """
 
 from __future__ import annotations
@@ -328,9 +329,15 @@ def register_copies(copies: dict, where: str) -> None:
     to another arm than the copy (the checkpoint was trained on the arm of the copy)."""
     for key, copy in (copies or {}).items():
         description = ArmDescription.of(key)
-        entry = {"mjb": bytes(copy["mjb"]), "mujoco": str(copy["mujoco"]), "where": where}
+        file = Path(description.source)
+        stat = file.stat() if file.exists() else None
+        entry = {"mjb": bytes(copy["mjb"]), "mujoco": str(copy["mujoco"]), "where": where,
+                 "checked": None if stat is None else (stat.st_mtime_ns, stat.st_size)}
+        before = _COPIES.get(key)
+        if before is not None and before["mjb"] == entry["mjb"] and before["checked"] == entry["checked"]:
+            continue  # registered and checked against the file as it is: a file read again, a checkpoint of its data
         _COPIES[key] = entry
-        if not Path(description.source).exists() or entry["mujoco"] != _mujoco().__version__:
+        if stat is None or entry["mujoco"] != _mujoco().__version__:
             continue
         try:
             differs = not same_arm(description.compile(), _model_of(entry))
