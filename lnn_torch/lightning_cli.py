@@ -23,8 +23,10 @@ class LNNCLI(LightningCLI):
     def before_instantiate_classes(self) -> None:
         """``--trainer.default_root_dir DIR`` moves the default TensorBoard logger (and so the
         checkpoints, which go under the logger's folder) to DIR, as Lightning's own default logger
-        would; a logger given its own ``save_dir`` keeps it."""
+        would; a logger given its own ``save_dir`` keeps it. A ``--ckpt_path`` checkpoint's compiled robot
+        descriptions are registered first (the model is built before its weights load)."""
         config = self.config[self.subcommand] if self.subcommand else self.config
+        register_description_copies(config.get("ckpt_path"))
         trainer = config.get("trainer")
         root = trainer.get("default_root_dir") if trainer is not None else None
         logger = trainer.get("logger") if trainer is not None else None
@@ -118,3 +120,19 @@ def run_cli(argv: list[str]) -> LNNCLI:
     args = None if argv == sys.argv[1:] else argv
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
                   save_config_kwargs={"overwrite": True}, seed_everything_default=0)
+
+
+def register_description_copies(ckpt_path) -> None:
+    """The compiled robot descriptions a checkpoint given as ``--ckpt_path`` carries, for the model the CLI
+    builds before loading its weights (``robots.description.register_copies``); ``last``/``best`` and
+    other names Lightning resolves itself are left to it."""
+    from pathlib import Path
+
+    if not ckpt_path or not Path(str(ckpt_path)).is_file():
+        return
+    from . import checkpoint_format as ckpt
+    from .robots.description import register_copies
+
+    copies = ckpt.read_checkpoint(ckpt_path).get(ckpt.DESCRIPTION_COPIES)
+    if copies:
+        register_copies(copies, f"checkpoint {ckpt_path}")

@@ -8,11 +8,14 @@ validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split
 
 from __future__ import annotations
 
+import warnings
+
 import lightning as L
 import torch
 
 from . import checkpoint_format as ckpt
 from .callbacks import EvaluationFigures, HParamsSummary, SkipNonFiniteSteps, writes_logs
+from .errors import InputError
 from .evaluation import evaluate_split, section_logs
 from .identification import identify
 from .losses import acceleration_batch_loss, trajectory_batch_loss
@@ -104,8 +107,12 @@ class LNNModule(L.LightningModule):
         it was built from (``robots.description.compiled_copies``) and the package's stamp."""
         ckpt.record_widths(checkpoint, self.model)
         if self._description_copies is None:
-            self._description_copies = compiled_copies({"scene_config": self.hparams.get("scene_config"),
-                                                        "model_options": self.hparams.get("model_options")})
+            try:
+                self._description_copies = compiled_copies({"scene_config": self.hparams.get("scene_config"),
+                                                            "model_options": self.hparams.get("model_options")})
+            except InputError as err:  # a description file gone since the model was built in another process
+                warnings.warn(f"the checkpoint carries no copy of its robot description: {err}", stacklevel=2)
+                self._description_copies = {}
         if self._description_copies:
             checkpoint[ckpt.DESCRIPTION_COPIES] = self._description_copies
         ckpt.stamp(checkpoint)

@@ -131,3 +131,59 @@ def test_a_dataset_whose_description_file_is_gone_still_builds_its_models(tmp_pa
         module = LNNModule(scene="measured", scene_config=scene["config"], model_options=GREY_BOX, eps=0.0).double()
     after = module.model.mass_matrix(q, torch.zeros(8, 0, dtype=torch.float64))
     torch.testing.assert_close(after, before, rtol=1e-12, atol=1e-12)
+
+
+def test_a_joint_offset_changed_in_the_file_is_named_too(tmp_path):
+    """Not only masses: a joint's reference angle (the grey box's joint offset) makes another arm."""
+    module, xml = grey_box_checkpoint(tmp_path / "arm6", tmp_path / "model.ckpt")
+    text = xml.read_text()
+    assert text.count('<joint name="joint1"') == 1
+    xml.write_text(text.replace('<joint name="joint1"', '<joint name="joint1" ref="0.3"'))
+    with pytest.warns(UserWarning, match="is not the arm checkpoint"):
+        load_model(str(tmp_path / "model.ckpt"))
+
+
+def test_the_copy_is_the_arm_the_model_was_built_from_and_warns_once(tmp_path):
+    """The file deleted between building the model and saving it: the checkpoint still carries the arm
+    it was built from; loading it twice warns once."""
+    folder = tmp_path / "arm7"
+    folder.mkdir()
+    xml = folder / "my_panda.xml"
+    shutil.copy(DESCRIPTIONS["franka_panda"], xml)
+    module = LNNModule(scene="robot_arm", scene_config={"description": str(xml)}, model_options=GREY_BOX, eps=0.0)
+    shutil.rmtree(folder)
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+                  "pytorch-lightning_version": L.__version__}
+    module.on_save_checkpoint(checkpoint)
+    torch.save(checkpoint, tmp_path / "model.ckpt")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_model(str(tmp_path / "model.ckpt"))
+        load_model(str(tmp_path / "model.ckpt"))
+    assert sum("using the compiled copy" in str(w.message) for w in caught) == 1
+
+
+def test_a_ckpt_path_of_the_cli_registers_its_copies_before_the_model_is_built(tmp_path):
+    from lnn_torch.lightning_cli import register_description_copies
+
+    module, xml = grey_box_checkpoint(tmp_path / "arm8", tmp_path / "model.ckpt")
+    shutil.rmtree(tmp_path / "arm8")
+    register_description_copies(str(tmp_path / "model.ckpt"))
+    with pytest.warns(UserWarning, match="using the compiled copy"):
+        LNNModule(**module.hparams)
+
+
+def test_a_malformed_copy_is_refused_in_one_line(tmp_path):
+    grey_box_checkpoint(tmp_path / "arm9", tmp_path / "model.ckpt")
+    saved = torch.load(tmp_path / "model.ckpt", weights_only=False)
+    for copy in saved[ckpt.DESCRIPTION_COPIES].values():
+        copy["mjb"] = copy["mjb"][:100]
+    torch.save(saved, tmp_path / "model.ckpt")
+    shutil.rmtree(tmp_path / "arm9")
+    with pytest.raises(InputError, match="compiled robot description checkpoint .* carries cannot be read") as err:
+        load_model(str(tmp_path / "model.ckpt"))
+    assert "\n" not in str(err.value)
+    saved[ckpt.DESCRIPTION_COPIES] = {"x": 1}
+    torch.save(saved, tmp_path / "model.ckpt")
+    with pytest.raises(InputError, match="compiled robot descriptions are malformed"):
+        load_model(str(tmp_path / "model.ckpt"))

@@ -202,11 +202,14 @@ class ArmDescription:
                 # damping is MuJoCo's polynomial (linear coefficient first): the value is viscous, N m s/rad
                 setattr(joint, key, float(v) if key == "armature" else [float(v), 0.0, 0.0])
         try:
-            return spec.compile()
+            model = spec.compile()
         except ValueError as err:
             first, *where = str(err).splitlines()
             where = f" ({', '.join(w.strip() for w in where if w.strip())})" if any(w.strip() for w in where) else ""
             raise InputError(f"robot description {path} as changed ({self}): {first}{where}") from None
+        if self.source not in DESCRIPTIONS:  # what a checkpoint of a model built now carries (compiled_copies)
+            _BUILT[self.to_json()] = _mjb(model)
+        return model
 
     def _flange(self, spec, names: list[str], path):
         """``(body, pos, quat)`` where the payload attaches for a named flange (a body: its origin; a
@@ -250,9 +253,16 @@ class ArmDescription:
 # The compiled copies registered from checkpoints (``register_copies``), by the description's JSON:
 # {"mjb": MuJoCo's binary model, "mujoco": the version that wrote it, "where": the checkpoint}.
 _COPIES: dict[str, dict] = {}
-# the arrays that make two compiled arms the same arm for the dynamics (kinematics, inertia, joints)
-_SAME_ARM = ("body_parentid", "body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat", "body_inertia",
-             "jnt_type", "jnt_axis", "jnt_pos", "dof_armature", "dof_damping", "opt.gravity")
+# the binary model each description file was last compiled to in this process, as compiled (before a
+# scene edits its copy): what a checkpoint of a model built from it carries, whatever the file is later
+_BUILT: dict[str, bytes] = {}
+# the arrays that make two compiled arms the same arm for the dynamics and its scene: structure,
+# kinematics (joint offsets ``qpos0`` included), inertia, joints' armature, damping, springs and limits,
+# gravity compensation, actuators
+_SAME_ARM = ("body_parentid", "body_jntnum", "body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat",
+             "body_inertia", "body_gravcomp", "jnt_type", "jnt_bodyid", "jnt_axis", "jnt_pos", "jnt_range",
+             "jnt_limited", "jnt_stiffness", "qpos0", "qpos_spring", "dof_armature", "dof_damping", "dof_frictionloss",
+             "actuator_trnid", "actuator_gear", "actuator_gainprm", "actuator_biasprm", "opt.gravity")
 
 
 def _mjb(model) -> bytes:
@@ -263,7 +273,11 @@ def _mjb(model) -> bytes:
 
 
 def _model_of(copy: dict):
-    return _mujoco().MjModel.from_binary_path("arm.mjb", {"arm.mjb": copy["mjb"]})
+    try:
+        return _mujoco().MjModel.from_binary_path("arm.mjb", {"arm.mjb": copy["mjb"]})
+    except ValueError as err:
+        raise InputError(f"the compiled robot description {copy['where']} carries cannot be read "
+                         f"({str(err).strip().splitlines()[0]})") from None
 
 
 def _from_copy(description: ArmDescription, copy: dict):
@@ -273,11 +287,12 @@ def _from_copy(description: ArmDescription, copy: dict):
         raise InputError(f"robot description {description.source}: no such file, and the copy {copy['where']} "
                          f"carries was compiled by MuJoCo {copy['mujoco']} (this is {mujoco.__version__}): restore "
                          f"the file or install mujoco=={copy['mujoco']}")
+    model = _model_of(copy)
     if not copy.get("warned"):
         copy["warned"] = True
         warnings.warn(f"robot description {description.source}: no such file; using the compiled copy "
                       f"{copy['where']} carries", stacklevel=3)
-    return _model_of(copy)
+    return model
 
 
 def _field(model, name: str):
@@ -318,16 +333,20 @@ def descriptions_in(settings) -> list[ArmDescription]:
 def compiled_copies(settings) -> dict:
     """What a checkpoint carries of the description files ``settings`` names (``descriptions_in``; the
     shipped ones are in the package): the description's JSON -> ``{"mjb": bytes, "mujoco": version}``."""
-    mujoco = _mujoco() if descriptions_in(settings) else None
-    return {d.to_json(): {"mjb": _mjb(d.compile()), "mujoco": mujoco.__version__}
-            for d in descriptions_in(settings) if d.source not in DESCRIPTIONS}
+    files = [d for d in descriptions_in(settings) if d.source not in DESCRIPTIONS]
+    version = _mujoco().__version__ if files else None
+    return {d.to_json(): {"mjb": _BUILT.get(d.to_json()) or _mjb(d.compile()), "mujoco": version} for d in files}
 
 
 def register_copies(copies: dict, where: str) -> None:
     """Make the compiled copies a checkpoint carries (``compiled_copies``; ``where`` names it) available to
     ``ArmDescription.compile`` where their files are gone; a warning where a file is there but compiles
     to another arm than the copy (the checkpoint was trained on the arm of the copy)."""
-    for key, copy in (copies or {}).items():
+    if not isinstance(copies, dict) or not all(isinstance(c, dict) and isinstance(c.get("mjb"), (bytes, bytearray))
+                                               and "mujoco" in c for c in copies.values()):
+        raise InputError(f"{where}: its compiled robot descriptions are malformed (expected the description's "
+                         "JSON -> {mjb: bytes, mujoco: version})")
+    for key, copy in copies.items():
         description = ArmDescription.of(key)
         file = Path(description.source)
         stat = file.stat() if file.exists() else None

@@ -54,13 +54,17 @@ class RigidChain(KineticPart):
             ``[[1, 0], [1, 1]]`` for joint-relative angles.
         film_hidden: width of the network of the scene's parameters (when there are any; None: the
             model's default).
+        across: whether a link's centre of mass may lie off the line from its joint to the next
+            (``b_i`` learned; False: ``b_i = 0``, the lab model's form, the centre of mass on the link's
+            line, which also takes a phase out of each link's gravity).
     """
 
     name = "chain"
     needs_angles = True
 
-    def __init__(self, ctx: BuildContext, links=None, film_hidden=None) -> None:
+    def __init__(self, ctx: BuildContext, links=None, film_hidden=None, across: bool = True) -> None:
         super().__init__()
+        self.across = bool(across)
         if links is None:
             raise InputError("kinetic part 'chain' needs links (each link's absolute angle over the coordinates), "
                              "e.g. kinetic: {chain: {links: [[1, 0], [1, 1]]}}")
@@ -158,6 +162,8 @@ class RigidChain(KineticPart):
         diag = (self.const_rows == self.const_cols).to(tri.device)
         tri = torch.where(diag, F.softplus(tri), tri)
         const = tri.new_zeros(tri.shape[0], dof * dof).index_copy(-1, self.const_rows * dof + self.const_cols, tri)
+        if not self.across:
+            across = torch.zeros_like(across)
         return {"mass": mass.exp(), "along": along, "across": across, "length": length,
                 "const": const.view(-1, dof, dof)}
 
