@@ -6,7 +6,8 @@ The equations are those of the rigid-body model that the lab identified for its 
 (``shared/data/real_double_pendulum/README.md``): joint angles (``q2`` relative to link 1), links of
 mass ``m``, length ``l``, centre of mass ``r`` and inertia ``I`` about their own joints, a motor rotor
 of inertia ``Ir`` behind a gear ratio ``gr`` at each joint, and per-joint viscous ``b`` and Coulomb
-``cf`` friction smoothed as ``cf arctan(k qd)`` (``k = 100`` s/rad):
+``cf`` friction smoothed as ``cf arctan(k qd)`` (``k = 100`` s/rad; ``coulomb_shape="tanh"``: ``cf
+tanh(k qd)``, the smoothing of the learned models' joint friction, for comparisons):
 
     M11 = I1 + I2 + m2 l1^2 + 2 m2 l1 r2 cos q2 + gr^2 Ir + Ir,  M12 = I2 + m2 l1 r2 cos q2 - gr Ir,
     M22 = I2 + gr^2 Ir,  M qdd = G(q) + tau - c(q, qd) - b qd - cf arctan(k qd).
@@ -29,9 +30,17 @@ from .integrators import rollout
 
 KEYS = ("m1", "m2", "l1", "r1", "r2", "I1", "I2", "Ir", "gr", "b1", "b2", "cf1", "cf2", "g")
 BASE = ("A", "B", "C", "K", "P1", "P2", "b1", "b2", "cf1", "cf2")
+COULOMB_SHAPES = {"arctan": torch.atan, "tanh": torch.tanh}  # the smoothing of Coulomb friction's sign
 
 
-def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0) -> torch.Tensor:
+def _coulomb(shape: str):
+    if shape not in COULOMB_SHAPES:
+        raise ValueError(f"coulomb_shape must be one of {', '.join(COULOMB_SHAPES)}, got {shape!r}")
+    return COULOMB_SHAPES[shape]
+
+
+def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0,
+                   coulomb_shape: str = "arctan") -> torch.Tensor:
     """``Y (..., 2, 10)`` with the joint torques ``tau = Y beta`` for the base parameters ``beta`` in the
     order of ``BASE`` (module docstring), at joint angles ``q``, velocities ``qd`` and accelerations
     ``qdd`` (``(..., 2)``; ``q2`` relative to link 1, angles from the downward vertical)."""
@@ -40,9 +49,10 @@ def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0) ->
     w1, w2 = qd[..., 0], qd[..., 1]
     a1, a2 = qdd[..., 0], qdd[..., 1]
     zero = torch.zeros_like(a1)
+    sign = _coulomb(coulomb_shape)
     row1 = [a1, a2, zero, 2 * c2 * a1 + c2 * a2 - s2 * (2 * w1 * w2 + w2**2), g * s1, g * s12,
-            w1, zero, torch.atan(coulomb_slope * w1), zero]
-    row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, torch.atan(coulomb_slope * w2)]
+            w1, zero, sign(coulomb_slope * w1), zero]
+    row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, sign(coulomb_slope * w2)]
     return torch.stack([torch.stack(row1, -1), torch.stack(row2, -1)], -2)
 
 
@@ -102,10 +112,12 @@ class RigidArmModel:
     variant = "identified rigid-body model"
 
     def __init__(self, m1, m2, l1, r1, r2, I1, I2, Ir=0.0, gr=1.0, b1=0.0, b2=0.0, cf1=0.0, cf2=0.0, g=9.81,
-                 coulomb_slope: float = 100.0, l2: float | None = None) -> None:
+                 coulomb_slope: float = 100.0, l2: float | None = None, coulomb_shape: str = "arctan") -> None:
         self.values = dict(m1=m1, m2=m2, l1=l1, r1=r1, r2=r2, I1=I1, I2=I2, Ir=Ir, gr=gr, b1=b1, b2=b2, cf1=cf1,
                            cf2=cf2, g=g)
         self.coulomb_slope = float(coulomb_slope)
+        _coulomb(coulomb_shape)
+        self.coulomb_shape = coulomb_shape
         self.l2 = None if l2 is None else float(l2)  # for drawing only (link 2's length is not in its dynamics)
         rotor = gr**2 * Ir
         self.base = dict(A=I1 + I2 + m2 * l1**2 + rotor + Ir, B=I2 - gr * Ir, C=I2 + rotor, K=m2 * l1 * r2,
@@ -113,7 +125,7 @@ class RigidArmModel:
 
     @classmethod
     def from_base(cls, base, g: float = 9.81, coulomb_slope: float = 100.0,
-                  variant: str | None = None) -> RigidArmModel:
+                  variant: str | None = None, coulomb_shape: str = "arctan") -> RigidArmModel:
         """The model of given base parameters (a dict of ``BASE``, or its ten values in that order). Its
         physical ``values`` are one of the many sets with these base parameters (``gr = r1 = r2 = 1``),
         not an identification of each."""
@@ -125,7 +137,7 @@ class RigidArmModel:
         I2, Ir = (b["B"] + b["C"]) / 2, (b["C"] - b["B"]) / 2
         model = cls(m1=b["P1"] - b["K"], m2=b["P2"], l1=b["K"] / b["P2"], r1=1.0, r2=1.0,
                     I1=b["A"] - I2 - b["K"] ** 2 / b["P2"] - 2 * Ir, I2=I2, Ir=Ir, gr=1.0, b1=b["b1"], b2=b["b2"],
-                    cf1=b["cf1"], cf2=b["cf2"], g=g, coulomb_slope=coulomb_slope)
+                    cf1=b["cf1"], cf2=b["cf2"], g=g, coulomb_slope=coulomb_slope, coulomb_shape=coulomb_shape)
         model.base = b  # exactly the given ones (not recomputed through the values above)
         if variant is not None:
             model.variant = variant
@@ -133,7 +145,7 @@ class RigidArmModel:
 
     @classmethod
     def least_squares(cls, q, qd, qdd, tau, g: float = 9.81, coulomb_slope: float = 100.0,
-                      space: str = "torque") -> RigidArmModel:
+                      space: str = "torque", coulomb_shape: str = "arctan") -> RigidArmModel:
         """The classical identification of the ten base parameters from points ``(n, 2)`` each (float64
         advised). ``space="torque"``: ordinary least squares of the torque error, both joints' rows stacked
         (the textbook fit). ``space="acceleration"``: least squares of the acceleration error the torques
@@ -142,7 +154,7 @@ class RigidArmModel:
         do not determine the parameters, or the fit's mass matrix is not positive definite at every angle."""
         if space not in ("torque", "acceleration"):
             raise ValueError(f"least squares: space must be 'torque' or 'acceleration', got {space!r}")
-        Y = base_regressor(q, qd, qdd, g, coulomb_slope).double()  # (n, 2, 10)
+        Y = base_regressor(q, qd, qdd, g, coulomb_slope, coulomb_shape).double()  # (n, 2, 10)
         tau = tau.double()
         if not (torch.isfinite(Y).all() and torch.isfinite(tau).all()):
             raise ValueError("least squares: the states, accelerations or torques hold NaN or infinite values")
@@ -158,7 +170,7 @@ class RigidArmModel:
             beta = acceleration_error_fit(Y, tau, torch.cos(q[..., 1].double()), beta)
         variant = ("least squares (rigid body + friction)" if space == "torque"
                    else "least squares of the accelerations (rigid body + friction)")
-        return cls.from_base(beta.tolist(), g, coulomb_slope, variant=variant)
+        return cls.from_base(beta.tolist(), g, coulomb_slope, variant=variant, coulomb_shape=coulomb_shape)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> RigidArmModel:
@@ -200,7 +212,7 @@ class RigidArmModel:
         """Inverse dynamics: the joint torques ``(..., 2)`` that give accelerations ``qdd`` at ``(q, qd)``
         (through ``base_regressor``)."""
         beta = torch.tensor([self.base[k] for k in BASE], dtype=q.dtype, device=q.device)
-        return base_regressor(q, qd, qdd, self.values["g"], self.coulomb_slope) @ beta
+        return base_regressor(q, qd, qdd, self.values["g"], self.coulomb_slope, self.coulomb_shape) @ beta
 
     def positions(self, q, params=None):
         """The elbow and the tip ``(..., 2, 2)`` (x right, y up; m) for drawing; None without ``l2``."""
@@ -212,9 +224,10 @@ class RigidArmModel:
         return torch.stack([elbow, tip], -2)
 
     def friction_force(self, q, qd, params=None):
-        """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint."""
-        b = self.base
-        return -torch.stack([b[f"b{j}"] * qd[..., j - 1] + b[f"cf{j}"] * torch.atan(self.coulomb_slope * qd[..., j - 1])
+        """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint (``tanh`` for
+        ``coulomb_shape="tanh"``)."""
+        b, sign = self.base, _coulomb(self.coulomb_shape)
+        return -torch.stack([b[f"b{j}"] * qd[..., j - 1] + b[f"cf{j}"] * sign(self.coulomb_slope * qd[..., j - 1])
                              for j in (1, 2)], -1)
 
     def energy(self, q, qd, params=None):

@@ -82,6 +82,9 @@ SETTINGS = {
         "beside": CONFIGURATION},
     "the configuration, other training batches (data.seed 1)": {
         "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
+    "the configuration, centres of mass on the links' lines": {
+        "kinetic": {"chain": {"links": [[1, 0], [1, 1]], "across": False}}, "potential": "chain",
+        "dissipation": "joint+stiction"},
 }
 
 

@@ -112,3 +112,21 @@ def test_least_squares_in_accelerations_recovers_the_model_and_weighs_by_the_mas
     assert float((gradient(by_acc) * scale).abs().max()) < 1e-6 * float((gradient(by_torque) * scale).abs().max())
     with pytest.raises(ValueError, match="space"):
         RigidArmModel.least_squares(q, qd, qdd, tau, space="energy")
+
+
+def test_the_tanh_smoothing_of_coulomb_friction_is_a_model_of_its_own_that_least_squares_recovers():
+    """``coulomb_shape="tanh"``: the regressor inverts that model's dynamics, least squares recovers it,
+    and it is not the arctan model (the friction differs at moderate speeds); an unknown shape is refused."""
+    true = RigidArmModel(**TRUE.values, coulomb_slope=50.0, coulomb_shape="tanh")
+    q, qd, tau = states(300, seed=4)
+    qdd = true.acceleration(q, qd, None, tau)
+    beta = torch.tensor([true.base[k] for k in BASE], dtype=torch.float64)
+    torch.testing.assert_close(base_regressor(q, qd, qdd, coulomb_slope=50.0, coulomb_shape="tanh") @ beta, tau,
+                               rtol=0, atol=1e-12)
+    fitted = RigidArmModel.least_squares(q, qd, qdd, tau, coulomb_slope=50.0, coulomb_shape="tanh")
+    for k in BASE:
+        assert fitted.base[k] == pytest.approx(true.base[k], rel=1e-8, abs=1e-12), k
+    arctan = RigidArmModel(**TRUE.values, coulomb_slope=50.0)
+    assert (arctan.acceleration(q, qd, None, tau) - qdd).abs().max() > 1e-2
+    with pytest.raises(ValueError, match="coulomb_shape must be one of arctan, tanh"):
+        RigidArmModel(**TRUE.values, coulomb_shape="sign")
