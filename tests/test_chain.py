@@ -279,3 +279,24 @@ def test_the_residuals_decay_and_the_chain_constants_do_not():
     assert any(p is dp.chain.net[-1].bias for p in dp.coefficient_parameters())
     with pytest.raises(InputError, match="takes no option mass_invariant"):
         build_model("film_lnn", get_system("double_pendulum"), kinetic="chain", links=ABSOLUTE2, mass_invariant=[0])
+
+
+def test_across_false_keeps_each_centre_of_mass_on_its_links_line():
+    """``across: false`` (the lab model's form): whatever its raw across values, the chain is the one whose
+    centres of mass lie on the links' lines; with ``across`` learned, the same raw values move them off."""
+    def chain(across_option):
+        options = {"links": ABSOLUTE2} if across_option is None else {"links": ABSOLUTE2, "across": across_option}
+        return build_model("film_lnn", MeasuredSystem(2), kinetic={"chain": options}, potential="chain").double()
+
+    on_line = set_chain(chain(False), mass=(0.7, 1.3), along=(0.4, 0.3), across=(0.05, -0.1), length=(0.9,))
+    reference = set_chain(chain(None), mass=(0.7, 1.3), along=(0.4, 0.3), across=(0.0, 0.0), length=(0.9,))
+    off_line = set_chain(chain(True), mass=(0.7, 1.3), along=(0.4, 0.3), across=(0.05, -0.1), length=(0.9,))
+    q = torch.randn(32, 2, dtype=torch.float64) * 2
+    none = q.new_zeros(32, 0)
+    torch.testing.assert_close(chain_mass(on_line, q), chain_mass(reference, q), rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(on_line.potential_norm(q, none)[0], reference.potential_norm(q, none)[0],
+                               rtol=1e-12, atol=1e-12)
+    assert (chain_mass(off_line, q) - chain_mass(reference, q)).abs().max() > 1e-3
+    hanging = torch.zeros(1, 2, dtype=torch.float64)  # at rest straight down: no gravity torque on the line
+    assert on_line.potential_norm(hanging, none[:1], grad=True)[1].abs().max() < 1e-12
+    assert off_line.potential_norm(hanging, none[:1], grad=True)[1].abs().max() > 1e-3
