@@ -480,7 +480,7 @@ def _units(system, model) -> dict:
     coord = list(system.coord_units)
     force = ["N m" if u == "rad" else "N" for u in coord]
     return {"q": coord, "qd": [f"{u}/s" for u in coord], "qdd": [f"{u}/s^2" for u in coord],
-            "params": list(system.param_units), "tau": ["N m"] * system.num_inputs, "force": force}
+            "params": list(system.param_units), "tau": list(system.input_units), "force": force}
 
 
 def describe_function(fn: _Function, system) -> dict:

@@ -394,3 +394,15 @@ def test_the_arm_grey_box_programs_equal_the_eager_model(arm_grey_box):
     module = arm_grey_box
     assert ex.available_functions(module) == ex.FUNCTIONS
     assert_programs_equal_eager(module, arm_states(module, 17, torch.float64), torch.float64)
+
+
+def test_the_inputs_units_follow_what_each_input_moves():
+    """A cart's force (on a length) is in N, a motor's torque (on an angle) in N m, an input on both says
+    so; the export's description and an imported file's read them from the system (``input_units``)."""
+    from lnn_torch.systems.measured import MeasuredSystem
+
+    system = MeasuredSystem(2, angle_mask=(False, True), input_names=("force", "torque", "both"),
+                            input_matrix=[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    assert system.input_units == ("N", "N m", "N or N m")
+    assert ex._units(system, None)["tau"] == ["N", "N m", "N or N m"]
+    assert MeasuredSystem(2).input_units == ()

@@ -436,17 +436,6 @@ def _checked_time(path: Path, t: np.ndarray, max_gap: float | None, lines: np.nd
             "gap_seconds": float(long.sum()), "max_gap_s": float(limit)}
 
 
-def _input_units(B: np.ndarray, angle: np.ndarray) -> list[str]:
-    """Each input's unit: ``N`` if its column of the input matrix acts only on lengths, ``N m`` if only on
-    angles (or on nothing), ``N or N m`` if on both."""
-    units = []
-    for column in np.asarray(B, dtype=np.float64).T:
-        acts = column != 0
-        on_angles, on_lengths = bool((acts & angle).any()), bool((acts & ~angle).any())
-        units.append("N or N m" if on_angles and on_lengths else "N" if on_lengths else "N m")
-    return units
-
-
 def resampling_report(provenance: dict) -> list[str]:
     """One line per recording of what the import did to its timing (from the file's ``provenance``)."""
     lines = []
@@ -663,7 +652,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     if spec.currents:
         provenance["inputs"] = {"from": "motor currents (A) times drive_gains (N m per A)", "columns": spec.currents,
                                 "drive_gains": [float(g) for g in gains]}
-    input_units = _input_units(system.input_matrix().numpy(), angle) if n_u else []
+    input_units = list(system.input_units)
     units = {"t": "s", "q": list(system.coord_units), "qd": [u + "/s" for u in system.coord_units],
              "params": list(system.param_units), "tau": input_units}
     attrs = {"scene": system.name, "scene_json": json.dumps(system.describe(), sort_keys=True),

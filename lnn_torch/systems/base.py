@@ -151,6 +151,21 @@ class System(abc.ABC):
         B = self.input_matrix()
         return 0 if B is None else int(B.shape[1])
 
+    @property
+    def input_units(self) -> tuple[str, ...]:
+        """Each input's unit: ``N`` where its column of the input matrix acts only on lengths, ``N m`` where
+        only on angles (or on nothing), ``N or N m`` where on both."""
+        B = self.input_matrix()
+        if B is None:
+            return ()
+        angle = torch.tensor(self.angle_mask, dtype=torch.bool)
+        units = []
+        for column in B.T:
+            acts = column != 0
+            on_angles, on_lengths = bool((acts & angle).any()), bool((acts & ~angle).any())
+            units.append("N or N m" if on_angles and on_lengths else "N" if on_lengths else "N m")
+        return tuple(units)
+
     def joint_map(self) -> torch.Tensor:
         """``D (num_joints, dof)``, float64: the joint rates ``D qd`` that friction acts on (default identity)."""
         return torch.eye(self.dof, dtype=torch.float64)
