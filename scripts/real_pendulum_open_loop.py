@@ -76,11 +76,9 @@ def swapped(checkpoint: str, data_of: str, q, qd, qdd, tau, judged) -> dict:
     parameters are those whose torques its own accelerations at the training points give exactly (its
     largest residual there is printed: round-off where it is of that family)."""
     from lnn_torch.identified import BASE, RigidArmModel, base_regressor
-    from lnn_torch.networks.calls import model_accelerations
-
     module = held_out(checkpoint, data_of)[0]
     with torch.no_grad():
-        acc = model_accelerations(module.model.double(), q, qd, torch.zeros(len(q), 0, dtype=q.dtype), tau)
+        acc = module.model.double().acceleration(q, qd, torch.zeros(len(q), 0, dtype=q.dtype), tau)
     Y = base_regressor(q, qd, acc, 9.81, 50.0, "tanh").reshape(-1, len(BASE))
     beta = torch.linalg.lstsq(Y, tau.reshape(-1, 1)).solution[:, 0]
     residual = float((Y @ beta - tau.reshape(-1)).abs().max())
