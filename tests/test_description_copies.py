@@ -173,7 +173,8 @@ def test_a_ckpt_path_of_the_cli_registers_its_copies_before_the_model_is_built(t
         LNNModule(**module.hparams)
 
 
-def test_a_malformed_copy_is_refused_in_one_line(tmp_path):
+def test_a_malformed_copy_is_refused_in_one_line(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs a failed load to MUJOCO_LOG.TXT in the working folder
     grey_box_checkpoint(tmp_path / "arm9", tmp_path / "model.ckpt")
     saved = torch.load(tmp_path / "model.ckpt", weights_only=False)
     for copy in saved[ckpt.DESCRIPTION_COPIES].values():
