@@ -44,7 +44,8 @@ def judge(model, system, data, smoothed, names, start_every: float, time_limit: 
     times = np.asarray(starts["time_to@0.1"], dtype=float)
     return {"acc_rel_err": float(pooled["total"]), "time_to@0.1": float(np.median(times)),
             "per_recording": {rec: {"acc_rel_err": float(e),
-                                    "time_to@0.1": float(np.median(times[np.asarray(starts["trajectory"]) == b]))}
+                                    "time_to@0.1": float(np.median(times[np.asarray(starts["trajectory"]) == b])),
+                                    "starts_time_to@0.1": times[np.asarray(starts["trajectory"]) == b].tolist()}
                               for b, (rec, e) in enumerate(zip(names, per, strict=True))}}
 
 
@@ -70,28 +71,35 @@ GROUPS = {"inertia (A, B, C, K)": ("A", "B", "C", "K"), "gravity (P1, P2)": ("P1
 
 
 def swapped(checkpoint: str, data_of: str, q, qd, qdd, tau, judged) -> dict:
-    """Rows of the learned model ``checkpoint`` (of the lab's form, Coulomb ``tanh(qd / 0.02)``) read as
-    base parameters, of least squares of ``cf tanh(50 qd)`` (the same family), and of each with one group
-    of the other's parameters (``GROUPS``); ``judged(model)`` gives a row. The learned model's base
-    parameters are those whose torques its own accelerations at the training points give exactly (its
-    largest residual there is printed: round-off where it is of that family)."""
+    """Rows of the learned model ``checkpoint`` (of the lab's form: Coulomb ``tanh(qd / v)``, no static
+    friction, centres of mass on the links' lines) read as base parameters, of least squares of ``cf
+    tanh(qd / v)`` (the same family), and of each with one group of the other's parameters (``GROUPS``);
+    ``judged(model)`` gives a row. The learned model's base parameters are those whose torques its own
+    accelerations at the training points give exactly; a model whose largest torque residual there is
+    above 1e-9 N m is not of that family and is refused."""
     from lnn_torch.identified import BASE, RigidArmModel, base_regressor
+
     module = held_out(checkpoint, data_of)[0]
+    slope = 1.0 / float(module.system.coulomb_velocity)
     with torch.no_grad():
         acc = module.model.double().acceleration(q, qd, torch.zeros(len(q), 0, dtype=q.dtype), tau)
-    Y = base_regressor(q, qd, acc, 9.81, 50.0, "tanh").reshape(-1, len(BASE))
+    Y = base_regressor(q, qd, acc, 9.81, slope, "tanh").reshape(-1, len(BASE))
     beta = torch.linalg.lstsq(Y, tau.reshape(-1, 1)).solution[:, 0]
     residual = float((Y @ beta - tau.reshape(-1)).abs().max())
     print(f"{checkpoint} as base parameters: largest torque residual {residual:.1e} N m", flush=True)
+    if not residual < 1e-9:
+        raise SystemExit(f"--swap {checkpoint}: not of the lab model's form (largest torque residual {residual:.2g} "
+                         "N m in its base parameters); fit it without static friction and with across: false")
     learned = dict(zip(BASE, beta.tolist(), strict=True))
-    ls = RigidArmModel.least_squares(q, qd, qdd, tau, space="acceleration", coulomb_slope=50.0,
+    ls = RigidArmModel.least_squares(q, qd, qdd, tau, space="acceleration", coulomb_slope=slope,
                                      coulomb_shape="tanh").base
-    model = lambda base: RigidArmModel.from_base(base, coulomb_slope=50.0, coulomb_shape="tanh")  # noqa: E731
-    rows = {"least squares, cf tanh(50 qd)": judged(model(ls)), "the learned model": judged(model(learned))}
+    model = lambda base: RigidArmModel.from_base(base, coulomb_slope=slope, coulomb_shape="tanh")  # noqa: E731
+    rows = {f"least squares, cf tanh({slope:g} qd)": judged(model(ls)), "the learned model": judged(model(learned))}
     for name, keys in GROUPS.items():
         rows[f"least squares with the learned model's {name}"] = judged(model({**ls, **{k: learned[k] for k in keys}}))
         rows[f"the learned model with least squares' {name}"] = judged(model({**learned, **{k: ls[k] for k in keys}}))
     rows["base parameters (least squares; learned)"] = {k: [ls[k], learned[k]] for k in BASE}
+    rows["the learned model's largest torque residual in its base parameters (N m)"] = {"value": residual}
     return rows
 
 
@@ -118,7 +126,10 @@ def main() -> None:
     from lnn_torch.perf import configure_cpu
 
     configure_cpu(1)
-    module, system, data, smoothed, names, seen = held_out(args.checkpoint)
+    bad = [m for m in args.model if "=" not in m]
+    if bad:
+        raise SystemExit(f"--model takes LABEL=CHECKPOINT, got {bad[0]!r}")
+    _, system, data, smoothed, names, seen = held_out(args.checkpoint)
     q, qd, qdd, tau, _ = points(seen)
     rows = {}
     for shape, slopes in (("arctan", args.slopes), ("tanh", args.tanh_slopes)):
@@ -140,7 +151,7 @@ def main() -> None:
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "open_loop.json").write_text(json.dumps({"checkpoint": args.checkpoint, "recordings": names,
-                                                  "rows": rows}, indent=1))
+                                                    "models": args.model, "swap": args.swap, "rows": rows}, indent=1))
     lines = ["| model | acc. rel. L2, torques filtered alike | median time within 0.1 rad | "
              + " | ".join(names) + " |", "|---|---|---|" + "---|" * len(names)]
     for label, r in rows.items():

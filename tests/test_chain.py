@@ -300,3 +300,9 @@ def test_across_false_keeps_each_centre_of_mass_on_its_links_line():
     hanging = torch.zeros(1, 2, dtype=torch.float64)  # at rest straight down: no gravity torque on the line
     assert on_line.potential_norm(hanging, none[:1], grad=True)[1].abs().max() < 1e-12
     assert off_line.potential_norm(hanging, none[:1], grad=True)[1].abs().max() > 1e-3
+
+
+def test_across_must_be_a_boolean():
+    with pytest.raises(InputError, match="across must be true or false, got 'false'"):
+        build_model("film_lnn", MeasuredSystem(2), kinetic={"chain": {"links": ABSOLUTE2, "across": "false"}},
+                    potential="chain")

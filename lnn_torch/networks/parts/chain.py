@@ -20,10 +20,10 @@ link i). ``M = F F^T`` with the rectangular factor ``F = [sqrt(m_i) dp_i/dq | L_
 ``K = L_K L_K^T`` (``L_K`` lower-triangular, positive diagonal): positive definite by construction.
 It enters ``lnn_torch.dynamics.structured_acceleration_from_factor`` as a Cholesky factor would:
 that solve needs ``M = F F^T`` and ``dF/dq``, not a triangular F. Few parameters (4 per link less
-one length, plus ``dof (dof + 1) / 2``), all learned: constants for a measured system, or the output
-of a small network of the scene's parameters. This is the mass matrix of the lab's physical model
-family, so it cannot bend where the data never went; ``kinetic: chain+mlp`` adds the Cholesky MLP as
-a residual.
+one length, 3 with ``across: false``, plus ``dof (dof + 1) / 2``), all learned: constants for a
+measured system, or the output of a small network of the scene's parameters. This is the mass matrix
+of the lab's physical model family, so it cannot bend where the data never went; ``kinetic:
+chain+mlp`` adds the Cholesky MLP as a residual.
 
 Parts here: ``RigidChain`` (kinetic ``chain``) and ``ChainGravity`` (potential ``chain``: gravity on
 the chain's own masses and centres of mass).
@@ -64,7 +64,9 @@ class RigidChain(KineticPart):
 
     def __init__(self, ctx: BuildContext, links=None, film_hidden=None, across: bool = True) -> None:
         super().__init__()
-        self.across = bool(across)
+        if not isinstance(across, bool):
+            raise InputError(f"kinetic part 'chain': across must be true or false, got {across!r}")
+        self.across = across
         if links is None:
             raise InputError("kinetic part 'chain' needs links (each link's absolute angle over the coordinates), "
                              "e.g. kinetic: {chain: {links: [[1, 0], [1, 1]]}}")
