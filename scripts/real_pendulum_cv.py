@@ -85,6 +85,10 @@ SETTINGS = {
     "the configuration, centres of mass on the links' lines": {
         "kinetic": {"chain": {"links": [[1, 0], [1, 1]], "across": False}}, "potential": "chain",
         "dissipation": "joint+stiction"},
+    "the configuration now + local force residual (L2 1)": {
+        "kinetic": {"chain": {"links": [[1, 0], [1, 1]], "across": False}}, "potential": "chain",
+        "dissipation": "joint+stiction",
+        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1.0}},
 }
 
 
