@@ -29,11 +29,7 @@ def load_model(source, map_location="cpu") -> LNNModule:
     and out): ``model.acceleration(q, qd, params)``, ``model.rollout(...)``. A file that is not an
     lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
     path = ckpt.resolve(source)
-    copies = ckpt.read_checkpoint(path).get(ckpt.DESCRIPTION_COPIES)
-    if copies:  # the robot descriptions it was built from, where their files are gone
-        from .robots.description import register_copies
-
-        register_copies(copies, f"checkpoint {path}")
+    read_with_descriptions(path)
     try:
         model = LNNModule.load_from_checkpoint(path, map_location=map_location)
     except InputError:
@@ -42,6 +38,20 @@ def load_model(source, map_location="cpu") -> LNNModule:
         raise ckpt.unreadable(path, err) from None
     model.eval()
     return model
+
+
+def read_with_descriptions(source) -> dict:
+    """The checked contents of a checkpoint path or ``pretrained:<name>`` (``read_checkpoint``), the
+    compiled robot descriptions it carries registered (``robots.description.register_copies``): a model
+    built from its settings afterwards finds them where their files are gone."""
+    path = ckpt.resolve(source)
+    checkpoint = ckpt.read_checkpoint(path)
+    copies = checkpoint.get(ckpt.DESCRIPTION_COPIES)
+    if copies:
+        from .robots.description import register_copies
+
+        register_copies(copies, f"checkpoint {path}")
+    return checkpoint
 
 
 def load_pretrained(name: str = "double_pendulum", map_location="cpu") -> LNNModule:

@@ -128,11 +128,7 @@ def register_description_copies(ckpt_path) -> None:
     other names Lightning resolves itself are left to it."""
     from pathlib import Path
 
-    if not ckpt_path or not Path(str(ckpt_path)).is_file():
-        return
-    from . import checkpoint_format as ckpt
-    from .robots.description import register_copies
+    if ckpt_path and Path(str(ckpt_path)).is_file():
+        from .checkpoints import read_with_descriptions
 
-    copies = ckpt.read_checkpoint(ckpt_path).get(ckpt.DESCRIPTION_COPIES)
-    if copies:
-        register_copies(copies, f"checkpoint {ckpt_path}")
+        read_with_descriptions(ckpt_path)
