@@ -37,7 +37,7 @@ CHILD = r"""
 import json, statistics, sys, time
 import torch
 torch.set_num_threads(1)
-from lnn_torch.checkpoints import load_model
+from lnn_torch.training.checkpoints import load_model
 B = int(sys.argv[1])
 model = load_model("pretrained:double_pendulum").model
 g = torch.Generator().manual_seed(0)
@@ -66,7 +66,7 @@ import torch
 torch.set_num_threads(1)
 from lnn_torch import LNNModule, TrajectoryDataModule
 from lnn_torch.perf import adamw
-from lnn_torch.training_pass import TrainingPass
+from lnn_torch.training.training_pass import TrainingPass
 width = int(sys.argv[1])
 dm = TrajectoryDataModule(path="data/quickstart.h5", spec=dict(scene="double_pendulum", num_trajectories=200,
                           duration=20.0, dt=0.005, seed=0), chunk_len=8, chunks_per_batch=64, seed=0)

@@ -29,12 +29,12 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from timing import HelpFormatter, add_output_file, header, in_turn, median_ms, median_ratio, wrote  # noqa: E402
 
-from lnn_torch.dynamics import generic_acceleration, structured_acceleration  # noqa: E402
-from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.mechanics.euler_lagrange import generic_acceleration, structured_acceleration  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.networks.capabilities import ENERGY, capabilities_of  # noqa: E402
 from lnn_torch.perf import adamw, compile_fn, configure_cpu  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
+from lnn_torch.training.losses import acceleration_loss, energy_variance  # noqa: E402
 
 # the output width up to which a product is computed as ``(W @ x.T).T``, as the networks' fast path does
 # for products with few output columns (``lnn_torch.networks``; measured in results/benchmark_dynamics.md)

@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from timing import HelpFormatter, add_output_file, header, run_seconds, wrote  # noqa: E402
 
-from lnn_torch import export as ex  # noqa: E402
+from lnn_torch.export import programs as ex  # noqa: E402
 from lnn_torch.perf import configure_cpu  # noqa: E402
 
 BATCHES = (1, 4096)
@@ -120,7 +120,7 @@ def main() -> None:
     torch.set_num_threads(1)
     dtype = ex.DTYPES[args.dtype]
     if args.checkpoint:
-        from lnn_torch.checkpoints import load_model
+        from lnn_torch.training.checkpoints import load_model
 
         module, label = load_model(args.checkpoint), args.checkpoint
     else:

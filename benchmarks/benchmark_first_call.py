@@ -25,7 +25,7 @@ from pathlib import Path
 
 from timing import ROOT, HelpFormatter, add_output_file, header, in_turn, wrote
 
-from lnn_torch.report import markdown_table
+from lnn_torch.evaluation.report import markdown_table
 
 CHILD = r"""
 import json, statistics, sys, time
@@ -33,7 +33,7 @@ t0 = time.perf_counter()
 import torch
 torch.set_num_threads(1)
 import lnn_torch.perf
-from lnn_torch.checkpoints import load_model
+from lnn_torch.training.checkpoints import load_model
 if sys.argv[1] == "configure_cpu":
     lnn_torch.perf.configure_cpu()
 t_import = time.perf_counter() - t0

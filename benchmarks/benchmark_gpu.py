@@ -84,7 +84,7 @@ def torch_calls(name: str, device, compiled: bool, only=None) -> dict:
 
     from lnn_torch import load_pretrained
     from lnn_torch.perf import adamw
-    from lnn_torch.training_pass import TrainingPass
+    from lnn_torch.training.training_pass import TrainingPass
 
     module = load_pretrained(name).to(device)
     module.train()

@@ -80,11 +80,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from timing import CpuShare, HelpFormatter, header, in_turn, median_ratio  # noqa: E402
 
-from lnn_torch.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.evaluation.report import markdown_table  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.perf import adamw, compile_fn, configure_cpu, median_seconds  # noqa: E402
-from lnn_torch.report import markdown_table  # noqa: E402
 from lnn_torch.systems import GRAVITY, get_system  # noqa: E402
+from lnn_torch.training.losses import acceleration_loss, energy_variance  # noqa: E402
 
 try:
     import optax

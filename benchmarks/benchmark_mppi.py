@@ -18,9 +18,9 @@ from timing import ROOT, HelpFormatter, add_output_file, header, wrote
 
 from lnn_torch import load_model
 from lnn_torch.control import MPPI, plant_of
-from lnn_torch.identified import RigidArmModel
+from lnn_torch.evaluation.report import markdown_table
+from lnn_torch.identification.two_link import RigidArmModel
 from lnn_torch.perf import median_seconds
-from lnn_torch.report import markdown_table
 
 LAB = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
 

@@ -23,9 +23,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from timing import HelpFormatter, add_output_file, header, in_turn, median_ratio, wrote  # noqa: E402
 
+from lnn_torch.evaluation.report import markdown_table  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.perf import compile_fn, configure_cpu, median_seconds  # noqa: E402
-from lnn_torch.report import markdown_table  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
 

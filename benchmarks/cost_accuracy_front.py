@@ -106,7 +106,7 @@ def train(args) -> None:
     import torch
 
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.lightning_cli import make_trainer
+    from lnn_torch.training.lightning_cli import make_trainer
 
     OUT.mkdir(parents=True, exist_ok=True)
     CKPT.mkdir(parents=True, exist_ok=True)
@@ -157,7 +157,7 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
 
     from lnn_torch import LNNModule, load_model
     from lnn_torch.perf import adamw
-    from lnn_torch.training_pass import TrainingPass
+    from lnn_torch.training.training_pass import TrainingPass
 
     ckpt = CKPT / f"{slug(name)}.ckpt"
     if ckpt.exists():
@@ -240,7 +240,7 @@ class OriginalAsModel:
         return torch.from_numpy(self.m.accel(q.numpy(), qd.numpy(), params.numpy()).astype("float64")).to(q.dtype)
 
     def rollout(self, q0, qd0, params, dt, num_steps, method="rk4", tau=None):
-        from lnn_torch.integrators import rollout
+        from lnn_torch.mechanics.integrators import rollout
 
         return rollout(self.acceleration, q0, qd0, params, dt, num_steps, method)
 
@@ -338,7 +338,7 @@ def time_all(args) -> None:
 def report(args) -> None:
     import numpy as np
 
-    from lnn_torch.plots import plt
+    from lnn_torch.evaluation.plots import plt
 
     trained = json.loads((OUT / "train.json").read_text())
     timed = json.loads((OUT / "time.json").read_text())

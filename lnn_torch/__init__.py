@@ -7,16 +7,15 @@ integration of any ``accel_fn``), ``get_system`` (ground-truth scenes), ``build_
 (HDF5 trajectories for Lightning).
 """
 
-__version__ = "0.1.0"
-
-from .integrators import rollout  # noqa: E402
-from .systems import get_system  # noqa: E402
+from ._version import __version__
+from .mechanics.integrators import rollout
+from .systems import get_system
 
 
 def __getattr__(name):
     # Lightning and the networks are imported on first use, so that physics-only users stay light
     if name == "LNNModule":
-        from .module import LNNModule
+        from .training.module import LNNModule
 
         return LNNModule
     if name == "build_model":
@@ -24,11 +23,11 @@ def __getattr__(name):
 
         return build_model
     if name == "load_pretrained":
-        from .checkpoints import load_pretrained
+        from .training.checkpoints import load_pretrained
 
         return load_pretrained
     if name == "load_model":
-        from .checkpoints import load_model
+        from .training.checkpoints import load_model
 
         return load_model
     if name == "evaluate_model":
@@ -36,7 +35,7 @@ def __getattr__(name):
 
         return evaluate_model
     if name == "TrajectoryDataModule":
-        from .data.datamodule import TrajectoryDataModule
+        from .training.datamodule import TrajectoryDataModule
 
         return TrajectoryDataModule
     raise AttributeError(f"module 'lnn_torch' has no attribute '{name}'")

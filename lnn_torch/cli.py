@@ -27,11 +27,11 @@ COMMANDS = {
 
 def lightning_main(argv: list[str]) -> int:
     """``fit``/``validate``/``test``/``predict`` with LightningCLI (YAML configs, ``--help``)."""
-    from .config_files import config_paths, read_config
+    from .commands.config_files import config_paths, read_config
 
     for path in config_paths(argv):  # a bad file in one line, before LightningCLI's own parse
         read_config(path)
-    from .lightning_cli import run_cli
+    from .training.lightning_cli import run_cli
 
     run_cli(argv)
     # Lightning's DDP leaves the process group alive; left to interpreter shutdown, gloo's worker
@@ -47,7 +47,7 @@ def lightning_main(argv: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "--version":
-        from . import __version__
+        from ._version import __version__
 
         print(f"lnn-torch {__version__}")
         return 0

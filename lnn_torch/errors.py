@@ -3,14 +3,14 @@
 * ``InputError`` (a ``ValueError``): malformed physical input or options: shapes, NaN, non-positive
   parameters, an option a variant cannot use;
 * ``SingularHessianError`` (a ``RuntimeError``): the velocity Hessian of a Lagrangian is singular, so
-  its accelerations are undefined (``lnn_torch.dynamics``);
+  its accelerations are undefined (``lnn_torch.mechanics.euler_lagrange``);
 * ``DatasetFileError`` (a ``ValueError``): a dataset file is missing, not HDF5, incomplete or malformed;
 * ``GenerationError`` (a ``RuntimeError``): ground truth could not be integrated to the requested accuracy;
 * ``CheckpointError`` (an ``InputError``): a file is not a readable lnn-torch checkpoint.
 
 Each is also importable where it was first defined (``lnn_torch.systems.base.InputError``,
-``lnn_torch.dynamics.SingularHessianError``, ``lnn_torch.data.DatasetFileError``,
-``lnn_torch.ground_truth.GenerationError``).
+``lnn_torch.mechanics.euler_lagrange.SingularHessianError``, ``lnn_torch.data.DatasetFileError``,
+``lnn_torch.systems.ground_truth.GenerationError``).
 """
 
 

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def run(name: str, overrides: list[str], args) -> dict:
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
+    from lnn_torch.training.lightning_cli import LNNCLI, TRAINER_DEFAULTS
 
     if args.steps:  # a step budget: deterministic, and immune to other load on the machine
         budget = [f"--trainer.max_steps={args.steps}", "--trainer.max_epochs=100000"]

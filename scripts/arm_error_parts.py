@@ -49,10 +49,10 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "error_parts"),
                    "the folder of error_parts.md and error_parts.json")
     args = ap.parse_args()
-    from lnn_torch.arm_identification import points
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.evaluation import evaluate_model
+    from lnn_torch.identification.arm_comparison import points
+    from lnn_torch.training.checkpoints import load_model
 
     torch.set_grad_enabled(False)
     module = load_model(args.model)

@@ -12,7 +12,7 @@ method) and the torques pass through the same smoothing. Then
   (the engine's inverse dynamics of the arm without payload, which it knows exactly), are linear in
   the payload's ten inertial parameters (``MujocoArm.payload_regressor``); ordinary least squares, then
   ``m`` and ``c = (m c) / m``;
-* each given checkpoint through ``lnn_torch.identification.identify_batch`` (the acceleration fit of
+* each given checkpoint through ``lnn_torch.identification.learned.identify_batch`` (the acceleration fit of
   ``lnn-torch identify`` on every ``--stride``-th sample, ``--starts`` starts, in the model's training box).
 
 Base-parameter study (``--perturbed-*``): on the held-out trajectories of the perturbed arm (``data``
@@ -59,7 +59,7 @@ def observations(args):
 def smoothed(arrays, dt):
     """Velocities, accelerations and torques through one smoothing of the noisy angles (and torques)."""
     from lnn_torch.data import derivatives
-    from lnn_torch.identification import NOISY
+    from lnn_torch.identification.learned import NOISY
 
     s = derivatives.settings({**NOISY, "use_measured_velocity": False})
     qd, qdd, tau = [], [], []
@@ -119,9 +119,9 @@ def errors(mass, com, truth) -> dict:
 
 
 def model_payloads(checkpoint, t, q_noisy, tau, starts, stride):
-    from lnn_torch.checkpoints import load_model
-    from lnn_torch.identification import identify_batch
+    from lnn_torch.identification.learned import identify_batch
     from lnn_torch.systems import get_system
+    from lnn_torch.training.checkpoints import load_model
 
     module = load_model(checkpoint)
     system = get_system("robot_arm")
@@ -156,11 +156,11 @@ def payload_study(args) -> dict:
 
 
 def base_parameter_study(args) -> dict:
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.robots import kinematics, regressor
     from lnn_torch.robots.mujoco_arm import MujocoArm
     from lnn_torch.systems import get_system
+    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.perturbed_data)
     system = get_system("robot_arm", **data.spec.get("scene_config", {}))

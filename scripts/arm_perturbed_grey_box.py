@@ -42,8 +42,8 @@ def main() -> None:
                     "the Markdown table (the JSON is written beside it)")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import read_dataset
+    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.data)
     test = data.trajectories("test", args.test_trajectories)

@@ -100,8 +100,8 @@ def markdown(result: dict) -> str:
 def main() -> None:
     args = parser().parse_args()
     torch.set_num_threads(1)
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import TrajectoryDataModule, derivatives, read_dataset
+    from lnn_torch.training.checkpoints import load_model
 
     targets = derivatives.settings(json.loads(args.targets))
     scene_file = read_dataset(args.scene_data)

@@ -37,7 +37,7 @@ def evaluate(model, system, test, horizon: float) -> dict:
 def description_row(system, test, horizon: float) -> dict:
     """The shipped (unperturbed) description in the engine against a perturbed arm's data."""
     from lnn_torch.evaluation import ClosedForm, evaluate_model
-    from lnn_torch.metrics import normalized_rmse
+    from lnn_torch.evaluation.metrics import normalized_rmse
     from lnn_torch.robots.mujoco_arm import MujocoArm
     from lnn_torch.systems import get_system
 
@@ -110,9 +110,9 @@ def main() -> None:
                     "the Markdown table (the JSON is written beside it)")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.systems import get_system
+    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.data)
     spec = data.spec

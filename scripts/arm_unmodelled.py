@@ -64,7 +64,7 @@ def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = N
     fitted grey box, whose weights start the run and stay as they are (only the force residual trains:
     ``init_from``, ``train_only: residual_force``)."""
     from lnn_torch import LNNModule
-    from lnn_torch.lightning_cli import make_trainer
+    from lnn_torch.training.lightning_cli import make_trainer
 
     torch.manual_seed(args.seed)
     module = LNNModule(scene="robot_arm", scene_config=scene_config, variant="film_lnn", eps=0.0,
@@ -84,7 +84,7 @@ def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = N
 # ---------------------------------------------------------------------------- evaluation
 def points(data, stride: int) -> dict:
     """Every ``stride``-th point of a split's trajectories, flattened: q, qd, qdd, tau ``(N, 7)``, params."""
-    from lnn_torch.arm_identification import points as flatten
+    from lnn_torch.identification.arm_comparison import points as flatten
 
     return dict(zip(("q", "qd", "qdd", "tau", "params"), flatten(data, stride), strict=True))
 
@@ -242,8 +242,8 @@ def main() -> None:
     args.horizon = args.duration if args.horizon is None else args.horizon
     torch.set_num_threads(args.threads)
 
-    from lnn_torch.data.datamodule import TrajectoryDataModule
     from lnn_torch.systems import get_system
+    from lnn_torch.training.datamodule import TrajectoryDataModule
 
     scene_config = {"unmodelled": {"seed": args.effects_seed, **EFFECTS}}
     path = Path(args.data or ROOT / "data" / f"robot_arm_unmodelled_{args.trajectories}x{args.duration:g}s.h5")

@@ -106,7 +106,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.lightning_cli import make_trainer
+    from lnn_torch.training.lightning_cli import make_trainer
 
     class Curve(L.Callback):
         """Validation error on a fixed sample of validation points against training time (the
@@ -295,7 +295,7 @@ def markdown(result: dict) -> str:
     for name, t in result["training"].items():
         lines.append(f"| {name} | {t['steps']} | {t['skipped_steps']} | {t['curve'][-1][1]:.4f} |")
     if result.get("stability"):
-        from lnn_torch.stability import stability_markdown
+        from lnn_torch.evaluation.stability import stability_markdown
 
         lines += ["", f"Stability on hard cases (trained models, RK4, dt = 0.005 s, "
                       f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
@@ -304,7 +304,7 @@ def markdown(result: dict) -> str:
 
 
 def plots(result: dict, out: Path) -> list[Path]:
-    from lnn_torch.plots import plt
+    from lnn_torch.evaluation.plots import plt
 
     scene = result["scene"]
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
@@ -372,7 +372,7 @@ def report(out: Path) -> None:
                      f"![{result['scene']} pareto]({result['scene']}_pareto.png)\n")
         short.append(summary(result))
         if result.get("stability"):
-            from lnn_torch.stability import stability_pivot
+            from lnn_torch.evaluation.stability import stability_pivot
 
             short += [f"Stability on hard cases (max true-energy drift / (V_max - V_min), RK4, dt = 0.005 s, "
                       f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
@@ -428,8 +428,8 @@ def main() -> None:
         return
     from lnn_torch import LNNModule
     from lnn_torch.evaluation import ClosedForm, model_rollout
+    from lnn_torch.evaluation.stability import hard_cases, run_hard_cases
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.stability import hard_cases, run_hard_cases
     from lnn_torch.systems import get_system
 
     THREADS = args.threads

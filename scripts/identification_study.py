@@ -33,7 +33,7 @@ def truth_of(params: torch.Tensor) -> dict:
 
 def run_case(model, system, tr, seconds: float, noise: float, args, rng) -> dict:
     from lnn_torch.evaluation import ClosedForm
-    from lnn_torch.identification import identify_batch, least_squares_reference
+    from lnn_torch.identification.learned import identify_batch, least_squares_reference
 
     T = int(round(seconds / tr.dt)) + 1
     t = np.arange(T) * tr.dt
@@ -102,8 +102,8 @@ def main() -> None:
         wrote(out / "study.json", out / "study.md", out / "study.png")
         return
 
-    from lnn_torch.checkpoints import load_model
     from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
+    from lnn_torch.training.checkpoints import load_model
 
     generated = [] if Path(args.data).exists() else [args.data]
     if generated:

@@ -108,7 +108,7 @@ def part_targets(args, out: Path) -> list[Path]:
 
 
 def plot_targets(rows, args, path: Path) -> None:
-    from lnn_torch.plots import plt
+    from lnn_torch.evaluation.plots import plt
 
     fig, axes = plt.subplots(1, len(args.rates), figsize=(3.2 * len(args.rates), 3.2), sharey=True, squeeze=False)
     for ax, rate in zip(axes[0], args.rates, strict=True):
@@ -133,7 +133,7 @@ def part_training(args, out: Path) -> list[Path]:
     from lnn_torch import LNNModule, TrajectoryDataModule
     from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
     from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.lightning_cli import make_trainer
+    from lnn_torch.training.lightning_cli import make_trainer
 
     dt = 1.0 / args.rate
     clean = Path(args.work) / f"train_{args.rate:g}hz.h5"

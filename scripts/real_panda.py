@@ -9,7 +9,7 @@ after 13.8 s repeat the first period, and no training sample lies in it). Every 
 the same points with the same targets (the checkpoints' derivative estimates) against the measured
 torques: the models trained by ``lnn-torch fit`` (each checkpoint given), classical least squares on
 the base parameters with the same drive model (ordinary, weighted, physically consistent;
-``lnn_torch.robots.classical``) fitted on the training window, and the robot's description as shipped
+``lnn_torch.identification.classical_arm``) fitted on the training window, and the robot's description as shipped
 and as matched to the robot (rigid body only: the description's damping is its only friction).
 
     lnn-torch import ../shared/data/real_panda/exciting_trajectory_1.csv.gz \\
@@ -49,7 +49,8 @@ def main() -> None:
                     "in README.md (the text after it describes the study as configs/real_panda.yaml runs it)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--feedback", action="store_true", help="also each model and classical fit with the robot's "
-                    "feedback on its measured velocity (lnn_torch.velocity_feedback: one gain per joint on the "
+                    "feedback on its measured velocity (lnn_torch.identification.velocity_feedback: one gain per "
+                    "joint on the "
                     "recorded velocity's part above the targets' band, fitted on the training window, kept where "
                     "validation prefers it): rows 'LABEL + velocity feedback'")
     ap.add_argument("--add", action="store_true", help="keep the rows of the output folder's metrics.json that "
@@ -58,7 +59,9 @@ def main() -> None:
                     "driven by the measured torques from a start every 0.25 s of the held-out window, stays "
                     "within 0.1 rad of the recording (censored there)")
     args = ap.parse_args()
-    from lnn_torch.arm_identification import (
+    from lnn_torch.data import read_dataset
+    from lnn_torch.evaluation.plots import torque_figure
+    from lnn_torch.identification.arm_comparison import (
         classical_torque,
         compare_on_arm,
         description_model,
@@ -67,10 +70,10 @@ def main() -> None:
         model_torque,
         points,
     )
-    from lnn_torch.checkpoints import data_hparams, load_model
-    from lnn_torch.data import TrajectoryDataModule, read_dataset
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.plots import torque_figure
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     configure_cpu(args.threads)
     models = dict(item.split("=", 1) for item in args.models)
@@ -157,7 +160,7 @@ def _carried(model, data, joints) -> dict | None:
     """What each of the model's residuals carries on ``data`` (``lnn_torch.networks.shares``): per joint,
     the RMS of the torque it adds to the inverse dynamics (N m) and its share of the model's torque; None
     for a model without residuals."""
-    from lnn_torch.arm_identification import points
+    from lnn_torch.identification.arm_comparison import points
     from lnn_torch.networks.shares import torque_shares
 
     if not getattr(model, "residual_names", tuple)():
@@ -193,7 +196,7 @@ Held-out joint-torque RMS error in N m (lower is better; sorted by the test mean
 
 {table}
 The classical rows are least squares on the base parameters of the description's kinematic chain with
-the drive model `{drive}` per joint (`lnn_torch.robots.classical`): ordinary, weighted (each joint's
+the drive model `{drive}` per joint (`lnn_torch.identification.classical_arm`): ordinary, weighted (each joint's
 rows divided by its ordinary residual's standard deviation) and physically consistent (log-Cholesky
 inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
 (their damping their only friction). `film_lnn` and DeLaN from the data alone are one model here: the
@@ -221,7 +224,7 @@ with the grey box, 0.06-0.47 N m on joints 1-4, of the order of the error they w
 friction); alone beside the fitted grey box, 0.02-0.17 N m.
 
 **What does pay is the robot's feedback on its own measured velocity** (the rows `+ velocity feedback`,
-`--feedback`; `lnn_torch.velocity_feedback`). The torque above the band is not a function of the
+`--feedback`; `lnn_torch.identification.velocity_feedback`). The torque above the band is not a function of the
 filtered state, but most of it follows the recorded velocity's part above the band (recorded velocity
 less the targets' smoothed one): per joint, the measured torque holds `-D` times it, with one gain `D`
 fitted on the training window's error of each model and kept where the validation window prefers it.

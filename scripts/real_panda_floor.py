@@ -24,7 +24,7 @@ configs/real_panda.yaml``):
    torque error of the real Panda holds such a ripple (about 241 cycles per revolution on joints 1-4:
    well above the targets' band at the arm's speeds); whether it is a function of the state that this
    recording can teach is what the held-out row says.
-5. **The robot's feedback on its measured velocity** (``lnn_torch.velocity_feedback``): per joint, the
+5. **The robot's feedback on its measured velocity** (``lnn_torch.identification.velocity_feedback``): per joint, the
    grey box's torque error against the recorded velocity's part above the targets' band (recorded
    velocity less the targets' smoothed one), one gain per joint by least squares on the training window,
    kept where it lowers the validation error; the same with the velocity derived from the angles instead
@@ -140,10 +140,11 @@ def main() -> None:
                     help="the angle-locked ripple's search: cycles per joint revolution")
     add_output_dir(ap, "results/real_panda", "the folder of floor.md and floor.json")
     args = ap.parse_args()
-    from lnn_torch import velocity_feedback
-    from lnn_torch.arm_identification import feedback_band, points
-    from lnn_torch.checkpoints import data_hparams, load_model
-    from lnn_torch.data import TrajectoryDataModule
+    from lnn_torch.identification import velocity_feedback
+    from lnn_torch.identification.arm_comparison import feedback_band, points
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     torch.set_grad_enabled(False)
     model = load_model(args.checkpoint).model.double()

@@ -38,11 +38,11 @@ LEAST_SQUARES = {"torque": "least squares of the torques (the lab model's form, 
 
 def least_squares(data, space: str):
     """Classical identification on recordings (``Trajectories``; their torques as given, filtered or not):
-    the lab model's rigid-body and friction form (``lnn_torch.identified``), its ten base parameters by
+    the lab model's rigid-body and friction form (``lnn_torch.identification.two_link``), its ten base parameters by
     least squares of the torque error at every point (``space="torque"``) or of the acceleration error
     (``"acceleration"``: nonlinear in the mass matrix's parameters, ``RigidArmModel.least_squares``)."""
-    from lnn_torch.arm_identification import points
-    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.identification.arm_comparison import points
+    from lnn_torch.identification.two_link import RigidArmModel
 
     q, qd, qdd, tau, _ = points(data)
     return RigidArmModel.least_squares(q, qd, qdd, tau, space=space)
@@ -61,12 +61,14 @@ def main() -> None:
     ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
-    from lnn_torch.checkpoints import data_hparams, load_model, output_dir
-    from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.data import read_dataset
     from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.identified import RigidArmModel
-    from lnn_torch.metrics import quartiles
+    from lnn_torch.evaluation.metrics import quartiles
+    from lnn_torch.identification.two_link import RigidArmModel
     from lnn_torch.perf import configure_cpu
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams, output_dir
+    from lnn_torch.training.checkpoints import load_model
 
     configure_cpu(args.threads)
     module = load_model(args.checkpoint)
@@ -181,10 +183,10 @@ def compare_structure(model, lab, data, names) -> dict:
 
 
 def acceleration_report(model, data, coord_names) -> tuple[dict, list[float]]:
-    """The pooled acceleration errors (``lnn_torch.metrics.acceleration_errors``) and the relative L2
+    """The pooled acceleration errors (``lnn_torch.evaluation.metrics.acceleration_errors``) and the relative L2
     error of each recording over its own length, from one prediction at every point."""
     from lnn_torch.evaluation import model_accelerations
-    from lnn_torch.metrics import acceleration_errors
+    from lnn_torch.evaluation.metrics import acceleration_errors
 
     pred = model_accelerations(model, data.q, data.qd, data.params, data.tau)
     per = [math.sqrt(e / r) for e, r in squared_sums(pred, data)]
@@ -200,7 +202,7 @@ def squared_sums(pred, data) -> list[tuple[float, float]]:
 
 
 def plot(results: dict, horizons, out: Path) -> None:
-    from lnn_torch.plots import plt
+    from lnn_torch.evaluation.plots import plt
 
     fig, ax = plt.subplots(figsize=(6, 3.4))
     for name, r in results.items():

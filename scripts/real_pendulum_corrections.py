@@ -70,7 +70,7 @@ def design(r: dict, kinds) -> torch.Tensor:
 def recordings(model, path: Path, targets: dict, split: str) -> list[dict]:
     """Per recording of a fold file's split: the state, torques through the targets' filter (the fit's own
     ``targets``), ``M^-1`` and the configuration's acceleration residual."""
-    from lnn_torch.data import TrajectoryDataModule
+    from lnn_torch.training import TrajectoryDataModule
 
     data = TrajectoryDataModule(path=str(path), targets=targets).trajectories(split, smooth_inputs=True)
     out = []
@@ -92,7 +92,8 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum" / "cross_validation" / "residual"),
                    "the folder of corrections.md and corrections.json")
     args = ap.parse_args()
-    from lnn_torch.checkpoints import data_hparams, load_model
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     torch.set_grad_enabled(False)
     work = Path(args.work)

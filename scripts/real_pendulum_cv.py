@@ -135,7 +135,7 @@ def carried(model, data) -> dict | None:
     """What the model's residuals carry on a split's recordings (``lnn_torch.networks.shares``, over their
     own lengths): ``n`` points, and per residual, per motor, the sums of squares of its torque and of the
     model's (N m^2: pooled over folds by adding); None for a model without residuals."""
-    from lnn_torch.arm_identification import points
+    from lnn_torch.identification.arm_comparison import points
     from lnn_torch.networks.shares import torque_shares
 
     if not getattr(model, "residual_names", tuple)():
@@ -181,10 +181,12 @@ def main() -> None:
     unknown = [s for s in args.settings if s not in SETTINGS]
     if unknown:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
-    from lnn_torch.checkpoints import data_hparams, load_model
-    from lnn_torch.data import TrajectoryDataModule, read_dataset
-    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.data import read_dataset
+    from lnn_torch.identification.two_link import RigidArmModel
     from lnn_torch.perf import configure_cpu
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     configure_cpu(args.threads)
     source = read_dataset(args.data)

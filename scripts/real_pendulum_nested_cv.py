@@ -126,11 +126,13 @@ def main() -> None:
     unknown = [s for s in args.candidates if s not in SETTINGS]
     if unknown:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
-    from lnn_torch.checkpoints import data_hparams, load_model
-    from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.data import read_dataset
     from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.identification.two_link import RigidArmModel
     from lnn_torch.perf import configure_cpu
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     configure_cpu(1)
     source = read_dataset(args.data)

@@ -52,8 +52,10 @@ def judge(model, system, data, smoothed, names, start_every: float, time_limit: 
 def held_out(checkpoint: str, data_of: str | None = None):
     """``(module, system, test data, its torques filtered, recording names, training data filtered)``; the
     data of the checkpoint ``data_of`` where ``checkpoint`` names none (a copy of a shipped model)."""
-    from lnn_torch.checkpoints import data_hparams, load_model
-    from lnn_torch.data import TrajectoryDataModule, read_dataset
+    from lnn_torch.data import read_dataset
+    from lnn_torch.training import TrajectoryDataModule
+    from lnn_torch.training.checkpoint_format import data_hparams
+    from lnn_torch.training.checkpoints import load_model
 
     module = load_model(checkpoint)
     saved = data_hparams(checkpoint)
@@ -77,7 +79,7 @@ def swapped(checkpoint: str, data_of: str, q, qd, qdd, tau, judged) -> dict:
     ``judged(model)`` gives a row. The learned model's base parameters are those whose torques its own
     accelerations at the training points give exactly; a model whose largest torque residual there is
     above 1e-9 N m is not of that family and is refused."""
-    from lnn_torch.identified import BASE, RigidArmModel, base_regressor
+    from lnn_torch.identification.two_link import BASE, RigidArmModel, base_regressor
 
     module = held_out(checkpoint, data_of)[0]
     slope = 1.0 / float(module.system.coulomb_velocity)
@@ -121,8 +123,8 @@ def main() -> None:
     ap.add_argument("--time-limit", type=float, default=4.0, help="rollout length, s (censored there)")
     add_output_dir(ap, "results/real_double_pendulum/open_loop", "the folder of open_loop.json and open_loop.md")
     args = ap.parse_args()
-    from lnn_torch.arm_identification import points
-    from lnn_torch.identified import RigidArmModel
+    from lnn_torch.identification.arm_comparison import points
+    from lnn_torch.identification.two_link import RigidArmModel
     from lnn_torch.perf import configure_cpu
 
     configure_cpu(1)

@@ -12,9 +12,9 @@ import numpy as np
 import torch
 from filelock import FileLock
 
-from lnn_torch.data.datamodule import TrajectoryDataModule
-from lnn_torch.dynamics import generic_acceleration
+from lnn_torch.mechanics.euler_lagrange import generic_acceleration
 from lnn_torch.networks import reference
+from lnn_torch.training.datamodule import TrajectoryDataModule
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = dict(scene="double_pendulum", num_trajectories=20, duration=2.0, dt=0.005, seed=5)

@@ -12,13 +12,13 @@ import pytest
 import torch
 
 from lnn_torch.cli import main
-from lnn_torch.config_files import read_config
+from lnn_torch.commands.config_files import read_config
 from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
-from lnn_torch.data.datamodule import TrajectoryDataModule
 from lnn_torch.data.export_csv import export_recordings
 from lnn_torch.errors import InputError
 from lnn_torch.networks import build_model
 from lnn_torch.networks.scene import SceneInfo
+from lnn_torch.training.datamodule import TrajectoryDataModule
 
 from .helpers import perturbed
 

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from lnn_torch.data import read_dataset
-from lnn_torch.data.datamodule import TrajectoryDataModule
 from lnn_torch.data.importer import ImportSpec, import_recordings, resampling_report
 from lnn_torch.errors import InputError
+from lnn_torch.training.datamodule import TrajectoryDataModule
 
 from .test_recordings import write_csv
 

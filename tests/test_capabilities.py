@@ -149,7 +149,7 @@ def test_si_accessors_agree_with_the_normalised_quantities(scenes):
 
 
 def test_undefined_accelerations_are_nan_only_within_the_context():
-    from lnn_torch.dynamics import SingularHessianError
+    from lnn_torch.mechanics.euler_lagrange import SingularHessianError
 
     model = build_model("lnn", get_system("double_pendulum"), hidden_dims=(8,)).double()
     with torch.no_grad():

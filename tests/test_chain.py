@@ -166,7 +166,7 @@ def test_chain_refusals():
 def test_weight_decay_spares_the_physical_coefficients():
     """AdamW's decay pulls towards zero: on the chain's masses and lengths, the potential's and the
     friction's coefficients it would bias the physics, so only the network weights decay."""
-    from lnn_torch.module import LNNModule
+    from lnn_torch.training.module import LNNModule
 
     config = MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config()
     module = LNNModule(scene="measured", scene_config=config,
@@ -264,7 +264,7 @@ def test_the_si_face_of_a_point_mass_chain_is_the_double_pendulums_plant():
 
 
 def test_the_residuals_decay_and_the_chain_constants_do_not():
-    from lnn_torch.module import LNNModule
+    from lnn_torch.training.module import LNNModule
 
     scene = MeasuredSystem(2, input_names=["a", "b"], angle_combinations=[[1, 1]]).config()
     module = LNNModule(scene="measured", scene_config=scene, variant="film_lnn", hidden_dims=[8, 8], weight_decay=0.1,

@@ -1,5 +1,5 @@
-"""Classical identification of an arm beside every model (``lnn_torch.robots.classical``,
-``lnn_torch.arm_identification``), against the engine: torques of the Panda without its hand (armature
+"""Classical identification of an arm beside every model (``lnn_torch.identification.classical_arm``,
+``lnn_torch.identification.arm_comparison``), against the engine: torques of the Panda without its hand (armature
 and damping zero, as the real robot was logged) plus a known drive model per joint. Least squares
 (ordinary and weighted) recovers the torques and the friction coefficients exactly from noise-free data;
 the physically consistent fit explains them with positive masses; the sigmoid friction's nonlinear
@@ -13,10 +13,10 @@ import torch
 
 pytest.importorskip("mujoco")
 
-from lnn_torch import arm_identification as ai  # noqa: E402
-from lnn_torch.drives import DriveModel  # noqa: E402
-from lnn_torch.integrators import held, rk4_step  # noqa: E402
-from lnn_torch.robots import classical  # noqa: E402
+from lnn_torch.identification import arm_comparison as ai  # noqa: E402
+from lnn_torch.identification import classical_arm as classical  # noqa: E402
+from lnn_torch.mechanics.friction import DriveModel  # noqa: E402
+from lnn_torch.mechanics.integrators import held, rk4_step  # noqa: E402
 from lnn_torch.robots.kinematics import read_chain  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 

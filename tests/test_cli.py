@@ -1,4 +1,4 @@
-"""The command line and the shipped configs (``lnn_torch.cli``, ``lnn_torch.lightning_cli``): every
+"""The command line and the shipped configs (``lnn_torch.cli``, ``lnn_torch.training.lightning_cli``): every
 config instantiates and fits, fit/test/predict, the default root directory, a missing measured file."""
 
 import glob
@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from lnn_torch import LNNModule
-from lnn_torch.data.datamodule import TrajectoryDataModule
+from lnn_torch.training.datamodule import TrajectoryDataModule
 
 from .helpers import ROOT, cli_in_process, run_cli
 
@@ -20,8 +20,8 @@ CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.name for c in CONFIGS])
 def test_every_shipped_config_instantiates(config, tmp_path):
-    from lnn_torch.data.datamodule import TrajectoryDataModule as DM
-    from lnn_torch.lightning_cli import LNNCLI, TRAINER_DEFAULTS
+    from lnn_torch.training.datamodule import TrajectoryDataModule as DM
+    from lnn_torch.training.lightning_cli import LNNCLI, TRAINER_DEFAULTS
 
     args = ["-c", str(config)]
     if (ROOT / "configs" / "import" / config.name).exists():  # measured data: the scene comes from the file

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from lnn_torch import __version__
+from lnn_torch._version import __version__
 from lnn_torch.cli import main
-from lnn_torch.integrators import METHODS
+from lnn_torch.mechanics.integrators import METHODS
 from lnn_torch.networks import VARIANTS
 from lnn_torch.networks.parts import KINETIC_PARTS, POTENTIAL_PARTS
 from lnn_torch.pretrained import available
@@ -167,7 +167,7 @@ def test_a_bad_config_is_named_in_one_line(command, text, message, tmp_path, cap
 def test_the_commands_silence_lightnings_advertisements_only(caplog):
     import logging
 
-    from lnn_torch.lightning_cli import quiet_third_parties
+    from lnn_torch.training.lightning_cli import quiet_third_parties
 
     quiet_third_parties()
     logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")

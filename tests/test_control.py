@@ -10,7 +10,7 @@ import torch
 
 from lnn_torch.control import LQR, ComputedTorque, Plant, calibrate_torque_scale, closed_loop, lqr_gain, plant_of, wrap
 from lnn_torch.errors import InputError
-from lnn_torch.identified import RigidArmModel
+from lnn_torch.identification.two_link import RigidArmModel
 from lnn_torch.networks import build_model
 from lnn_torch.systems import get_system
 
@@ -298,8 +298,8 @@ def test_the_arm_reaches_its_goal_by_computed_torque_designed_on_the_grey_box():
     fitted): every episode ends at the goal."""
     pytest.importorskip("mujoco")
     from lnn_torch import LNNModule
+    from lnn_torch.commands.config_files import read_config
     from lnn_torch.commands.control import run_scenario
-    from lnn_torch.config_files import read_config
 
     from .helpers import ROOT
 

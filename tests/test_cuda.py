@@ -82,7 +82,7 @@ def test_the_shipped_models_on_cuda_give_the_cpus_dynamics(name):
 
 def test_a_training_step_on_cuda_gives_the_cpus_loss_and_gradients():
     from lnn_torch import LNNModule
-    from lnn_torch.training_pass import TrainingPass
+    from lnn_torch.training.training_pass import TrainingPass
 
     system = get_system("double_pendulum")
     rng = np.random.default_rng(2)

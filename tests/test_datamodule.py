@@ -1,4 +1,4 @@
-"""The training data (``lnn_torch.data.datamodule``): chunks, seeded and rank-aware sampling, fixed
+"""The training data (``lnn_torch.training.datamodule``): chunks, seeded and rank-aware sampling, fixed
 evaluation sets, normalisation statistics, the dataset file a spec names, and the ``Trajectories``
 container."""
 

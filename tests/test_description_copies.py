@@ -11,12 +11,12 @@ import torch
 
 pytest.importorskip("mujoco")
 
-from lnn_torch import checkpoint_format as ckpt  # noqa: E402
-from lnn_torch.checkpoints import load_model  # noqa: E402
 from lnn_torch.errors import InputError  # noqa: E402
-from lnn_torch.module import LNNModule  # noqa: E402
 from lnn_torch.robots import DESCRIPTIONS  # noqa: E402
 from lnn_torch.robots.description import ArmDescription, compiled_copies, descriptions_in  # noqa: E402
+from lnn_torch.training import checkpoint_format as ckpt  # noqa: E402
+from lnn_torch.training.checkpoints import load_model  # noqa: E402
+from lnn_torch.training.module import LNNModule  # noqa: E402
 
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
 
@@ -164,7 +164,7 @@ def test_the_copy_is_the_arm_the_model_was_built_from_and_warns_once(tmp_path):
 
 
 def test_a_ckpt_path_of_the_cli_registers_its_copies_before_the_model_is_built(tmp_path):
-    from lnn_torch.lightning_cli import register_description_copies
+    from lnn_torch.training.lightning_cli import register_description_copies
 
     module, xml = grey_box_checkpoint(tmp_path / "arm8", tmp_path / "model.ckpt")
     shutil.rmtree(tmp_path / "arm8")

@@ -1,10 +1,10 @@
-"""The Euler-Lagrange solves of ``lnn_torch.dynamics``: the generic Hessian solve (singular Hessians,
+"""The Euler-Lagrange solves of ``lnn_torch.mechanics.euler_lagrange``: the generic Hessian solve (singular Hessians,
 double backward) and the SPD solve."""
 
 import pytest
 import torch
 
-from lnn_torch.dynamics import SingularHessianError, generic_acceleration
+from lnn_torch.mechanics.euler_lagrange import SingularHessianError, generic_acceleration
 
 
 def test_generic_solve_reports_singular_hessian():
@@ -42,7 +42,7 @@ def test_generic_solve_double_backward():
 def test_spd_solve_equals_linalg_solve(dof):
     """The Cholesky solve (unrolled up to SMALL_SPD, LAPACK beyond) equals torch.linalg.solve on
     random and ill-conditioned (cond ~1e8) SPD systems in float64; non-SPD input gives NaN."""
-    from lnn_torch.dynamics import spd_solve
+    from lnn_torch.mechanics.euler_lagrange import spd_solve
 
     gen = torch.Generator().manual_seed(dof)
     A = torch.randn(64, dof, dof, generator=gen, dtype=torch.float64)

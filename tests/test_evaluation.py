@@ -9,8 +9,8 @@ import torch
 import lnn_torch
 from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
 from lnn_torch.evaluation import REPORT_SECTIONS, SECTIONS, evaluate_model, report_sections, section
-from lnn_torch.ground_truth import ClosedForm, reference_rollout
 from lnn_torch.systems import get_system
+from lnn_torch.systems.ground_truth import ClosedForm, reference_rollout
 
 
 @pytest.fixture(scope="module")
@@ -114,8 +114,9 @@ def test_the_former_names_are_still_importable_from_evaluation():
     the figure assembly, the metrics) are still importable from the package, and are the same objects
     as in their homes."""
     import lnn_torch.evaluation as evaluation
-    from lnn_torch import ground_truth, metrics, plots
+    from lnn_torch.evaluation import metrics, plots
     from lnn_torch.networks import calls, capabilities
+    from lnn_torch.systems import ground_truth
 
     homes = {ground_truth: ("ClosedForm", "reference_rollout"), plots: ("section_figures",),
              calls: ("counting_failures", "model_accelerations", "model_rollout"),
@@ -131,29 +132,32 @@ def test_the_former_names_are_still_importable_from_evaluation():
 
 
 def test_importing_the_evaluation_loads_no_matplotlib():
-    """The sections name their figures in ``lnn_torch.plots``; matplotlib is imported only when a
+    """The sections name their figures in ``lnn_torch.evaluation.plots``; matplotlib is imported only when a
     figure is drawn (physics-only users and training without a logger never load it)."""
     import subprocess
     import sys
 
-    code = ("import sys, lnn_torch.evaluation, lnn_torch.stability, lnn_torch.plots; "
+    code = ("import sys, lnn_torch.evaluation, lnn_torch.evaluation.stability, lnn_torch.evaluation.plots; "
             "assert 'matplotlib' not in sys.modules, 'matplotlib imported'; "
-            "from lnn_torch.plots import plt; assert plt.get_backend().lower() == 'agg'")
+            "from lnn_torch.evaluation.plots import plt; assert plt.get_backend().lower() == 'agg'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_evaluation_plots_and_stability_do_not_import_each_other_in_a_circle():
-    """``plots`` and ``stability`` sit beside the evaluation and import only lower layers; the
-    evaluation's sections import them (the cycle evaluation <-> plots <-> stability is gone)."""
+    """``plots``, ``stability``, ``metrics`` and ``report`` serve the evaluation's sections and import
+    none of them, nor the package's ``__init__`` (the cycle evaluation <-> plots <-> stability is gone)."""
     import ast
     from pathlib import Path
 
-    root = Path(lnn_torch.__file__).parent
+    root = Path(lnn_torch.__file__).parent / "evaluation"
+    sections = {"registry", "cases", "rollouts", "structure", "horizons", "accelerations", ""}
     for module in ("plots.py", "stability.py", "metrics.py", "report.py"):
         tree = ast.parse((root / module).read_text())
         imported = {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
         imported |= {a.name for node in ast.walk(tree) if isinstance(node, ast.Import) for a in node.names}
         assert not any("evaluation" in name for name in imported), (module, imported)
+        assert not sections & {name.lstrip(".") for name in imported if name.startswith(".") and
+                               not name.startswith("..")}, (module, imported)
         assert not ({"stability", "plots"} - {module[:-3]}) & {name.lstrip(".") for name in imported}, module
 
 

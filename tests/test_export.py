@@ -1,4 +1,4 @@
-"""``lnn_torch.export`` and ``lnn-torch export``: the exported programs equal the eager model (float64 to
+"""``lnn_torch.export.programs`` and ``lnn-torch export``: the exported programs equal the eager model (float64 to
 1e-10, float32 to 1e-5) for the shipped double pendulum and an untrained actuated structured model
 (forward and inverse dynamics, mass matrix, bias and gravity forces), saved programs load back and
 take any batch, refusals come in one line; ONNX through onnxruntime where installed; the 7-joint arm's
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch import export as ex
-from lnn_torch.checkpoints import load_model
 from lnn_torch.cli import main
+from lnn_torch.export import programs as ex
 from lnn_torch.systems import get_system
+from lnn_torch.training.checkpoints import load_model
 
 from .helpers import perturbed, random_batch, random_inputs
 
@@ -63,7 +63,7 @@ def save_checkpoint(module, path):
     """``module`` as a checkpoint that ``load_model`` reads (weights, hyper-parameters, the stamp)."""
     import lightning as L
 
-    from lnn_torch.checkpoints import stamp
+    from lnn_torch.training.checkpoint_format import stamp
 
     ckpt = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
             "pytorch-lightning_version": L.__version__}
@@ -235,7 +235,7 @@ def test_saved_programs_load_back_and_take_any_batch(models, tmp_path):
     assert fwd["files"] == ["forward_dynamics.pt2"]
     assert meta["functions"]["inverse_dynamics"]["output"]["name"] == "tau"
     assert meta["scene"]["name"] == "actuated_double_pendulum" and "joint angles" in meta["scene"]["conventions"]
-    from lnn_torch import __version__
+    from lnn_torch._version import __version__
 
     assert meta["lnn_torch_version"] == __version__ and meta["dtype"] == "float64"
 

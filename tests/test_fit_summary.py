@@ -1,4 +1,4 @@
-"""The end-of-fit summary (``lnn_torch.callbacks.FitSummary``): on a system of three coordinates or more it
+"""The end-of-fit summary (``lnn_torch.training.callbacks.FitSummary``): on a system of three coordinates or more it
 names each coordinate's validation acceleration error, so that a pooled figure one wrist joint dominates
 is read as what it is."""
 
@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import torch
 
-from lnn_torch.callbacks import FitSummary, per_coordinate
+from lnn_torch.training.callbacks import FitSummary, per_coordinate
 
 
 def metrics(names, values, pooled=19.47):

@@ -9,12 +9,12 @@ import torch
 
 from lnn_torch import rollout
 from lnn_torch.data import DatasetSpec, generate_arrays, generate_dataset, read_dataset
-from lnn_torch.excitation import sample as sample_excitation
-from lnn_torch.excitation import validate as validate_excitation
-from lnn_torch.ground_truth import integrate_ground_truth, power_balance_residual
-from lnn_torch.metrics import power_balance_error
+from lnn_torch.evaluation.metrics import power_balance_error
 from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
+from lnn_torch.systems.excitation import sample as sample_excitation
+from lnn_torch.systems.excitation import validate as validate_excitation
+from lnn_torch.systems.ground_truth import integrate_ground_truth, power_balance_residual
 
 from .conftest import random_batch, random_inputs
 from .helpers import perturbed

@@ -273,8 +273,8 @@ def test_the_closed_form_recorder_is_the_seeded_draws_integrated():
     """Against the recipe written out here: trajectory i's generator is the seed sequence (seed, i);
     it draws the parameters, the state, then the inputs; the closed form is integrated with them; the
     targets and the energy are the scene's at the integrated states. Equal to the last bit."""
-    from lnn_torch.excitation import sample
-    from lnn_torch.ground_truth import integrate_ground_truth
+    from lnn_torch.systems.excitation import sample
+    from lnn_torch.systems.ground_truth import integrate_ground_truth
 
     spec = small_spec(scene="actuated_double_pendulum", num_trajectories=4, duration=0.2)
     system = spec.system
@@ -363,7 +363,7 @@ def test_cli_substeps_default_to_the_scenes(tmp_path):
 
 def test_the_physics_layers_do_not_import_the_data_layer():
     """Scenes, robots and recorders (layer 1) never import ``lnn_torch.data`` (layer 3)."""
-    code = ("import sys, lnn_torch.systems, lnn_torch.robots.recording, lnn_torch.recording; "
+    code = ("import sys, lnn_torch.systems, lnn_torch.robots.recording, lnn_torch.systems.recording; "
             "print(sorted(m for m in sys.modules if m.startswith('lnn_torch.data')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr

@@ -54,7 +54,7 @@ def test_hnn_rollout_conserves_its_own_hamiltonian(rng):
     # recover the momenta along the flow from the stored q and the integrator state: re-run the flow in (q, m)
     q_n, _, p_n = model.normalize(q[:4], qd[:4], params[:4])
     m_n = model.momentum_norm(q[:4], qd[:4], params[:4])
-    from lnn_torch.integrators import rollout_first_order
+    from lnn_torch.mechanics.integrators import rollout_first_order
 
     tau = float(model.normalizer.time_scale)
     y = rollout_first_order(lambda z, p: torch.cat(model.vector_field_norm(z[:, :2], z[:, 2:], p), -1),

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch.ground_truth import ClosedForm, reference_rollout
-from lnn_torch.identification import identify, identify_batch, least_squares_reference
+from lnn_torch.identification.learned import identify, identify_batch, least_squares_reference
 from lnn_torch.systems import get_system
 from lnn_torch.systems.base import InputError
+from lnn_torch.systems.ground_truth import ClosedForm, reference_rollout
 
 DT = 0.005
 TRUE = (1.3, 0.7, 1.15, 0.95)  # m1, m2, l1, l2: inside the training ranges
@@ -97,7 +97,7 @@ def test_learned_model_identifies_noisy_observations_within_the_stated_uncertain
     """The shipped model, 1e-3 rad position noise (derivatives from a smoothing spline), the
     acceleration fit: each identifiable quantity within 3 stated standard deviations of the truth
     and within 3 %; the mass scale flagged."""
-    from lnn_torch.checkpoints import load_model
+    from lnn_torch.training.checkpoints import load_model
 
     module = load_model("pretrained:double_pendulum")
     system, t, q, _, _ = observe(seconds=2.0)

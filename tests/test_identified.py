@@ -1,4 +1,4 @@
-"""The identified two-link model (``lnn_torch.identified``): its base-parameter regressor against its own
+"""The identified two-link model (``lnn_torch.identification.two_link``): its base-parameter regressor against its own
 forward dynamics, the round trip through base parameters, and classical least squares recovering a known
 model from its own noise-free data (float64)."""
 
@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from lnn_torch.identified import BASE, RigidArmModel, acceleration_errors, base_regressor
+from lnn_torch.identification.two_link import BASE, RigidArmModel, acceleration_errors, base_regressor
 
 TRUE = RigidArmModel(m1=0.62, m2=0.55, l1=0.21, r1=0.18, r2=0.31, I1=0.027, I2=0.051, Ir=1e-4, gr=6.0, b1=0.004,
                      b2=0.002, cf1=0.09, cf2=0.07)
@@ -128,5 +128,5 @@ def test_the_tanh_smoothing_of_coulomb_friction_is_a_model_of_its_own_that_least
         assert fitted.base[k] == pytest.approx(true.base[k], rel=1e-8, abs=1e-12), k
     arctan = RigidArmModel(**TRUE.values, coulomb_slope=50.0)
     assert (arctan.acceleration(q, qd, None, tau) - qdd).abs().max() > 1e-2
-    with pytest.raises(ValueError, match="coulomb_shape must be one of arctan, tanh"):
+    with pytest.raises(ValueError, match="coulomb_shape must be one of tanh, arctan"):
         RigidArmModel(**TRUE.values, coulomb_shape="sign")

@@ -1,4 +1,4 @@
-"""Fixed-step integrators (``lnn_torch.integrators``): the methods, the written-out RK4 against its
+"""Fixed-step integrators (``lnn_torch.mechanics.integrators``): the methods, the written-out RK4 against its
 tableau, and the convergence orders."""
 
 import numpy as np
@@ -26,7 +26,7 @@ def test_rollout_function_methods_and_no_grad():
 
 
 def test_written_out_rk4_equals_the_tableau_form():
-    from lnn_torch.integrators import explicit_rk_step, rk4_step
+    from lnn_torch.mechanics.integrators import explicit_rk_step, rk4_step
     from lnn_torch.systems import get_system
 
     system = get_system("double_pendulum")

@@ -1,4 +1,4 @@
-"""Training losses as pure functions (``lnn_torch.losses``): each term against a hand computation, the
+"""Training losses as pure functions (``lnn_torch.training.losses``): each term against a hand computation, the
 multiple-shooting residual shared by training and identification, and the LightningModule's losses on
 fixed batches against the values and the assembly it had before the losses moved out of it."""
 
@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch import LNNModule, integrators, load_model
-from lnn_torch.losses import (
+from lnn_torch import LNNModule, load_model
+from lnn_torch.mechanics import integrators
+from lnn_torch.systems import get_system
+from lnn_torch.training.losses import (
     acceleration_loss,
     energy_variance,
     power_balance,
@@ -20,7 +22,6 @@ from lnn_torch.losses import (
     training_loss,
     trajectory_loss,
 )
-from lnn_torch.systems import get_system
 
 F64 = torch.float64
 
@@ -89,9 +90,9 @@ def test_shooting_residuals_roll_each_window_out_from_its_start():
 def test_identification_and_training_use_the_one_shooting_residual(monkeypatch):
     """Both objectives go through losses.shooting_residuals: identification calls it, training's
     trajectory matching calls losses.trajectory_batch_loss, which calls it."""
-    import lnn_torch.identification as identification
-    import lnn_torch.losses as losses
-    import lnn_torch.module as module
+    import lnn_torch.identification.learned as identification
+    import lnn_torch.training.losses as losses
+    import lnn_torch.training.module as module
 
     assert identification.shooting_residuals is shooting_residuals
     assert module.trajectory_batch_loss is losses.trajectory_batch_loss
@@ -174,7 +175,7 @@ def test_trajectory_loss_by_hand():
 
 # ---------------------------------------------------------------------------- the module, before and after
 def old_assembly(module, batch):
-    """The LightningModule's acceleration loss as it assembled it itself before ``lnn_torch.losses``
+    """The LightningModule's acceleration loss as it assembled it itself before ``lnn_torch.training.losses``
     held the assembly (the code of commit 335e6c3, written out)."""
     F = torch.nn.functional
     C, L, _ = batch["q"].shape
@@ -242,7 +243,7 @@ def fixed_batch(system, C=3, L=6, dt=0.01, seed=0):
 
 
 # the shipped model's losses on ``fixed_batch`` (float64), as the module computed them before the
-# losses moved to ``lnn_torch.losses`` (commit 335e6c3): energy_weight 0.1, trajectory_velocity_weight 0.5
+# losses moved to ``lnn_torch.training.losses`` (commit 335e6c3): energy_weight 0.1, trajectory_velocity_weight 0.5
 SHIPPED_BEFORE = {"huber": 1.563899052850841e-07, "energy_var": 3.639888997182706e-08, "loss": 1.600297942822668e-07,
                   "trajectory": 5.526111403220439e-08, "trajectory_velocity": 7.921772710517591e-08,
                   "trajectory_loss": 9.486997758479234e-08}

@@ -19,11 +19,11 @@ import torch
 mujoco = pytest.importorskip("mujoco")
 pytestmark = pytest.mark.slow  # the fixture alone (a recording, its import and a short fit) takes 15-20 s
 
-from lnn_torch import export as ex  # noqa: E402
-from lnn_torch.checkpoints import load_model  # noqa: E402
 from lnn_torch.cli import main  # noqa: E402
-from lnn_torch.config_files import read_config  # noqa: E402
+from lnn_torch.commands.config_files import read_config  # noqa: E402
+from lnn_torch.export import programs as ex  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
+from lnn_torch.training.checkpoints import load_model  # noqa: E402
 
 from .helpers import ROOT, cli_in_process  # noqa: E402
 from .test_export import (  # noqa: E402
@@ -45,7 +45,8 @@ def record(path, seconds: float = 4.0, dt: float = 0.002, seed: int = 0, feedbac
     on its own dynamics: time, joint angles (rad), velocities (rad/s) and torques (N m) every ``dt``. With
     ``noise`` (rad/s) the recorded velocities hold white noise of that size, and with ``feedback`` (gains
     per joint, N m s/rad) the arm's controller answers it: the applied (and recorded) torque holds
-    ``-feedback * noise`` (``lnn_torch.velocity_feedback``). ``robot``: another description (default ``ROBOT``)."""
+    ``-feedback * noise`` (``lnn_torch.identification.velocity_feedback``). ``robot``: another
+    description (default ``ROBOT``)."""
     arm = MujocoArm(ROBOT if robot is None else robot)
     rng = np.random.default_rng(seed)
     amp, freq, phase = rng.uniform(0.2, 0.4, 7), rng.uniform(0.3, 0.8, 7), rng.uniform(0, 2 * np.pi, 7)

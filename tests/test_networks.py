@@ -7,7 +7,7 @@ compilation: test_compile.py."""
 import pytest
 import torch
 
-from lnn_torch.dynamics import generic_acceleration
+from lnn_torch.mechanics.euler_lagrange import generic_acceleration
 from lnn_torch.networks import VARIANTS, FiLM, SceneInfo, build_model, reference
 from lnn_torch.networks.layers import ACTIVATIONS, TangentMLP
 from lnn_torch.systems import InputError, get_system
@@ -457,7 +457,7 @@ def test_every_variant_takes_the_chunk_structure(variant, rng):
 def test_rollout_conditions_once(variant, kw, rng):
     """A rollout computes FiLM once (acceleration_fn) and equals, to the bit, integrating
     model.acceleration, which computes it at every stage; other parameters are refused."""
-    from lnn_torch import integrators
+    from lnn_torch.mechanics import integrators
 
     system = get_system("double_pendulum")
     model = perturbed(build_model(variant, system, hidden_dims=(16, 16), **kw).double())

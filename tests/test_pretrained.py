@@ -102,9 +102,9 @@ def test_evaluate_report_of_the_shipped_model(tmp_path):
 def test_evaluate_a_shipped_model_generates_its_test_split_alone_into_the_cache(tmp_path, monkeypatch, capsys):
     """No dataset file in the working directory: the 200 test trajectories of the specification the
     checkpoint records, generated once into the cache folder, the same as in the full file."""
-    from lnn_torch.checkpoints import data_hparams
     from lnn_torch.data import DatasetSpec, read_dataset, split_indices
     from lnn_torch.data.cache import split_path
+    from lnn_torch.training.checkpoint_format import data_hparams
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("LNN_TORCH_CACHE", str(tmp_path / "cache"))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lnn_torch.dynamics import generic_acceleration
 from lnn_torch.errors import InputError
+from lnn_torch.mechanics.euler_lagrange import generic_acceleration
 from lnn_torch.networks import reference
 from lnn_torch.networks.registry import build_model
 from lnn_torch.systems import get_system

@@ -316,7 +316,7 @@ def test_feedback_rows_read_the_recorded_torques_whatever_the_inputs_smoothing(r
     """``arm_identification.feedback_rows`` fits its gains to the recorded torques' band above the targets':
     a datamodule that smooths its training inputs (``smooth_inputs``) gives the same rows."""
     from lnn_torch import TrajectoryDataModule
-    from lnn_torch.arm_identification import feedback_rows
+    from lnn_torch.identification.arm_comparison import feedback_rows
 
     root, files, _, spec = recordings
     path = import_recordings(files, root / "feedback_rows.h5", spec, overwrite=True)
@@ -353,7 +353,7 @@ def test_csv_to_trained_evaluated_checkpoint_from_the_cli(recordings, tmp_path):
         assert out.returncode == 0, out.stderr[-3000:]
     ckpts = sorted(tmp_path.glob("lightning_logs/version_*/checkpoints/last.ckpt"))
     assert len(ckpts) == 2
-    from lnn_torch.checkpoints import load_model
+    from lnn_torch.training.checkpoints import load_model
 
     assert load_model(str(ckpts[-1])).model.chain is not None  # the options travel with the checkpoint
     out = run("evaluate", str(ckpts[-1]), "--split", "test", "--threads", "1", "-o", str(tmp_path / "eval"))

@@ -1,9 +1,18 @@
-"""Report formatting (``lnn_torch.report``): the one place for the cells and Markdown tables the
+"""Report formatting (``lnn_torch.evaluation.report``): the one place for the cells and Markdown tables the
 evaluation report, the stability tables, ``lnn-torch identify`` and the benchmarks write."""
 
 import math
 
-from lnn_torch.report import markdown_table, number, pct, quartile_cell, scalar_rows, table_header, table_row, time_cell
+from lnn_torch.evaluation.report import (
+    markdown_table,
+    number,
+    pct,
+    quartile_cell,
+    scalar_rows,
+    table_header,
+    table_row,
+    time_cell,
+)
 
 
 def test_cells():

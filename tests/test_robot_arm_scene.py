@@ -17,7 +17,7 @@ mujoco = pytest.importorskip("mujoco")
 
 from lnn_torch.data import DatasetSpec, generate_arrays, generate_dataset, read_dataset  # noqa: E402
 from lnn_torch.errors import InputError  # noqa: E402
-from lnn_torch.integrators import rollout  # noqa: E402
+from lnn_torch.mechanics.integrators import rollout  # noqa: E402
 from lnn_torch.robots import DESCRIPTIONS  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 from lnn_torch.robots.reference import sample_reference, within_torque  # noqa: E402

@@ -141,7 +141,7 @@ def test_no_script_or_benchmark_imports_a_private_name(name):
 @pytest.mark.parametrize("name", sorted(ALL_SOURCES))
 def test_studies_train_as_the_cli_does(name):
     """A hand-built ``Trainer`` drifts from ``lnn-torch fit`` (a study once trained without gradient
-    clipping): scripts and benchmarks build theirs with ``lnn_torch.lightning_cli.make_trainer``."""
+    clipping): scripts and benchmarks build theirs with ``lnn_torch.training.lightning_cli.make_trainer``."""
     assert not re.search(r"\bTrainer\(", ALL_SOURCES[name]), name
     assert not re.search(r"\.load_from_checkpoint\(", ALL_SOURCES[name]), name  # lnn_torch.load_model
 

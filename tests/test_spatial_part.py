@@ -14,8 +14,8 @@ import torch
 
 mujoco = pytest.importorskip("mujoco")
 
-from lnn_torch.dynamics import structured_acceleration_from_factor  # noqa: E402
 from lnn_torch.errors import InputError  # noqa: E402
+from lnn_torch.mechanics.euler_lagrange import structured_acceleration_from_factor  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.networks.base import SceneInfo  # noqa: E402
 from lnn_torch.robots import kinematics  # noqa: E402
@@ -225,7 +225,7 @@ def test_identification_with_the_exact_part_recovers_the_payload(arm, float64):
     """Noise-free engine data (states with the engine's accelerations under the recorded torques) and
     the grey box with the description's parameters and damping: ``identify`` recovers the payload's
     mass and centre of mass to 1e-6."""
-    from lnn_torch.identification import identify
+    from lnn_torch.identification.learned import identify
     from lnn_torch.systems import get_system
 
     system = get_system("robot_arm")

@@ -1,6 +1,6 @@
 """Numerical stability on hard cases, for every model variant and the ground-truth generator.
 
-Hard cases (``lnn_torch.stability.hard_cases``): m2/m1 = 1e-3 and 1e3, l2/l1 = 0.1 and 10, parameters
+Hard cases (``lnn_torch.evaluation.stability.hard_cases``): m2/m1 = 1e-3 and 1e3, l2/l1 = 0.1 and 10, parameters
 10x outside the ranges, inverted starts with |qd0| = 10 rad/s and whirling, angles of +-1e4 rad,
 zero and tiny velocities; long horizons; float32 against float64; training with a learning rate
 10x too high and with constant chunks. Each guard has a test that shows what goes wrong without it.
@@ -14,16 +14,16 @@ import pytest
 import torch
 
 from lnn_torch.data import DatasetSpec, GenerationError, generate_arrays
-from lnn_torch.dynamics import SingularHessianError
-from lnn_torch.ground_truth import ClosedForm, integrate_ground_truth
-from lnn_torch.integrators import rollout
-from lnn_torch.losses import energy_variance
-from lnn_torch.metrics import energy_drift
+from lnn_torch.evaluation.metrics import energy_drift
+from lnn_torch.evaluation.stability import hard_cases, run_hard_cases
+from lnn_torch.mechanics import wrap_angle
+from lnn_torch.mechanics.euler_lagrange import SingularHessianError
+from lnn_torch.mechanics.integrators import rollout
 from lnn_torch.networks import VARIANTS, build_model
-from lnn_torch.networks.base import wrap_angle
 from lnn_torch.networks.calls import model_rollout
-from lnn_torch.stability import hard_cases, run_hard_cases
 from lnn_torch.systems import InputError, get_system
+from lnn_torch.systems.ground_truth import ClosedForm, integrate_ground_truth
+from lnn_torch.training.losses import energy_variance
 
 from .conftest import dop853_reference
 
@@ -69,7 +69,7 @@ def test_black_box_lnn_on_hard_cases_is_finite_or_refuses_clearly():
     some states are singular. Policy: finite accelerations or a clear SingularHessianError, never
     NaN; evaluations (``counting_failures``) count such trajectories instead of aborting. (The
     rollout raising at a singular state is pinned down by test_singular_hessian_policy_...)"""
-    from lnn_torch.dynamics import SingularHessianError
+    from lnn_torch.mechanics.euler_lagrange import SingularHessianError
     from lnn_torch.networks.calls import counting_failures
 
     model = fresh_model("lnn")
@@ -133,8 +133,8 @@ def test_generator_tightens_its_adaptive_tolerance_for_trajectories_that_still_f
     """A trajectory that fails the energy check at ``adaptive_tol`` is integrated again ten and a
     hundred times tighter: here the check (2e-8) is missed at 1e-6 and 1e-7 and met at 1e-8, so the
     generation succeeds; with a check no tolerance down to 1e-8 meets it names the tightest one."""
-    from lnn_torch.ground_truth import power_balance_residual
     from lnn_torch.systems import get_system
+    from lnn_torch.systems.ground_truth import power_balance_residual
 
     system = get_system("double_pendulum", theta_range=[3.0, 3.2], omega_range=[-10.0, 10.0])
     rng = np.random.default_rng(11)
@@ -249,7 +249,7 @@ def test_ground_truth_long_horizon_1e5_rk4_steps():
     """1e5 RK4 steps (500 s at dt = 0.005 s) of the closed form: finite, energy bounded.
     Measured max drift ~2e-7 of V_max - V_min (RK4 is not symplectic; drift grows linearly).
     The step (lnn_torch's rk4_step of the closed form) runs compiled: 1e5 eager steps take ~2 min."""
-    from lnn_torch.integrators import rk4_step
+    from lnn_torch.mechanics.integrators import rk4_step
     from lnn_torch.perf import compile_fn
 
     rng = np.random.default_rng(3)
@@ -272,7 +272,7 @@ def test_models_long_horizon(variant):
     """Untrained models over long RK4 horizons stay finite (1e4 steps; 1e3 for the black-box LNN, whose
     untrained indefinite Hessian may turn singular: then a clear error, never NaN). The 1e5-step runs
     of trained models are in the stability report of ``lnn-torch evaluate``."""
-    from lnn_torch.dynamics import SingularHessianError
+    from lnn_torch.mechanics.euler_lagrange import SingularHessianError
 
     model = fresh_model(variant, hidden=(8, 8))
     rng = np.random.default_rng(4)
@@ -316,7 +316,7 @@ def test_energy_term_is_finite_on_constant_and_one_point_chunks():
 
 def test_datamodule_refuses_empty_chunks(tmp_path):
     from lnn_torch.data import generate_dataset
-    from lnn_torch.data.datamodule import TrajectoryDataModule
+    from lnn_torch.training.datamodule import TrajectoryDataModule
 
     spec = dict(num_trajectories=4, duration=0.5, seed=1)
     path = generate_dataset(DatasetSpec(**spec), tmp_path / "d.h5")
@@ -328,7 +328,7 @@ def test_datamodule_refuses_empty_chunks(tmp_path):
 
 
 def test_stability_pivot_has_a_row_per_case_and_flags_non_finite_rollouts():
-    from lnn_torch.stability import stability_pivot
+    from lnn_torch.evaluation.stability import stability_pivot
 
     rows = lambda nf: [{"case": "nominal", "non_finite_fraction": 0.0, "max_energy_drift": 1e-3, "max_cond": 5.0},  # noqa: E731
                        {"case": "inverted, |qd0| = 10", "non_finite_fraction": nf, "max_energy_drift": 2.0,

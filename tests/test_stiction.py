@@ -8,11 +8,11 @@ import math
 import pytest
 import torch
 
-from lnn_torch.forces import holding_torque, soft_clip, stick_weight
-from lnn_torch.module import LNNModule
+from lnn_torch.mechanics.forces import holding_torque, soft_clip, stick_weight
 from lnn_torch.networks import build_model
 from lnn_torch.systems import InputError, get_system
 from lnn_torch.systems.measured import MeasuredSystem
+from lnn_torch.training.module import LNNModule
 
 from .helpers import perturbed
 

@@ -12,7 +12,7 @@ import torch
 
 from lnn_torch import LNNModule
 from lnn_torch.data import DatasetSpec, generate_dataset
-from lnn_torch.data.datamodule import TrajectoryDataModule
+from lnn_torch.training.datamodule import TrajectoryDataModule
 
 from .helpers import ROOT, make_dm, quiet_trainer, random_batch, run_cli
 
@@ -223,7 +223,7 @@ def test_last_checkpoint_holds_the_final_weights_when_validation_stops_improving
     LastCheckpoint writes it at every epoch's end. Monitored here: a metric that never improves."""
     from lightning.pytorch.callbacks import ModelCheckpoint
 
-    from lnn_torch.callbacks import LastCheckpoint
+    from lnn_torch.training.callbacks import LastCheckpoint
 
     model = LNNModule(hidden_dims=[8, 8], val_rollouts=0)
     monitored = ModelCheckpoint(monitor="val/acc_non_finite", mode="min")
@@ -245,8 +245,8 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
     ckpt = torch.load(tmp_path / "new.ckpt", weights_only=False)
     assert ckpt["hyper_parameters"]["hidden_dims"] == [64, 64]
     assert LNNModule.load_from_checkpoint(tmp_path / "new.ckpt").model.hidden_dims == (64, 64)
-    from lnn_torch import __version__
-    from lnn_torch.checkpoints import CHECKPOINT_FORMAT
+    from lnn_torch._version import __version__
+    from lnn_torch.training.checkpoint_format import CHECKPOINT_FORMAT
 
     # what a newer-version check reads
     assert ckpt["lnn_torch"] == {"version": __version__, "format": CHECKPOINT_FORMAT}

@@ -1,11 +1,11 @@
-"""``lnn_torch.velocity_feedback``: the gains of a robot's feedback on its measured velocity, recovered
+"""``lnn_torch.identification.velocity_feedback``: the gains of a robot's feedback on its measured velocity, recovered
 from a torque error that holds it, dropped where validation does not prefer them, and clear errors."""
 
 import pytest
 import torch
 
-from lnn_torch import velocity_feedback as vf
 from lnn_torch.errors import InputError
+from lnn_torch.identification import velocity_feedback as vf
 
 
 def _signals(n: int, gains: torch.Tensor, seed: int, noise: float = 0.05):

@@ -8,7 +8,7 @@ for the hardware, and report how it did.
 ``CHECKPOINT`` (a path or ``pretrained:NAME``) is the model the controller is designed on; ``plant``
 designs it on the plant itself (the comparison a learned model has to meet). The scenario (YAML):
 
-* ``plant``: ``{identified: FILE}`` (an identified rigid-body arm, ``lnn_torch.identified``),
+* ``plant``: ``{identified: FILE}`` (an identified rigid-body arm, ``lnn_torch.identification.two_link``),
   ``{scene: NAME, scene_config: {...}, params: [...], actuation: full | [true, false] ...}`` or
   ``{robot: DESCRIPTION, params: [payload]}``: a robot description's arm simulated by MuJoCo
   (``lnn_torch.robots.mujoco_arm``; a shipped name, an MJCF or URDF path, ``{source, remove, armature,
@@ -67,7 +67,7 @@ def build_plant(spec: dict, where: str, design=None):
     """The plant of a scenario's ``plant`` mapping, its parameters ``(1, P)`` (or None) and what it
     simulates (``design``: the model, for ``robot: model``)."""
     from ..control import plant_of
-    from ..identified import RigidArmModel
+    from ..identification.two_link import RigidArmModel
     from ..systems import get_system
 
     if "identified" in spec:
@@ -107,7 +107,7 @@ def build_plant(spec: dict, where: str, design=None):
 
 def _plant_model(value, design, where: str):
     """A scenario's ``plant.model``: the model the controller is designed on (``design``) or a checkpoint."""
-    from ..checkpoints import load_model
+    from ..training.checkpoints import load_model
 
     if value == "design":
         if design is None:
@@ -327,9 +327,9 @@ def _animation(xy, dt: float, path: Path, result: dict) -> Path:
 
 
 def main(argv: list[str]) -> int:
-    from ..checkpoints import load_model
-    from ..config_files import read_config
     from ..perf import configure_cpu, quiet_compile_logs
+    from ..training.checkpoints import load_model
+    from .config_files import read_config
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)

@@ -16,7 +16,7 @@ Reports (JSON, Markdown and PNG plots in ``--output-dir``) every section of
   the condition number of the learned M (structured variants);
 * the scene's out-of-distribution cases;
 * open-loop horizons from many start points, driven by the recorded inputs;
-* a stability table on the scene's hard cases (``lnn_torch.stability``): non-finite fraction, max
+* a stability table on the scene's hard cases (``lnn_torch.evaluation.stability``): non-finite fraction, max
   true-energy drift and the condition number of the learned mass matrix, including a long horizon
   of 1e5 RK4 steps.
 
@@ -39,14 +39,14 @@ import argparse
 import json
 from pathlib import Path
 
-from ..report import table_header
+from ..evaluation.report import table_header
 
 
 def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
     """metrics.json, report.md and PNG plots: the header, then what each computed section presents
     (its rows of the main table, its own blocks, its figures) in order, then the skipped sections
     and why. ``system`` is not needed (kept for callers)."""
-    from ..plots import evaluation_plots
+    from ..evaluation.plots import evaluation_plots
 
     output_dir.mkdir(parents=True, exist_ok=True)
     clean = {k: v for k, v in result.items() if not k.startswith("_")}
@@ -121,11 +121,13 @@ def _progress():
 
 
 def main(argv: list[str]) -> int:
-    from ..checkpoints import data_hparams, load_model, output_dir
-    from ..data import TrajectoryDataModule, derivatives, read_dataset
+    from ..data import derivatives, read_dataset
     from ..errors import InputError
     from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu, quiet_compile_logs
+    from ..training.checkpoint_format import data_hparams, output_dir
+    from ..training.checkpoints import load_model
+    from ..training.datamodule import TrajectoryDataModule
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)

@@ -17,7 +17,7 @@ and the forces need a structured model (film_lnn, delan) of a scene with inputs 
 friction); the mass matrix a structured model. Variants whose accelerations need autograd (lnn, hnn) cannot
 be exported. ONNX needs the optional packages onnx and onnxscript (``pip install 'lnn-torch[export]'``);
 ``aoti`` compiles each program to native code with AOTInductor (a C++ compiler, 10-20 s per
-function on one thread). ``lnn_torch.export`` has the details.
+function on one thread). ``lnn_torch.export.programs`` has the details.
 
     lnn-torch export pretrained:double_pendulum -o exported
     lnn-torch export lightning_logs/version_0/checkpoints/last.ckpt --format pt2 onnx --dtype float64
@@ -31,7 +31,7 @@ import argparse
 
 
 def _parser() -> argparse.ArgumentParser:
-    from ..export import DTYPES, FORMATS, FUNCTIONS
+    from ..export.programs import DTYPES, FORMATS, FUNCTIONS
     from ..pretrained import available
 
     ap = argparse.ArgumentParser(prog="lnn-torch export", description=__doc__,
@@ -64,9 +64,10 @@ def _signature(entry: dict) -> str:
 def main(argv: list[str]) -> int:
     import json
 
-    from ..checkpoints import load_model, output_dir
-    from ..export import export_model
+    from ..export.programs import export_model
     from ..perf import configure_cpu, quiet_compile_logs
+    from ..training.checkpoint_format import output_dir
+    from ..training.checkpoints import load_model
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)

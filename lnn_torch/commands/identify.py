@@ -1,7 +1,7 @@
 """``lnn-torch identify``: which member of the model's family produced this recording?
 
 Finds the physical parameters that make a trained (or shipped) parameter-conditioned model best
-explain one observed trajectory (``lnn_torch.identification``), reports what the observation can
+explain one observed trajectory (``lnn_torch.identification.learned``), reports what the observation can
 and cannot determine, and puts the classical least-squares estimate on the scene's true equations
 beside it where the scene has one.
 
@@ -11,9 +11,9 @@ beside it where the scene has one.
 A model of a measured robot arm (recordings imported with its robot description, no parameters to
 find) is identified the way robotics labs do it instead: classical least squares on the base
 parameters with the model's drive model (ordinary, weighted, physically consistent;
-``lnn_torch.arm_identification``), fitted on the dataset's training split, beside the model, as the
+``lnn_torch.identification.arm_comparison``), fitted on the dataset's training split, beside the model, as the
 held-out joint-torque error per joint in N m on ``--split`` (default test); ``--feedback`` adds each
-with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``).
+with the robot's feedback on its measured velocity (``lnn_torch.identification.velocity_feedback``).
 
     lnn-torch identify runs/real_panda/.../last.ckpt data/real_panda.h5 --feedback
 
@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..report import number, pct, table_header, table_row
+from ..evaluation.report import number, pct, table_header, table_row
 
 
 @dataclass
@@ -82,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
     arm.add_argument("--feedback", action="store_true",
                      help="also the model and each fit with the robot's feedback on its measured velocity (one gain "
                           "per joint on the recorded velocity above the targets' band, fitted on the training split, "
-                          "kept where the validation split prefers it; lnn_torch.velocity_feedback)")
+                          "kept where the validation split prefers it; lnn_torch.identification.velocity_feedback)")
     ap.add_argument("--output-dir", "-o", default=None,
                     help="where the report goes (default: identification/<recording>, with the split and trajectory "
                          "of a dataset file, so that identifying another recording keeps this one's report)")
@@ -153,9 +153,9 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
 
 
 def main(argv: list[str]) -> int:
-    from ..checkpoints import load_model
-    from ..identification import identify, least_squares_reference
+    from ..identification.learned import identify, least_squares_reference
     from ..perf import configure_cpu
+    from ..training.checkpoints import load_model
 
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
@@ -179,7 +179,7 @@ def main(argv: list[str]) -> int:
     # the same fit on the scene's own equations (the ceiling), where torch can differentiate them (an
     # engine-backed scene such as robot_arm has its least-squares reference instead)
     if system.closed_form and getattr(system, "differentiable", True):
-        from ..ground_truth import ClosedForm
+        from ..systems.ground_truth import ClosedForm
 
         exact = identify(ClosedForm(system), system, obs.t, q, obs.qd, obs.tau, obs.qdd, method=args.method,
                          starts=args.starts, steps=args.steps, window=args.window, seed=args.seed)
@@ -208,7 +208,8 @@ def _measured_arm(system) -> bool:
 
 def _identify_arm(module, args) -> int:
     """Classical identification of a measured arm beside its model (module docstring)."""
-    from ..arm_identification import (
+    from ..data import read_dataset
+    from ..identification.arm_comparison import (
         classical_torque,
         compare_on_arm,
         feedback_rows,
@@ -216,8 +217,8 @@ def _identify_arm(module, args) -> int:
         markdown,
         model_torque,
     )
-    from ..checkpoints import data_hparams
-    from ..data import TrajectoryDataModule, read_dataset
+    from ..training.checkpoint_format import data_hparams
+    from ..training.datamodule import TrajectoryDataModule
 
     path = Path(args.recording)
     if path.suffix not in (".h5", ".hdf5"):
@@ -320,7 +321,7 @@ def _plot(module, system, obs: Observation, q_used, result, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..identification import estimate_derivatives
+    from ..identification.learned import estimate_derivatives
 
     dt = float(obs.t[1] - obs.t[0])
     q = torch.as_tensor(q_used, dtype=torch.float64)

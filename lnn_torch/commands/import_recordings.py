@@ -87,7 +87,7 @@ def spec_from_args(args):
 
     fields: dict = {}
     if args.config:
-        from ..config_files import read_config
+        from .config_files import read_config
 
         fields = read_config(args.config, "import config")
         if fields.get("robot") is not None:

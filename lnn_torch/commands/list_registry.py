@@ -54,7 +54,7 @@ def part_rows() -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    from ..integrators import METHODS
+    from ..mechanics.integrators import METHODS
     from ..pretrained import available
 
     what = _parser().parse_args(argv).what

@@ -1,7 +1,7 @@
 """``lnn-torch simulate``: roll a trained model out from a given state and parameters.
 
 Writes the trajectory (CSV or HDF5, by the output's suffix) and a plot. By default the scene's
-exact trajectory from the same state (``lnn_torch.ground_truth.reference_rollout``) is written
+exact trajectory from the same state (``lnn_torch.systems.ground_truth.reference_rollout``) is written
 beside it, with the true energy of the model's trajectory, so that the output shows how far the
 model can be trusted.
 
@@ -10,7 +10,7 @@ model can be trusted.
 
 An actuated scene's model is driven by inputs: ``--inputs FILE.csv`` (a column per input, named as
 the scene's inputs, e.g. ``tau1,tau2``, and optionally ``t``: the inputs are held from each row's
-time to the next, zero-order) or a named excitation ``--excitation JSON`` (``lnn_torch.excitation``,
+time to the next, zero-order) or a named excitation ``--excitation JSON`` (``lnn_torch.systems.excitation``,
 e.g. ``'{"kind": "multisine", "amplitude": [1.0, 0.5]}'``; ``'{"kind": "none"}'`` for free motion).
 The true-energy drift is then the power-balance error |E(t) - E(0) - W(t)|.
 """
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..integrators import METHODS
+from ..mechanics.integrators import METHODS
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -56,7 +56,7 @@ def _parser() -> argparse.ArgumentParser:
     inputs.add_argument("--inputs", default=None, metavar="CSV",
                         help="inputs of an actuated scene: a column per input (and optionally t), held zero-order")
     inputs.add_argument("--excitation", default=None, metavar="JSON",
-                        help="inputs of an actuated scene from a named excitation (lnn_torch.excitation)")
+                        help="inputs of an actuated scene from a named excitation (lnn_torch.systems.excitation)")
     ap.add_argument("--seed", type=int, default=0, help="seed of --excitation")
     return ap
 
@@ -105,9 +105,9 @@ def simulate_model(model, params, q0, qd0, duration: float, dt: float, method: s
     (steps, n_u)`` of an actuated scene (held over each step). Returns numpy arrays: ``t``, ``q``,
     ``qd`` ``(T, dof)``, the true energy and its drift (power-balance error, with forces) along the
     model's trajectory, and (``exact``) the exact trajectory ``q_exact``
-    (``lnn_torch.ground_truth.reference_rollout``)."""
-    from ..ground_truth import reference_rollout
-    from ..metrics import power_balance_error
+    (``lnn_torch.systems.ground_truth.reference_rollout``)."""
+    from ..evaluation.metrics import power_balance_error
+    from ..systems.ground_truth import reference_rollout
 
     system = model.system
     params = torch.tensor([params], dtype=torch.float64)
@@ -170,7 +170,7 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
 
 
 def plot_trajectory(path: Path, result: dict, system) -> Path:
-    from ..plots import plt
+    from ..evaluation.plots import plt
 
     names = system.coord_names
     rows = system.dof + ("energy_drift" in result)
@@ -221,7 +221,7 @@ def main(argv: list[str]) -> int:
     for path in (output, plot):
         if path.exists() and not args.overwrite:
             raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite)")
-    from ..checkpoints import load_model
+    from ..training.checkpoints import load_model
 
     model = load_model(source)
     if args.compile:
@@ -235,7 +235,7 @@ def main(argv: list[str]) -> int:
         if args.inputs:
             tau = read_inputs(args.inputs, system.input_names, t)
         elif args.excitation:
-            from ..excitation import sample
+            from ..systems.excitation import sample
 
             tau = sample(json.loads(args.excitation), np.random.default_rng(args.seed), t, system.num_inputs)
         else:

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..integrators import held, semi_implicit_euler_step
-from ..metrics import wrap_angles as wrap
+from ..mechanics.angles import wrap_angles as wrap
+from ..mechanics.integrators import held, semi_implicit_euler_step
 from .plant import Plant
 
 

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import torch
 
 from ..errors import InputError
-from ..identified import RigidArmModel
-from ..integrators import held, rk4_step
+from ..identification.two_link import RigidArmModel
+from ..mechanics.integrators import held, rk4_step
 from ..networks.base import DynamicsModel
 from ..networks.capabilities import FORCES, MASS_MATRIX, capabilities_of
 from ..robots.mujoco_arm import MujocoArm
@@ -208,7 +208,7 @@ def _joint_inputs(joint_map: torch.Tensor, actuation) -> torch.Tensor:
 def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant:
     """The plant view of ``source``: a scene (``lnn_torch.systems``), a trained model (``LNNModule``
     or its network; it must provide a mass matrix: the structured variants), an identified
-    rigid-body model (``lnn_torch.identified.RigidArmModel``) or a robot description's arm through
+    rigid-body model (``lnn_torch.identification.two_link.RigidArmModel``) or a robot description's arm through
     MuJoCo (``lnn_torch.robots.mujoco_arm.MujocoArm``: its parameters the payload at the flange).
 
     ``actuation``: for a source without inputs of its own, which joints carry a motor (see

@@ -1,4 +1,4 @@
-"""Dataset generation around a scene's recorder (``lnn_torch.recording``): here alone the seeding (one
+"""Dataset generation around a scene's recorder (``lnn_torch.systems.recording``): here alone the seeding (one
 generator per trajectory, ``trajectory_rng``), the progress, the targets, the energy, the arrays, the
 split and every file attribute; float64 throughout."""
 
@@ -14,10 +14,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .. import __version__
+from .._version import __version__
 from ..errors import InputError
-from ..ground_truth import relative_residual
-from ..recording import Recording, sample_conditions
+from ..systems.ground_truth import relative_residual
+from ..systems.recording import Recording, sample_conditions
 from .hdf5 import check_writable, write_dataset
 from .spec import DatasetSpec
 
@@ -31,7 +31,7 @@ def trajectory_rng(seed: int, index: int) -> np.random.Generator:
 
 def sample_initial_conditions(spec: DatasetSpec, indices=None, inputs: bool = False):
     """Parameters and initial states of the given trajectories (default: all), float64 arrays; with
-    ``inputs``, also each trajectory's input signal ``(N, num_points, n_u)`` (``lnn_torch.excitation``;
+    ``inputs``, also each trajectory's input signal ``(N, num_points, n_u)`` (``lnn_torch.systems.excitation``;
     drawn after the state from the same generator, so parameters and states do not depend on it)."""
     indices = range(spec.num_trajectories) if indices is None else indices
     t = np.arange(spec.num_points) * spec.dt

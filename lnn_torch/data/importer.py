@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .._version import __version__
 from ..errors import InputError
 from ..systems import get_system
 from .hdf5 import check_writable, write_dataset

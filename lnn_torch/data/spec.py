@@ -7,7 +7,7 @@ import math
 from dataclasses import asdict, dataclass, field
 
 from ..errors import InputError
-from ..integrators import METHODS
+from ..mechanics.integrators import METHODS
 from ..systems import System, get_system
 
 _SCENE = "_scene"  # the instance attribute holding ((scene, scene_config as JSON), the built scene)
@@ -25,7 +25,7 @@ class DatasetSpec:
         dt: sampling interval in s (``round(duration / dt) + 1`` points per trajectory).
         seed: master seed; trajectory ``i`` uses the seed sequence ``(seed, i)``.
         split: train/val/test fractions by trajectory.
-        integrator: fixed-step method of ``lnn_torch.integrators`` used for ground truth.
+        integrator: fixed-step method of ``lnn_torch.mechanics.integrators`` used for ground truth.
         substeps: fixed integrator steps per sampling interval (first pass); None: the scene's
             ``ground_truth_substeps``.
         energy_tol: a trajectory whose energy drifts (with inputs or friction: whose power balance
@@ -35,7 +35,7 @@ class DatasetSpec:
         adaptive_tol: tolerances of the adaptive pass.
         targets: ``"analytic"`` (the scene's closed-form accelerations, default) or
             ``"finite_difference"`` (second-order central differences of qd, as for measured data).
-        excitation: the input signals of an actuated scene (``lnn_torch.excitation``); empty: the
+        excitation: the input signals of an actuated scene (``lnn_torch.systems.excitation``); empty: the
             scene's ``default_excitation()``. Refused for a scene without inputs, and by a scene whose
             inputs come from its own recording (``robot_arm``: a tracking controller's torques).
 

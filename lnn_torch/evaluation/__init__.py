@@ -29,10 +29,10 @@ stability) are skipped for a measured system, whose recordings are the reference
 
 Models are anything with ``acceleration(q, qd, params, tau=None, check=False)`` and ``rollout(q0,
 qd0, params, dt, num_steps, method, tau=None)`` in SI units (every ``DynamicsModel``;
-``lnn_torch.ground_truth.ClosedForm(system)`` for the scene's own dynamics), and ``capabilities`` (a
+``lnn_torch.systems.ground_truth.ClosedForm(system)`` for the scene's own dynamics), and ``capabilities`` (a
 set of the ``lnn_torch.networks.capabilities`` names; an object without it provides none). Rollouts
 of an actuated scene are driven by the recorded inputs, held over each step (zero-order hold). The
-exact reference is ``lnn_torch.ground_truth.reference_rollout``.
+exact reference is ``lnn_torch.systems.ground_truth.reference_rollout``.
 
 Also importable from here, for compatibility (their homes in brackets): ``ClosedForm``,
 ``reference_rollout`` (``ground_truth``); ``capabilities_of``, ``missing`` and the capability names
@@ -43,8 +43,10 @@ Also importable from here, for compatibility (their homes in brackets): ``Closed
 from __future__ import annotations
 
 from ..data.trajectories import Trajectories
-from ..ground_truth import ClosedForm, reference_rollout
-from ..metrics import (
+from ..networks.calls import counting_failures, model_accelerations, model_rollout
+from ..networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, capabilities_of, missing
+from ..systems.ground_truth import ClosedForm, reference_rollout
+from .metrics import (
     acceleration_errors,
     condition_numbers,
     divergence_time,
@@ -55,9 +57,7 @@ from ..metrics import (
     relative_l2,
     scaled_matrix_error,
 )
-from ..networks.calls import counting_failures, model_accelerations, model_rollout
-from ..networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, capabilities_of, missing
-from ..plots import section_figures
+from .plots import section_figures
 from .registry import SECTIONS, EvalContext, SectionResult, report_sections, section, section_logs, skip
 
 # the section modules register their sections on import: the report's order is this order, then the

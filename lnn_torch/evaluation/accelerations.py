@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import time
 
-from ..metrics import acceleration_errors
 from ..networks.calls import model_accelerations
-from ..report import pct, table_row
+from .metrics import acceleration_errors
 from .registry import EvalContext, SectionResult, section, skip
+from .report import pct, table_row
 
 _LABELS = {"per_trajectory_median": "per-trajectory median", "per_trajectory_p90": "per-trajectory p90",
            "non_finite_fraction": "non-finite points"}

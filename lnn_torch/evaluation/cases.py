@@ -2,7 +2,7 @@
 
 * ``ood``: the scene's out-of-distribution cases (``System.ood_cases``), inputs off: acceleration
   error, divergence time and energy drift (power-balance error with forces) per case;
-* ``stability``: the scene's hard cases (``lnn_torch.stability``: extreme parameters, high energy,
+* ``stability``: the scene's hard cases (``lnn_torch.evaluation.stability``: extreme parameters, high energy,
   large angles, zero velocity) and a long horizon.
 """
 
@@ -12,14 +12,14 @@ import functools
 
 import torch
 
-from ..ground_truth import reference_rollout
-from ..metrics import divergence_time, power_balance_error, relative_l2
 from ..networks.calls import model_accelerations, model_rollout
 from ..networks.capabilities import MASS_MATRIX, capabilities_of
-from ..plots import frames_figure
-from ..report import pct, table_header, table_row, time_cell
-from ..stability import HardCase, hard_cases, run_hard_cases, stability_markdown
+from ..systems.ground_truth import reference_rollout
+from .metrics import divergence_time, power_balance_error, relative_l2
+from .plots import frames_figure
 from .registry import EvalContext, SectionResult, _closed_form, _figure, _units, section, skip
+from .report import pct, table_header, table_row, time_cell
+from .stability import HardCase, hard_cases, run_hard_cases, stability_markdown
 
 
 @section("ood")
@@ -80,6 +80,6 @@ def _stability(ctx: EvalContext) -> SectionResult:
     rows = run_hard_cases(functools.partial(model_rollout, ctx.model), ctx.system, cases,
                           model=ctx.model if with_m else None, method=ctx.integrator)
     variant = getattr(ctx.model, "variant", type(ctx.model).__name__)
-    block = ["", f"Stability on hard cases ({ctx.integrator}, dt = {dt:g} s; `lnn_torch.stability`):", "",
+    block = ["", f"Stability on hard cases ({ctx.integrator}, dt = {dt:g} s; `lnn_torch.evaluation.stability`):", "",
              stability_markdown({variant: rows})]
     return SectionResult({"stability": rows}, blocks=block)

@@ -9,10 +9,10 @@ import time
 
 import torch
 
-from ..metrics import coordinate_error, divergence_time, quartiles
 from ..networks.calls import model_rollout
-from ..report import quartile_cell, table_header, table_row
+from .metrics import coordinate_error, divergence_time, quartiles
 from .registry import EvalContext, SectionResult, _inputs_note, _units, section, skip
+from .report import quartile_cell, table_header, table_row
 
 
 @section("horizons")

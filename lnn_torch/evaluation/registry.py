@@ -6,7 +6,7 @@ of the report, its figures and the scalars training logs), ``skip(reason)``, or 
 values (reported as rows of their scalars). The registration order is the report's order.
 
 Also here: the small helpers the sections share (``_closed_form``: skip a scene without one,
-``_units``, ``_inputs_note``, ``_figure``: a lazily drawn figure of ``lnn_torch.plots``).
+``_units``, ``_inputs_note``, ``_figure``: a lazily drawn figure of ``lnn_torch.evaluation.plots``).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 import torch
 
 from ..data.trajectories import Trajectories
-from ..metrics import coordinate_error
 from ..networks.calls import model_rollout
-from ..report import scalar_rows
+from .metrics import coordinate_error
+from .report import scalar_rows
 
 SECTIONS: dict[str, Callable[[EvalContext], SectionResult | dict]] = {}
 
@@ -175,7 +175,7 @@ def _inputs_note(system) -> str:
 
 
 def _figure(draw: Callable, *args, **kwargs) -> Callable[[dict], object]:
-    """A figure builder ``fn(result)``: ``draw(*args, **kwargs)`` (a figure of ``lnn_torch.plots``),
+    """A figure builder ``fn(result)``: ``draw(*args, **kwargs)`` (a figure of ``lnn_torch.evaluation.plots``),
     drawn only when the builder is called, with tensors copied to the host (a model evaluated on a
     GPU: matplotlib reads host memory)."""
     def build(result: dict):

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import torch
 
-from ..ground_truth import reference_rollout
-from ..metrics import divergence_time, energy_drift, power_balance_error, quartiles
-from ..plots import drift_figure, error_growth_figure, trajectory_figure
-from ..report import pct, quartile_cell, table_row
+from ..systems.ground_truth import reference_rollout
+from .metrics import divergence_time, energy_drift, power_balance_error, quartiles
+from .plots import drift_figure, error_growth_figure, trajectory_figure
 from .registry import EvalContext, SectionResult, _closed_form, _figure, _inputs_note, _units, host, section
+from .report import pct, quartile_cell, table_row
 
 
 @section("rollouts")

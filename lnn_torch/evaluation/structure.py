@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import torch
 
-from ..ground_truth import reference_rollout
-from ..metrics import condition_numbers, divergence_time, normalized_rmse, scaled_matrix_error
 from ..networks.calls import model_rollout
 from ..networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX
-from ..plots import decay_figure, friction_figure, torque_figure
-from ..report import pct, table_row
+from ..systems.ground_truth import reference_rollout
+from .metrics import condition_numbers, divergence_time, normalized_rmse, scaled_matrix_error
+from .plots import decay_figure, friction_figure, torque_figure
 from .registry import EvalContext, SectionResult, _closed_form, _figure, section, skip
+from .report import pct, table_row
 
 
 def _finite_rows(*tensors) -> torch.Tensor:

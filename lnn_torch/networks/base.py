@@ -19,10 +19,9 @@ import warnings
 import torch
 from torch import nn
 
-from .. import integrators
 from ..errors import InputError, UntrustedParameterWarning
-from ..forces import check_inputs as check_tau
-from ..metrics import wrap_angle  # noqa: F401 - importable from here as before
+from ..mechanics import integrators
+from ..mechanics.forces import check_inputs as check_tau
 from ..perf import compile_pays
 from ..systems.base import check_param_signs
 from .capabilities import (  # noqa: F401 - the capability names, also importable from here
@@ -256,7 +255,7 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         inputs ``tau (B, num_steps, n_u)`` held over each step for an actuated scene).
 
         Returns ``(q, qd)``, each ``(B, num_steps + 1, dof)``. Second-order models integrate their
-        accelerations with ``lnn_torch.integrators.rollout``; Hamiltonian models their own flow.
+        accelerations with ``lnn_torch.mechanics.integrators.rollout``; Hamiltonian models their own flow.
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])

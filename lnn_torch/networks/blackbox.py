@@ -1,5 +1,5 @@
 """The LNN paper's black-box Lagrangian (Cranmer et al.): an MLP ``L(q, qd, theta)`` whose accelerations
-come from the generic Euler-Lagrange solve (``lnn_torch.dynamics.generic_acceleration``: torch.func
+come from the generic Euler-Lagrange solve (``lnn_torch.mechanics.euler_lagrange.generic_acceleration``: torch.func
 Hessians, which work whatever the outer grad mode, so evaluation and rollouts run under no_grad).
 
 Softplus by default (the LNN paper's choice): tanh saturates the velocity Hessian of the network
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from ..dynamics import generic_acceleration
+from ..mechanics.euler_lagrange import generic_acceleration
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, NAN_ON_SINGULAR
 from .layers import TangentMLP

@@ -3,7 +3,7 @@ undefined accelerations as NaN instead of raising (``NAN_ON_SINGULAR`` models).
 
 Models are anything with ``acceleration(q, qd, params, tau=None, check=False)`` and ``rollout(q0, qd0,
 params, dt, num_steps, method, tau=None)`` in SI units (every ``DynamicsModel``; a scene's closed
-form, ``lnn_torch.ground_truth.ClosedForm``).
+form, ``lnn_torch.systems.ground_truth.ClosedForm``).
 """
 
 from __future__ import annotations

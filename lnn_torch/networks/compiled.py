@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import torch
 
-from .. import integrators
 from ..errors import InputError, SingularHessianError
+from ..mechanics import integrators
 from ..perf import CompiledFallback, compile_fn, warn_compile_failure
 
 

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..metrics import wrap_angle
+from ..mechanics.angles import wrap_angle
 
 
 class AngleFeatures(nn.Module):
@@ -64,7 +64,7 @@ class AngleFeatures(nn.Module):
 
         On the CPU, sin/cos read the raw angles: torch's CPU kernels reduce large arguments exactly
         (``tests/test_stability.py::test_angle_features_are_exact_at_1e4_rad``). On other devices the
-        angles are first wrapped to [-pi, pi) in float64 (``lnn_torch.metrics.wrap_angle``), in case a
+        angles are first wrapped to [-pi, pi) in float64 (``lnn_torch.mechanics.angles.wrap_angle``), in case a
         device kernel reduces large arguments inexactly. The dynamics and rollouts never see wrapped
         angles."""
         qa = self.angles(q_norm)

@@ -1,5 +1,5 @@
 """Learned generalised forces of a model: inputs through the input matrix, and dissipation that can
-never inject energy (``lnn_torch.forces`` has the physics).
+never inject energy (``lnn_torch.mechanics.forces`` has the physics).
 
 Built only for scenes that declare inputs or friction (``SceneInfo.has_forces``): a model of a
 conservative scene has no such module and no extra parameter.
@@ -17,7 +17,7 @@ conservative scene has no such module and no extra parameter.
   with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
   the rest of the model), or free coefficients where the scene has no parameters. ``v`` is the
   scene's Coulomb smoothing velocity.
-* ``friction``: the drive model's forms (``lnn_torch.drives``): ``viscous+coulomb`` (the default, as
+* ``friction``: the drive model's forms (``lnn_torch.mechanics.friction``): ``viscous+coulomb`` (the default, as
   above) or any of ``viscous``, ``coulomb``, ``offset`` (a constant torque per joint: an asymmetry or
   a torque sensor's offset; *not* dissipative), ``stribeck`` (``s >= 0``, a breakaway above Coulomb
   fading over ``v_s``) and ``sigmoid`` (Gaz et al.'s ``phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2
@@ -26,7 +26,7 @@ conservative scene has no such module and no extra parameter.
 * ``dissipation="joint+stiction"`` adds static friction to the joint friction: a joint slower than
   the stick velocity ``v_s`` (2.5 times the scene's Coulomb smoothing velocity) is held at rest by
   up to its Coulomb level ``c`` (no parameter of its own), its kinetic friction fading in that
-  window (``lnn_torch.forces.holding_torque``; the model solves for the holding torques, which need
+  window (``lnn_torch.mechanics.forces.holding_torque``; the model solves for the holding torques, which need
   its mass matrix). A free static level fitted the real pendulum's training holds and predicted
   two held-out recordings worse (results/real_double_pendulum/cross_validation/), so the level is
   ``c``. For models with a positive definite mass matrix (``film_lnn``, ``delan``).
@@ -44,7 +44,7 @@ calls them with its normalised state and gets normalised generalised forces or a
 
 Every term of ``Q_diss`` has ``qd . Q_diss <= 0`` by construction, but a friction ``offset`` (a
 constant torque, which the data may need and no passive model has); the holding torque of static
-friction is not part of it: it opposes the tendency to move, see ``lnn_torch.forces``. Coefficients
+friction is not part of it: it opposes the tendency to move, see ``lnn_torch.mechanics.forces``. Coefficients
 are in SI units (``unit`` buffers, set from the training data, scale the network outputs).
 """
 
@@ -56,8 +56,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..drives import DriveModel
-from ..forces import dissipative_force, holding_torque, identity_or_none, input_force, joint_friction, stick_weight
+from ..mechanics.forces import (
+    dissipative_force,
+    holding_torque,
+    identity_or_none,
+    input_force,
+    stick_weight,
+)
+from ..mechanics.friction import DriveModel
 from .normalization import trusted
 
 DISSIPATION = ("joint", "joint+rayleigh", "joint+stiction")
@@ -196,7 +202,8 @@ class LearnedForces(nn.Module):
         return b * units[0] * ("viscous" in forms), c * units[1] * ("coulomb" in forms)
 
     def drive_coefficients(self, params_norm: torch.Tensor) -> dict:
-        """Every coefficient of the drive model (``lnn_torch.drives``) in SI, ``{name: (..., num_joints)}``."""
+        """Every coefficient of the drive model (``lnn_torch.mechanics.friction``) in SI,
+        ``{name: (..., num_joints)}``."""
         b, c = self.coefficients(params_norm)
         out = {"b": b, "c": c}
         raw = self._raw(params_norm)[..., 2 * self.num_joints:]
@@ -220,18 +227,14 @@ class LearnedForces(nn.Module):
     def friction_torque(self, rates: torch.Tensor, params_norm: torch.Tensor) -> torch.Tensor:
         """Per-joint (kinetic) friction torque at joint rates ``(B, num_joints)``, N m; with static
         friction it fades as ``1 - w`` in the stick window."""
-        if self.extra:
-            torque = self.drive.torque(rates, self.drive_coefficients(params_norm))
-        else:  # viscous + Coulomb: the model's original form, kept as it was computed
-            b, c = self.coefficients(params_norm)
-            torque = joint_friction(rates, b, c, self.coulomb_velocity)
+        torque = self.drive.torque(rates, self.drive_coefficients(params_norm))
         return torque * (1 - stick_weight(rates, self.stick_velocity)) if self.stiction else torque
 
     def holding_torque(self, qd: torch.Tensor, params_norm: torch.Tensor, rho0: torch.Tensor,
                        response: torch.Tensor) -> torch.Tensor:
         """Static friction's holding torques ``(B, num_joints)`` in N m at SI velocities ``qd``, from the
         joint accelerations without them ``rho0 (B, n_j)`` and the response ``D M^-1 D^T (B, n_j, n_j)``
-        (``lnn_torch.forces.holding_torque``)."""
+        (``lnn_torch.mechanics.forces.holding_torque``)."""
         rates = qd if self.identity_joints else qd @ self.joint_map.to(qd.dtype).T
         return holding_torque(rho0, response, stick_weight(rates, self.stick_velocity), self.static_level(params_norm))
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from .. import integrators
 from ..errors import InputError
+from ..mechanics import integrators
 from .base import DynamicsModel
 from .capabilities import FORCES, FRICTION
 from .layers import TangentMLP

@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ..dynamics import structured_acceleration
+from ..mechanics.euler_lagrange import structured_acceleration
 
 ACTIVATIONS = {"tanh": torch.tanh, "sigmoid": torch.sigmoid, "softplus": F.softplus,
                "isru": lambda z: z / torch.sqrt(1 + z * z)}
@@ -91,7 +91,7 @@ def lagrangian(model, q_norm, qd_norm, params_norm) -> torch.Tensor:
 
 def structured_model_acceleration(model, q_norm, qd_norm, params_norm, force_norm=None) -> torch.Tensor:
     """A structured model's normalised accelerations by torch.func (jvp of M, grads of T and V) and a
-    LAPACK Cholesky solve: ``lnn_torch.dynamics.structured_acceleration`` on the plain networks,
+    LAPACK Cholesky solve: ``lnn_torch.mechanics.euler_lagrange.structured_acceleration`` on the plain networks,
     under the normalised generalised force ``force_norm`` (None: none)."""
     return structured_acceleration(lambda q1, p1: cholesky(model, q1[None], p1[None])[0],
                                    lambda q1, p1: potential(model, q1[None], p1[None])[0],

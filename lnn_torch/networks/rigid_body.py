@@ -1,6 +1,6 @@
 """The one SI rigid-body face of a model, as Pinocchio's ``crba`` / ``nonLinearEffects`` /
 ``computeGeneralizedGravity`` / ``rnea`` / ``aba``: what control (``lnn_torch.control.plant_of``) and
-export (``lnn_torch.export``) take from a model, instead of deriving it again.
+export (``lnn_torch.export.programs``) take from a model, instead of deriving it again.
 
 THE CONVENTION (stated here once): a model with a mass matrix (``MASS_MATRIX``: the structured
 Lagrangians) is, in SI units, the rigid mechanical system
@@ -27,7 +27,7 @@ Lagrangians) is, in SI units, the rigid mechanical system
 
 Static friction (``dissipation: joint+stiction``) is not a force of the state: its holding torques are
 what holding a slow joint at rest takes against everything else acting at that instant
-(``lnn_torch.forces.holding_torque``). They are in ``forward_dynamics_si`` (the model's accelerations
+(``lnn_torch.mechanics.forces.holding_torque``). They are in ``forward_dynamics_si`` (the model's accelerations
 and rollouts) and in none of ``n``, ``Q_f`` or the inverse dynamics, which gives the inputs without
 holding (as the training's torque loss compares them).
 
@@ -40,7 +40,7 @@ estimates it from a recording with known torques).
 Shapes: ``q, qd, qdd (B, dof)``, ``params (B, P)``, ``tau (B, n_u)``; results in ``q``'s dtype (the
 networks run in their own). The methods check the capability and, with ``check`` where they take it,
 the inputs; without checks they read no Python number from a tensor, so ``torch.export`` traces them
-as they are (``lnn_torch.export`` does).
+as they are (``lnn_torch.export.programs`` does).
 """
 
 from __future__ import annotations

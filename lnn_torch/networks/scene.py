@@ -11,7 +11,7 @@ from dataclasses import dataclass
 class SceneInfo:
     """What a model needs to know about a scene: its coordinates, parameters and generalised forces
     (``input_matrix`` (dof, n_u) of the inputs; joint ``friction`` on the rates ``joint_map @ qd``,
-    ``lnn_torch.forces``). A conservative scene has neither, and a model of it builds none."""
+    ``lnn_torch.mechanics.forces``). A conservative scene has neither, and a model of it builds none."""
 
     name: str
     dof: int

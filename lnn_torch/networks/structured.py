@@ -16,7 +16,7 @@ and the residual parts carry.
 
 The solve needs no Hessian: the parts carry forward-mode tangents by hand (``d F / d q_k``), the
 potential parts give ``dV/dq`` (a hand-written reverse pass for the MLP), and ``M qdd = dT/dq - dV/dq
-- Mdot qd`` is solved by Cholesky (``lnn_torch.dynamics.structured_acceleration_from_factor``). The
+- Mdot qd`` is solved by Cholesky (``lnn_torch.mechanics.euler_lagrange.structured_acceleration_from_factor``). The
 plain formulas this computes are each part's reference (``lnn_torch.networks.reference`` assembles
 them); tests compare the two, and the generic Hessian solve, in float64.
 """
@@ -30,8 +30,8 @@ import warnings
 import torch
 from torch import nn
 
-from ..dynamics import structured_acceleration_from_factor
 from ..errors import InputError
+from ..mechanics.euler_lagrange import structured_acceleration_from_factor
 from ..systems.base import GRAVITY
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
@@ -89,7 +89,7 @@ class StructuredLagrangian(DynamicsModel):
         links: the rigid chain's ``links`` (deprecated here: give it as the part's option).
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
-        friction: the drive model's friction forms per joint (``lnn_torch.drives``): ``viscous+coulomb``
+        friction: the drive model's friction forms per joint (``lnn_torch.mechanics.friction``): ``viscous+coulomb``
             (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, sigmoid.
         residual_force: None (default: none) or the options of a force residual ``Q_r`` (``true`` or ``{}``:
             the defaults): ``hidden`` widths ([32, 32]), ``weight`` of its L2 penalty (1e-3), ``activation``

@@ -1,5 +1,5 @@
 """Trained models shipped inside the package: where they lie and what their cards say. The loader is
-``lnn_torch.load_pretrained(name)`` (``lnn_torch.checkpoints``, which reads this package; this package
+``lnn_torch.load_pretrained(name)`` (``lnn_torch.training.checkpoints``, which reads this package; this package
 imports nothing of ``lnn_torch``).
 
 Each model is a slim Lightning checkpoint (weights, normalisation buffers and hyper-parameters; no

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from . import DESCRIPTIONS, description_path
+from .shipped import DESCRIPTIONS, description_path
 
 PAYLOAD_BODY = "payload"
 TOOL_BODY = "tool"

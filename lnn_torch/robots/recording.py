@@ -9,7 +9,7 @@ by a computed-torque controller on the nominal description without payload knowl
 rate 1/dt, its torques clipped to the limits and held over each sample interval, while MuJoCo
 integrates the true arm with its RK4 in ``substeps`` steps per interval (``lnn_torch.robots.tracking``).
 
-Recorded (``lnn_torch.recording.Recording``): ``q`` as the encoders measure it, the true angles for the
+Recorded (``lnn_torch.systems.recording.Recording``): ``q`` as the encoders measure it, the true angles for the
 energy, ``qd``, ``tau``, the engine's accelerations at the true states under the held torques, the work
 of the torques and of the damper, the reference ``q_ref``; attributes ``recording`` (the experiment:
 controller, gains, rates, reference, limits, noise, largest tracking error, share of clipped samples)
@@ -30,7 +30,7 @@ import json
 import numpy as np
 
 from ..errors import GenerationError, InputError
-from ..recording import Recording
+from ..systems.recording import Recording
 from .mujoco_arm import _mujoco
 from .reference import sample_reference, within_torque
 from .tracking import ComputedTorque, record_tracking
@@ -71,7 +71,7 @@ class TrackingRecorder:
         return self.scene.nominal.inverse(q, qd, qdd).numpy()
 
     def record(self, rngs, indices, advance=None) -> Recording:
-        """The experiments of ``rngs`` (``lnn_torch.recording``); raises ``GenerationError`` naming the
+        """The experiments of ``rngs`` (``lnn_torch.systems.recording``); raises ``GenerationError`` naming the
         first trajectory (of ``indices``) whose arm left its joint ranges."""
         scene, t = self.scene, self.t
         low, high = scene.arm.joint_range.numpy().T

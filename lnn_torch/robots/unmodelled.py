@@ -13,7 +13,7 @@ integration, each a closed form here. Per joint ``j``: ``q_j`` rad, ``v_j = qd_j
 
   ``g_j`` the joint's gravity torque on the true arm with its payload (``MujocoArm.gravity_torque``),
   ``|x|_s = sqrt(x^2 + e^2) - e`` a smooth absolute value (``e = LOAD_SMOOTHING`` = 0.1 N m); ``f`` is the
-  torque the motor works against (as ``lnn_torch.drives``), the generalised force is ``-f``.
+  torque the motor works against (as ``lnn_torch.mechanics.friction``), the generalised force is ``-f``.
 * ``spring`` (conservative): a nonlinear spring (a balancer, a cable's elasticity) on the joints
   ``joints``, rest angles ``r_j``: ``V = sum_j 1/2 k_j (q_j - r_j)^2 + 1/4 k3_j (q_j - r_j)^4``,
   ``Q_j = -k_j (q_j - r_j) - k3_j (q_j - r_j)^3``.

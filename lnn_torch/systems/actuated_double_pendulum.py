@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..forces import joint_friction
+from ..mechanics.friction import friction_torque
 from .base import GRAVITY, System, as_range
 
 PARAM_NAMES = ("m1", "m2", "l1", "r1", "r2", "I1", "I2", "b1", "b2", "c1", "c2")
@@ -160,7 +160,7 @@ class ActuatedDoublePendulum(System):
         return params[..., 7:9], params[..., 9:11]
 
     def friction_torque(self, rates, params):
-        return joint_friction(rates, *self.friction_coefficients(params), self.coulomb_velocity)
+        return friction_torque(rates, *self.friction_coefficients(params), self.coulomb_velocity)
 
     # ------------------------------------------------------------------ physics
     @staticmethod

@@ -3,7 +3,7 @@
 A scene (system) states its degrees of freedom, which coordinates are angles, its physical
 parameters with units, whether its kinetic energy is quadratic in the velocities, seeded samplers
 for parameters and initial states, and closed-form batched physics in SI units. A scene may declare
-generalised forces (``lnn_torch.forces``): inputs (``input_matrix``: motor torques at actuated
+generalised forces (``lnn_torch.mechanics.forces``): inputs (``input_matrix``: motor torques at actuated
 joints) and joint friction (``friction_torque`` with the ``joint_map``); a conservative scene
 declares neither and its accelerations take no ``tau``.
 
@@ -22,9 +22,9 @@ import numpy as np
 import torch
 
 from ..errors import InputError  # also importable from here, where it was first defined
-from ..excitation import validate as validate_excitation
-from ..forces import check_inputs, dissipative_force, identity_or_none, input_force
-from ..recording import ClosedFormRecorder
+from ..mechanics.forces import check_inputs, dissipative_force, identity_or_none, input_force
+from .excitation import validate as validate_excitation
+from .recording import ClosedFormRecorder
 
 GRAVITY = 9.81  # m/s^2, the one gravity constant of the project
 PARAM_KINDS = ("positive", "nonnegative", "real")  # see ``System.param_kinds``
@@ -93,7 +93,7 @@ class System(abc.ABC):
     record it and rebuild the same scene.
 
     Datasets: ``recorder(spec)`` hands the dataset generator (``lnn_torch.data.generate``) an object
-    with one method, ``record(rngs, indices, advance=None) -> lnn_torch.recording.Recording``. The
+    with one method, ``record(rngs, indices, advance=None) -> lnn_torch.systems.recording.Recording``. The
     generator alone seeds (one generator per trajectory, ``trajectory_rng(seed, index)``, each
     trajectory drawing from its own only, in a fixed order), and alone does the progress, the targets,
     the energy, the arrays, the split and every file attribute; the recorder returns the raw motion
@@ -171,7 +171,7 @@ class System(abc.ABC):
         return torch.eye(self.dof, dtype=torch.float64)
 
     def friction_torque(self, rates: torch.Tensor, params: torch.Tensor) -> torch.Tensor | None:
-        """Friction torque per joint at joint rates ``(*batch, num_joints)``, N m (``lnn_torch.forces``);
+        """Friction torque per joint at joint rates ``(*batch, num_joints)``, N m (``lnn_torch.mechanics.forces``);
         None (default): no friction."""
         return None
 
@@ -190,7 +190,7 @@ class System(abc.ABC):
         return dissipative_force(qd, self._force_maps()[1], lambda r: self.friction_torque(r, params))
 
     def _force_maps(self):
-        """``(B, D)`` with None for identities, computed once (``lnn_torch.forces``)."""
+        """``(B, D)`` with None for identities, computed once (``lnn_torch.mechanics.forces``)."""
         if getattr(self, "_maps", None) is None:
             B = self.input_matrix()
             self._maps = (None if B is None else identity_or_none(B), identity_or_none(self.joint_map()))
@@ -204,18 +204,18 @@ class System(abc.ABC):
         return Q if tau is None else Q + input_force(tau, self._force_maps()[0])
 
     def default_excitation(self) -> dict:
-        """The input signal a generated dataset uses when its spec names none (``lnn_torch.excitation``)."""
+        """The input signal a generated dataset uses when its spec names none (``lnn_torch.systems.excitation``)."""
         return {}
 
     def input_signal(self, excitation: dict) -> dict:
         """The excitation a dataset spec's ``excitation`` stands for, validated (the scene's default
-        when empty; ``lnn_torch.excitation``): what generation uses and the file records."""
+        when empty; ``lnn_torch.systems.excitation``): what generation uses and the file records."""
         return validate_excitation(excitation or self.default_excitation(), self.num_inputs)
 
     # ------------------------------------------------------------------ data generation
     def recorder(self, spec):
         """The recorder of this scene's datasets for the specification ``spec`` (class docstring;
-        ``lnn_torch.recording``). Default: ``ClosedFormRecorder``, the closed form integrated by
+        ``lnn_torch.systems.recording``). Default: ``ClosedFormRecorder``, the closed form integrated by
         ``integrate_ground_truth``, inputs from the spec's excitation; a scene that records its data
         another way (an engine-backed arm tracking a reference) returns its own."""
         return ClosedFormRecorder(self, spec)
@@ -350,7 +350,7 @@ class System(abc.ABC):
         return []
 
     def hard_parameter_cases(self) -> dict[str, tuple[float, ...]]:
-        """Named extreme parameter vectors for the stability cases (``lnn_torch.stability``), in
+        """Named extreme parameter vectors for the stability cases (``lnn_torch.evaluation.stability``), in
         addition to the generic ones every scene gets (parameters x10 and x0.1); default none."""
         return {}
 

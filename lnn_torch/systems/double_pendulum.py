@@ -18,7 +18,7 @@ Default sampler (the reference design): ``m1 = exp(0.3 N(0,1))``, ``m2 = m1 U(0.
 
 Optional joint damping (``joint_damping = (b1, b2)`` in N m s/rad, off by default): viscous friction
 at the pivot (rate ``thetad1``) and at the elbow (rate ``thetad2 - thetad1``), ``Q = -D^T (b * D qd)``
-with ``D = [[1, 0], [-1, 1]]`` (``lnn_torch.forces``). The coefficients are part of the scene's
+with ``D = [[1, 0], [-1, 1]]`` (``lnn_torch.mechanics.forces``). The coefficients are part of the scene's
 configuration, not of ``params``.
 """
 
@@ -152,7 +152,7 @@ class DoublePendulum(System):
         return 2 * GRAVITY * ((m1 + m2) * l1 + m2 * l2)
 
     def identifiable_quantities(self):
-        """What free motion determines (``lnn_torch.identification``): a common scale of both masses
+        """What free motion determines (``lnn_torch.identification.learned``): a common scale of both masses
         leaves the accelerations unchanged, so only the ratio m2/m1 and the lengths."""
         return {"m2/m1": {"m1": -1.0, "m2": 1.0}, "l1": {"l1": 1.0}, "l2": {"l2": 1.0}}
 

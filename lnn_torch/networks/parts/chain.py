@@ -18,7 +18,7 @@ of mass is at
 (``l_k`` the joint-to-joint length of link k, ``(a_i, b_i)`` the centre of mass along and across
 link i). ``M = F F^T`` with the rectangular factor ``F = [sqrt(m_i) dp_i/dq | L_K]`` (dof, 2 n + dof),
 ``K = L_K L_K^T`` (``L_K`` lower-triangular, positive diagonal): positive definite by construction.
-It enters ``lnn_torch.dynamics.structured_acceleration_from_factor`` as a Cholesky factor would:
+It enters ``lnn_torch.mechanics.euler_lagrange.structured_acceleration_from_factor`` as a Cholesky factor would:
 that solve needs ``M = F F^T`` and ``dF/dq``, not a triangular F. Few parameters (4 per link less
 one length, 3 with ``across: false``, plus ``dof (dof + 1) / 2``), all learned: constants for a
 measured system, or the output of a small network of the scene's parameters. This is the mass matrix

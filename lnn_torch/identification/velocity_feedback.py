@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .errors import InputError
+from ..errors import InputError
 
 
 def _check(name: str, x: torch.Tensor, like: torch.Tensor | None = None) -> torch.Tensor:

@@ -9,9 +9,9 @@ import math
 
 import torch
 
+from ..errors import InputError
+from ..perf import adamw
 from .checkpoint_format import RESIDUAL
-from .errors import InputError
-from .perf import adamw
 
 
 def training_progress(trainer, step: int) -> float:

@@ -28,11 +28,11 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from . import derivatives
-from .generate import generate_dataset
-from .hdf5 import TrajectoryFile, read_dataset
-from .spec import DatasetSpec
-from .trajectories import Trajectories
+from ..data import derivatives
+from ..data.generate import generate_dataset
+from ..data.hdf5 import TrajectoryFile, read_dataset
+from ..data.spec import DatasetSpec
+from ..data.trajectories import Trajectories
 
 FIELDS = ("q", "qd", "qdd")
 
@@ -301,7 +301,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         """The velocities of a split as recorded (float64 ``(N, T, dof)``, NaN after each trajectory's
         length), point for point with ``trajectories(split)``, whose velocities are the targets' smoothed
         ones: their difference is what the recorded velocity holds above the targets' band
-        (``lnn_torch.velocity_feedback``). Needs estimated targets and recorded velocities."""
+        (``lnn_torch.identification.velocity_feedback``). Needs estimated targets and recorded velocities."""
         if self.targets is None:
             raise ValueError("recorded_velocities needs estimated targets (data.targets): without them the "
                              "file's velocities are the ones used")

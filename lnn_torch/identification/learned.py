@@ -5,7 +5,7 @@ best explain an observed trajectory, by gradient-based optimisation through the 
 
 * ``acceleration``: the model's accelerations at the observed states against the observed (or
   estimated, ``lnn_torch.data.derivatives``) accelerations, each coordinate divided by its rms;
-* ``trajectory``: short differentiable rollouts (multiple shooting, ``lnn_torch.losses.shooting_residuals``
+* ``trajectory``: short differentiable rollouts (multiple shooting, ``lnn_torch.training.losses.shooting_residuals``
   as in training: windows of ``window`` s, each from its own start state, which is fitted too,
   beginning at the observed position and estimated velocity; driven by the observed inputs) against
   the observed positions, divided by the window's ``(k dt)^2 / 2`` (acceleration units): no
@@ -42,10 +42,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .data.derivatives import estimate as estimate_from_positions
-from .data.derivatives import settings as derivative_settings
-from .errors import InputError
-from .losses import shooting_residuals
+from ..data.derivatives import estimate as estimate_from_positions
+from ..data.derivatives import settings as derivative_settings
+from ..errors import InputError
+from ..training.losses import shooting_residuals
 
 
 @dataclass

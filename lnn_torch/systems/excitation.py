@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 KINDS = ("multisine", "steps", "chirp", "none")
 DEFAULTS = {"band": [0.1, 2.0], "num_sines": 6, "hold": [0.2, 1.0]}

@@ -1,27 +1,17 @@
-"""Trained models from their checkpoints, for users: ``load_model(path | "pretrained:<name>")``,
-``load_pretrained(name)``, ``data_hparams`` (the data a checkpoint was trained on) and ``output_dir``.
+"""Trained models from their checkpoints, for users: ``load_model(path | "pretrained:<name>")`` and
+``load_pretrained(name)``.
 
 The loader is here; the format itself (stamp, checks, shims for older checkpoints) lives in
-``lnn_torch.checkpoint_format``, a leaf, and the module it loads in ``lnn_torch.module``.
+``lnn_torch.training.checkpoint_format``, a leaf, and the module it loads in ``lnn_torch.training.module``.
 """
 
 from __future__ import annotations
 
+from ..errors import InputError
 from . import checkpoint_format as ckpt
-from .checkpoint_format import (  # noqa: F401 - the names this module has always given
-    CHECKPOINT_FORMAT,
-    PRETRAINED,
-    check_checkpoint_file,
-    check_stamp,
-    data_hparams,
-    output_dir,
-    read_checkpoint,
-    stamp,
-)
-from .errors import InputError
 from .module import LNNModule
 
-__all__ = ["load_model", "load_pretrained", "data_hparams", "output_dir", "read_checkpoint", "PRETRAINED"]
+__all__ = ["load_model", "load_pretrained", "read_with_descriptions"]
 
 
 def load_model(source, map_location="cpu") -> LNNModule:
@@ -48,7 +38,7 @@ def read_with_descriptions(source) -> dict:
     checkpoint = ckpt.read_checkpoint(path)
     copies = checkpoint.get(ckpt.DESCRIPTION_COPIES)
     if copies:
-        from .robots.description import register_copies
+        from ..robots.description import register_copies
 
         register_copies(copies, f"checkpoint {path}")
     return checkpoint

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .errors import InputError, UntrustedParameterWarning
+from ..errors import InputError, UntrustedParameterWarning
+from ..networks.capabilities import MASS_MATRIX, capabilities_of
+from ..networks.normalization import Normalizer
 from .metrics import condition_numbers, energy_drift
-from .networks.capabilities import MASS_MATRIX, capabilities_of
-from .networks.normalization import Normalizer
 from .report import pct, table_header, table_row
 
 

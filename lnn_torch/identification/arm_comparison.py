@@ -1,7 +1,7 @@
 """Classical identification beside a learned model of a robot arm, as identification papers report it:
 the joint-torque error per joint in N m on held-out data, for the learned model and for least squares
 on the base parameters with the same drive model (ordinary, weighted, and physically consistent:
-``lnn_torch.robots.classical``) fitted on the same training data, and for the description as written.
+``lnn_torch.identification.classical_arm``) fitted on the same training data, and for the description as written.
 
     fits = fit_classical(system, train, drive="viscous+coulomb+offset")
     print(markdown(compare_on_arm(module.model, system, test, fits)))
@@ -17,9 +17,9 @@ from dataclasses import replace
 
 import torch
 
-from .integrators import held, rk4_step
-from .networks.calls import counting_failures
-from .report import markdown_table
+from ..evaluation.report import markdown_table
+from ..mechanics.integrators import held, rk4_step
+from ..networks.calls import counting_failures
 
 METHODS = ("least squares", "weighted least squares", "physically consistent")
 
@@ -45,8 +45,8 @@ def torque_errors(predicted: torch.Tensor, measured: torch.Tensor, names) -> dic
 
 def arm_chain(system):
     """The kinematic chain of a robot-arm scene's description (``robots.kinematics.SerialChain``)."""
-    from .robots.kinematics import read_chain
-    from .robots.mujoco_arm import load_description
+    from ..robots.kinematics import read_chain
+    from ..robots.mujoco_arm import load_description
 
     return read_chain(load_description(system.config().get("description")))
 
@@ -56,8 +56,8 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
     """The classical fits ``{label: ArmModel}`` of ``methods`` with the drive model ``drive`` on ``train``
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
     time in ``info["fit_seconds"]``."""
-    from .robots import classical
-    from .robots.regressor import payload_torque
+    from ..robots.regressor import payload_torque
+    from . import classical_arm as classical
 
     chain = arm_chain(system)
     parts = [points(t, stride) for t in (train if isinstance(train, (list, tuple)) else [train])]
@@ -81,9 +81,9 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
 def description_model(system, description=None):
     """The description as written (or ``description``) as an ``ArmModel``: its rigid body, armature and
     damping (its only friction)."""
-    from .robots import classical
-    from .robots.kinematics import read_chain
-    from .robots.mujoco_arm import load_description
+    from ..robots.kinematics import read_chain
+    from ..robots.mujoco_arm import load_description
+    from . import classical_arm as classical
 
     chain = arm_chain(system) if description is None else read_chain(load_description(description))
     return classical.ArmModel(chain, classical.DriveModel.of("viscous"), "description", {"b": chain.damping.numpy()},
@@ -197,7 +197,8 @@ def feedback_band(datamodule, split: str) -> torch.Tensor:
 def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> dict:
     """Rows ``LABEL + velocity feedback`` (``torque_errors`` on ``split``, with ``val_rms_mean`` and the
     ``feedback`` gains): each predictor ``(q, qd, qdd, params) -> torque`` (``model_torque``,
-    ``classical_torque``) with the robot's feedback on its measured velocity (``lnn_torch.velocity_feedback``)
+    ``classical_torque``) with the robot's feedback on its measured velocity
+    (``lnn_torch.identification.velocity_feedback``)
     fitted on its training-split error and kept where the validation split prefers it (so a row's
     ``val_rms_mean`` is on the split that chose its gains). No open loop: the feedback is not a force of
     the state. Needs estimated targets and recorded velocities."""

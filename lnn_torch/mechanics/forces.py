@@ -4,6 +4,8 @@ A scene (or a model) with forces obeys ``M qdd = dL/dq - (d2L/dqd dq) qd + Q`` w
 
     Q = B tau + Q_diss,    Q_diss = -D^T f(D qd),    f_j(r) = b_j r + c_j tanh(r / v)
 
+(the friction law ``f`` is ``lnn_torch.mechanics.friction.friction_torque``)
+
 * ``B`` (dof, n_u): the input matrix, constant (joint torques enter the joint coordinates);
 * ``D`` (n_j, dof): the joint map, joint rates ``r = D qd`` (identity for joint coordinates; for
   the double pendulum's absolute angles the second joint turns at ``qd2 - qd1``);
@@ -32,14 +34,7 @@ from __future__ import annotations
 
 import torch
 
-from .errors import InputError
-
-
-def joint_friction(rates: torch.Tensor, viscous: torch.Tensor, coulomb: torch.Tensor,
-                   coulomb_velocity: float) -> torch.Tensor:
-    """Friction torque per joint ``b r + c tanh(r / v)``: ``rates (*batch, n_j)``, coefficients
-    broadcasting to it (N m s/rad and N m), ``v`` in rad/s. Returns ``(*batch, n_j)`` in N m."""
-    return viscous * rates + coulomb * torch.tanh(rates / coulomb_velocity)
+from ..errors import InputError
 
 
 def stick_weight(rates: torch.Tensor, stick_velocity: float) -> torch.Tensor:

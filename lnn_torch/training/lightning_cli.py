@@ -9,7 +9,7 @@ import sys
 
 from lightning.pytorch.cli import LightningCLI
 
-from .data.datamodule import TrajectoryDataModule
+from .datamodule import TrajectoryDataModule
 from .module import LNNModule
 
 
@@ -52,10 +52,10 @@ CALLBACKS = [
     {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
      "init_args": {"monitor": "val/acc_rel_err", "mode": "min",
                    "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
-    {"class_path": "lnn_torch.callbacks.LastCheckpoint"},
-    {"class_path": "lnn_torch.callbacks.PredictionWriter"},
-    {"class_path": "lnn_torch.callbacks.TestMetricsWriter"},
-    {"class_path": "lnn_torch.callbacks.FitSummary"},
+    {"class_path": "lnn_torch.training.callbacks.LastCheckpoint"},
+    {"class_path": "lnn_torch.training.callbacks.PredictionWriter"},
+    {"class_path": "lnn_torch.training.callbacks.TestMetricsWriter"},
+    {"class_path": "lnn_torch.training.callbacks.FitSummary"},
 ]
 
 

@@ -251,7 +251,7 @@ class EvaluationFigures(L.Callback):
 def _log_figures(loggers, result: dict, step: int) -> None:
     import matplotlib.pyplot as plt
 
-    from .plots import section_figures
+    from ..evaluation.plots import section_figures
 
     for tag, build in section_figures(result, tags=True, case=f"val split, step {step}").items():
         fig = build(result)

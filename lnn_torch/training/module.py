@@ -1,9 +1,9 @@
 """``LNNModule``: a thin LightningModule over a dynamics model (``lnn_torch.networks``): the steps, the
-optimiser and the schedule. The losses are pure functions (``lnn_torch.losses``: one batch is one call
+optimiser and the schedule. The losses are pure functions (``lnn_torch.training.losses``: one batch is one call
 of ``acceleration_batch_loss`` or ``trajectory_batch_loss``); skipping non-finite steps, TensorBoard's
-HParams and figures are callbacks (``lnn_torch.callbacks``, added by ``configure_callbacks``);
+HParams and figures are callbacks (``lnn_torch.training.callbacks``, added by ``configure_callbacks``);
 validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split, its scalars logged.
-``lnn_torch.checkpoints.load_model`` reads a checkpoint into it.
+``lnn_torch.training.checkpoints.load_model`` reads a checkpoint into it.
 """
 
 from __future__ import annotations
@@ -13,19 +13,19 @@ import warnings
 import lightning as L
 import torch
 
+from ..errors import InputError
+from ..evaluation import evaluate_split, section_logs
+from ..identification.learned import identify
+from ..networks import build_model, registry
+from ..networks.calls import model_accelerations
+from ..networks.capabilities import ENERGY
+from ..perf import configure_cpu
+from ..robots.description import compiled_copies
+from ..systems import get_system
 from . import checkpoint_format as ckpt
 from .callbacks import EvaluationFigures, HParamsSummary, SkipNonFiniteSteps, writes_logs
-from .errors import InputError
-from .evaluation import evaluate_split, section_logs
-from .identification import identify
 from .losses import acceleration_batch_loss, trajectory_batch_loss
-from .networks import build_model, registry
-from .networks.calls import model_accelerations
-from .networks.capabilities import ENERGY
 from .optim import configure_optimizer, freeze_all_but, training_progress
-from .perf import configure_cpu
-from .robots.description import compiled_copies
-from .systems import get_system
 from .training_pass import TrainingPass
 
 
@@ -45,7 +45,7 @@ class LNNModule(L.LightningModule):
             singular Hessians); ``hnn_coordinates``: ``canonical`` (p = dL/dqd) or ``velocity``.
         model_options: further options of the variant (a dict): parts, dissipation, ...
         lr, lr_min, weight_decay: AdamW learning rate, cosine-annealed to ``lr_min`` over the run
-            (``lnn_torch.optim``); weight decay of the network weights (physical coefficients are exempt).
+            (``lnn_torch.training.optim``); weight decay of the network weights (physical coefficients are exempt).
         huber_delta: Huber threshold (normalised units).
         energy_weight: weight of the energy-conservation (with forces: power-balance) term; 0: off.
         acceleration_weight: weight of the acceleration term (0: torques alone, with ``torque_weight``).
@@ -148,7 +148,7 @@ class LNNModule(L.LightningModule):
         return self.model.inverse_dynamics(q, qd, qdd, params)
 
     def identify(self, t, q, qd=None, tau=None, qdd=None, **options):
-        """The parameters that best explain ONE observed trajectory: ``lnn_torch.identification.identify``."""
+        """The parameters that best explain ONE observed trajectory: ``lnn_torch.identification.learned.identify``."""
         return identify(self.model, self.system, t, q, qd, tau, qdd, **options)
 
     # ------------------------------------------------------------------ set-up

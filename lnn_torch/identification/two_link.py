@@ -26,19 +26,11 @@ from pathlib import Path
 
 import torch
 
-from .integrators import rollout
+from ..mechanics.friction import COULOMB_SHAPES, coulomb_sign, friction_torque
+from ..mechanics.integrators import rollout
 
 KEYS = ("m1", "m2", "l1", "r1", "r2", "I1", "I2", "Ir", "gr", "b1", "b2", "cf1", "cf2", "g")
 BASE = ("A", "B", "C", "K", "P1", "P2", "b1", "b2", "cf1", "cf2")
-COULOMB_SHAPES = {"arctan": torch.atan, "tanh": torch.tanh}  # the smoothing of Coulomb friction's sign
-
-
-def _coulomb(shape: str):
-    if shape not in COULOMB_SHAPES:
-        raise ValueError(f"coulomb_shape must be one of {', '.join(COULOMB_SHAPES)}, got {shape!r}")
-    return COULOMB_SHAPES[shape]
-
-
 def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0,
                    coulomb_shape: str = "arctan") -> torch.Tensor:
     """``Y (..., 2, 10)`` with the joint torques ``tau = Y beta`` for the base parameters ``beta`` in the
@@ -49,10 +41,10 @@ def base_regressor(q, qd, qdd, g: float = 9.81, coulomb_slope: float = 100.0,
     w1, w2 = qd[..., 0], qd[..., 1]
     a1, a2 = qdd[..., 0], qdd[..., 1]
     zero = torch.zeros_like(a1)
-    sign = _coulomb(coulomb_shape)
+    v_c = 1.0 / coulomb_slope
     row1 = [a1, a2, zero, 2 * c2 * a1 + c2 * a2 - s2 * (2 * w1 * w2 + w2**2), g * s1, g * s12,
-            w1, zero, sign(coulomb_slope * w1), zero]
-    row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, sign(coulomb_slope * w2)]
+            w1, zero, coulomb_sign(w1, v_c, coulomb_shape), zero]
+    row2 = [zero, a1, a2, c2 * a1 + s2 * w1**2, zero, g * s12, zero, w2, zero, coulomb_sign(w2, v_c, coulomb_shape)]
     return torch.stack([torch.stack(row1, -1), torch.stack(row2, -1)], -2)
 
 
@@ -116,7 +108,8 @@ class RigidArmModel:
         self.values = dict(m1=m1, m2=m2, l1=l1, r1=r1, r2=r2, I1=I1, I2=I2, Ir=Ir, gr=gr, b1=b1, b2=b2, cf1=cf1,
                            cf2=cf2, g=g)
         self.coulomb_slope = float(coulomb_slope)
-        _coulomb(coulomb_shape)
+        if coulomb_shape not in COULOMB_SHAPES:
+            raise ValueError(f"coulomb_shape must be one of {', '.join(COULOMB_SHAPES)}, got {coulomb_shape!r}")
         self.coulomb_shape = coulomb_shape
         self.l2 = None if l2 is None else float(l2)  # for drawing only (link 2's length is not in its dynamics)
         rotor = gr**2 * Ir
@@ -226,9 +219,9 @@ class RigidArmModel:
     def friction_force(self, q, qd, params=None):
         """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint (``tanh`` for
         ``coulomb_shape="tanh"``)."""
-        b, sign = self.base, _coulomb(self.coulomb_shape)
-        return -torch.stack([b[f"b{j}"] * qd[..., j - 1] + b[f"cf{j}"] * sign(self.coulomb_slope * qd[..., j - 1])
-                             for j in (1, 2)], -1)
+        b = self.base
+        return -torch.stack([friction_torque(qd[..., j - 1], b[f"b{j}"], b[f"cf{j}"], 1.0 / self.coulomb_slope,
+                                             self.coulomb_shape) for j in (1, 2)], -1)
 
     def energy(self, q, qd, params=None):
         """``T + V`` in J, the rotors' kinetic energy included (``V = 0`` with both links hanging down)."""

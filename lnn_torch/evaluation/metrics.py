@@ -7,11 +7,10 @@ these into reports.
 
 from __future__ import annotations
 
-import math
-
 import torch
 
-from .forces import input_force, power
+from ..mechanics.angles import wrap_angles
+from ..mechanics.forces import input_force, power
 
 
 def relative_l2(pred: torch.Tensor, true: torch.Tensor, dim=None) -> torch.Tensor:
@@ -40,21 +39,6 @@ def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None
         out["per_trajectory_p90"] = float(torch.quantile(per_traj.double(), 0.9))
     out["non_finite_fraction"] = float(1 - finite.double().sum() / known.double().sum().clamp_min(1))
     return out
-
-
-def wrap_angle(q: torch.Tensor) -> torch.Tensor:
-    """Angles ``q`` reduced to [-pi, pi), same dtype. The reduction runs in float64 where the device has
-    it: in float32, ``remainder(q + pi, 2 pi)`` loses up to 3e-4 rad at |q| = 1e4 (q + pi is rounded to
-    the float32 grid there), while float64 keeps the reduced angle exact to ~1e-12."""
-    wide = torch.float64 if q.device.type in ("cpu", "cuda") else q.dtype
-    return (torch.remainder(q.to(wide) + math.pi, 2 * math.pi) - math.pi).to(q.dtype)
-
-
-def wrap_angles(dq: torch.Tensor, angle_mask) -> torch.Tensor:
-    """Coordinate differences ``(..., dof)`` with the angle ones (``angle_mask``) wrapped to [-pi, pi)
-    (``wrap_angle``)."""
-    mask = torch.as_tensor(angle_mask, dtype=torch.bool, device=dq.device)
-    return torch.where(mask, wrap_angle(dq), dq)
 
 
 def coordinate_error(q_pred: torch.Tensor, q_true: torch.Tensor, angle_mask=None) -> torch.Tensor:

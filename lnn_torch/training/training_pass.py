@@ -4,7 +4,7 @@ backward warns once and training continues eagerly."""
 
 from __future__ import annotations
 
-from .perf import CompiledFallback, compile_pays_training, warn_compile_failure
+from ..perf import CompiledFallback, compile_pays_training, warn_compile_failure
 
 
 class TrainingPass:

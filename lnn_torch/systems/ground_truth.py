@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .errors import GenerationError  # also importable from here and lnn_torch.data
-from .forces import check_inputs, input_force, power
-from .integrators import rollout, rollout_adaptive, rollout_first_order
+from ..errors import GenerationError  # also importable from here and lnn_torch.data
+from ..mechanics.forces import check_inputs, input_force, power
+from ..mechanics.integrators import rollout, rollout_adaptive, rollout_first_order
 
 
 def power_balance_residual(system, q, qd, params, work) -> torch.Tensor:

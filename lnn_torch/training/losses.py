@@ -1,5 +1,5 @@
-"""Training losses (pure functions): the LightningModule (``lnn_torch.module``) and identification
-(``lnn_torch.identification``) assemble their objectives from these.
+"""Training losses (pure functions): the LightningModule (``lnn_torch.training.module``) and identification
+(``lnn_torch.identification.learned``) assemble their objectives from these.
 
 * ``training_loss``: the acceleration objective from a model's ``training_terms`` (Huber on
   accelerations, the energy-conservation / power-balance term, the inverse-dynamics torque term);
@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .networks.calls import counting_failures
+from ..networks.calls import counting_failures
 
 
 def acceleration_loss(qdd_pred_norm: torch.Tensor, qdd_true_norm: torch.Tensor, accel_rms: torch.Tensor,

@@ -1,6 +1,6 @@
 """Euler-Lagrange solves: accelerations from a Lagrangian, never predicted directly.
 
-For ``L(q, qd)`` and a generalised force ``Q`` (inputs, dissipation: ``lnn_torch.forces``) the
+For ``L(q, qd)`` and a generalised force ``Q`` (inputs, dissipation: ``lnn_torch.mechanics.forces``) the
 Euler-Lagrange equations ``d/dt dL/dqd - dL/dq = Q`` give
 
     H qdd = dL/dq - J qd + Q,    H = d2L/dqd2 (dof x dof),  J[i, j] = d2L / dqd_i dq_j.
@@ -22,7 +22,7 @@ from collections.abc import Callable
 import torch
 from torch.func import hessian, jacrev, vmap
 
-from .errors import SingularHessianError  # also importable from here
+from ..errors import SingularHessianError  # also importable from here
 
 LagrangianFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 

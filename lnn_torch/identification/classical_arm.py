@@ -1,6 +1,6 @@
 """Classical identification of a robot arm, as robotics labs do it, beside every learned model: the
 inverse dynamics of the description's kinematic chain, linear in the inertial parameters
-(``lnn_torch.robots.regressor``), plus a drive model per joint (``lnn_torch.drives``), fitted to
+(``lnn_torch.robots.regressor``), plus a drive model per joint (``lnn_torch.mechanics.friction``), fitted to
 measured joint torques.
 
 * ``least_squares``: the base parameters (the combinations the trajectory excites; pivoted QR,
@@ -26,10 +26,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..drives import COEFFICIENTS, DriveModel
 from ..errors import InputError
-from .kinematics import SerialChain, reverse_cholesky
-from .regressor import base_parameters, classical_of, inverse_dynamics, parameter_vector, payload_torque, regressor
+from ..mechanics.friction import COEFFICIENTS, DriveModel
+from ..robots.kinematics import SerialChain, reverse_cholesky
+from ..robots.regressor import (
+    base_parameters,
+    classical_of,
+    inverse_dynamics,
+    parameter_vector,
+    payload_torque,
+    regressor,
+)
 
 _OFF = torch.triu_indices(4, 4, 1)
 

@@ -31,7 +31,7 @@ def _pyplot():
 
 
 def __getattr__(name: str):
-    """``plots.plt``: pyplot on the Agg backend, imported when first asked for (``from lnn_torch.plots
+    """``plots.plt``: pyplot on the Agg backend, imported when first asked for (``from lnn_torch.evaluation.plots
     import plt``, as ``lnn-torch simulate`` draws its figure)."""
     if name == "plt":
         return _pyplot()

@@ -40,8 +40,28 @@ COEFFICIENTS = {"viscous": ("b",), "coulomb": ("c",), "offset": ("o",), "stribec
 UNITS = {"b": "N m s/rad", "c": "N m", "o": "N m", "s": "N m", "phi1": "N m", "phi2": "s/rad", "phi3": "rad/s"}
 
 
+# the smoothing of Coulomb friction's sign, ``shape(v / v_c)``: tanh for the learned models and the
+# scenes, arctan where an identified model was written with it (the real double pendulum's lab model)
+COULOMB_SHAPES = {"tanh": torch.tanh, "arctan": torch.atan}
+
+
+def coulomb_sign(v: torch.Tensor, coulomb_velocity: float, shape: str = "tanh") -> torch.Tensor:
+    """The smoothed sign of the rates ``v (..., n_j)`` (rad/s or m/s): ``shape(v / v_c)``, dimensionless."""
+    if shape not in COULOMB_SHAPES:
+        raise _error(f"coulomb_shape must be one of {', '.join(COULOMB_SHAPES)}, got {shape!r}")
+    return COULOMB_SHAPES[shape](v / coulomb_velocity)
+
+
+def friction_torque(v: torch.Tensor, viscous, coulomb, coulomb_velocity: float, shape: str = "tanh") -> torch.Tensor:
+    """The joint friction law, viscous plus smooth Coulomb: ``b v + c shape(v / v_c)`` at rates
+    ``v (..., n_j)``, coefficients broadcasting to it (N m s/rad and N m; N s/m and N for a sliding
+    joint), ``v_c`` in the rates' unit. Returns ``(..., n_j)`` in N m (N). Every model of the package
+    computes its viscous and Coulomb friction here (``DriveModel.torque`` adds the further forms)."""
+    return viscous * v + coulomb * coulomb_sign(v, coulomb_velocity, shape)
+
+
 def _error(message: str) -> Exception:
-    from .errors import InputError
+    from ..errors import InputError
 
     return InputError(message)
 
@@ -98,7 +118,7 @@ class DriveModel:
         """The torque of ``form`` per unit of its linear coefficient at rates ``v (..., n_j)``."""
         if form == "viscous":
             return v
-        sign = torch.tanh(v / self.coulomb_velocity)
+        sign = coulomb_sign(v, self.coulomb_velocity)
         if form == "coulomb":
             return sign
         if form == "offset":
@@ -116,8 +136,12 @@ class DriveModel:
     def torque(self, v: torch.Tensor, coefficients: dict) -> torch.Tensor:
         """``f(v) (..., n_j)``: the friction torque at joint rates ``v`` for ``coefficients``
         (``{name: (..., n_j)}``, SI; ``coefficient_names``)."""
-        out = torch.zeros_like(v)
+        zero = torch.zeros((), dtype=v.dtype, device=v.device)
+        out = friction_torque(v, coefficients["b"] if "viscous" in self.forms else zero,
+                              coefficients["c"] if "coulomb" in self.forms else zero, self.coulomb_velocity)
         for form in self.forms:
+            if form in ("viscous", "coulomb"):
+                continue
             if form == "sigmoid":
                 out = out + coefficients["phi1"] * self.shape(form, v, coefficients["phi2"], coefficients["phi3"])
             else:

@@ -69,8 +69,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from .errors import InputError
-from .networks.capabilities import FORCES, INVERSE_DYNAMICS, MASS_MATRIX
+from ..errors import InputError
+from ..networks.capabilities import FORCES, INVERSE_DYNAMICS, MASS_MATRIX
 
 FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force", "friction_force")
 FORMATS = ("pt2", "onnx", "aoti")
@@ -538,7 +538,7 @@ def describe(module, functions: dict, source: str = "", files: dict | None = Non
     """What ``lnn-torch export`` writes beside the programs: each function's inputs and output, the scene's
     conventions, the model, the trusted parameter range and the versions that wrote them. ``functions``:
     ``{name: wrapped function}``; ``files``: ``{name: [file names]}``."""
-    from . import __version__
+    from .._version import __version__
 
     system = module.system
     m = _dynamics_model(module)

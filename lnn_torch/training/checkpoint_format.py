@@ -2,7 +2,7 @@
 model shipped in ``lnn_torch/pretrained``) points, the stamp ``LNNModule`` writes (package version
 and format), the checks that refuse what is not an lnn-torch checkpoint in one line, and the shims
 that let ``LNNModule`` load checkpoints of earlier versions. It imports nothing above itself: the
-loader, ``load_model``, lives in ``lnn_torch.checkpoints`` (also ``lnn_torch.load_model``)."""
+loader, ``load_model``, lives in ``lnn_torch.training.checkpoints`` (also ``lnn_torch.load_model``)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pickle
 import zipfile
 from pathlib import Path
 
-from .errors import CheckpointError
-from .pretrained import HERE, available, info
+from ..errors import CheckpointError
+from ..pretrained import HERE, available, info
 
 PRETRAINED = "pretrained:"
 # the checkpoint's entry of the compiled robot descriptions its model was built from
@@ -64,7 +64,7 @@ def old_default_widths(hparams) -> list | None:
 
 def stamp(checkpoint: dict) -> None:
     """Record the package version and checkpoint format that wrote ``checkpoint``."""
-    from . import __version__
+    from .._version import __version__
 
     checkpoint["lnn_torch"] = {"version": __version__, "format": CHECKPOINT_FORMAT}
 
@@ -72,7 +72,7 @@ def stamp(checkpoint: dict) -> None:
 def check_stamp(checkpoint: dict, path: Path) -> None:
     """``CheckpointError`` where ``checkpoint`` is not a model of this package or was written in a
     newer format than this version reads (checkpoints from before the stamp pass)."""
-    from . import __version__
+    from .._version import __version__
 
     if not isinstance(checkpoint, dict):
         raise CheckpointError(f"checkpoint {path} is not an lnn-torch checkpoint (it holds a "

@@ -14,7 +14,7 @@ generator only, in a fixed order, so that it depends on ``(seed, index)`` alone 
 dataset records the same trajectories as the full one.
 
 Recorders: ``ClosedFormRecorder`` (here) integrates a closed-form scene's Lagrangian
-(``lnn_torch.ground_truth``); the robot arm's tracking experiment is
+(``lnn_torch.systems.ground_truth``); the robot arm's tracking experiment is
 ``lnn_torch.robots.recording.TrackingRecorder``.
 """
 
@@ -72,7 +72,7 @@ class Recording:
 
 def sample_conditions(system, rngs, t: np.ndarray, excitation: dict | None = None):
     """Each trajectory's parameters and initial state, drawn from its own generator in that order
-    (then, given an ``excitation`` (``lnn_torch.excitation``), its input signal on the sample times
+    (then, given an ``excitation`` (``lnn_torch.systems.excitation``), its input signal on the sample times
     ``t (T,)``): float64 arrays ``params (N, num_params)``, ``q0 (N, dof)``, ``qd0 (N, dof)`` (and
     ``tau (N, T, num_inputs)``)."""
     params, q0, qd0, tau = [], [], [], []

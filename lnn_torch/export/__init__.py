@@ -1,0 +1,7 @@
+"""A trained model handed to other programs (``lnn-torch export``): its SI rigid-body functions as
+``torch.export`` programs, ONNX graphs or AOTInductor libraries, each with a JSON description
+(``programs``)."""
+
+from .programs import available_functions, describe, export_model, load_program, refusal, wrap
+
+__all__ = ["export_model", "load_program", "available_functions", "describe", "refusal", "wrap"]
