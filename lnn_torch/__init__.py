@@ -1,45 +1,48 @@
 """lnn_torch: Lagrangian Neural Networks for mechanical systems, in PyTorch.
 
-Public names: ``LNNModule`` (Lightning training shell), ``load_model`` (a checkpoint path or
-``pretrained:<name>``), ``load_pretrained`` (shipped trained models), ``rollout`` (fixed-step
-integration of any ``accel_fn``), ``get_system`` (ground-truth scenes), ``build_model`` (plain
-``nn.Module`` variants), ``evaluate_model`` (the one evaluation pipeline), ``TrajectoryDataModule``
-(HDF5 trajectories for Lightning).
+The public face, one name per task (each package's ``__init__`` is the second tier):
+
+* models: ``load_model`` (a checkpoint path or ``pretrained:<name>``), ``load_pretrained``,
+  ``build_model`` (plain ``nn.Module`` variants), ``LNNModule`` (the Lightning training shell);
+* scenes and data: ``get_system``, ``rollout`` (fixed-step integration of any ``accel_fn``),
+  ``generate_dataset``, ``import_recordings`` with its ``ImportSpec``, ``read_dataset``,
+  ``TrajectoryDataModule``;
+* use: ``evaluate_model`` (the one evaluation pipeline), ``identify`` (a learned model's physical
+  parameters), ``fit_classical`` (classical least squares on a robot arm), ``plant_of`` (the plant
+  view for control), ``export_model`` (standalone programs);
+* the exceptions (``InputError``, ``CheckpointError``, ...).
+
+Names other than ``get_system`` and ``rollout`` are imported on first use, so that physics-only
+users stay light (no Lightning).
 """
 
+from importlib import import_module
+
 from ._version import __version__
+from .errors import (
+    CheckpointError,
+    DatasetFileError,
+    GenerationError,
+    InputError,
+    SingularHessianError,
+    UntrustedParameterWarning,
+)
 from .mechanics.integrators import rollout
 from .systems import get_system
 
+_LAZY = {"LNNModule": ".training.module", "TrajectoryDataModule": ".training.datamodule",
+         "load_model": ".training.checkpoints", "load_pretrained": ".training.checkpoints",
+         "build_model": ".networks.registry", "evaluate_model": ".evaluation", "identify": ".identification.learned",
+         "fit_classical": ".identification.arm_comparison", "plant_of": ".control.plant",
+         "export_model": ".export.programs", "generate_dataset": ".data.generate",
+         "import_recordings": ".data.importer", "ImportSpec": ".data.importer", "read_dataset": ".data.hdf5"}
+
 
 def __getattr__(name):
-    # Lightning and the networks are imported on first use, so that physics-only users stay light
-    if name == "LNNModule":
-        from .training.module import LNNModule
-
-        return LNNModule
-    if name == "build_model":
-        from .networks import build_model
-
-        return build_model
-    if name == "load_pretrained":
-        from .training.checkpoints import load_pretrained
-
-        return load_pretrained
-    if name == "load_model":
-        from .training.checkpoints import load_model
-
-        return load_model
-    if name == "evaluate_model":
-        from .evaluation import evaluate_model
-
-        return evaluate_model
-    if name == "TrajectoryDataModule":
-        from .training.datamodule import TrajectoryDataModule
-
-        return TrajectoryDataModule
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module 'lnn_torch' has no attribute '{name}'")
 
 
-__all__ = ["__version__", "rollout", "get_system", "LNNModule", "build_model", "TrajectoryDataModule",
-           "load_pretrained", "load_model", "evaluate_model"]
+__all__ = ["__version__", "rollout", "get_system", "InputError", "CheckpointError", "DatasetFileError",
+           "GenerationError", "SingularHessianError", "UntrustedParameterWarning", *_LAZY]

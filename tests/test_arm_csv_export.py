@@ -90,8 +90,8 @@ def test_the_description_alone_gives_the_recorded_torques_for_the_recorded_paylo
 
     def torque(p):
         with torch.no_grad():
-            M = model.mass_matrix_si(q, p)
-            return (M @ qdd[..., None])[..., 0] + model.bias_si(q, qd, p) + damping * qd
+            M = model.mass_matrix(q, p)
+            return (M @ qdd[..., None])[..., 0] + model.bias(q, qd, p) + damping * qd
 
     scale = float(tau.abs().max())
     assert float((torque(params) - tau).abs().max()) / scale < 1e-9
@@ -122,7 +122,7 @@ def test_film_lnn_and_delan_condition_on_the_imported_payload_as_on_the_scenes(a
     with torch.no_grad():
         torch.testing.assert_close(a.acceleration(q, qd, params, tau), b.acceleration(q, qd, params, tau),
                                    rtol=0, atol=0)
-        torch.testing.assert_close(a.inverse_dynamics(q, qd, qdd, params), b.inverse_dynamics(q, qd, qdd, params),
+        torch.testing.assert_close(a.inverse(q, qd, qdd, params), b.inverse(q, qd, qdd, params),
                                    rtol=0, atol=0)
         heavier = params.clone()
         heavier[:, 0] += 1.0

@@ -52,7 +52,7 @@ def test_the_hand_removed_and_carried_back_as_a_tool_is_the_arm_as_written():
     q, qd, qdd = states(shipped)
     torch.testing.assert_close(carried.mass_matrix(q), shipped.mass_matrix(q), rtol=1e-12, atol=1e-14)
     torch.testing.assert_close(carried.inverse(q, qd, qdd), shipped.inverse(q, qd, qdd), rtol=1e-12, atol=1e-12)
-    assert float((shipped.gravity_torque(q) - bare.gravity_torque(q)).abs().max()) > 0.5
+    assert float((shipped.gravity(q) - bare.gravity(q)).abs().max()) > 0.5
     assert sum(bare.model.body_mass) == pytest.approx(sum(shipped.model.body_mass) - 0.73, abs=1e-12)
 
 
@@ -67,7 +67,7 @@ def test_armature_and_damping_as_written_zero_or_given():
     # M differs by the armature on its diagonal exactly; the passive force is -damping qd
     diff = written.mass_matrix(q) - zero.mass_matrix(q)
     torch.testing.assert_close(diff, 0.1 * torch.eye(7, dtype=torch.float64).expand_as(diff), rtol=0, atol=1e-14)
-    torch.testing.assert_close(given.passive(qd), -0.5 * torch.as_tensor(qd), rtol=0, atol=0)
+    torch.testing.assert_close(given.friction(q, qd), -0.5 * torch.as_tensor(qd), rtol=0, atol=0)
 
 
 def test_a_urdf_keeps_its_flange_link_and_takes_payloads_there(tmp_path):
@@ -76,7 +76,7 @@ def test_a_urdf_keeps_its_flange_link_and_takes_payloads_there(tmp_path):
     arm = MujocoArm({"source": str(path), "flange": "tool0"})
     assert arm.joint_names == ("j1", "j2") and arm.body_names[arm.model.body_parentid[arm.payload_id]] == "tool0"
     # 2 kg at the flange, 0.3 m along l2's x: holding it at q = 0 takes m g x at joint 2 (axis y)
-    held = arm.gravity_torque(np.zeros((1, 2)), [2.0, 0, 0, 0]) - arm.gravity_torque(np.zeros((1, 2)))
+    held = arm.gravity(np.zeros((1, 2)), [2.0, 0, 0, 0]) - arm.gravity(np.zeros((1, 2)))
     torch.testing.assert_close(held, torch.tensor([[0.0, -2.0 * 9.81 * 0.3]], dtype=torch.float64), rtol=0,
                                atol=1e-12)
     assert path.read_text() == URDF  # never edited
@@ -104,8 +104,8 @@ def test_a_site_flange_keeps_its_orientation_however_it_is_written(tmp_path, ori
         arms[key] = MujocoArm({"source": str(path), "flange": "flange"})
     q = np.array([[0.3, -0.7], [1.1, 0.4]])
     payload = [1.5, 0.02, 0.08, -0.03]
-    tau = {k: a.gravity_torque(q, payload) for k, a in arms.items()}
-    assert (tau["quat"] - arms["quat"].gravity_torque(q)).abs().max() > 0.1  # the payload counts
+    tau = {k: a.gravity(q, payload) for k, a in arms.items()}
+    assert (tau["quat"] - arms["quat"].gravity(q)).abs().max() > 0.1  # the payload counts
     torch.testing.assert_close(tau["other"], tau["quat"], rtol=0, atol=1e-12)
 
 

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from lnn_torch.data import read_dataset
-from lnn_torch.data.importer import ImportSpec, import_recordings, resampling_report
+from lnn_torch.data.importer import ImportSpec, import_recordings
+from lnn_torch.data.resampling import resampling_report
 from lnn_torch.errors import InputError
 from lnn_torch.training.datamodule import TrajectoryDataModule
 
@@ -135,13 +136,13 @@ def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
     assert model.forces.input_gains().tolist() == [1.0, 1.0]
     q, qd, qdd = (torch.randn(5, 2, dtype=torch.float64) for _ in range(3))
     params = torch.zeros(5, 0, dtype=torch.float64)
-    ref = plain.inverse_dynamics(q, qd, qdd, params)
-    torch.testing.assert_close(model.inverse_dynamics(q, qd, qdd, params), ref, rtol=1e-12, atol=1e-12)
+    ref = plain.inverse(q, qd, qdd, params)
+    torch.testing.assert_close(model.inverse(q, qd, qdd, params), ref, rtol=1e-12, atol=1e-12)
     k = torch.tensor([2.5, 0.4], dtype=torch.float64)
     with torch.no_grad():
         model.forces.input_gains_raw.copy_(k.log())
-    torch.testing.assert_close(model.inverse_dynamics(q, qd, qdd, params), ref / k, rtol=1e-10, atol=1e-12)
-    model.inverse_dynamics(q, qd, qdd, params).pow(2).sum().backward()
+    torch.testing.assert_close(model.inverse(q, qd, qdd, params), ref / k, rtol=1e-10, atol=1e-12)
+    model.inverse(q, qd, qdd, params).pow(2).sum().backward()
     assert model.forces.input_gains_raw.grad.abs().min() > 0
     assert model.forces.input_gains_raw in model.forces.coefficient_parameters()
     again = build_model("film_lnn", system, learn_input_matrix="gains").double()

@@ -21,7 +21,7 @@ from lnn_torch.evaluation import (
     skip,
 )
 from lnn_torch.networks import MODELS, VARIANTS, build_model
-from lnn_torch.networks.base import (
+from lnn_torch.networks.capabilities import (
     CAPABILITIES,
     ENERGY,
     FORCES,
@@ -123,7 +123,7 @@ def test_each_class_declares_what_it_provides_and_the_scene_narrows_it(scenes):
 
 
 def test_si_accessors_agree_with_the_normalised_quantities(scenes):
-    """energy_si is H / force_scale (J) with inputs; mass_matrix_si is the matrix of energy_si's kinetic
+    """energy is H / force_scale (J) with inputs; mass_matrix is the matrix of energy's kinetic
     energy in SI velocities; friction in N m; an accessor the model does not provide names why."""
     system, data = scenes["actuated"]
     model = tiny_model("film_lnn", system, data).double()
@@ -133,17 +133,17 @@ def test_si_accessors_agree_with_the_normalised_quantities(scenes):
         H_n, T_n, _ = model.energy_norm(*model.normalize(q, qd, p))
         fs = float(model.normalizer.force_scale)
         assert fs != 1.0
-        torch.testing.assert_close(model.energy_si(q, qd, p), H_n / fs, rtol=1e-12, atol=0)
-        M = model.mass_matrix_si(q, p)
+        torch.testing.assert_close(model.energy(q, qd, p), H_n / fs, rtol=1e-12, atol=0)
+        M = model.mass_matrix(q, p)
         torch.testing.assert_close(0.5 * torch.einsum("bi,bij,bj->b", qd, M, qd), T_n / fs, rtol=1e-10, atol=1e-14)
         rates = qd @ system.joint_map().T
-        torch.testing.assert_close(model.friction_torque_si(rates, p),
+        torch.testing.assert_close(model.friction_torque(rates, p),
                                    model.forces.friction_torque(rates, model.normalizer.params(p)))
-        b, c = model.friction_coefficients_si(p)
+        b, c = model.friction_coefficients(p)
         assert b.shape == c.shape == (len(p), 2) and (b >= 0).all() and (c >= 0).all()
     mlp = tiny_model("mlp", system, data)
-    for call in (lambda: mlp.energy_si(q, qd, p), lambda: mlp.mass_matrix_si(q, p),
-                 lambda: mlp.friction_torque_si(rates, p)):
+    for call in (lambda: mlp.energy(q, qd, p), lambda: mlp.mass_matrix(q, p),
+                 lambda: mlp.friction_torque(rates, p)):
         with pytest.raises(InputError, match="variant 'mlp' does not provide"):
             call()
 
@@ -201,7 +201,7 @@ def test_every_report_section_gives_values_or_a_reason(kind, scenes, tmp_path):
             assert math.isfinite(result["torque_nrmse"]["mean"])  # at the valid points of the recordings
         if variant not in ("film_lnn", "hnn", "mlp"):
             continue  # the report is the same loop for every model: written (with its PNGs) for three
-        report = write_report({"data": kind, **result}, tmp_path / variant, system)
+        report = write_report({"data": kind, **result}, tmp_path / variant)
         text = (tmp_path / variant / "report.md").read_text()
         assert "Skipped sections:" in text or not skipped
         for name, why in skipped.items():
@@ -244,7 +244,7 @@ def test_a_new_metric_presents_itself_in_the_report_figures_and_logs(scenes, tmp
         r = evaluate_model(model, system, data, sections=("rollouts", "max_speed", "plain"), horizon=0.2)
         assert section_logs(r)["max_speed"] == r["max_speed"] > 0
         assert r["skipped"] == {"plain": "variant 'mlp' does not provide mass_matrix"}
-        files = write_report(r, tmp_path, system)
+        files = write_report(r, tmp_path)
         text = (tmp_path / "report.md").read_text()
         assert "| max speed (rad/s) |" in text and "* plain: variant 'mlp' does not provide mass_matrix" in text
         assert (tmp_path / "max_speed.png") in files

@@ -228,7 +228,7 @@ def test_si_inverse_dynamics_of_a_point_mass_chain_is_the_closed_form():
     gravity = torch.func.vmap(torch.func.grad(lambda x: dp.potential(x, params[0])))(q)
     eps_si = model.eps * tau**2 / fs  # the model's M = F F^T + eps I (eps in normalised units)
     expected = (dp.mass_matrix(q, params) @ qdd[..., None])[..., 0] + eps_si * qdd + gravity
-    got = model.inverse_dynamics(q, torch.zeros_like(q), qdd, q.new_zeros(16, 0))
+    got = model.inverse(q, torch.zeros_like(q), qdd, q.new_zeros(16, 0))
     torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(model.chain_si()["mass"][0], torch.tensor([m1, m2], dtype=torch.float64))
 
@@ -254,13 +254,13 @@ def test_the_si_face_of_a_point_mass_chain_is_the_double_pendulums_plant():
     plant = plant_of(get_system("double_pendulum"))
     eps_si = model.eps * tau**2 / fs  # the model's M = F F^T + eps I (eps in normalised units)
     with torch.no_grad():
-        M, n, Qf = model.mass_matrix_si(q, none), model.bias_si(q, qd, none), model.friction_si(q, qd, none)
+        M, n, Qf = model.mass_matrix(q, none), model.bias(q, qd, none), model.friction(q, qd, none)
         torch.testing.assert_close(M, plant.mass_matrix(q, params) + eps_si * torch.eye(2, dtype=torch.float64))
         torch.testing.assert_close(n, plant.bias(q, qd, params), rtol=1e-10, atol=1e-12)
-        torch.testing.assert_close(model.gravity_si(q, none), plant.gravity(q, params), rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(model.gravity(q, none), plant.gravity(q, params), rtol=1e-10, atol=1e-12)
         assert Qf.abs().max() > 1e-3 and ((Qf * qd).sum(-1) < 0).all()  # learned friction: in Q_f, not in n
         expected = (plant.mass_matrix(q, params) @ qdd[..., None])[..., 0] + eps_si * qdd + plant.bias(q, qd, params)
-        torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, none), expected - Qf, rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(model.inverse(q, qd, qdd, none), expected - Qf, rtol=1e-10, atol=1e-12)
 
 
 def test_the_residuals_decay_and_the_chain_constants_do_not():

@@ -46,9 +46,9 @@ def test_least_squares_with_friction_gives_the_torques_and_the_coefficients(arm,
     arm, chain = arm
     fit = classical.least_squares(chain, *samples(arm, 300, 0), drive=DRIVE, weighted=weighted)
     q, qd, qdd, tau = samples(arm, 50, 1)  # held out
-    assert (fit.torque(q, qd, qdd) - tau).abs().max() <= 1e-7 * tau.abs().max()
+    assert (fit.inverse(q, qd, qdd) - tau).abs().max() <= 1e-7 * tau.abs().max()
     for key in ("c", "o"):  # viscous friction is in the regressor's damping column (with the armature)
-        np.testing.assert_allclose(fit.friction[key], FRICTION[key].numpy(), rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(fit.friction_coefficients[key], FRICTION[key].numpy(), rtol=1e-6, atol=1e-8)
     assert fit.report()["base_parameters"] < 84
 
 
@@ -58,11 +58,12 @@ def test_the_consistent_fit_explains_the_torques_with_a_physical_arm(arm):
     data = samples(arm, 60, 2)
     fit = classical.consistent_fit(chain, *data, drive=DRIVE, prior=1e-6)
     q, qd, qdd, tau = samples(arm, 50, 3)
-    error = (fit.torque(q, qd, qdd) - tau).pow(2).mean().sqrt() / tau.std()
+    error = (fit.inverse(q, qd, qdd) - tau).pow(2).mean().sqrt() / tau.std()
     assert error < 1e-2, float(error)
     report = fit.report()
     assert min(report["mass"]) > 0 and min(report["armature"]) >= 0
-    assert (torch.as_tensor(fit.friction["b"]) >= 0).all() and (torch.as_tensor(fit.friction["c"]) >= 0).all()
+    coefficients = fit.friction_coefficients
+    assert (torch.as_tensor(coefficients["b"]) >= 0).all() and (torch.as_tensor(coefficients["c"]) >= 0).all()
 
 
 def test_the_sigmoid_frictions_constants_come_back_by_variable_projection(arm):
@@ -71,7 +72,7 @@ def test_the_sigmoid_frictions_constants_come_back_by_variable_projection(arm):
              "phi3": torch.full((7,), 0.05, dtype=torch.float64)}
     fit = classical.least_squares(chain, *samples(arm, 300, 4, "sigmoid", truth), drive="sigmoid")
     for key, value in truth.items():
-        np.testing.assert_allclose(fit.friction[key], value.numpy(), rtol=1e-3)
+        np.testing.assert_allclose(fit.friction_coefficients[key], value.numpy(), rtol=1e-3)
 
 
 def test_an_identified_models_forward_dynamics_is_the_engines(arm):
@@ -139,9 +140,9 @@ def test_a_known_payload_per_recording_is_taken_off_before_the_fit_and_put_back_
                                atol=1e-9 * float(tau.abs().max()))
     fit = classical.least_squares(chain, q[:250], qd[:250], qdd[:250], (tau - added)[:250], drive=DRIVE)
     held_out = slice(250, 300)
-    assert (fit.torque(q[held_out], qd[held_out], qdd[held_out], payload[held_out]) - tau[held_out]).abs().max() \
+    assert (fit.inverse(q[held_out], qd[held_out], qdd[held_out], payload[held_out]) - tau[held_out]).abs().max() \
         <= 1e-7 * tau.abs().max()
-    assert (fit.torque(q[held_out], qd[held_out], qdd[held_out]) - tau[held_out]).abs().max() > 0.1  # it matters
+    assert (fit.inverse(q[held_out], qd[held_out], qdd[held_out]) - tau[held_out]).abs().max() > 0.1  # it matters
     tau_h = tau[held_out]
     qdd_fit = fit.forward(q[held_out], qd[held_out], tau_h, payload[held_out])
     torch.testing.assert_close(qdd_fit, qdd[held_out], rtol=1e-6, atol=1e-6)

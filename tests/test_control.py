@@ -110,10 +110,10 @@ def test_the_learned_plant_is_the_models_rigid_body_face():
     plant = plant_of(model)
     q, qd, params, _ = _states(plant)
     with torch.no_grad():
-        for got, face in ((plant.mass_matrix(q, params), model.mass_matrix_si(q, params)),
-                          (plant.bias(q, qd, params), model.bias_si(q, qd, params)),
-                          (plant.gravity(q, params), model.gravity_si(q, params)),
-                          (plant.friction(q, qd, params), model.friction_si(q, qd, params))):
+        for got, face in ((plant.mass_matrix(q, params), model.mass_matrix(q, params)),
+                          (plant.bias(q, qd, params), model.bias(q, qd, params)),
+                          (plant.gravity(q, params), model.gravity(q, params)),
+                          (plant.friction(q, qd, params), model.friction(q, qd, params))):
             torch.testing.assert_close(got, face, rtol=0, atol=0)
     # a measured arm learned without inputs (joint friction in the model's units) under a torque scale
     from lnn_torch.systems import MeasuredSystem
@@ -128,7 +128,7 @@ def test_the_learned_plant_is_the_models_rigid_body_face():
     scaled = plant_of(learned, torque_scale=2.5)
     q, qd, u = q[:6], 0.3 * qd[:6], torch.randn(6, 2, generator=gen, dtype=torch.float64)
     M, n, Qf = scaled.mass_matrix(q, none[:6]), scaled.bias(q, qd, none[:6]), scaled.friction(q, qd, none[:6])
-    torch.testing.assert_close(Qf, learned.friction_si(q, qd, none[:6]) / 2.5, rtol=0, atol=0)
+    torch.testing.assert_close(Qf, learned.friction(q, qd, none[:6]) / 2.5, rtol=0, atol=0)
     assert Qf.abs().max() > 1e-3
     qdd = scaled.forward(q, qd, none[:6], u)
     torch.testing.assert_close(torch.einsum("bij,bj->bi", M, qdd) + n, u @ scaled.input_matrix.T + Qf)
@@ -193,7 +193,7 @@ def test_torque_scale_of_a_lagrangian_known_up_to_scale_is_calibrated():
     """A plant whose Lagrangian is 3 times the truth's (what a model learned without inputs may be)
     gets its scale back from a recording with known torques."""
     true = plant_of(DP)
-    scaled = Plant("scaled", 2, 4, true.input_matrix, true.angle_mask, true.accel,
+    scaled = Plant("scaled", 2, 4, true.input_matrix, true.angle_mask, true.accel_fn,
                    lambda q, p: 3.0 * DP.mass_matrix(q, p))
     q, qd, params, u = _states(true, n=32)
     qdd = true.forward(q, qd, params, u)

@@ -94,14 +94,14 @@ def eager(model, function, q, qd, params, tau, qdd):
     if function == "forward_dynamics":
         return model.acceleration(q, qd, params, tau)
     if function == "inverse_dynamics":
-        return model.inverse_dynamics(q, qd, qdd, params)
+        return model.inverse(q, qd, qdd, params)
     if function == "bias_force":
-        return model.bias_si(q, qd, params)
+        return model.bias(q, qd, params)
     if function == "gravity_force":
-        return model.gravity_si(q, params)
+        return model.gravity(q, params)
     if function == "friction_force":
-        return model.friction_si(q, qd, params)
-    return model.mass_matrix_si(q, params)
+        return model.friction(q, qd, params)
+    return model.mass_matrix(q, params)
 
 
 def arguments(function, q, qd, params, tau, qdd):
@@ -172,13 +172,13 @@ def test_bias_gravity_and_friction_forces_are_what_the_mass_matrix_and_accelerat
     fns = {f: ex.export_program(ex.wrap(module, f, torch.float64)).module()
            for f in ("bias_force", "gravity_force", "friction_force", "inverse_dynamics")}
     with torch.no_grad():
-        b, c = model.friction_coefficients_si(params)
+        b, c = model.friction_coefficients(params)
         D = ADP.joint_map().double()
         rates = qd @ D.T
         Qf = -(b * rates + c * torch.tanh(rates / ADP.coulomb_velocity)) @ D
         torch.testing.assert_close(fns["friction_force"](q, qd, params), Qf, rtol=1e-9, atol=1e-12)
         assert (Qf.abs() > 1e-3).any() and ((Qf * qd).sum(-1) <= 0).all()  # friction matters here, and dissipates
-        M = model.mass_matrix_si(q, params)
+        M = model.mass_matrix(q, params)
         n = Qf - (M @ model.acceleration(q, qd, params, zero_tau)[..., None])[..., 0]
         g = -(M @ model.acceleration(q, torch.zeros_like(qd), params, zero_tau)[..., None])[..., 0]
         torch.testing.assert_close(fns["bias_force"](q, qd, params), n, rtol=1e-9, atol=1e-10 * float(n.abs().max()))

@@ -222,7 +222,7 @@ def test_inverse_dynamics_inverts_the_forward_model(variant, rng):
         q, qd, params = random_batch(scene, rng, 64)
         tau = random_inputs(scene, rng, 64)
         qdd = model.acceleration(q, qd, params, tau)
-        torch.testing.assert_close(model.inverse_dynamics(q, qd, qdd, params), tau, rtol=1e-9, atol=1e-9)
+        torch.testing.assert_close(model.inverse(q, qd, qdd, params), tau, rtol=1e-9, atol=1e-9)
 
 
 def test_gradcheck_through_the_forced_structured_solve(rng):

@@ -26,7 +26,7 @@ def test_the_regressor_inverts_the_forward_dynamics():
     qdd = TRUE.acceleration(q, qd, None, tau)
     beta = torch.tensor([TRUE.base[k] for k in BASE], dtype=torch.float64)
     torch.testing.assert_close(base_regressor(q, qd, qdd) @ beta, tau, rtol=0, atol=1e-12)
-    torch.testing.assert_close(TRUE.torque(q, qd, qdd), tau, rtol=0, atol=1e-12)
+    torch.testing.assert_close(TRUE.inverse(q, qd, qdd), tau, rtol=0, atol=1e-12)
 
 
 def test_the_base_parameters_are_the_physical_ones_combined():
@@ -96,7 +96,7 @@ def test_least_squares_in_accelerations_recovers_the_model_and_weighs_by_the_mas
         return float((m.acceleration(q, qd, None, tau) - noisy).pow(2).sum())
 
     def torque_err(m):
-        return float((m.torque(q, qd, noisy) - tau).pow(2).sum())
+        return float((m.inverse(q, qd, noisy) - tau).pow(2).sum())
 
     assert acc_err(by_acc) < acc_err(by_torque)
     assert torque_err(by_torque) < torque_err(by_acc)

@@ -11,7 +11,8 @@ import pytest
 
 from lnn_torch.cli import main
 from lnn_torch.data import read_dataset
-from lnn_torch.data.importer import ImportSpec, import_recordings, read_csv_table, recording_name
+from lnn_torch.data.importer import ImportSpec, import_recordings
+from lnn_torch.data.tables import read_csv_table, recording_name
 from lnn_torch.errors import InputError
 
 N = 200  # samples of a recording (0.4 s at 2 ms)

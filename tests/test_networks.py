@@ -75,10 +75,10 @@ def fitted(model, system, rng, n=256):
                                                     ("mass_spring", "delan", False)])
 def test_the_si_face_is_its_lagrangian_by_torch_func(scene, variant, shared, rng):
     """The SI rigid-body face (``networks.rigid_body``) against the model's own SI Lagrangian ``L = H - 2 V``
-    (``energy_si``, its potential at rest) differentiated by torch.func through the normalisation:
+    (``energy``, its potential at rest) differentiated by torch.func through the normalisation:
     ``M = d2L/dqd2``, ``n = (d/dq dL/dqd) qd - dL/dq``, ``g = -dL/dq`` at rest (in J and N m with inputs,
     else the model's units); and ``M qdd + n = B tau + Q_f`` at the model's accelerations,
-    ``inverse_dynamics_si`` their inverse, ``Q_f`` dissipative."""
+    ``inverse`` their inverse, ``Q_f`` dissipative."""
     system = get_system(scene)
     model = fitted(perturbed(build_model(variant, system, hidden_dims=(16, 16), shared=shared).double()), system,
                    rng)
@@ -86,7 +86,7 @@ def test_the_si_face_is_its_lagrangian_by_torch_func(scene, variant, shared, rng
     zero = torch.zeros_like(qd)
 
     def lagrangian(q_, qd_):  # (B,): T - V = H - 2 V, V = H at rest
-        return model.energy_si(q_, qd_, params) - 2 * model.energy_si(q_, torch.zeros_like(qd_), params)
+        return model.energy(q_, qd_, params) - 2 * model.energy(q_, torch.zeros_like(qd_), params)
 
     def momentum(q_, qd_):
         return torch.func.grad(lambda v: lagrangian(q_, v).sum())(qd_)
@@ -98,23 +98,23 @@ def test_the_si_face_is_its_lagrangian_by_torch_func(scene, variant, shared, rng
     n_ref = torch.func.jvp(lambda x: momentum(x, qd), (q,), (qd,))[1] - dL_dq
     g_ref = -torch.func.grad(lambda x: lagrangian(x, zero).sum())(q)
     with torch.no_grad():
-        M, n, g = model.mass_matrix_si(q, params), model.bias_si(q, qd, params), model.gravity_si(q, params)
+        M, n, g = model.mass_matrix(q, params), model.bias(q, qd, params), model.gravity(q, params)
         for got, ref in ((M, M_ref), (n, n_ref), (g, g_ref)):
             torch.testing.assert_close(got, ref, rtol=1e-9, atol=1e-10 * float(ref.abs().max()))
-        torch.testing.assert_close(model.bias_si(q, zero, params), g, rtol=1e-9, atol=1e-12 * float(g.abs().max()))
+        torch.testing.assert_close(model.bias(q, zero, params), g, rtol=1e-9, atol=1e-12 * float(g.abs().max()))
         tau = random_inputs(system, rng, 12)
         if tau is None:  # a conservative scene: no forces, no friction, no inverse dynamics
             assert model.forces is None and model.missing("forces") and model.missing("inverse_dynamics")
             with pytest.raises(InputError, match="has no generalised forces"):
-                model.friction_si(q, qd, params)
+                model.friction(q, qd, params)
             tau, Qf, B = torch.zeros(12, 0, dtype=q.dtype), torch.zeros_like(q), torch.zeros(dof, 0, dtype=q.dtype)
-            qdd = model.forward_dynamics_si(q, qd, params)
+            qdd = model.forward(q, qd, params)
         else:
-            Qf, B = model.friction_si(q, qd, params), system.input_matrix().double()
+            Qf, B = model.friction(q, qd, params), system.input_matrix().double()
             assert ((Qf * qd).sum(-1) <= 0).all() and Qf.abs().max() > 0
-            qdd = model.forward_dynamics_si(q, qd, params, tau)
-            torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, params), tau, rtol=1e-9, atol=1e-9)
-            torch.testing.assert_close(model.input_force_si(q, qd, qdd, params), tau @ B.T, rtol=1e-9, atol=1e-9)
+            qdd = model.forward(q, qd, params, tau)
+            torch.testing.assert_close(model.inverse(q, qd, qdd, params), tau, rtol=1e-9, atol=1e-9)
+            torch.testing.assert_close(model.input_force(q, qd, qdd, params), tau @ B.T, rtol=1e-9, atol=1e-9)
         torch.testing.assert_close(qdd, model.acceleration(q, qd, params, tau if tau.shape[1] else None),
                                    rtol=0, atol=0)
         torch.testing.assert_close((M @ qdd[..., None])[..., 0] + n, tau @ B.T + Qf, rtol=1e-9,
@@ -134,7 +134,8 @@ def test_mass_matrix_spd_with_min_eigenvalue_eps(variant, rng):
         "params 100x below": (q, params / 100),
     }
     for name, (qq, pp) in cases.items():
-        M = model.mass_matrix(qq, pp)
+        q_n, _, p_n = model.normalize(qq, qq, pp)
+        M = model.mass_matrix_norm(q_n, p_n)  # normalised units: eps is its floor
         torch.testing.assert_close(M, M.mT, rtol=0, atol=0)
         eig = torch.linalg.eigvalsh(M)
         assert torch.isfinite(eig).all(), name

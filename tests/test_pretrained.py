@@ -134,8 +134,8 @@ def _arm_errors(name: str, num_trajectories: int, duration: float, stride: int =
     q, qd, qdd, tau = (torch.from_numpy(arrays[k][:, :-1:stride]).reshape(-1, 7) for k in ("q", "qd", "qdd", "tau"))
     params = torch.from_numpy(arrays["params"]).repeat_interleave(len(q) // num_trajectories, 0)
     with torch.no_grad():
-        torques = model.inverse_dynamics_si(q, qd, qdd, params)
-        accelerations = model.forward_dynamics_si(q, qd, params, tau)
+        torques = model.inverse(q, qd, qdd, params)
+        accelerations = model.forward(q, qd, params, tau)
     torque_nmse = ((torques - tau).pow(2).mean(0) / tau.var(0)).mean()
     return float(torque_nmse), float((accelerations - qdd).norm() / qdd.norm())
 

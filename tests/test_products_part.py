@@ -74,7 +74,7 @@ def test_a_spatial_arms_gravity_with_any_payload_is_in_its_span():
     q = torch.tensor(arm.sample_q(rng, n))
     payload = torch.tensor(np.column_stack([rng.uniform(0, 3, n), rng.uniform(-0.05, 0.05, (n, 2)),
                                             rng.uniform(0, 0.1, n)]))
-    g = arm.gravity_torque(q, payload)  # dV/dq, N m
+    g = arm.gravity(q, payload)  # dV/dq, N m
     u, du = part._factors(q)
     joints = u.shape[0]
 

@@ -38,11 +38,11 @@ def _train_residual(model, q, qd, qdd, params, extra, steps):
     """Train the residual alone (the physics frozen) on the model's own torques plus ``extra`` with Adam;
     returns the mean square torque error before and after."""
     with torch.no_grad():
-        target = model.inverse_dynamics_si(q, qd, qdd, params) + extra
+        target = model.inverse(q, qd, qdd, params) + extra
     opt = torch.optim.Adam(model.forces.residual.parameters(), lr=1e-2)
     first = None
     for _ in range(steps):
-        loss = (model.inverse_dynamics_si(q, qd, qdd, params) - target).pow(2).mean()
+        loss = (model.inverse(q, qd, qdd, params) - target).pow(2).mean()
         first = float(loss.detach()) if first is None else first
         opt.zero_grad()
         loss.backward()
@@ -64,9 +64,9 @@ def test_a_force_residual_starts_at_zero_and_leaves_the_seeded_model_as_it_was(v
     _fit(plain, ADP, np.random.default_rng(1234))  # the same statistics
     torch.testing.assert_close(model.acceleration(q, qd, params, tau), plain.acceleration(q, qd, params, tau),
                                rtol=0, atol=0)
-    torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, params),
-                               plain.inverse_dynamics_si(q, qd, qdd, params), rtol=0, atol=0)
-    assert (model.residual_force_si(q, qd, params) == 0).all()
+    torch.testing.assert_close(model.inverse(q, qd, qdd, params),
+                               plain.inverse(q, qd, qdd, params), rtol=0, atol=0)
+    assert (model.residual_force(q, qd, params) == 0).all()
     assert model.residual_names() == ("force",) and plain.residual_names() == ()
     # film_lnn modulates it by FiLM of the parameters; delan reads them as inputs
     residual = model.forces.residual
@@ -79,26 +79,26 @@ def test_the_residual_is_in_the_forward_and_inverse_dynamics_and_nowhere_else(rn
     model = build_model("film_lnn", ADP, hidden_dims=(16, 16), residual_force={"hidden": [8, 8]}).double()
     q, qd, qdd, params, _ = _fit(model, ADP, rng)
     _excite(model)
-    Q_r = model.residual_force_si(q, qd, params)
+    Q_r = model.residual_force(q, qd, params)
     assert Q_r.abs().min() > 1e-3  # it is there
     with model.residuals_off("force"):
-        without = {"input": model.input_force_si(q, qd, qdd, params), "accel": model.acceleration(q, qd, params,
-                   torch.zeros(len(q), 2, dtype=torch.float64)), "bias": model.bias_si(q, qd, params),
-                   "gravity": model.gravity_si(q, params), "friction": model.friction_si(q, qd, params),
-                   "M": model.mass_matrix_si(q, params), "residual": model.residual_force_si(q, qd, params)}
+        without = {"input": model.input_force(q, qd, qdd, params), "accel": model.acceleration(q, qd, params,
+                   torch.zeros(len(q), 2, dtype=torch.float64)), "bias": model.bias(q, qd, params),
+                   "gravity": model.gravity(q, params), "friction": model.friction(q, qd, params),
+                   "M": model.mass_matrix(q, params), "residual": model.residual_force(q, qd, params)}
     assert (without["residual"] == 0).all()
     # inverse dynamics: B tau = M qdd + n - Q_f - Q_r
-    torch.testing.assert_close(model.input_force_si(q, qd, qdd, params), without["input"] - Q_r, rtol=0, atol=1e-10)
+    torch.testing.assert_close(model.input_force(q, qd, qdd, params), without["input"] - Q_r, rtol=0, atol=1e-10)
     # forward dynamics: M (a - a_without) = Q_r
     zero = torch.zeros(len(q), 2, dtype=torch.float64)
     delta = model.acceleration(q, qd, params, zero) - without["accel"]
     torch.testing.assert_close(torch.einsum("bij,bj->bi", without["M"], delta), Q_r, rtol=0, atol=1e-9)
     # the round trip: the inputs of the inverse dynamics give back the accelerations
-    tau = model.inverse_dynamics_si(q, qd, qdd, params).detach()
+    tau = model.inverse(q, qd, qdd, params).detach()
     torch.testing.assert_close(model.acceleration(q, qd, params, tau), qdd, rtol=0, atol=1e-9)
     # not in n, g, Q_f or M
-    for name, value in (("bias", model.bias_si(q, qd, params)), ("gravity", model.gravity_si(q, params)),
-                        ("friction", model.friction_si(q, qd, params)), ("M", model.mass_matrix_si(q, params))):
+    for name, value in (("bias", model.bias(q, qd, params)), ("gravity", model.gravity(q, params)),
+                        ("friction", model.friction(q, qd, params)), ("M", model.mass_matrix(q, params))):
         torch.testing.assert_close(value, without[name], rtol=0, atol=0, msg=name)
 
 
@@ -125,7 +125,7 @@ def test_the_power_of_the_models_forces_counts_the_residuals_work(rng):
     with model.residuals_off():
         without = model.training_terms(q, qd, qdd, params, tau, energy=True)["power"]
     q_n, qd_n = model.normalizer.state(q, qd)
-    Q_r_norm = model.normalizer.force_to_norm(model.residual_force_si(q, qd, params))
+    Q_r_norm = model.normalizer.force_to_norm(model.residual_force(q, qd, params))
     torch.testing.assert_close(power - without, (qd_n * Q_r_norm).sum(-1), rtol=0, atol=1e-10)
 
 
@@ -170,12 +170,12 @@ def test_torque_shares_report_what_each_residual_carries(rng):
     with torch.no_grad():
         model.potential["mlp"].net.out.weight.normal_(0, 0.5)
     shares = torque_shares(model, q, qd, qdd, params, tau)
-    rms = model.residual_force_si(q, qd, params).pow(2).mean(0).sqrt()
+    rms = model.residual_force(q, qd, params).pow(2).mean(0).sqrt()
     torch.testing.assert_close(torch.tensor(shares["residuals"]["force"]["rms"], dtype=torch.float64), rms,
                                rtol=1e-12, atol=0)
     assert min(shares["residuals"]["potential"]["rms"]) > 0 and min(shares["residuals"]["kinetic"]["rms"]) > 0
     with model.residuals_off():
-        physics = model.inverse_dynamics_si(q, qd, qdd, params)
+        physics = model.inverse(q, qd, qdd, params)
     torch.testing.assert_close(torch.tensor(shares["physics_rms"], dtype=torch.float64),
                                physics.pow(2).mean(0).sqrt(), rtol=1e-12, atol=0)
     torch.testing.assert_close(torch.tensor(shares["data_rms"], dtype=torch.float64), tau.pow(2).mean(0).sqrt(),
@@ -223,10 +223,10 @@ def test_a_local_residual_is_a_network_per_joint_of_its_own_angle_velocity_and_t
     model = build_model("delan", ADP, hidden_dims=(16, 16),
                         residual_force={"local": True, "harmonics": 3, "hidden": [8, 8], "weight": 0.01}).double()
     q, qd, qdd, params, tau = _fit(model, ADP, rng)
-    assert (model.residual_force_si(q, qd, params) == 0).all() and float(model.regularization().detach()) == 0.0
+    assert (model.residual_force(q, qd, params) == 0).all() and float(model.regularization().detach()) == 0.0
     _excite(model)
     residual = model.forces.residual
-    got = model.residual_force_si(q, qd, params)
+    got = model.residual_force(q, qd, params)
     _, qd_n, p_n = model.normalize(q, qd, params)
     expected = []
     for j in range(2):
@@ -242,7 +242,7 @@ def test_a_local_residual_is_a_network_per_joint_of_its_own_angle_velocity_and_t
     w, b = residual.net.out_layer
     torch.testing.assert_close(model.regularization(), 0.01 * (w.pow(2).sum() + b.pow(2).sum()), rtol=1e-15, atol=0)
     for argnum in (0, 1):
-        J = torch.func.vmap(torch.func.jacrev(lambda a, b, p: model.residual_force_si(a[None], b[None], p[None])[0],
+        J = torch.func.vmap(torch.func.jacrev(lambda a, b, p: model.residual_force(a[None], b[None], p[None])[0],
                                               argnums=argnum))(q[:8], qd[:8], params[:8])
         off = J * (1 - torch.eye(2, dtype=J.dtype))
         assert (off == 0).all() and J.diagonal(dim1=-2, dim2=-1).abs().min() > 0

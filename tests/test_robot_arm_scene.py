@@ -61,7 +61,7 @@ def test_acceleration_is_the_engines_inverse_mass_matrix_times_the_forces(system
     q, qd, params, tau = _batch(system)
     arm = system.arm
     M, bias = arm.mass_matrix(q, params), arm.bias(q, qd, params)
-    expected = torch.linalg.solve(M, (tau - bias + arm.passive(qd))[..., None])[..., 0]
+    expected = torch.linalg.solve(M, (tau - bias + arm.friction(q, qd))[..., None])[..., 0]
     torch.testing.assert_close(system.acceleration(q, qd, params, tau), expected, rtol=0, atol=1e-9)
     torch.testing.assert_close(system.mass_matrix(q, params), M, rtol=0, atol=0)
     # the payload matters per state: each row's own
@@ -105,7 +105,7 @@ def test_the_potential_is_the_engines_gravity_torque_integrated(system):
         dq = torch.zeros_like(q)
         dq[:, j] = h
         grad[:, j] = (system.potential(q + dq, params) - system.potential(q - dq, params)) / (2 * h)
-    torch.testing.assert_close(grad, system.arm.gravity_torque(q, params), rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(grad, system.arm.gravity(q, params), rtol=1e-6, atol=1e-6)
     # a payload raises the potential by m g z at the configuration, and the scale is a fixed positive range
     scale = system.energy_scale(params)
     assert (scale > 10).all() and torch.equal(scale, system.energy_scale(params))

@@ -32,7 +32,7 @@ def test_the_shipped_panda_loads_with_its_licence_and_conventions(arm):
     assert "Apache License" in (folder / "LICENSE").read_text() and "Menagerie" in (folder / "NOTICE.md").read_text()
     assert arm.dof == 7 and arm.joint_names == tuple(f"joint{i}" for i in range(1, 8))
     assert torch.allclose(arm.joint_range[3], torch.tensor([-3.0718, -0.0698], dtype=torch.float64))
-    assert torch.allclose(arm.gravity, torch.tensor([0.0, 0.0, -9.81], dtype=torch.float64))
+    assert torch.allclose(arm.gravity_vector, torch.tensor([0.0, 0.0, -9.81], dtype=torch.float64))
 
 
 def test_inverse_dynamics_undoes_the_forward_dynamics(arm):
@@ -41,7 +41,7 @@ def test_inverse_dynamics_undoes_the_forward_dynamics(arm):
     torch.testing.assert_close(arm.inverse(q, qd, qdd, PAYLOAD), torch.from_numpy(tau), rtol=0, atol=1e-9)
     # and M qdd + bias = tau + passive
     M, b = arm.mass_matrix(q, PAYLOAD), arm.bias(q, qd, PAYLOAD)
-    torch.testing.assert_close(torch.einsum("bij,bj->bi", M, qdd) + b, torch.from_numpy(tau) + arm.passive(qd))
+    torch.testing.assert_close(torch.einsum("bij,bj->bi", M, qdd) + b, torch.from_numpy(tau) + arm.friction(q, qd))
 
 
 def test_the_mass_matrix_is_symmetric_positive_definite_with_the_armature_on_its_diagonal(arm):
@@ -59,7 +59,7 @@ def test_the_payloads_holding_torque_is_the_gradient_of_its_potential(arm):
     of its world position, an independent path through the kinematics alone)."""
     q, _, _ = _states(arm, n=3)
     m = PAYLOAD[0]
-    extra = arm.gravity_torque(q, PAYLOAD) - arm.gravity_torque(q, [0.0, *PAYLOAD[1:]])
+    extra = arm.gravity(q, PAYLOAD) - arm.gravity(q, [0.0, *PAYLOAD[1:]])
     h = 1e-6
     grad = np.zeros_like(q)
     for j in range(arm.dof):
@@ -114,7 +114,7 @@ def test_a_description_without_a_payload_body_gets_one_at_its_flange(tmp_path):
         parent = arm.body_names[arm.model.body_parentid[arm.payload_id]]
         assert parent == "a" and arm.model.body_pos[arm.payload_id][0] == pytest.approx(tip)
         # 1 kg at the flange: its gravity torque about the joint is m g x at q = 0 (x along the arm)
-        loaded = arm.gravity_torque(np.zeros((1, 1)), [1.0, 0.0, 0.0, 0.0]) - arm.gravity_torque(np.zeros((1, 1)))
+        loaded = arm.gravity(np.zeros((1, 1)), [1.0, 0.0, 0.0, 0.0]) - arm.gravity(np.zeros((1, 1)))
         assert float(loaded) == pytest.approx(-9.81 * tip, abs=1e-12)
     assert path.read_text() == text
 

@@ -69,12 +69,12 @@ def test_mass_matrix_bias_and_gravity_are_the_engines(arm, float64, with_payload
     M = F @ F.mT
     assert _rel(M, arm.mass_matrix(q, payload)) < 1e-9
     _, dV = model.potential_norm(q, pn, grad=True)
-    assert _rel(dV, arm.gravity_torque(q, payload)) < 1e-9
+    assert _rel(dV, arm.gravity(q, payload)) < 1e-9
     free = structured_acceleration_from_factor(F, dF, qd, dV, 0.0)
     bias = -(M @ free[..., None])[..., 0]  # Coriolis, centrifugal and gravity
     assert _rel(bias, arm.bias(q, qd, payload)) < 1e-9
     coriolis = bias - dV
-    assert _rel(coriolis, arm.bias(q, qd, payload) - arm.gravity_torque(q, payload)) < 1e-9
+    assert _rel(coriolis, arm.bias(q, qd, payload) - arm.gravity(q, payload)) < 1e-9
 
 
 def test_with_the_true_parameters_the_grey_box_has_the_engines_accelerations_and_torques(arm, float64):
@@ -87,7 +87,7 @@ def test_with_the_true_parameters_the_grey_box_has_the_engines_accelerations_and
         forces.coefficient_net[-1].bias.copy_(torch.cat([b + torch.log(-torch.expm1(-b)), torch.full((7,), -60.0)]))
     q, qd, qdd, tau, payload = _batch(arm, seed=1)
     assert _rel(model.acceleration(q, qd, payload, tau), arm.forward(q, qd, tau, payload)) < 1e-9
-    assert _rel(model.inverse_dynamics(q, qd, qdd, payload), arm.inverse(q, qd, qdd, payload)) < 1e-9
+    assert _rel(model.inverse(q, qd, qdd, payload), arm.inverse(q, qd, qdd, payload)) < 1e-9
 
 
 def test_a_payload_beyond_the_training_range_is_taken_exactly(arm, float64):
@@ -103,8 +103,8 @@ def test_a_payload_beyond_the_training_range_is_taken_exactly(arm, float64):
     heavy[:3, 0], heavy[3:, 0] = 9.0, 30.0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        tau = model.gravity_si(q, heavy)
-    assert _rel(tau, arm.gravity_torque(q, heavy)) < 1e-9
+        tau = model.gravity(q, heavy)
+    assert _rel(tau, arm.gravity(q, heavy)) < 1e-9
     low, high = model.normalizer.trusted_range()
     assert torch.isinf(low).all() and torch.isinf(high).all()
     # the networks beside it (here the friction coefficients' network) still read the trusted range
@@ -114,7 +114,7 @@ def test_a_payload_beyond_the_training_range_is_taken_exactly(arm, float64):
     far[:, 0] = 300.0
     pn_heavy, pn_far = model.normalizer.params(heavy[3:]), model.normalizer.params(far[3:])
     torch.testing.assert_close(model.forces.coefficients(pn_heavy)[0], model.forces.coefficients(pn_far)[0])
-    assert not torch.allclose(model.gravity_si(q[3:], heavy[3:]), model.gravity_si(q[3:], far[3:]))
+    assert not torch.allclose(model.gravity(q[3:], heavy[3:]), model.gravity(q[3:], far[3:]))
 
 
 @pytest.mark.parametrize("residual", [False, True])
@@ -301,9 +301,9 @@ def test_any_description_alone_is_the_engine_through_the_si_face(tmp_path, float
     q = torch.tensor(engine.sample_q(rng, 6))
     qd = torch.tensor(rng.normal(size=(6, n)))
     payload = torch.tensor([[1.2, 0.02, -0.01, 0.05]] * 6) if with_payload else torch.zeros(6, 4)
-    assert _rel(model.mass_matrix_si(q, payload), engine.mass_matrix(q, payload)) < 1e-12
-    assert _rel(model.bias_si(q, qd, payload), engine.bias(q, qd, payload)) < 1e-12
-    assert _rel(model.gravity_si(q, payload), engine.gravity_torque(q, payload)) < 1e-12
+    assert _rel(model.mass_matrix(q, payload), engine.mass_matrix(q, payload)) < 1e-12
+    assert _rel(model.bias(q, qd, payload), engine.bias(q, qd, payload)) < 1e-12
+    assert _rel(model.gravity(q, payload), engine.gravity(q, payload)) < 1e-12
     if "armature and damping zero" in which:
         assert float(model.kinetic["spatial"].armature().abs().max()) == 0.0
 

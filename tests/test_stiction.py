@@ -78,7 +78,7 @@ def test_an_arm_at_rest_keeps_still_below_its_static_levels_and_slips_beyond():
     q, qd, p = at_rest()
     s = model.forces.static_level(p[:0]).detach()
     torch.testing.assert_close(s, torch.tensor([0.1, 0.08], **F64))  # the Coulomb levels
-    balance = model.inverse_dynamics(q, qd, torch.zeros_like(q), p).detach()  # gravity's torque, no holding
+    balance = model.inverse(q, qd, torch.zeros_like(q), p).detach()  # gravity's torque, no holding
     signs = torch.tensor([1.0, -1.0], **F64)
     with torch.no_grad():
         held = model.acceleration(q, qd, p, balance + 0.5 * s * signs)
@@ -145,16 +145,16 @@ def test_the_holding_torques_are_what_the_face_leaves_out():
     qd = (torch.rand(q.shape, generator=gen, **F64) - 0.5) * 4 * model.forces.stick_velocity
     tau = torch.randn(q.shape, generator=gen, **F64) * 0.05
     with torch.no_grad():
-        qdd = model.forward_dynamics_si(q, qd, p, tau)
+        qdd = model.forward(q, qd, p, tau)
         q_n, qd_n, p_n = model.normalize(q, qd, p)
         force = model.force_norm(q_n, qd_n, p_n, model.tau_norm(tau))
         plain = model.solve_norm(q_n, qd_n, p_n, force)
         _, lam = model.holding_torques(plain, force, lambda f: model.solve_norm(q_n, qd_n, p_n, f), qd_n, p_n)
-        M, n, Qf = model.mass_matrix_si(q, p), model.bias_si(q, qd, p), model.friction_si(q, qd, p)
+        M, n, Qf = model.mass_matrix(q, p), model.bias(q, qd, p), model.friction(q, qd, p)
         residual = (M @ qdd[..., None])[..., 0] + n - tau - Qf  # the input matrix and the joint map are I
         torch.testing.assert_close(residual, lam, rtol=1e-9, atol=1e-12)
         assert lam.abs().max() > 1e-3  # held here
-        torch.testing.assert_close(model.inverse_dynamics_si(q, qd, qdd, p), tau + lam, rtol=1e-9, atol=1e-12)
+        torch.testing.assert_close(model.inverse(q, qd, qdd, p), tau + lam, rtol=1e-9, atol=1e-12)
 
 
 def test_gradients_through_the_holding_torques():

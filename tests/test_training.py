@@ -194,7 +194,7 @@ def test_lnn_learns_the_relativistic_particle_where_an_hnn_on_q_qd_fails(tmp_pat
     (qdd depends on qd, but a Hamiltonian flow in (q, qd) with qdot = qd cannot), while the LNN
     and an HNN given canonical momenta learn it. Judged on rollouts of 8 held-out trajectories:
     the median over trajectories of the max position error over 5 s (c = 1 units)."""
-    from lnn_torch.evaluation import counting_failures
+    from lnn_torch.networks import counting_failures
 
     spec = dict(scene="relativistic_particle", num_trajectories=80, duration=5.0, dt=0.01, seed=2)
     path = tmp_path / "rel.h5"

@@ -67,7 +67,7 @@ def test_each_effect_is_its_closed_form_on_the_engine(effect, plain):
     recorded torques less the effect's."""
     system = get_system("robot_arm", unmodelled={"seed": 2, effect: {}})
     q, qd, qdd, params = _batch(system)
-    load = plain.arm.gravity_torque(q, params)
+    load = plain.arm.gravity(q, params)
     expected = torch.from_numpy(_closed_form(effect, _values(system, effect), q, qd, load).copy())
     assert expected.abs().max() > 0.1  # the effect is there (measured 0.23-1.5 N m at most)
     recorded_minus_rigid = system.effect_torques(q, qd, params)[effect]
@@ -133,7 +133,7 @@ def test_the_engines_hook_is_the_closed_form_and_the_gravity_load_the_engines(pl
     for k in arm._each(q, qd, params):
         mujoco.mj_kinematics(arm.model, arm.data)
         load = arm.gravity_from_kinematics(arm.data)
-        np.testing.assert_allclose(load, plain.arm.gravity_torque(q[k:k + 1], params[k])[0].numpy(), rtol=0,
+        np.testing.assert_allclose(load, plain.arm.gravity(q[k:k + 1], params[k])[0].numpy(), rtol=0,
                                    atol=1e-12)
         conservative, dissipative = system.unmodelled.engine_forces(arm, arm.data)
         np.testing.assert_allclose(conservative, system.unmodelled.conservative_force(q[k]).numpy(), rtol=0,
@@ -156,7 +156,7 @@ def test_forward_forced_and_inverse_dynamics_of_the_truth_agree():
     h = 1e-6
     grad = torch.stack([(system.potential(q + h * e, params) - system.potential(q - h * e, params)) / (2 * h)
                         for e in torch.eye(7, dtype=torch.float64)], -1)
-    expected = system.arm.gravity_torque(q, params) - system.unmodelled.conservative_force(q)
+    expected = system.arm.gravity(q, params) - system.unmodelled.conservative_force(q)
     torch.testing.assert_close(grad, expected, rtol=0, atol=1e-6)
 
 

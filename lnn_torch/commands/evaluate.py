@@ -42,10 +42,10 @@ from pathlib import Path
 from ..evaluation.report import table_header
 
 
-def write_report(result: dict, output_dir: Path, system=None) -> list[Path]:
+def write_report(result: dict, output_dir: Path) -> list[Path]:
     """metrics.json, report.md and PNG plots: the header, then what each computed section presents
     (its rows of the main table, its own blocks, its figures) in order, then the skipped sections
-    and why. ``system`` is not needed (kept for callers)."""
+    and why."""
     from ..evaluation.plots import evaluation_plots
 
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -152,7 +152,7 @@ def main(argv: list[str]) -> int:
     result = {"checkpoint": args.checkpoint, "data": str(data), "split": args.split,
               "reference": derivatives.describe(dm.targets), **result}
     out_dir = output_dir(args.checkpoint, args.output_dir, "evaluation")
-    files = write_report(result, out_dir, module.system)
+    files = write_report(result, out_dir)
     print((out_dir / "report.md").read_text())
     print("wrote " + ", ".join(str(p) for p in files))
     return 0

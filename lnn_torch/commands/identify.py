@@ -120,7 +120,7 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
             truth = {p: float(v) for p, v in zip(system.param_names, tr.params[j].double(), strict=True)}
         source = f"{path} (split {split}, trajectory {trajectory}, file index {int(index[j])})"
     elif name.endswith((".csv", ".csv.gz")):
-        from ..data.importer import read_csv_columns
+        from ..data.tables import read_csv_columns
 
         coordinates = list(coordinates or system.coord_names)
         if len(coordinates) != system.dof:

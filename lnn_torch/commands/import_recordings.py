@@ -139,7 +139,8 @@ def slow_sampling_note(provenance: dict) -> str | None:
 
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
-    from ..data.importer import import_recordings, resampling_report
+    from ..data.importer import import_recordings
+    from ..data.resampling import resampling_report
 
     args = _parser().parse_args(argv)
     files = sorted({f for pattern in args.files for f in (glob.glob(pattern) or [pattern])})

@@ -197,7 +197,7 @@ class MPPI:
         with torch.no_grad():
             for k in range(H):
                 params = self.plant._params(qs, self._p)
-                qs, qds = semi_implicit_euler_step(held(self.plant.accel, flat_u[:, k]), qs, qds, params, self.dt)
+                qs, qds = semi_implicit_euler_step(held(self.plant.accel_fn, flat_u[:, k]), qs, qds, params, self.dt)
                 x = torch.cat([wrap(qs - goal, self.plant.angle_mask), qds], -1)
                 step = (x.pow(2) * self.Q).sum(-1) + self.R * flat_u[:, k].pow(2).sum(-1)
                 cost = cost + torch.nan_to_num(step, nan=1e12, posinf=1e12) * (self.terminal if k == H - 1 else 1.0)

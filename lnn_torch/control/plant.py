@@ -54,13 +54,13 @@ class Plant:
     num_params: int
     input_matrix: torch.Tensor  # (n, m): generalised force B u
     angle_mask: tuple[bool, ...]
-    accel: Callable  # (q, qd, params, u | None) -> qdd; u None: inputs off
-    mass: Callable  # (q, params) -> M
-    friction_force: Callable | None = None  # (q, qd, params) -> Q_f
+    accel_fn: Callable  # (q, qd, params, u | None) -> qdd; u None: inputs off
+    mass_fn: Callable  # (q, params) -> M
+    friction_fn: Callable | None = None  # (q, qd, params) -> Q_f
     energy_fn: Callable | None = None  # (q, qd, params) -> E
     torque_scale: float | torch.Tensor = 1.0  # model units per N m (one, or one per state of the batch)
     input_names: tuple[str, ...] = field(default_factory=tuple)
-    rigid_bias: Callable | None = None  # (q, qd, params) -> n (no friction, no inputs); None: Q_f - M a_free
+    bias_fn: Callable | None = None  # (q, qd, params) -> n (no friction, no inputs); None: Q_f - M a_free
     gravity_fn: Callable | None = None  # (q, params) -> n(q, 0); None: bias at qd = 0
 
     @property
@@ -87,21 +87,21 @@ class Plant:
     def mass_matrix(self, q, params=None) -> torch.Tensor:
         params = self._params(q, params)
         self._check(q, params=params)
-        return self.mass(q, params)
+        return self.mass_fn(q, params)
 
     def friction(self, q, qd, params=None) -> torch.Tensor:
         """The dissipative generalised force ``Q_f`` (zero without friction)."""
         params = self._params(q, params)
-        return torch.zeros_like(qd) if self.friction_force is None else self.friction_force(q, qd, params)
+        return torch.zeros_like(qd) if self.friction_fn is None else self.friction_fn(q, qd, params)
 
     def bias(self, q, qd, params=None) -> torch.Tensor:
         """``n(q, qd)``: Coriolis, centrifugal and gravity forces (``M qdd + n = B u + Q_f``)."""
         params = self._params(q, params)
         self._check(q, qd, params)
-        if self.rigid_bias is not None:
-            return self.rigid_bias(q, qd, params)
-        free = self.accel(q, qd, params, None)
-        M = self.mass(q, params)
+        if self.bias_fn is not None:
+            return self.bias_fn(q, qd, params)
+        free = self.accel_fn(q, qd, params, None)
+        M = self.mass_fn(q, params)
         return self.friction(q, qd, params) - torch.einsum("bij,bj->bi", M, free)
 
     def gravity(self, q, params=None) -> torch.Tensor:
@@ -117,7 +117,7 @@ class Plant:
         """Accelerations ``(B, n)`` under the inputs ``u (B, m)`` (None: off)."""
         params = self._params(q, params)
         self._check(q, qd, params, u)
-        return self.accel(q, qd, params, u)
+        return self.accel_fn(q, qd, params, u)
 
     def inverse(self, q, qd, qdd, params=None) -> torch.Tensor:
         """The inputs ``u (B, m)`` that give ``qdd``: ``B u = M qdd + n - Q_f``, least squares where
@@ -133,7 +133,7 @@ class Plant:
         """``(inverse, residual)`` from one least-squares solve."""
         params = self._params(q, params)
         self._check(q, qd, params)
-        M = self.mass(q, params)
+        M = self.mass_fn(q, params)
         needed = torch.einsum("bij,bj->bi", M, qdd) + self.bias(q, qd, params) - self.friction(q, qd, params)
         B = self.input_matrix.to(q.dtype)
         u = torch.linalg.lstsq(B.expand(q.shape[0], -1, -1), needed[..., None]).solution[..., 0]
@@ -152,7 +152,7 @@ class Plant:
         force = -self.bias(q, qd, params)
         if u is not None:
             force = force + u @ self.input_matrix.T.to(u.dtype)
-        return torch.linalg.solve(self.mass(q, params), force[..., None])[..., 0]
+        return torch.linalg.solve(self.mass_fn(q, params), force[..., None])[..., 0]
 
     def linearize(self, q, qd, u=None, params=None, friction: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """``(A (B, 2n, 2n), B (B, 2n, m))`` of ``x' = f(x, u)``, ``x = (q, qd)``, about the given states
@@ -163,7 +163,7 @@ class Plant:
         u = torch.zeros(q.shape[0], self.num_inputs, dtype=q.dtype) if u is None else u
         self._check(q, qd, params, u)
         n, m = self.dof, self.num_inputs
-        fn = self.accel if friction else (lambda q_, qd_, p_, u_: self.rigid_forward(q_, qd_, p_, u_))
+        fn = self.accel_fn if friction else (lambda q_, qd_, p_, u_: self.rigid_forward(q_, qd_, p_, u_))
 
         def f(x, v):  # the batch: (B, 2n), (B, m) -> (B, 2n); samples are independent
             return torch.cat([x[:, n:], fn(x[:, :n], x[:, n:], params, v if m else None)], -1)
@@ -180,7 +180,7 @@ class Plant:
     def step(self, q, qd, params, u, dt: float, substeps: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """``dt`` of motion under the input ``u`` held constant (zero-order hold), RK4 in ``substeps``."""
         params = self._params(q, params)
-        accel = held(self.accel, u)
+        accel = held(self.accel_fn, u)
         for _ in range(substeps):
             q, qd = rk4_step(accel, q, qd, params, dt / substeps)
         return q, qd
@@ -221,7 +221,7 @@ def plant_of(source, actuation=None, torque_scale: float | None = None) -> Plant
             raise InputError("the identified arm model is actuated at both joints; actuation is its own")
         return Plant(source.variant, 2, 0, torch.eye(2, dtype=torch.float64), (True, True),
                      lambda q, qd, p, u: source.acceleration(q, qd, None, u),
-                     lambda q, p: source.mass_matrix(q), source.friction_force, source.energy, 1.0, ("tau1", "tau2"))
+                     lambda q, p: source.mass_matrix(q), source.friction, source.energy, 1.0, ("tau1", "tau2"))
     if isinstance(source, MujocoArm):
         if actuation is not None:
             raise InputError("a robot description's arm is actuated at every joint; actuation is its own")
@@ -275,16 +275,16 @@ def _arm_plant(arm: MujocoArm) -> Plant:
         kinetic = 0.5 * torch.einsum("bi,bij,bj->b", qd, arm.mass_matrix(q, p), qd)
         return kinetic + arm.potential(q, p)
 
-    friction = (lambda q, qd, p: arm.passive(qd)) if bool((arm.damping != 0).any()) else None
+    friction = (lambda q, qd, p: arm.friction(q, qd)) if bool((arm.damping != 0).any()) else None
     names = tuple(f"tau_{j}" for j in arm.joint_names)
     return Plant(f"{arm.description} (MuJoCo)", dof, 4, torch.eye(dof, dtype=torch.float64), (True,) * dof, accel,
                  lambda q, p: arm.mass_matrix(q, p), friction, energy, 1.0, names,
-                 lambda q, qd, p: arm.bias(q, qd, p), lambda q, p: arm.gravity_torque(q, p))
+                 lambda q, qd, p: arm.bias(q, qd, p), lambda q, p: arm.gravity(q, p))
 
 
 def _model_plant(network, actuation, torque_scale) -> Plant:
-    """A learned model's plant: its SI rigid-body face (``lnn_torch.networks.rigid_body``: ``mass_matrix_si``,
-    ``bias_si``, ``friction_si``, ``forward_dynamics_si``, ``energy_si``), in N m per ``torque_scale``."""
+    """A learned model's plant: its SI rigid-body face (``lnn_torch.networks.rigid_body``: ``mass_matrix``,
+    ``bias``, ``friction``, ``forward``, ``energy``), in N m per ``torque_scale``."""
     capabilities = capabilities_of(network)
     if MASS_MATRIX not in capabilities:
         raise InputError(f"variant '{network.variant}' has no mass matrix M(q): a controller needs one (train a "
@@ -307,13 +307,13 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
         return x / scale.reshape(-1, *([1] * (x.ndim - 1))) if scale.ndim else x / scale
 
     def mass(q, p):
-        return per_state(network.mass_matrix_si(q, p))
+        return per_state(network.mass_matrix(q, p))
 
     def accel(q, qd, p, u):
         if own:
             tau = u if u is not None else torch.zeros(q.shape[0], B.shape[1], dtype=q.dtype)
-            return network.forward_dynamics_si(q, qd, p, tau, check=False)
-        free = network.forward_dynamics_si(q, qd, p, check=False)
+            return network.forward(q, qd, p, tau, check=False)
+        free = network.forward(q, qd, p, check=False)
         if u is None:
             return free
         return free + torch.linalg.solve(mass(q, p), (u @ B.T.to(u.dtype))[..., None])[..., 0]
@@ -321,16 +321,16 @@ def _model_plant(network, actuation, torque_scale) -> Plant:
     friction = None
     if FORCES in capabilities:
         def friction(q, qd, p):
-            return per_state(network.friction_si(q, qd, p))
+            return per_state(network.friction(q, qd, p))
 
     def energy(q, qd, p):
-        return per_state(network.energy_si(q, qd, p))
+        return per_state(network.energy(q, qd, p))
 
     def bias(q, qd, p):
-        return per_state(network.bias_si(q, qd, p))
+        return per_state(network.bias(q, qd, p))
 
     def gravity(q, p):
-        return per_state(network.gravity_si(q, p))
+        return per_state(network.gravity(q, p))
 
     names = tuple(f"tau{i + 1}" for i in range(B.shape[1]))
     return Plant(f"{network.variant} ({scene.name})", scene.dof, scene.num_params, B, tuple(scene.angle_mask), accel,
@@ -353,8 +353,8 @@ def calibrate_torque_scale(plant: Plant, q, qd, qdd, u, params=None):
 
 
 def _calibration_terms(plant: Plant, q, qd, qdd, u, params):
-    M = plant.mass(q, params)
-    lhs = torch.einsum("bij,bj->bi", M, qdd - plant.accel(q, qd, params, None))
+    M = plant.mass_fn(q, params)
+    lhs = torch.einsum("bij,bj->bi", M, qdd - plant.accel_fn(q, qd, params, None))
     return lhs, u @ plant.input_matrix.T.to(u.dtype)
 
 

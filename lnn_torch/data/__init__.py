@@ -3,11 +3,12 @@ recorded tables and derivative estimation. The Lightning DataModule over them is
 ``lnn_torch.training.TrajectoryDataModule``."""
 
 from ..errors import DatasetFileError, GenerationError
-from .generate import generate_arrays, generate_dataset, sample_initial_conditions, simulate, split_indices
-from .hdf5 import TrajectoryFile, read_dataset
+from .export_csv import export_recordings
+from .generate import generate_arrays, generate_dataset, sample_initial_conditions, split_indices
+from .hdf5 import OPTIONAL_ARRAYS, TrajectoryFile, check_writable, read_dataset, write_dataset
 from .spec import DatasetSpec
-from .trajectories import Trajectories
+from .trajectories import Trajectories, points
 
-__all__ = ["DatasetSpec", "GenerationError", "generate_dataset", "generate_arrays", "simulate",
+__all__ = ["DatasetSpec", "GenerationError", "generate_dataset", "generate_arrays",
            "sample_initial_conditions", "split_indices", "read_dataset", "TrajectoryFile", "DatasetFileError",
-           "Trajectories"]
+           "Trajectories", "points", "write_dataset", "check_writable", "OPTIONAL_ARRAYS", "export_recordings"]

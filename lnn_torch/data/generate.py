@@ -181,4 +181,3 @@ def generate_dataset(spec: DatasetSpec, path: str | Path, overwrite: bool = Fals
     return write_dataset(path, arrays, split_idx, attrs, overwrite=overwrite)
 
 
-simulate = generate_arrays  # the former name (``lnn_torch.data.simulate``)

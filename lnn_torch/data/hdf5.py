@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import DatasetFileError  # also importable from here and lnn_torch.data
+from ..errors import DatasetFileError
 from .trajectories import Trajectories
 
 FORMAT = "lnn_torch.trajectories"

@@ -68,3 +68,14 @@ class Trajectories:
     def _map(self, fn) -> Trajectories:
         return replace(self, **{f.name: fn(getattr(self, f.name)) for f in fields(self)
                                 if isinstance(getattr(self, f.name), torch.Tensor)})
+
+
+def points(data, stride: int = 1) -> list[torch.Tensor]:
+    """``q, qd, qdd, tau, params`` at the valid points of every trajectory (every ``stride``-th), float64."""
+    out = {k: [] for k in ("q", "qd", "qdd", "tau", "params")}
+    lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
+    for j, n in enumerate(lengths):
+        for k in ("q", "qd", "qdd", "tau"):
+            out[k].append(getattr(data, k)[j, :n:stride].double())
+        out["params"].append(data.params[j].double().expand(len(out["q"][-1]), -1))
+    return [torch.cat(v) for v in out.values()]

@@ -33,19 +33,12 @@ qd0, params, dt, num_steps, method, tau=None)`` in SI units (every ``DynamicsMod
 set of the ``lnn_torch.networks.capabilities`` names; an object without it provides none). Rollouts
 of an actuated scene are driven by the recorded inputs, held over each step (zero-order hold). The
 exact reference is ``lnn_torch.systems.ground_truth.reference_rollout``.
-
-Also importable from here, for compatibility (their homes in brackets): ``ClosedForm``,
-``reference_rollout`` (``ground_truth``); ``capabilities_of``, ``missing`` and the capability names
-(``networks.capabilities``); ``counting_failures``, ``model_accelerations``, ``model_rollout``
-(``networks.calls``); ``section_figures`` (``plots``); the metric functions (``metrics``).
 """
 
 from __future__ import annotations
 
 from ..data.trajectories import Trajectories
-from ..networks.calls import counting_failures, model_accelerations, model_rollout
-from ..networks.capabilities import ENERGY, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, capabilities_of, missing
-from ..systems.ground_truth import ClosedForm, reference_rollout
+from ..networks.capabilities import INVERSE_DYNAMICS, capabilities_of, missing
 from .metrics import (
     acceleration_errors,
     condition_numbers,
@@ -57,8 +50,10 @@ from .metrics import (
     relative_l2,
     scaled_matrix_error,
 )
-from .plots import section_figures
+from .plots import section_figures, torque_figure
 from .registry import SECTIONS, EvalContext, SectionResult, report_sections, section, section_logs, skip
+from .report import markdown_table, number, pct, quartile_cell, scalar_rows, table_header, table_row, time_cell
+from .stability import hard_cases, run_hard_cases, stability_markdown, stability_pivot
 
 # the section modules register their sections on import: the report's order is this order, then the
 # order within each module
@@ -70,11 +65,12 @@ __all__ = [
     "DEFAULT_SECTIONS", "REPORT_SECTIONS", "SECTIONS", "EvalContext", "SectionResult", "evaluate_model",
     "evaluate_split",
     "report_sections", "section", "section_figures", "section_logs", "skip",
-    # compatibility re-exports (see the docstring for their homes)
-    "ClosedForm", "reference_rollout", "Trajectories", "capabilities_of", "missing", "ENERGY", "FRICTION",
-    "INVERSE_DYNAMICS", "MASS_MATRIX", "counting_failures", "model_accelerations", "model_rollout",
+    # the metric functions (``metrics``)
     "acceleration_errors", "condition_numbers", "divergence_time", "energy_drift", "normalized_rmse",
     "power_balance_error", "quartiles", "relative_l2", "scaled_matrix_error",
+    # the report's cells and Markdown tables (``report``), the figures (``plots``), the hard cases (``stability``)
+    "markdown_table", "table_header", "table_row", "scalar_rows", "pct", "number", "time_cell", "quartile_cell",
+    "torque_figure", "hard_cases", "run_hard_cases", "stability_markdown", "stability_pivot",
 ]
 
 DEFAULT_SECTIONS = ("accelerations", "rollouts", "energy")  # what training's validation computes

@@ -89,7 +89,9 @@ def _max_cond(model, q: torch.Tensor, params: torch.Tensor) -> float | None:
     qf = q[finite][:, :: max(1, T // 200)]  # at most ~200 states per trajectory
     params = params[finite][:, None].expand(-1, qf.shape[1], -1)
     with torch.no_grad():
-        M = model.mass_matrix(qf.reshape(-1, dof).to(model.dtype), params.flatten(0, -2).to(model.dtype))
+        q_n, _, p_n = model.normalize(*(x.to(model.dtype) for x in (qf.reshape(-1, dof),) * 2),
+                                      params.flatten(0, -2).to(model.dtype))
+        M = model.mass_matrix_norm(q_n, p_n)
     return float(condition_numbers(M.double()).max())
 
 

@@ -38,7 +38,7 @@ def _finite_rows(*tensors) -> torch.Tensor:
 
 @section("mass_matrix", needs=(MASS_MATRIX,))
 def _mass_matrix(ctx: EvalContext) -> SectionResult:
-    """Relative Frobenius error of the learned M (SI velocities, ``mass_matrix_si``) after the best
+    """Relative Frobenius error of the learned M (SI velocities, ``mass_matrix``) after the best
     scale per trajectory, and the condition number of the M the model's solve sees (``mass_matrix``,
     normalised units)."""
     model, system, data = ctx.model, ctx.system, ctx.data
@@ -52,8 +52,9 @@ def _mass_matrix(ctx: EvalContext) -> SectionResult:
     qf = q.reshape(-1, dof)
     params = data.params[:, None, :].expand(-1, T, -1).flatten(0, 1)
     with torch.no_grad():
-        M_model = model.mass_matrix_si(qf, params).reshape(B, T, dof, dof)
-        M_n = model.mass_matrix(qf.to(model.dtype), params.to(model.dtype)).double()  # normalised units
+        M_model = model.mass_matrix(qf, params).reshape(B, T, dof, dof)
+        q_n, _, p_n = model.normalize(qf.to(model.dtype), qf.to(model.dtype), params.to(model.dtype))
+        M_n = model.mass_matrix_norm(q_n, p_n).double()  # normalised units
     err = scaled_matrix_error(system.mass_matrix(qf, params).reshape(B, T, dof, dof), M_model)
     cond = condition_numbers(M_n)
     m = {"rel_frobenius_median": float(err.median()), "rel_frobenius_max": float(err.max()),
@@ -80,7 +81,7 @@ def _torques(ctx: EvalContext) -> SectionResult:
     if not ok.all():  # recordings padded with NaN
         q, qd, qdd, tau, params = (x[ok] for x in (q, qd, qdd, tau, params))
     with torch.no_grad():
-        pred = model.inverse_dynamics(q, qd, qdd, params)
+        pred = model.inverse(q, qd, qdd, params)
     err = normalized_rmse(pred, tau)
     names = list(getattr(ctx.system, "input_names", ()) or [f"u{i}" for i in range(err.numel())])
 
@@ -125,8 +126,8 @@ def _friction(ctx: EvalContext) -> SectionResult:
     params = data.params[:, None].expand(-1, grid.shape[1], -1)
     true = system.friction_torque(grid, params)  # (B, 201, n_j)
     with torch.no_grad():
-        learned = model.friction_torque_si(grid, params)
-        b, c = model.friction_coefficients_si(data.params)
+        learned = model.friction_torque(grid, params)
+        b, c = model.friction_coefficients(data.params)
     scale = true.abs().amax(1)  # (B, n_j)
     err = (learned - true).norm(dim=1) / true.norm(dim=1).clamp_min(1e-30)  # (B, n_j)
     significant = scale > 0.1 * scale.max()
@@ -148,7 +149,7 @@ def _friction(ctx: EvalContext) -> SectionResult:
 @section("free_decay", needs=(ENERGY, FRICTION))
 def _free_decay(ctx: EvalContext) -> SectionResult:
     """From rest at the trajectories' initial angles, inputs off: the model's own energy
-    (``energy_si``: in J where inputs fix its scale) against the true energy along the true
+    (``energy``: in J where inputs fix its scale) against the true energy along the true
     trajectory. A model whose dissipation is right loses the same energy: reports the relative error
     of the energy lost and the divergence time."""
     system, model, data = ctx.system, ctx.model, ctx.data
@@ -166,7 +167,7 @@ def _free_decay(ctx: EvalContext) -> SectionResult:
     E_true = system.energy(qt, qdt, params[:, None].expand(-1, n + 1, -1))
     B = len(q0)
     with torch.no_grad():
-        E_model = model.energy_si(qm.reshape(-1, system.dof), qdm.reshape(-1, system.dof),
+        E_model = model.energy(qm.reshape(-1, system.dof), qdm.reshape(-1, system.dof),
                                   params[:, None].expand(-1, n + 1, -1).reshape(B * (n + 1), -1)).reshape(B, n + 1)
     lost_true = E_true[:, 0] - E_true[:, -1]
     lost_model = E_model[:, 0] - E_model[:, -1]

@@ -104,7 +104,7 @@ class _Function(nn.Module):
 
 class ForwardDynamics(_Function):
     """``(q, qd, params[, tau]) -> qdd``: the model's accelerations (``tau`` for an actuated scene;
-    ``forward_dynamics_si``)."""
+    ``forward``)."""
 
     name, result = "forward_dynamics", "qdd"
 
@@ -113,12 +113,12 @@ class ForwardDynamics(_Function):
         self.arguments = ("q", "qd", "params") + (("tau",) if model.scene.num_inputs else ())
 
     def forward(self, q, qd, params, tau=None):
-        return self.model.forward_dynamics_si(q, qd, params, tau, check=False)
+        return self.model.forward(q, qd, params, tau, check=False)
 
 
 class InverseDynamics(_Function):
     """``(q, qd, qdd, params) -> tau``: the inputs that make the model accelerate by ``qdd``
-    (``inverse_dynamics_si``, with the input matrix's pseudo-inverse a constant of the program)."""
+    (``inverse``, with the input matrix's pseudo-inverse a constant of the program)."""
 
     name, arguments, result = "inverse_dynamics", ("q", "qd", "qdd", "params"), "tau"
 
@@ -130,48 +130,48 @@ class InverseDynamics(_Function):
             self.register_buffer("input_pinv", pinv.mT.contiguous())
 
     def forward(self, q, qd, qdd, params):
-        input_force = self.model.input_force_si(q, qd, qdd, params)  # B tau
+        input_force = self.model.input_force(q, qd, qdd, params)  # B tau
         if self.model.forces.identity_inputs:
             return input_force
         return input_force @ self.input_pinv.to(input_force.dtype)
 
 
 class MassMatrix(_Function):
-    """``(q, params) -> M (B, dof, dof)``: the learned mass matrix in SI velocities (``mass_matrix_si``)."""
+    """``(q, params) -> M (B, dof, dof)``: the learned mass matrix in SI velocities (``mass_matrix``)."""
 
     name, arguments, result = "mass_matrix", ("q", "params"), "M"
 
     def forward(self, q, params):
-        return self.model.mass_matrix_si(q, params)
+        return self.model.mass_matrix(q, params)
 
 
 class BiasForce(_Function):
     """``(q, qd, params) -> n``: ``M qdd + n = B tau + Q_f``: Coriolis, centrifugal and gravity forces, no
-    friction (``bias_si``)."""
+    friction (``bias``)."""
 
     name, arguments, result = "bias_force", ("q", "qd", "params"), "n"
 
     def forward(self, q, qd, params):
-        return self.model.bias_si(q, qd, params)
+        return self.model.bias(q, qd, params)
 
 
 class GravityForce(_Function):
     """``(q, params) -> g``: the bias force at rest, ``n(q, 0)`` (gravity and the learned potential;
-    ``gravity_si``)."""
+    ``gravity``)."""
 
     name, arguments, result = "gravity_force", ("q", "params"), "g"
 
     def forward(self, q, params):
-        return self.model.gravity_si(q, params)
+        return self.model.gravity(q, params)
 
 
 class FrictionForce(_Function):
-    """``(q, qd, params) -> Q_f``: the learned dissipative generalised force (``friction_si``)."""
+    """``(q, qd, params) -> Q_f``: the learned dissipative generalised force (``friction``)."""
 
     name, arguments, result = "friction_force", ("q", "qd", "params"), "Q_f"
 
     def forward(self, q, qd, params):
-        return self.model.friction_si(q, qd, params)
+        return self.model.friction(q, qd, params)
 
 
 _CLASSES = {cls.name: cls for cls in (ForwardDynamics, InverseDynamics, MassMatrix, BiasForce, GravityForce,

@@ -17,22 +17,12 @@ from dataclasses import replace
 
 import torch
 
+from ..data.trajectories import points
 from ..evaluation.report import markdown_table
 from ..mechanics.integrators import held, rk4_step
 from ..networks.calls import counting_failures
 
 METHODS = ("least squares", "weighted least squares", "physically consistent")
-
-
-def points(data, stride: int = 1) -> list[torch.Tensor]:
-    """``q, qd, qdd, tau, params`` at the valid points of every trajectory (every ``stride``-th), float64."""
-    out = {k: [] for k in ("q", "qd", "qdd", "tau", "params")}
-    lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
-    for j, n in enumerate(lengths):
-        for k in ("q", "qd", "qdd", "tau"):
-            out[k].append(getattr(data, k)[j, :n:stride].double())
-        out["params"].append(data.params[j].double().expand(len(out["q"][-1]), -1))
-    return [torch.cat(v) for v in out.values()]
 
 
 def torque_errors(predicted: torch.Tensor, measured: torch.Tensor, names) -> dict:
@@ -130,7 +120,7 @@ def model_forward(model):
     """A learned model's forward dynamics in the form ``open_loop`` takes (float64 in and out)."""
     def forward(q, qd, tau, params):
         dtype = model.dtype
-        return model.forward_dynamics_si(q.to(dtype), qd.to(dtype), params.to(dtype), tau.to(dtype),
+        return model.forward(q.to(dtype), qd.to(dtype), params.to(dtype), tau.to(dtype),
                                          check=False).double()
     return forward
 
@@ -156,12 +146,12 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             rows[getattr(model, "variant", "model")] = with_open_loop(torque_errors(pred, tau, names),
                                                                       model_forward(model))
     for label, fit in fits.items():
-        rows[label] = with_open_loop({**torque_errors(fit.torque(q, qd, qdd, params), tau, names),
+        rows[label] = with_open_loop({**torque_errors(fit.inverse(q, qd, qdd, params), tau, names),
                                       "fit_seconds": fit.info.get("fit_seconds")},
                                      lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u, p))
     for label, fit in (descriptions if descriptions is not None
                        else {"description as written": description_model(system)}).items():
-        rows[label] = with_open_loop(torque_errors(fit.torque(q, qd, qdd, params), tau, names),
+        rows[label] = with_open_loop(torque_errors(fit.inverse(q, qd, qdd, params), tau, names),
                                      lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u, p))
     train_points = next((f.info.get("train_points") for f in fits.values()), None)
     return {"joints": names, "test_points": len(q), "train_points": train_points, "rows": rows,
@@ -174,14 +164,14 @@ def model_torque(model):
     (NaN where a model's accelerations are undefined: ``counting_failures``)."""
     def torque(q, qd, qdd, params):
         with torch.no_grad(), counting_failures(model):
-            return model.inverse_dynamics(*(x.to(model.dtype) for x in (q, qd, qdd, params))).double()
+            return model.inverse(*(x.to(model.dtype) for x in (q, qd, qdd, params))).double()
     return torque
 
 
 def classical_torque(fit):
     """``(q, qd, qdd, params) -> torque`` of a classical fit (``ArmModel``; the parameters: the payload each
     point carries at the flange, known)."""
-    return lambda q, qd, qdd, params: fit.torque(q, qd, qdd, params)
+    return lambda q, qd, qdd, params: fit.inverse(q, qd, qdd, params)
 
 
 def feedback_band(datamodule, split: str) -> torch.Tensor:

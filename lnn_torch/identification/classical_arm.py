@@ -45,65 +45,95 @@ _OFF = torch.triu_indices(4, 4, 1)
 class ArmModel:
     """An identified arm: ``tau = Y(q, qd, qdd) pi + f(qd)`` (module docstring). ``pi``: the full
     parameter vector (consistent fit) or None with ``base``/``beta`` (least squares: only the
-    identifiable combinations have values); ``friction``: the drive model's coefficients per joint."""
+    identifiable combinations have values); ``friction_coefficients``: the drive model's coefficients per
+    joint."""
 
     chain: SerialChain
     drive: DriveModel
     method: str
-    friction: dict[str, np.ndarray]
+    friction_coefficients: dict[str, np.ndarray]
     pi: np.ndarray | None = None
     base: dict | None = None
     beta: np.ndarray | None = None
     weights: np.ndarray | None = None  # the per-joint row weights of a weighted fit
     info: dict = field(default_factory=dict)
 
-    def rigid_torque(self, q, qd, qdd, payload=None) -> torch.Tensor:
+    def rigid_torque(self, q, qd, qdd, payload=None, viscous: bool = True) -> torch.Tensor:
         """The rigid body's and the armature's torques ``(N, n)`` (viscous friction included where the
-        drive has it: it is the regressor's damping column); with ``payload (N, 4 or 10)`` (per row, at the
-        flange; None: none) its torques too (``regressor.payload_torque``)."""
+        drive has it and ``viscous``: it is the regressor's damping column); with ``payload (N, 4 or 10)``
+        (per row, at the flange; None: none) its torques too (``regressor.payload_torque``)."""
         if payload is not None:
-            return self.rigid_torque(q, qd, qdd) + payload_torque(self.chain, q, qd, qdd, payload)
+            return self.rigid_torque(q, qd, qdd, viscous=viscous) + payload_torque(self.chain, q, qd, qdd, payload)
         if self.pi is not None:  # the recursion with the parameters, not the regressor (a tenth of the time)
             pi = torch.as_tensor(self.pi, dtype=torch.float64).clone()
-            if "viscous" not in self.drive.forms:
+            if "viscous" not in self.drive.forms or not viscous:
                 pi[11 * self.chain.dof:] = 0.0
             q, qd, qdd = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd))
             return inverse_dynamics(self.chain, q, qd, qdd, pi)
-        Y = _regressor(self.chain, q, qd, qdd, self.drive)
+        Y = _regressor(self.chain, q, qd, qdd, self.drive, viscous)
         return Y[..., torch.as_tensor(self.base["independent"])] @ torch.as_tensor(self.beta)  # Y_B beta
 
-    def torque(self, q, qd, qdd, payload=None) -> torch.Tensor:
-        """The joint torques ``(N, n)`` (N m) that give ``qdd`` at ``(q, qd)`` (carrying ``payload (N, 4 or
-        10)`` at the flange, one per row; None: none)."""
+    # ------------------------------------------------------------------ the rigid-body face (SI, float64)
+    # ``params`` is the payload at the flange, ``(N, 4 or 10)`` per row (None: none), as on every face
+    def mass_matrix(self, q, params=None) -> torch.Tensor:
+        """``M (N, n, n)``: column ``i`` the rigid torques of ``qdd = e_i`` at rest less gravity's. A
+        least-squares fit's ``M`` need not be positive definite."""
+        q = torch.as_tensor(q, dtype=torch.float64)
+        n, dof = q.shape
+        rest = torch.zeros_like(q)
+        rows = None if params is None else torch.as_tensor(params, dtype=torch.float64)
+        still = self.rigid_torque(q, rest, rest, rows)
+        unit = self.rigid_torque(q.repeat_interleave(dof, 0), rest.repeat_interleave(dof, 0),
+                                 torch.eye(dof, dtype=q.dtype).repeat(n, 1),
+                                 None if rows is None else rows.repeat_interleave(dof, 0))
+        M = (unit.view(n, dof, dof) - still[:, None]).mT
+        return 0.5 * (M + M.mT)
+
+    def bias(self, q, qd, params=None) -> torch.Tensor:
+        """``n (N, n)``: Coriolis, centrifugal and gravity torques, no friction."""
+        rest = torch.zeros_like(torch.as_tensor(qd, dtype=torch.float64))
+        return self.rigid_torque(q, qd, rest, params, viscous=False)
+
+    def gravity(self, q, params=None) -> torch.Tensor:
+        """``g = n(q, 0) (N, n)``: the torques that hold the arm still at ``q``."""
+        rest = torch.zeros_like(torch.as_tensor(q, dtype=torch.float64))
+        return self.rigid_torque(q, rest, rest, params, viscous=False)
+
+    def friction(self, q, qd, params=None) -> torch.Tensor:
+        """``Q_f = -f(qd) (N, n)``: the drive model's friction as a generalised force (it opposes the
+        motion), viscous included."""
         qd = torch.as_tensor(qd, dtype=torch.float64)
-        coefficients = {k: torch.as_tensor(v) for k, v in self.friction.items()}
-        return (self.rigid_torque(q, qd, qdd, payload)
+        rest = torch.zeros_like(qd)
+        viscous = self.rigid_torque(rest, qd, rest) - self.rigid_torque(rest, qd, rest, viscous=False)
+        coefficients = {k: torch.as_tensor(v) for k, v in self.friction_coefficients.items()}
+        return -(viscous + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)}))
+
+    def inverse(self, q, qd, qdd, params=None) -> torch.Tensor:
+        """The joint torques ``(N, n)`` (N m) that give ``qdd`` at ``(q, qd)`` carrying the payload
+        ``params``: ``M qdd + n - Q_f``."""
+        qd = torch.as_tensor(qd, dtype=torch.float64)
+        coefficients = {k: torch.as_tensor(v) for k, v in self.friction_coefficients.items()}
+        return (self.rigid_torque(q, qd, qdd, params)
                 + self.drive.torque(qd, {**coefficients, "b": torch.zeros(1)}))
 
     def forward(self, q, qd, tau, payload=None) -> torch.Tensor:
         """The accelerations ``(N, n)`` under the joint torques ``tau`` (N m): ``M(q) qdd = tau - h(q, qd)``
         with ``h`` the torque at zero acceleration (friction included) and ``M``'s columns the rigid
         torques of unit accelerations at rest less those at zero acceleration (the friction and gravity
-        cancel); ``payload`` as in ``torque``. A least-squares fit's ``M`` need not be positive definite:
+        cancel); ``payload`` as in ``inverse``. A least-squares fit's ``M`` need not be positive definite:
         a singular one gives NaN."""
         q, qd, tau = (torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, tau))
-        n, dof = q.shape
-        eye = torch.eye(dof, dtype=q.dtype)
-        rest = torch.zeros_like(qd)
         rows = None if payload is None else torch.as_tensor(payload, dtype=torch.float64)
-        still = self.rigid_torque(q, rest, rest, rows)
-        unit = self.rigid_torque(q.repeat_interleave(dof, 0), rest.repeat_interleave(dof, 0), eye.repeat(n, 1),
-                                 None if rows is None else rows.repeat_interleave(dof, 0))
-        M = (unit.view(n, dof, dof) - still[:, None]).mT  # column i: the torques of qdd = e_i
-        h = self.torque(q, qd, rest, rows)
-        solution, info = torch.linalg.solve_ex(0.5 * (M + M.mT), (tau - h)[..., None])
+        h = self.inverse(q, qd, torch.zeros_like(qd), rows)
+        solution, info = torch.linalg.solve_ex(self.mass_matrix(q, rows), (tau - h)[..., None])
         return torch.where((info == 0)[:, None], solution[..., 0], torch.nan)
 
     def report(self) -> dict:
         """The model in SI: its method, the drive model, the friction coefficients per joint, and the
         links' masses (a consistent fit) or the number of base parameters (least squares)."""
         out = {"method": self.method, "drive": self.drive.name, "joints": list(self.chain.joint_names),
-               "friction": {k: np.asarray(v).tolist() for k, v in self.friction.items()}, **self.info}
+               "friction": {k: np.asarray(v).tolist() for k, v in self.friction_coefficients.items()},
+               **self.info}
         if self.pi is not None:
             n = self.chain.dof
             out["mass"] = self.pi[9: 10 * n: 10].tolist()
@@ -118,11 +148,12 @@ def description_parameters(chain: SerialChain) -> torch.Tensor:
     return parameter_vector(chain.J, chain.armature, chain.damping)
 
 
-def _regressor(chain: SerialChain, q, qd, qdd, drive: DriveModel) -> torch.Tensor:
-    """``Y (N, n, 12 n)`` with the damping columns zeroed where the drive has no viscous friction."""
+def _regressor(chain: SerialChain, q, qd, qdd, drive: DriveModel, viscous: bool = True) -> torch.Tensor:
+    """``Y (N, n, 12 n)`` with the damping columns zeroed where the drive has no viscous friction (or
+    ``viscous`` is False: the rigid body alone)."""
     args = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd)]
     Y = regressor(chain, *args)
-    if "viscous" not in drive.forms:
+    if "viscous" not in drive.forms or not viscous:
         Y = Y.clone()
         Y[..., 11 * chain.dof:] = 0.0
     return Y
@@ -212,6 +243,12 @@ def _viscous_of(base: dict, beta: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def base_least_squares(Y: torch.Tensor, tau: torch.Tensor, base: dict) -> np.ndarray:
+    """Base parameters ``beta (r,)`` by ordinary least squares on ``tau = Y_B beta``."""
+    YB = Y.detach().double().cpu().numpy()[:, base["independent"]]
+    return np.linalg.lstsq(YB, tau.detach().double().cpu().numpy().reshape(-1), rcond=None)[0]
+
+
 def _variable_projection(residual, n: int, start=None):
     """``(phi2 (n,), phi3 (n,))`` minimising ``|residual(phi)|^2`` (scipy's least squares; ``phi2`` on a
     log scale, starting at 30 s/rad, ``phi3`` at 0)."""
@@ -276,8 +313,8 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     coef0 = []
     for name in names:
         value = np.zeros(n)
-        if start is not None and name in start.friction:
-            value = np.nan_to_num(np.asarray(start.friction[name], dtype=np.float64))
+        if start is not None and name in start.friction_coefficients:
+            value = np.nan_to_num(np.asarray(start.friction_coefficients[name], dtype=np.float64))
         elif name == "phi2":
             value = np.full(n, 30.0)
         if name not in ("o", "phi3"):

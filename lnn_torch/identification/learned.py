@@ -498,4 +498,3 @@ def estimate_derivatives(q: torch.Tensor, dt: float, qd: torch.Tensor | None = N
             qdd if qdd is not None else torch.as_tensor(np.stack([e[1] for e in est])))
 
 
-_derivatives = estimate_derivatives  # the former private name, kept for callers

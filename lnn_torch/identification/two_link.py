@@ -166,6 +166,17 @@ class RigidArmModel:
         return cls.from_base(beta.tolist(), g, coulomb_slope, variant=variant, coulomb_shape=coulomb_shape)
 
     @classmethod
+    def fit_recordings(cls, data, space: str = "torque", **options) -> RigidArmModel:
+        """``least_squares`` on every valid point of recordings (``Trajectories``; their torques as given,
+        filtered or not): the lab model's rigid-body and friction form, its ten base parameters by least
+        squares of the torque error (``space="torque"``) or of the acceleration error
+        (``"acceleration"``)."""
+        from ..data.trajectories import points
+
+        q, qd, qdd, tau, _ = points(data)
+        return cls.least_squares(q, qd, qdd, tau, space=space, **options)
+
+    @classmethod
     def from_yaml(cls, path: str | Path) -> RigidArmModel:
         """From an identified-parameters YAML file (the keys of ``KEYS``; others are ignored)."""
         import yaml
@@ -193,7 +204,7 @@ class RigidArmModel:
         s1, s12 = torch.sin(q[..., 0]), torch.sin(q[..., 0] + q[..., 1])
         g2 = -g * b["P2"] * s12
         g1 = -g * b["P1"] * s1 + g2
-        friction = -self.friction_force(q, qd)
+        friction = -self.friction(q, qd)
         rhs1 = h * (2 * w1 * w2 + w2**2) + g1 - friction[..., 0]
         rhs2 = -h * w1**2 + g2 - friction[..., 1]
         if tau is not None:
@@ -201,11 +212,20 @@ class RigidArmModel:
         det = M11 * M22 - M12 * M12
         return torch.stack([M22 * rhs1 - M12 * rhs2, M11 * rhs2 - M12 * rhs1], -1) / det[..., None]
 
-    def torque(self, q, qd, qdd, params=None):
-        """Inverse dynamics: the joint torques ``(..., 2)`` that give accelerations ``qdd`` at ``(q, qd)``
-        (through ``base_regressor``)."""
+    def inverse(self, q, qd, qdd, params=None):
+        """Inverse dynamics: the joint torques ``(..., 2)`` that give accelerations ``qdd`` at ``(q, qd)``,
+        ``M qdd + n - Q_f`` (through ``base_regressor``)."""
         beta = torch.tensor([self.base[k] for k in BASE], dtype=q.dtype, device=q.device)
         return base_regressor(q, qd, qdd, self.values["g"], self.coulomb_slope, self.coulomb_shape) @ beta
+
+    def bias(self, q, qd, params=None):
+        """``n (..., 2)``: Coriolis, centrifugal and gravity torques, no friction (N m)."""
+        return self.inverse(q, qd, torch.zeros_like(qd)) + self.friction(q, qd)
+
+    def gravity(self, q, params=None):
+        """``g = n(q, 0) (..., 2)``: the torques that hold the arm still at ``q`` (N m)."""
+        rest = torch.zeros_like(q)
+        return self.inverse(q, rest, rest)
 
     def positions(self, q, params=None):
         """The elbow and the tip ``(..., 2, 2)`` (x right, y up; m) for drawing; None without ``l2``."""
@@ -216,7 +236,7 @@ class RigidArmModel:
         tip = elbow + torch.stack([self.l2 * torch.sin(a12), -self.l2 * torch.cos(a12)], -1)
         return torch.stack([elbow, tip], -2)
 
-    def friction_force(self, q, qd, params=None):
+    def friction(self, q, qd, params=None):
         """The joint friction as generalised forces: ``-(b qd + cf arctan(k qd))`` per joint (``tanh`` for
         ``coulomb_shape="tanh"``)."""
         b = self.base

@@ -16,13 +16,12 @@ Pure tensor functions: no networks, no Lightning.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 
 import torch
 from torch.func import hessian, jacrev, vmap
 
-from ..errors import SingularHessianError  # also importable from here
+from ..errors import SingularHessianError
 
 LagrangianFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -64,7 +63,6 @@ def generic_acceleration(
     params: torch.Tensor,
     hessian_reg: float = 0.0,
     check: bool = True,
-    damping: float | None = None,
     force: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Accelerations of any Lagrangian by the generic Euler-Lagrange solve.
@@ -78,17 +76,12 @@ def generic_acceleration(
             relative to the Hessian's scale with a floor, in the units of ``lagrangian_fn``).
         check: raise ``SingularHessianError`` on singular Hessians (costs one sync). With
             ``check=False`` the accelerations of singular states are NaN (never silently wrong).
-        damping: the former name of ``hessian_reg`` (deprecated: "damping" now means physical
-            dissipation).
         force: a generalised force ``Q (*batch, dof)`` in the units of ``lagrangian_fn`` per
             coordinate, added to the right-hand side (None: none).
 
     Returns:
         ``qdd`` of shape ``(*batch, dof)``, same dtype and device as ``q``.
     """
-    if damping is not None:
-        warnings.warn("generic_acceleration(damping=...) is renamed hessian_reg=...", DeprecationWarning, stacklevel=2)
-        hessian_reg = damping
     batch, qf, qdf, pf = _flatten(q, qd, params)
     H, rhs = euler_lagrange_terms(lagrangian_fn, qf, qdf, pf)
     if force is not None:

@@ -12,14 +12,18 @@ CPU-oriented forms).
 
 from .base import DynamicsModel
 from .blackbox import BlackBoxLagrangian
+from .calls import counting_failures, model_accelerations, model_rollout
+from .capabilities import ENERGY, INVERSE_DYNAMICS, capabilities_of, missing
 from .direct import DirectMLP
 from .hamiltonian import HamiltonianNN
 from .layers import FiLM, TangentMLP
 from .normalization import Normalizer
 from .registry import MODELS, VARIANTS, build_model, model_options
 from .scene import SceneInfo
+from .shares import torque_shares
 from .structured import DeLaN, FiLMLagrangian, StructuredLagrangian
 
 __all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "FiLMLagrangian",
            "DeLaN", "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model",
-           "model_options"]
+           "model_options", "counting_failures", "model_accelerations", "model_rollout", "capabilities_of",
+           "missing", "ENERGY", "INVERSE_DYNAMICS", "torque_shares"]

@@ -24,14 +24,11 @@ from ..mechanics import integrators
 from ..mechanics.forces import check_inputs as check_tau
 from ..perf import compile_pays
 from ..systems.base import check_param_signs
-from .capabilities import (  # noqa: F401 - the capability names, also importable from here
-    CAPABILITIES,
+from .capabilities import (
     ENERGY,
     FORCES,
     FRICTION,
     INVERSE_DYNAMICS,
-    MASS_MATRIX,
-    NAN_ON_SINGULAR,
     STATIC_FRICTION,
 )
 from .compiled import CompiledDynamics

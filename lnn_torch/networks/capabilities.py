@@ -8,17 +8,17 @@ identified model) is a model too; one that declares nothing provides acceleratio
 
 from __future__ import annotations
 
-ENERGY = "energy"  # its own energy H = T + V: ``energy_si(q, qd, params)``
-# the rigid-body face (``lnn_torch.networks.rigid_body``): ``mass_matrix_si``, ``bias_si``, ``gravity_si``
+ENERGY = "energy"  # its own energy H = T + V: ``energy(q, qd, params)``
+# the rigid-body face (``lnn_torch.networks.rigid_body``): ``mass_matrix``, ``bias``, ``gravity``
 # (and ``mass_matrix(q, params)``, normalised)
 MASS_MATRIX = "mass_matrix"
-# ``inverse_dynamics_si(q, qd, qdd, params)`` (alias ``inverse_dynamics``), ``input_force_si``: needs inputs
+# ``inverse(q, qd, qdd, params)`` (alias ``inverse_dynamics``), ``input_force``: needs inputs
 INVERSE_DYNAMICS = "inverse_dynamics"
-FRICTION = "friction"  # learned joint friction: ``friction_torque_si``, ``friction_coefficients_si``; needs friction
+FRICTION = "friction"  # learned joint friction: ``friction_torque``, ``friction_coefficients``; needs friction
 STATIC_FRICTION = "static_friction"  # holding torques at rest (``dissipation: joint+stiction``)
 NAN_ON_SINGULAR = "nan_on_singular"  # accelerations can be undefined; NaN there within ``nan_on_singular()``
 # the scene's generalised forces (inputs B tau, dissipation Q_f) apart from the model's own dynamics
-# (``lnn_torch.networks.forces.LearnedForces``): ``friction_si``; needs a scene with inputs or friction
+# (``lnn_torch.networks.forces.LearnedForces``): ``friction``; needs a scene with inputs or friction
 FORCES = "forces"
 CAPABILITIES = (ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, NAN_ON_SINGULAR, FORCES)
 

@@ -79,7 +79,7 @@ def mass_matrix(model, q_norm, params_norm) -> torch.Tensor:
 
 def potential(model, q_norm, params_norm) -> torch.Tensor:
     """A structured model's potential ``V (B,)``: the sum of its potential parts' references."""
-    phi, g = features(model, q_norm), model.gravity_norm(q_norm.dtype)
+    phi, g = features(model, q_norm), model.gravity_constant_norm(q_norm.dtype)
     return sum(part.reference_potential(q_norm, params_norm, phi, g) for part in model._potential_parts)
 
 

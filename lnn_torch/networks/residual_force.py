@@ -17,7 +17,7 @@ training data.
 * It is regularised: the training loss adds ``weight`` times the sum of squares of its output layer
   (the residual's amplitude; ``model.regularization()``), on top of any weight decay.
 * It is NOT passive: a general force can put energy in, so it is no part of the model's dissipative
-  ``Q_f`` (``friction_si``, for which ``qd . Q_f <= 0`` stays true). In the rigid-body convention
+  ``Q_f`` (``friction``, for which ``qd . Q_f <= 0`` stays true). In the rigid-body convention
   (``lnn_torch.networks.rigid_body``) it is its own term, ``M qdd + n = B tau + Q_f + Q_r``: in the
   forward and inverse dynamics and in the power of the model's forces (the power-balance term counts
   its work), never in ``n``, ``g`` or ``Q_f``.

@@ -7,27 +7,27 @@ Lagrangians) is, in SI units, the rigid mechanical system
 
     M(q) qdd + n(q, qd) = B tau + Q_f(q, qd) + Q_r(q, qd)
 
-* ``mass_matrix_si(q, params)``: ``M (B, dof, dof)``, symmetric positive definite (``crba``);
-* ``bias_si(q, qd, params)``: ``n``, the learned Lagrangian's Coriolis, centrifugal and gravity forces
+* ``mass_matrix(q, params)``: ``M (B, dof, dof)``, symmetric positive definite (``crba``);
+* ``bias(q, qd, params)``: ``n``, the learned Lagrangian's Coriolis, centrifugal and gravity forces
   (``nonLinearEffects``): NO friction and NO inputs, ``n = -M a_0`` with ``a_0`` the accelerations
   under no generalised force at all;
-* ``gravity_si(q, params)``: ``g = n(q, 0) = dV/dq`` (``computeGeneralizedGravity``);
-* ``friction_si(q, qd, params)``: ``Q_f``, the learned dissipative generalised force (``FORCES``): joint
+* ``gravity(q, params)``: ``g = n(q, 0) = dV/dq`` (``computeGeneralizedGravity``);
+* ``friction(q, qd, params)``: ``Q_f``, the learned dissipative generalised force (``FORCES``): joint
   friction at the joint rates ``D qd`` mapped back through the joint map, ``-D^T f(D qd)``, and a
   learned Rayleigh damping ``-R qd`` where the model has one; ``qd . Q_f <= 0``;
-* ``residual_force_si(q, qd, params)``: ``Q_r``, the learned force residual (the structured models'
+* ``residual_force(q, qd, params)``: ``Q_r``, the learned force residual (the structured models'
   option ``residual_force``, ``lnn_torch.networks.residual_force``; zero without it): a generalised force
   of the state for what the model's physics cannot write, NOT passive (so not in ``Q_f``, whose
   ``qd . Q_f <= 0`` stays true); its power is counted with the model's other forces;
-* ``inverse_dynamics_si(q, qd, qdd, params)``: the inputs ``tau (B, n_u)`` with ``B tau = M qdd + n -
+* ``inverse(q, qd, qdd, params)``: the inputs ``tau (B, n_u)`` with ``B tau = M qdd + n -
   Q_f - Q_r`` (least squares through ``B`` where there are fewer inputs than coordinates;
-  ``INVERSE_DYNAMICS``; ``input_force_si`` gives ``B tau`` itself);
-* ``forward_dynamics_si(q, qd, params, tau)``: the accelerations ``M^-1 (B tau + Q_f + Q_r - n)``: the
+  ``INVERSE_DYNAMICS``; ``input_force`` gives ``B tau`` itself);
+* ``forward(q, qd, params, tau)``: the accelerations ``M^-1 (B tau + Q_f + Q_r - n)``: the
   model's ``acceleration`` (``aba``).
 
 Static friction (``dissipation: joint+stiction``) is not a force of the state: its holding torques are
 what holding a slow joint at rest takes against everything else acting at that instant
-(``lnn_torch.mechanics.forces.holding_torque``). They are in ``forward_dynamics_si`` (the model's accelerations
+(``lnn_torch.mechanics.forces.holding_torque``). They are in ``forward`` (the model's accelerations
 and rollouts) and in none of ``n``, ``Q_f`` or the inverse dynamics, which gives the inputs without
 holding (as the training's torque loss compares them).
 
@@ -52,19 +52,19 @@ from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRI
 
 class RigidBodyFace:
     """The SI face of ``DynamicsModel`` (a mixin: the model's capabilities, normaliser and forces are
-    its host's). A model with ``MASS_MATRIX`` gives ``mass_matrix_norm``, ``bias_force_norm`` and
-    ``gravity_force_norm``; with ``INVERSE_DYNAMICS``, ``inverse_dynamics_norm``."""
+    its host's). A model with ``MASS_MATRIX`` gives ``mass_matrix_norm``, ``bias_norm`` and
+    ``gravity_norm``; with ``INVERSE_DYNAMICS``, ``inverse_dynamics_norm``."""
 
     # ------------------------------------------------------------------ what a structured model gives
     def mass_matrix_norm(self, q_norm, params_norm) -> torch.Tensor:
         """``M (B, dof, dof)`` in normalised units."""
         raise NotImplementedError(f"variant '{self.variant}' has no mass matrix")
 
-    def bias_force_norm(self, q_norm, qd_norm, params_norm) -> torch.Tensor:
+    def bias_norm(self, q_norm, qd_norm, params_norm) -> torch.Tensor:
         """``n (B, dof)`` in normalised Euler-Lagrange units (no friction, no inputs)."""
         raise NotImplementedError(f"variant '{self.variant}' has no bias force")
 
-    def gravity_force_norm(self, q_norm, params_norm) -> torch.Tensor:
+    def gravity_norm(self, q_norm, params_norm) -> torch.Tensor:
         """``g = n(q, 0) = dV/dq (B, dof)`` in normalised Euler-Lagrange units."""
         raise NotImplementedError(f"variant '{self.variant}' has no gravity force")
 
@@ -94,8 +94,8 @@ class RigidBodyFace:
         return force_norm / self.normalizer.coord_scale.to(force_norm.dtype)
 
     # ------------------------------------------------------------------ the face
-    def mass_matrix_si(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-        """``M (B, dof, dof)`` of ``energy_si``'s kinetic energy in SI velocities (``D M_norm D``,
+    def mass_matrix(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """``M (B, dof, dof)`` of ``energy``'s kinetic energy in SI velocities (``D M_norm D``,
         ``D = diag(time_scale / coord_scale)``; units: the module docstring). ``MASS_MATRIX``."""
         self._require(MASS_MATRIX)
         q_n, _, p_n = self.normalize(*self._si_inputs(q, q, params))
@@ -104,21 +104,21 @@ class RigidBodyFace:
         D = norm.time_scale.to(q.dtype) / norm.coord_scale.to(q.dtype)
         return self._joules(D[:, None] * M_n * D[None, :])
 
-    def bias_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def bias(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """``n (B, dof)``: Coriolis, centrifugal and gravity forces, no friction, no inputs (the module
         docstring's convention). ``MASS_MATRIX``."""
         self._require(MASS_MATRIX)
         q_n, qd_n, p_n = self.normalize(*self._si_inputs(q, qd, params))
-        return self._force_si(self.bias_force_norm(q_n, qd_n, p_n).to(q.dtype))
+        return self._force_si(self.bias_norm(q_n, qd_n, p_n).to(q.dtype))
 
-    def gravity_si(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def gravity(self, q: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """``g = n(q, 0) (B, dof)``: the forces that holding the system still at ``q`` takes (``dV/dq``).
         ``MASS_MATRIX``."""
         self._require(MASS_MATRIX)
         q_n, _, p_n = self.normalize(*self._si_inputs(q, q, params))
-        return self._force_si(self.gravity_force_norm(q_n, p_n).to(q.dtype))
+        return self._force_si(self.gravity_norm(q_n, p_n).to(q.dtype))
 
-    def friction_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def friction(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """``Q_f (B, dof)``: the learned dissipative generalised force (joint friction through the joint
         map, Rayleigh damping; zero for a model whose forces are inputs alone). ``FORCES``."""
         self._require(FORCES)
@@ -126,7 +126,7 @@ class RigidBodyFace:
         phi = self.features(q_n)[0] if self.forces.rayleigh is not None else None
         return self.forces.dissipative_force_at(qd_n, p_n, phi).to(q.dtype)
 
-    def residual_force_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def residual_force(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """``Q_r (B, dof)``: the learned force residual (N m; zeros for a model without one; not passive:
         the module docstring). ``FORCES``."""
         self._require(FORCES)
@@ -135,7 +135,7 @@ class RigidBodyFace:
             return torch.zeros_like(qd)
         return self.forces.residual_force_at(qd_n, p_n, self.features(q_n)[0]).to(q.dtype)
 
-    def input_force_si(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
+    def input_force(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
                        params: torch.Tensor) -> torch.Tensor:
         """``B tau = M qdd + n - Q_f - Q_r (B, dof)``: the generalised force of the inputs that makes the
         model accelerate by ``qdd`` (SI). ``INVERSE_DYNAMICS``."""
@@ -146,7 +146,7 @@ class RigidBodyFace:
         q_n, qd_n, p_n = self.normalize(*self._si_inputs(q, qd, params))
         return self.inverse_dynamics_norm(q_n, qd_n, self.normalizer.accel_to_norm(qdd.to(self.dtype)), p_n)
 
-    def inverse_dynamics_si(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor,
+    def inverse(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, params: torch.Tensor,
                             check: bool = True) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` in N m that make the model accelerate by ``qdd`` (SI): ``B tau = M
         qdd + n - Q_f - Q_r`` solved through the input matrix (least squares where fewer inputs than
@@ -156,33 +156,28 @@ class RigidBodyFace:
             self.check_inputs(q, qd, params, inputs=False)
         return self.forces.solve_inputs(self._input_force(q, qd, qdd, params)).to(q.dtype)
 
-    def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
-        """``inverse_dynamics_si`` with its input checks (the name the ``INVERSE_DYNAMICS`` capability had
-        first)."""
-        return self.inverse_dynamics_si(q, qd, qdd, params)
-
-    def forward_dynamics_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
+    def forward(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
                             tau: torch.Tensor | None = None, check: bool = True) -> torch.Tensor:
         """The accelerations ``(B, dof)`` under the inputs ``tau (B, n_u)`` (None for a scene without),
         static friction included: the model's ``acceleration``."""
         return self.acceleration(q, qd, params, tau, check=check)
 
     # ------------------------------------------------------------------ energy and friction coefficients
-    def energy_si(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """The model's own energy ``H = T + V`` at SI states ``(B, dof), (B, dof), (B, P) -> (B,)`` (``q``'s
         dtype): in J for a scene with inputs, else in the model's units (see ``_joules``). ``ENERGY``."""
         self._require(ENERGY)
         q_n, qd_n, p_n = self.normalize(*self._si_inputs(q, qd, params))
         return self._joules(self.energy_norm(q_n, qd_n, p_n)[0].to(q.dtype))
 
-    def friction_torque_si(self, rates: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def friction_torque(self, rates: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """The learned joint friction torque (N m) at joint rates ``rates (..., n_j)`` (the scene's
         ``joint_map @ qd``) for parameters ``params (..., P)``; ``rates``' dtype. ``FRICTION``."""
         self._require(FRICTION)
         r, p = self._si_inputs(rates, params)
         return self.forces.friction_torque(r, self.normalizer.params(p)).to(rates.dtype)
 
-    def friction_coefficients_si(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def friction_coefficients(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The learned viscous (N m s/rad) and Coulomb (N m) coefficients per joint ``(B, n_j)`` each,
         in ``params``' dtype. ``FRICTION``."""
         self._require(FRICTION)

@@ -19,7 +19,7 @@ from .capabilities import INVERSE_DYNAMICS
 
 
 def _inverse(model, q, qd, qdd, params, batch: int) -> torch.Tensor:
-    return torch.cat([model.inverse_dynamics_si(q[i:i + batch], qd[i:i + batch], qdd[i:i + batch],
+    return torch.cat([model.inverse(q[i:i + batch], qd[i:i + batch], qdd[i:i + batch],
                                                 params[i:i + batch]) for i in range(0, len(q), batch)])
 
 

@@ -356,7 +356,7 @@ class StructuredLagrangian(DynamicsModel):
     # ------------------------------------------------------------------ the parts
     def _part_inputs(self, q_norm, params_norm, tangents: bool) -> PartInputs:
         phi, dphi, sin_cos = self._features(q_norm, tangents)
-        return PartInputs(q_norm, params_norm, phi, dphi, sin_cos, tangents, self.gravity_norm)
+        return PartInputs(q_norm, params_norm, phi, dphi, sin_cos, tangents, self.gravity_constant_norm)
 
     def _factor(self, inputs: PartInputs, conds):
         """The mass-matrix factor ``(B, dof, r)`` and its tangents ``(dof, B, dof, r)`` (None without
@@ -407,17 +407,12 @@ class StructuredLagrangian(DynamicsModel):
     def mass_matrix_norm(self, q_norm, params_norm):
         return self._mass_from(self.cholesky(q_norm, params_norm)[0])
 
-    def mass_matrix(self, q, params):
-        """The learned mass matrix in normalised units, ``(B, dof, dof)`` (physical M up to a scale per system)."""
-        q_norm, _, params_norm = self.normalize(q, q, params)
-        return self.mass_matrix_norm(q_norm, params_norm)
-
     def potential_norm(self, q_norm, params_norm, grad: bool = False):
         """Potential ``(B,)`` and, if asked, ``dV/dq`` ``(B, dof)``."""
         inputs = self._part_inputs(q_norm, params_norm, grad and self.shared)  # the shared net's tangents
         return self._potential(inputs, self.films(params_norm), grad)
 
-    def gravity_norm(self, dtype=torch.float32) -> torch.Tensor:
+    def gravity_constant_norm(self, dtype=torch.float32) -> torch.Tensor:
         """``g`` in normalised units, ``g tau^2`` (angles are not scaled): with it the chain's lengths are
         in metres (``V_norm / M_norm = tau^2 V / M`` whatever the force scale)."""
         return GRAVITY * self.normalizer.time_scale.to(dtype) ** 2
@@ -475,21 +470,21 @@ class StructuredLagrangian(DynamicsModel):
         return accel
 
     # ------------------------------------------------------------------ the rigid-body face (``rigid_body``)
-    def bias_force_norm(self, q_norm, qd_norm, params_norm):
+    def bias_norm(self, q_norm, qd_norm, params_norm):
         """``n = -M a_0`` ``(B, dof)`` (normalised): Coriolis, centrifugal and gravity forces, with ``a_0``
-        the accelerations under no generalised force (``RigidBodyFace.bias_si``)."""
+        the accelerations under no generalised force (``RigidBodyFace.bias``)."""
         _, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm))
         free = structured_acceleration_from_factor(chol, dchol, qd_norm, dV, self.eps)  # M free = rhs
         return -torch.bmm(self._mass_from(chol), free[..., None])[..., 0]
 
-    def gravity_force_norm(self, q_norm, params_norm):
-        """``g = n(q, 0) = dV/dq`` ``(B, dof)`` (normalised; ``RigidBodyFace.gravity_si``)."""
+    def gravity_norm(self, q_norm, params_norm):
+        """``g = n(q, 0) = dV/dq`` ``(B, dof)`` (normalised; ``RigidBodyFace.gravity``)."""
         return self.potential_norm(q_norm, params_norm, grad=True)[1]
 
     def inverse_dynamics_norm(self, q_norm, qd_norm, qdd_norm, params_norm, chunks: int | None = None):
         """The input force ``B tau`` in SI ``(B, dof)`` that makes the model accelerate by ``qdd_norm``:
         ``M qdd + n - Q_f - Q_r`` with ``n = -M a_0`` (Deep Lagrangian Networks' inverse model;
-        ``RigidBodyFace.input_force_si``; ``Q_r`` the force residual, if any)."""
+        ``RigidBodyFace.input_force``; ``Q_r`` the force residual, if any)."""
         if self.forces is None or not self.forces.num_inputs:
             raise InputError(f"inverse dynamics needs a scene with inputs; scene '{self.scene.name}' has none")
         phi, chol, dchol, _, dV = self._terms(q_norm, params_norm, self.films(params_norm, chunks))
@@ -499,12 +494,6 @@ class StructuredLagrangian(DynamicsModel):
         q_state = self.forces.state_force_at(qd_norm, params_norm, phi_f)
         return self.normalizer.force_to_phys(torch.bmm(M, (qdd_norm - free)[..., None])[..., 0]) - q_state
 
-    def rigid_bias_si(self, q, qd, params) -> torch.Tensor:
-        """Deprecated: ``bias_si`` (the same ``n``, without friction)."""
-        warnings.warn("rigid_bias_si is deprecated: use bias_si", FutureWarning, stacklevel=2)
-        return self.bias_si(q, qd, params)
-
-    # ------------------------------------------------------------------ energies
     def _mass_and_potential(self, q_norm, params_norm):
         _, chol, _, V, _ = self._terms(q_norm, params_norm, self.films(params_norm), tangents=False)
         return self._mass_from(chol), V

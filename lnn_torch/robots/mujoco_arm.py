@@ -111,7 +111,7 @@ class MujocoArm:
                                        torch.tensor([-math.pi, math.pi], dtype=torch.float64))
         self.armature = torch.tensor(m.dof_armature, dtype=torch.float64)
         self.damping = torch.tensor(m.dof_damping, dtype=torch.float64)
-        self.gravity = torch.tensor(m.opt.gravity, dtype=torch.float64)
+        self.gravity_vector = torch.tensor(m.opt.gravity, dtype=torch.float64)  # m/s^2, world frame
         self.forces = forces
         # which bodies move with each joint (the joint's body and its descendants): gravity_from_kinematics
         subtree = np.zeros((self.dof, m.nbody))
@@ -279,7 +279,7 @@ class MujocoArm:
         return conservative + dissipative
 
     def gravity_from_kinematics(self, d) -> np.ndarray:
-        """The joint torques ``(n,)`` N m that hold the arm still at the state in ``d`` (``gravity_torque``,
+        """The joint torques ``(n,)`` N m that hold the arm still at the state in ``d`` (``gravity``,
         from the bodies' centres of mass after ``mj_kinematics``, the loaded payload's included): for each
         joint, ``-a . (sum_k m_k (x_k - p) x g)`` over the bodies ``k`` it moves, ``a`` its axis and ``p``
         its anchor in the world. For the ``forces`` hook (a joint's gravity load), without another engine
@@ -292,12 +292,13 @@ class MujocoArm:
         """Coriolis, centrifugal and gravity forces ``(B, n)`` (MuJoCo's ``qfrc_bias``)."""
         return self._forward_field("qfrc_bias", q, qd, payload)
 
-    def gravity_torque(self, q, payload=None) -> torch.Tensor:
-        """The torques that hold the arm still at ``q``: ``bias(q, 0)``."""
+    def gravity(self, q, payload=None) -> torch.Tensor:
+        """``g (B, n)``: the torques that hold the arm still at ``q``, ``bias(q, 0)``."""
         return self.bias(q, np.zeros_like(_array(q, "q", self.dof)), payload)
 
-    def passive(self, qd) -> torch.Tensor:
-        """Joint damping forces ``-damping qd`` (MuJoCo's ``qfrc_passive`` of this description)."""
+    def friction(self, q, qd, payload=None) -> torch.Tensor:
+        """Joint damping forces ``Q_f = -damping qd (B, n)`` (MuJoCo's ``qfrc_passive`` of this
+        description; ``q`` and ``payload`` do not change it)."""
         return -torch.as_tensor(np.asarray(qd), dtype=torch.float64) * self.damping
 
     def forward(self, q, qd, tau, payload=None, damping: bool = True) -> torch.Tensor:

@@ -161,9 +161,3 @@ def base_parameters(Y: torch.Tensor, rtol: float = 1e-6) -> dict:
     P[np.arange(r), B] = 1.0
     P[:, D] += K
     return {"independent": B, "dependent": D, "K": K, "rank": r, "map": P}
-
-
-def least_squares(Y: torch.Tensor, tau: torch.Tensor, base: dict) -> np.ndarray:
-    """Base parameters ``beta (r,)`` by ordinary least squares on ``tau = Y_B beta``."""
-    YB = Y.detach().double().cpu().numpy()[:, base["independent"]]
-    return np.linalg.lstsq(YB, tau.detach().double().cpu().numpy().reshape(-1), rcond=None)[0]

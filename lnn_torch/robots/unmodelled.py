@@ -11,7 +11,7 @@ integration, each a closed form here. Per joint ``j``: ``q_j`` rad, ``v_j = qd_j
 
       f_j = (c_j + l_j |g_j(q)|_s) tanh(v_j / v_c) + s_j tanh(v_j / v_c) exp(-(v_j / v_s)^2),
 
-  ``g_j`` the joint's gravity torque on the true arm with its payload (``MujocoArm.gravity_torque``),
+  ``g_j`` the joint's gravity torque on the true arm with its payload (``MujocoArm.gravity``),
   ``|x|_s = sqrt(x^2 + e^2) - e`` a smooth absolute value (``e = LOAD_SMOOTHING`` = 0.1 N m); ``f`` is the
   torque the motor works against (as ``lnn_torch.mechanics.friction``), the generalised force is ``-f``.
 * ``spring`` (conservative): a nonlinear spring (a balancer, a cable's elasticity) on the joints

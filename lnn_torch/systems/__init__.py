@@ -7,6 +7,7 @@ from .actuated_double_pendulum import ActuatedDoublePendulum
 from .base import GRAVITY, Range, System
 from .chain_pendulum import ChainPendulum
 from .double_pendulum import DoublePendulum
+from .ground_truth import ClosedForm, reference_rollout
 from .mass_spring import MassSpring
 from .measured import MeasuredSystem
 from .pendulum import Pendulum
@@ -33,4 +34,4 @@ def get_system(name: str, **config) -> System:
 
 __all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
            "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle",
-           "ActuatedDoublePendulum", "RobotArm", "MeasuredSystem"]
+           "ActuatedDoublePendulum", "RobotArm", "MeasuredSystem", "ClosedForm", "reference_rollout"]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import InputError  # also importable from here, where it was first defined
+from ..errors import InputError
 from ..mechanics.forces import check_inputs, dissipative_force, identity_or_none, input_force
 from .excitation import validate as validate_excitation
 from .recording import ClosedFormRecorder

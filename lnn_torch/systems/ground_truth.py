@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..errors import GenerationError  # also importable from here and lnn_torch.data
+from ..errors import GenerationError
 from ..mechanics.forces import check_inputs, input_force, power
 from ..mechanics.integrators import rollout, rollout_adaptive, rollout_first_order
 

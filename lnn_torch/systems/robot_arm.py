@@ -105,8 +105,9 @@ class RobotArm(System):
             raise InputError(f"robot_arm: perturbation must be None or an integer seed, got {perturbation!r}")
         self.perturbation = None if perturbation is None else int(perturbation)
         self.arm = MujocoArm(self.description, perturbation=self.perturbation)
-        if not torch.allclose(self.arm.gravity, torch.tensor([0.0, 0.0, -self.gravity], dtype=torch.float64)):
-            raise InputError(f"robot_arm: description {self.description} has gravity {self.arm.gravity.tolist()} "
+        if not torch.allclose(self.arm.gravity_vector, torch.tensor([0.0, 0.0, -self.gravity], dtype=torch.float64)):
+            raise InputError(f"robot_arm: description {self.description} has gravity "
+                             f"{self.arm.gravity_vector.tolist()} "
                              f"m/s^2; the project's is (0, 0, -{self.gravity}) (leave the description's <option "
                              "gravity> out)")
         self._nominal = None
@@ -261,7 +262,7 @@ class RobotArm(System):
     def gravity_load(self, q, params):
         """The joints' gravity torques ``(*batch, dof)`` N m on the true arm with its payload (the engine's
         ``bias(q, 0)``): the load of the unmodelled friction."""
-        return self._engine(lambda q_, p_: self.arm.gravity_torque(q_, p_), q, params)
+        return self._engine(lambda q_, p_: self.arm.gravity(q_, p_), q, params)
 
     def dissipative_force(self, q, qd, params):
         """``Q_diss (*batch, dof)`` N m: ``-D qd``; with the unmodelled effects ``-D qd - f(q, qd) - o`` (the

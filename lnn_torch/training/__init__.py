@@ -9,7 +9,9 @@ from importlib import import_module
 
 _LAZY = {"LNNModule": ".module", "TrajectoryDataModule": ".datamodule", "load_model": ".checkpoints",
          "load_pretrained": ".checkpoints", "data_hparams": ".checkpoint_format", "output_dir": ".checkpoint_format",
-         "read_checkpoint": ".checkpoint_format", "run_cli": ".lightning_cli", "make_trainer": ".lightning_cli"}
+         "read_checkpoint": ".checkpoint_format", "run_cli": ".lightning_cli", "make_trainer": ".lightning_cli",
+         "LNNCLI": ".lightning_cli", "TRAINER_DEFAULTS": ".lightning_cli", "TrainingPass": ".training_pass",
+         "acceleration_loss": ".losses", "energy_variance": ".losses"}
 
 
 def __getattr__(name):

@@ -141,11 +141,32 @@ class LNNModule(L.LightningModule):
         self.system.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
         return self.model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
 
-    def inverse_dynamics(self, q, qd, qdd, params) -> torch.Tensor:
+    def inverse(self, q, qd, qdd, params) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` (N m) that produce the accelerations ``qdd`` (structured models
         of actuated scenes)."""
         self.system.check_inputs(q, qd, params, inputs="skip")
-        return self.model.inverse_dynamics(q, qd, qdd, params)
+        return self.model.inverse(q, qd, qdd, params)
+
+    # the model's SI rigid-body face (``lnn_torch.networks.rigid_body`` states the convention), checked inputs
+    def mass_matrix(self, q, params) -> torch.Tensor:
+        """``M (B, dof, dof)`` in SI."""
+        self.system.check_inputs(q, q, params, inputs="skip")
+        return self.model.mass_matrix(q, params)
+
+    def bias(self, q, qd, params) -> torch.Tensor:
+        """``n (B, dof)``: Coriolis, centrifugal and gravity forces in SI (no friction, no inputs)."""
+        self.system.check_inputs(q, qd, params, inputs="skip")
+        return self.model.bias(q, qd, params)
+
+    def gravity(self, q, params) -> torch.Tensor:
+        """``g = n(q, 0) (B, dof)`` in SI."""
+        self.system.check_inputs(q, q, params, inputs="skip")
+        return self.model.gravity(q, params)
+
+    def friction(self, q, qd, params) -> torch.Tensor:
+        """``Q_f (B, dof)``: the learned dissipative generalised force in SI."""
+        self.system.check_inputs(q, qd, params, inputs="skip")
+        return self.model.friction(q, qd, params)
 
     def identify(self, t, q, qd=None, tau=None, qdd=None, **options):
         """The parameters that best explain ONE observed trajectory: ``lnn_torch.identification.learned.identify``."""

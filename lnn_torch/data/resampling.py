@@ -1,0 +1,67 @@
+"""A recording's time stamps checked (increasing, gaps up to ``max_gap``) and reported, and its columns
+resampled onto a uniform grid by linear interpolation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+MAX_GAP_INTERVALS = 25  # the default max_gap, in median sampling intervals
+
+
+def checked_time(path: Path, t: np.ndarray, max_gap: float | None, lines: np.ndarray | None = None) -> dict:
+    """Raise for a time that does not increase or gaps beyond ``max_gap`` (default ``MAX_GAP_INTERVALS``
+    median intervals; the count and the largest named), naming the line of the file (``lines``: each
+    sample's; default: the header on line 1, one sample a line); else the recording's timing: samples,
+    duration, median, smallest and largest interval, and the gaps above twice the median (count,
+    largest, their total), which resampling interpolates across."""
+    if lines is None:
+        lines = np.arange(len(t)) + 2
+    steps = np.diff(t)
+    bad = np.nonzero(steps <= 0)[0]
+    if bad.size:
+        i = int(bad[0])
+        what = "repeats" if steps[i] == 0 else "decreases"
+        raise InputError(f"{path}: line {lines[i + 1]}: time {what} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
+    median = float(np.median(steps))
+    limit = max_gap if max_gap is not None else MAX_GAP_INTERVALS * median
+    gaps = np.nonzero(steps > limit)[0]
+    if gaps.size:
+        i = int(gaps[0])
+        more = f" ({gaps.size} such gaps, the largest {steps.max():.4g} s)" if gaps.size > 1 else ""
+        raise InputError(f"{path}: line {lines[i + 1]}: a gap of {steps[i]:.4g} s after t = {t[i]:.6g} s exceeds "
+                         f"max_gap {limit:.4g} s{more}: too long to interpolate across (split the recording there, or "
+                         "raise max_gap)")
+    long = steps[steps > 2 * median]
+    return {"samples": len(t), "duration_s": float(t[-1] - t[0]), "median_interval_s": median,
+            "min_interval_s": float(steps.min()), "max_interval_s": float(steps.max()),
+            "gaps": int(long.size), "largest_gap_s": float(long.max()) if long.size else 0.0,
+            "gap_seconds": float(long.sum()), "max_gap_s": float(limit)}
+
+
+def resampling_report(provenance: dict) -> list[str]:
+    """One line per recording of what the import did to its timing (from the file's ``provenance``)."""
+    lines = []
+    for src in provenance.get("sources", []):
+        timing = src.get("timing")
+        if not timing:
+            continue
+        gaps = (f"{timing['gaps']} gaps over twice the median interval (largest {1e3 * timing['largest_gap_s']:.3g} "
+                f"ms, {1e3 * timing['gap_seconds']:.3g} ms in all) interpolated across" if timing["gaps"]
+                else "no gaps")
+        lines.append(f"{src['file']}: {timing['samples']} samples over {timing['duration_s']:.4g} s, intervals "
+                     f"{1e3 * timing['min_interval_s']:.3g}-{1e3 * timing['max_interval_s']:.3g} ms (median "
+                     f"{1e3 * timing['median_interval_s']:.3g} ms); {gaps}; resampled to "
+                     f"{src['resampled_points']} points")
+    return lines
+
+
+def resample(raw: np.ndarray, dt: float) -> np.ndarray:
+    """A table ``(n, 1 + k)`` whose first column is time (s) resampled onto ``t_0 + j dt`` from its first
+    stamp to its last: its other ``k`` columns linearly interpolated, ``(m, k)``."""
+    t = raw[:, 0]
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
+    return np.stack([np.interp(grid, t, raw[:, j]) for j in range(1, raw.shape[1])], -1)

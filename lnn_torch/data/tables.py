@@ -1,0 +1,143 @@
+"""Recorded tables read as numbers: one CSV (or TSV, TXT, DAT, gzip-compressed or not) per recording,
+its named columns as float64 with one line naming the file, line and column of any bad cell (the
+format: ``lnn_torch.data.importer``)."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+DECIMALS = ("auto", ".", ",")
+EXTENSIONS = (".csv", ".tsv", ".txt", ".dat")  # removed (after .gz) from a file's name to name its recording
+
+
+def recording_name(path: str | Path) -> str:
+    """A recording's name: its file's name without ``.gz``, then without ``.csv``, ``.tsv``, ``.txt`` or
+    ``.dat`` (``run.csv.gz`` and ``run.csv``: ``run``; ``exp_2024.05.01_a.csv``: ``exp_2024.05.01_a``)."""
+    name = Path(path).name
+    if name.lower().endswith(".gz") and len(name) > 3:
+        name = name[:-3]
+    ext = next((e for e in EXTENSIONS if name.lower().endswith(e)), None)
+    return name[:-len(ext)] if ext is not None and len(name) > len(ext) else name
+
+
+def separator(delimiter: str | None) -> str | None:
+    """A ``delimiter`` setting as the character it is (``tab``: a tab; None: detected per file), or None
+    if it cannot be one."""
+    sep = "\t" if delimiter in ("tab", "\\t") else delimiter
+    return sep if isinstance(sep, str) and len(sep) == 1 and sep not in "\"#\r\n" else None
+
+
+def _shown(sep: str) -> str:
+    return "tab" if sep == "\t" else repr(sep)
+
+
+def read_csv_columns(path: Path, columns: list[str], delimiter: str | None = None, decimal: str = "auto") -> np.ndarray:
+    """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; comment lines starting
+    with ``#`` before the header) as float64 ``(rows, len(columns))``; errors name the file and line
+    (``read_csv_table`` says which; ``delimiter``, ``decimal``: as ``ImportSpec``'s)."""
+    return read_csv_table(path, columns, delimiter, decimal)[0]
+
+
+
+
+def read_csv_table(path: Path, columns: list[str], delimiter: str | None = None,
+                   decimal: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+    """``(values (rows, len(columns)) float64, lines (rows,) int64)``: the named columns of a CSV file
+    and the line of the file each data row ends on. The delimiter is ``delimiter`` (one character or
+    ``tab``), or else the header's: ``;`` if it holds one, else a tab if it holds one, else ``,``;
+    ``decimal`` (``auto``, ``.``, ``,``): ``auto`` reads decimal commas where the delimiter is not ``,``.
+    Text is UTF-8 (a byte-order mark is dropped), gzip-compressed where the name ends in ``.gz``."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    import gzip
+
+    opener = gzip.open if path.suffix == ".gz" else open
+    try:
+        return _parse_csv(path, opener, columns, delimiter, decimal)
+    except EOFError:
+        raise InputError(f"{path}: truncated (the compressed file ends early)") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file (undecodable bytes)") from None
+    except csv.Error as err:
+        raise InputError(f"{path}: not a readable CSV file ({err})") from None
+    except OSError as err:  # gzip.BadGzipFile, ...
+        raise InputError(f"{path}: cannot read it ({err})") from None
+
+
+def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
+               decimal: str) -> tuple[np.ndarray, np.ndarray]:
+    with opener(path, "rt", encoding="utf-8-sig", newline="") as fh:
+        before = 0  # comment and blank lines before the header
+        for header_line in fh:
+            if header_line.strip() and not header_line.lstrip().startswith("#"):
+                break
+            before += 1
+        else:
+            raise InputError(f"{path}: the file is empty" if not before else
+                             f"{path}: no header row (only comment or blank lines)")
+        sep = separator(delimiter) if delimiter is not None else (
+            ";" if ";" in header_line else "\t" if "\t" in header_line else ",")
+        if sep is None:
+            raise InputError(f"{path}: delimiter must be one character (or 'tab'), got {delimiter!r}")
+        if decimal not in DECIMALS:
+            raise InputError(f"{path}: decimal must be one of {', '.join(DECIMALS)}, got {decimal!r}")
+        if decimal == "," and sep == ",":
+            raise InputError(f"{path}: decimal ',' needs a delimiter other than ',' (the header is read with ',')")
+        commas = decimal == "," or (decimal == "auto" and sep != ",")
+        reader = csv.reader(itertools.chain([header_line], fh), delimiter=sep)
+        header = [h.strip() for h in next(reader)]
+        at = before + 1
+        missing = [c for c in dict.fromkeys(columns) if c not in header]
+        if missing:
+            hint = "; set delimiter if the file uses another" if len(header) == 1 else ""
+            raise InputError(f"{path}: no column {', '.join(repr(c) for c in missing)} in the header on line {at} "
+                             f"(delimiter {_shown(sep)}; columns: {', '.join(header)}){hint}")
+        twice = [c for c in dict.fromkeys(columns) if header.count(c) > 1]
+        if twice:
+            raise InputError(f"{path}: line {at}: the header names column {twice[0]!r} {header.count(twice[0])} times "
+                             "(which one is meant?): rename the others")
+        index = [header.index(c) for c in columns]
+        rows, lines = [], []
+        for row in reader:
+            if not row or not "".join(row).strip():
+                continue
+            line = before + reader.line_num  # the file's line (the row's last, if a quoted cell spans lines)
+            try:
+                values = [float(row[i].replace(",", ".")) if commas else float(row[i]) for i in index]
+            except (ValueError, IndexError):
+                raise InputError(_cell_error(path, line, row, header, columns, index, commas)) from None
+            bad = [c for c, v in zip(columns, values, strict=True) if not math.isfinite(v)]
+            if bad:
+                raise InputError(f"{path}: line {line}: NaN or Inf in column {bad[0]!r}")
+            rows.append(values)
+            lines.append(line)
+    if len(rows) < 2:
+        raise InputError(f"{path}: fewer than two data rows")
+    return np.asarray(rows, dtype=np.float64), np.asarray(lines, dtype=np.int64)
+
+
+def _cell_error(path: Path, line: int, row: list[str], header: list[str], columns: list[str], index: list[int],
+                commas: bool) -> str:
+    """The one line that names the first cell of ``row`` (of the named ``columns``) that is not a number."""
+    for c, i in zip(columns, index, strict=True):
+        if i >= len(row):
+            return (f"{path}: line {line}: no value in column {c!r} (the row has {len(row)} cells, the header "
+                    f"{len(header)})")
+        cell = row[i].strip()
+        try:
+            float(cell.replace(",", ".") if commas else cell)
+        except ValueError:
+            if not cell:
+                return f"{path}: line {line}: column {c!r} is empty"
+            hint = (" (decimal commas are read with decimal ',' or 'auto' and a delimiter other than ',')"
+                    if "," in cell and not commas else "")
+            return f"{path}: line {line}: column {c!r}: {cell!r} is not a number{hint}"
+    return f"{path}: line {line}: a value of {', '.join(columns)} is missing or not a number"
