@@ -25,7 +25,7 @@ The models are ``lnn_torch.networks.build_model(variant, ARM, **options)`` on th
 input matrix, joint friction), untrained (the time of a call does not depend on the weights), their
 normalisers unfitted, float32 (their default) and the grey box also in float64 (built at float64 default
 dtype). Forward dynamics is ``model.acceleration(q, qd, params, tau)``, inverse dynamics
-``model.inverse_dynamics(q, qd, qdd, params)`` (the structured variants; n/a for the others), both as a
+``model.inverse(q, qd, qdd, params)`` (the structured variants; n/a for the others), both as a
 user calls them (inputs checked). The grey boxes' friction is set to the description's viscous damping
 (Coulomb ~0), as in the tests, so they compute the engine's dynamics: their inverse dynamics is checked
 against the engine's. The grey box's inverse dynamics is also timed unchecked (eagerly, and through
@@ -64,19 +64,18 @@ from timing import (  # noqa: E402
     HelpFormatter,
     add_output_dir,
     calls_per_run,
-    header,
     in_turn,
     machine,
+    machine_header,
     median_ratio,
     run_seconds,
     wrote,
 )
 
-from lnn_torch.networks import build_model  # noqa: E402
-from lnn_torch.networks.base import SceneInfo  # noqa: E402
-from lnn_torch.networks.capabilities import INVERSE_DYNAMICS, capabilities_of  # noqa: E402
+from lnn_torch.evaluation import table_row  # noqa: E402
+from lnn_torch.networks import INVERSE_DYNAMICS, SceneInfo, build_model, capabilities_of  # noqa: E402
 from lnn_torch.perf import compile_fn, configure_cpu  # noqa: E402
-from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
+from lnn_torch.robots import MujocoArm  # noqa: E402
 
 BATCHES = (1, 4096)
 
@@ -304,7 +303,7 @@ def correctness(arm: MujocoArm, states: dict, n: int = 256) -> dict:
         M = model.mass_matrix_norm(t["q"], model.normalizer.params(t["payload"]))
         return {"states": n,
                 "mass_matrix": rel(M, arm.mass_matrix(t["q"], t["payload"])),
-                "inverse": rel(model.inverse_dynamics(t["q"], t["qd"], t["qdd"], t["payload"]),
+                "inverse": rel(model.inverse(t["q"], t["qd"], t["qdd"], t["payload"]),
                                arm.inverse(t["q"], t["qd"], t["qdd"], t["payload"])),
                 "forward": rel(model.acceleration(t["q"], t["qd"], t["payload"], t["tau"]),
                                arm.forward(t["q"], t["qd"], t["tau"], t["payload"]))}
@@ -324,7 +323,7 @@ def model_rows(arm: MujocoArm, states: dict, repeats: int, batches, compile_budg
                                    repeats)
             inverse = None
             if has_inverse:
-                inverse = per_state_us(lambda m=model, q=q, qd=qd, qdd=qdd, p=payload: m.inverse_dynamics(
+                inverse = per_state_us(lambda m=model, q=q, qd=qd, qdd=qdd, p=payload: m.inverse(
                     q, qd, qdd, p), b, repeats)
             rows.append({"name": label, "variant": variant, "dtype": str(dtype)[6:], "batch": b,
                          "parameters": sum(p.numel() for p in model.parameters()),
@@ -332,7 +331,7 @@ def model_rows(arm: MujocoArm, states: dict, repeats: int, batches, compile_budg
             print(f"{label} {str(dtype)[6:]}, batch {b}: forward {forward:.2f} us/state, inverse "
                   + ("n/a" if inverse is None else f"{inverse:.2f} us/state"), file=sys.stderr, flush=True)
         if friction:  # a grey box: the engine's inverse dynamics in this dtype
-            tau = model.inverse_dynamics(*(x[k][:n] for k in ("q", "qd", "qdd", "payload")))
+            tau = model.inverse(*(x[k][:n] for k in ("q", "qd", "qdd", "payload")))
             accuracy[str(dtype)[6:]] = rel(tau, engine_inverse)
         if friction and dtype == torch.float32 and compile_budget is not None:
             xb = {b: tuple(x[k][:b] for k in ("q", "qd", "qdd", "payload")) for b in batches}
@@ -348,7 +347,7 @@ def grey_box_in_turn(arm: MujocoArm, states: dict, batch: int, repeats: int, rou
     model = build("film_lnn", GREY, torch.float32, True, arm)
     x = [torch.from_numpy(states[k][:batch]).float() for k in ("q", "qd", "qdd", "payload")]
     engine = RawEngine(arm, states, batch, "direct")
-    us = in_turn({"grey box": lambda: model.inverse_dynamics(*x), "engine": engine.inverse}, rounds,
+    us = in_turn({"grey box": lambda: model.inverse(*x), "engine": engine.inverse}, rounds,
                  lambda fn: per_state_us(fn, batch, repeats))
     return {"rounds": rounds, "repeats": repeats, "grey_box_us": us["grey box"], "engine_us": us["engine"],
             "ratio": median_ratio(us["grey box"], us["engine"])}
@@ -370,7 +369,7 @@ def ratio(x, ref) -> str:
 def report(result: dict) -> str:
     m, rows = result["machine"], result["rows"]
     lines = ["# Franka Panda arm: forward and inverse dynamics per state, models against MuJoCo", "",
-             f"One CPU thread: {header(m)} at the end (at the start "
+             f"One CPU thread: {machine_header(m)} at the end (at the start "
              f"{', '.join(map(str, result['load_average_at_start'] or []))}). All in one process: "
              f"{result['cpu_seconds']:.0f} s of CPU time in "
              f"{result['seconds']:.0f} s (a share of {result['cpu_seconds'] / result['seconds']:.2f} of a core; 1: a "
@@ -380,17 +379,19 @@ def report(result: dict) -> str:
              f"`x engine`: the row's time over that of the {ENGINE_REFERENCE.replace('MuJoCo ', '')} "
              "(MuJoCo with the least Python around it, every state its own payload, as the models get).", "",
              "Models untrained (the time of a call does not depend on the weights), normalisers unfitted; "
-             "forward = `model.acceleration(q, qd, params, tau)`, inverse = `model.inverse_dynamics(q, qd, qdd, "
+             "forward = `model.acceleration(q, qd, params, tau)`, inverse = `model.inverse(q, qd, qdd, "
              "params)`, both as a user calls them (inputs checked); n/a: the variant has no inverse dynamics."]
     for b in result["batches"]:
         ref = next(r for r in rows if r["batch"] == b and r["name"] == ENGINE_REFERENCE)
-        lines += ["", f"## Batch {b}", "", "| model | dtype | forward µs/state | inverse µs/state "
-                  "| × engine (forward) | × engine (inverse) |", "|---|---|---:|---:|---:|---:|"]
+        lines += ["", f"## Batch {b}", "",
+                  table_row(["model", "dtype", "forward µs/state", "inverse µs/state", "× engine (forward)",
+                             "× engine (inverse)"]),
+                  table_row(["---", "---", "---:", "---:", "---:", "---:"])]  # the numbers right-aligned
         for r in (r for r in rows if r["batch"] == b):
             name = f"**{r['name']}**" if r["name"] == ENGINE_REFERENCE else r["name"]
-            lines.append(f"| {name} | {r['dtype']} | {cell(r['forward_us'])} | {cell(r['inverse_us'])} "
-                         f"| {ratio(r['forward_us'], ref['forward_us'])} "
-                         f"| {ratio(r['inverse_us'], ref['inverse_us'])} |")
+            lines.append(table_row([name, r["dtype"], cell(r["forward_us"]), cell(r["inverse_us"]),
+                                    ratio(r["forward_us"], ref["forward_us"]),
+                                    ratio(r["inverse_us"], ref["inverse_us"])]))
     c, acc, raw = result["correctness"], result["accuracy"], result["raw_loop_differences"]
     lines += ["", "## Correctness", "",
               f"Grey box at float64 default dtype, eps = 0, against MuJoCo on {c['states']} states with their payloads "

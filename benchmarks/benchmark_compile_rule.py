@@ -29,7 +29,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from timing import ROOT, HelpFormatter, add_output_dir, header, wrote
+from timing import ROOT, HelpFormatter, add_output_dir, machine_header, wrote
 
 BATCHES = (1, 20, 64, 512)
 
@@ -37,7 +37,7 @@ CHILD = r"""
 import json, statistics, sys, time
 import torch
 torch.set_num_threads(1)
-from lnn_torch.training.checkpoints import load_model
+from lnn_torch import load_model
 B = int(sys.argv[1])
 model = load_model("pretrained:double_pendulum").model
 g = torch.Generator().manual_seed(0)
@@ -66,7 +66,7 @@ import torch
 torch.set_num_threads(1)
 from lnn_torch import LNNModule, TrajectoryDataModule
 from lnn_torch.perf import adamw
-from lnn_torch.training.training_pass import TrainingPass
+from lnn_torch.training import TrainingPass
 width = int(sys.argv[1])
 dm = TrajectoryDataModule(path="data/quickstart.h5", spec=dict(scene="double_pendulum", num_trajectories=200,
                           duration=20.0, dt=0.005, seed=0), chunk_len=8, chunks_per_batch=64, seed=0)
@@ -149,9 +149,10 @@ def main() -> None:
     if args.only != "rollouts" and not args.report:
         measured["training"] = training_rows()
     if not args.report:
-        measured["machine"] = header()
+        measured["machine"] = machine_header()
     store.write_text(json.dumps(measured, indent=1))
     rows, train = measured.get("rollouts", []), measured.get("training", [])
+    from lnn_torch.evaluation import table_header, table_row
     from lnn_torch.perf import AUTO_COMPILE_CALLS, AUTO_COMPILE_TRAIN_STEPS
 
     lines = ["# When a compiled rollout pays", "",
@@ -159,12 +160,13 @@ def main() -> None:
              "float32), one thread, no autograd; each batch size in two fresh processes sharing a new inductor cache "
              "directory (cold: empty cache, a user's first run; warm: the second process). Step times are medians of "
              "7 x 50 RK4 steps.", *(["", f"Machine: {measured['machine']}."] if "machine" in measured else []),
-             "", "| batch | RK4 step eager (ms) | RK4 step compiled (ms) | compilation, cold cache (s) | "
-             "compilation, warm cache (s) | break-even, cold (acceleration calls) | break-even, warm (calls) |",
-             "|---|---|---|---|---|---|---|"]
+             "", *table_header(["batch", "RK4 step eager (ms)", "RK4 step compiled (ms)",
+                                "compilation, cold cache (s)", "compilation, warm cache (s)",
+                                "break-even, cold (acceleration calls)", "break-even, warm (calls)"])]
     for r in rows:
-        lines.append(f"| {r['batch']} | {r['eager_ms']:.2f} | {r['compiled_ms']:.2f} | {r['compile_cold_s']:.1f} | "
-                     f"{r['compile_warm_s']:.1f} | {r['break_even_cold']:,.0f} | {r['break_even_warm']:,.0f} |")
+        lines.append(table_row([r["batch"], f"{r['eager_ms']:.2f}", f"{r['compiled_ms']:.2f}",
+                                f"{r['compile_cold_s']:.1f}", f"{r['compile_warm_s']:.1f}",
+                                f"{r['break_even_cold']:,.0f}", f"{r['break_even_warm']:,.0f}"]))
     lines += ["", f"The rule in the library: a rollout compiles its integrator step when it makes at least "
               f"`lnn_torch.perf.AUTO_COMPILE_CALLS` = {AUTO_COMPILE_CALLS:,} acceleration calls (default mode "
               "`compile_dynamics(\"auto\")`; `LNN_TORCH_COMPILE=0` or `compile_dynamics(False)` switch it off). "
@@ -176,13 +178,13 @@ def main() -> None:
               "the loss, its backward, gradient clipping and AdamW. Step times: medians of 7 x 20 steps (warm "
               "process). On a machine shared with other jobs the absolute times grow, the break-even (a ratio of "
               "times) much less.",
-              "", "| widths | step eager (ms) | step compiled (ms) | compilation, cold cache (s) | "
-              "compilation, warm cache (s) | break-even, cold (steps) | break-even, warm (steps) |",
-              "|---|---|---|---|---|---|---|"]
+              "", *table_header(["widths", "step eager (ms)", "step compiled (ms)", "compilation, cold cache (s)",
+                                 "compilation, warm cache (s)", "break-even, cold (steps)",
+                                 "break-even, warm (steps)"])]
     for r in train:
-        lines.append(f"| {r['width']} x {r['width']} | {r['eager_ms']:.2f} | {r['compiled_ms']:.2f} | "
-                     f"{r['compile_cold_s']:.1f} | {r['compile_warm_s']:.1f} | {r['break_even_cold']:,.0f} | "
-                     f"{r['break_even_warm']:,.0f} |")
+        lines.append(table_row([f"{r['width']} x {r['width']}", f"{r['eager_ms']:.2f}", f"{r['compiled_ms']:.2f}",
+                                f"{r['compile_cold_s']:.1f}", f"{r['compile_warm_s']:.1f}",
+                                f"{r['break_even_cold']:,.0f}", f"{r['break_even_warm']:,.0f}"]))
     lines += ["", "The rule in the library: training compiles its pass when the run is planned for at least "
               f"`lnn_torch.perf.AUTO_COMPILE_TRAIN_STEPS` = {AUTO_COMPILE_TRAIN_STEPS:,} optimiser steps (the "
               "trainer's `estimated_stepping_batches`; default `compile: auto`, `--model.compile false` or "

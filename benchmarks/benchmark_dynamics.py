@@ -27,14 +27,14 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from timing import HelpFormatter, add_output_file, header, in_turn, median_ms, median_ratio, wrote  # noqa: E402
+from timing import HelpFormatter, add_output_file, in_turn, machine_header, median_ms, median_ratio, wrote  # noqa: E402
 
-from lnn_torch.mechanics.euler_lagrange import generic_acceleration, structured_acceleration  # noqa: E402
-from lnn_torch.networks import build_model  # noqa: E402
-from lnn_torch.networks.capabilities import ENERGY, capabilities_of  # noqa: E402
+from lnn_torch.evaluation import table_header, table_row  # noqa: E402
+from lnn_torch.mechanics import generic_acceleration, structured_acceleration  # noqa: E402
+from lnn_torch.networks import ENERGY, build_model, capabilities_of  # noqa: E402
 from lnn_torch.perf import adamw, compile_fn, configure_cpu  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
-from lnn_torch.training.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.training import acceleration_loss, energy_variance  # noqa: E402
 
 # the output width up to which a product is computed as ``(W @ x.T).T``, as the networks' fast path does
 # for products with few output columns (``lnn_torch.networks``; measured in results/benchmark_dynamics.md)
@@ -152,9 +152,9 @@ def forced_row(variant: str, dtype, batches, repeats: int, closed: dict, conserv
         ms = in_turn({"forced": forced, "conservative": conservative(b)}, 5, lambda fn: median_ms(fn, repeats))
         cells.append(statistics.median(ms["forced"]))
         ratios.append(median_ratio(ms["forced"], ms["conservative"]))
-    return (f"| {variant} | structured, actuated scene (inputs + joint friction) | {str(dtype)[6:]} | "
-            + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} (x"
-            + ", x".join(f"{r:.2f}" for r in ratios) + " the conservative solve, in turn) |")
+    return table_row([variant, "structured, actuated scene (inputs + joint friction)", str(dtype)[6:],
+                      *(f"{c:.3f}" for c in cells), "-", f"{cells[1] / closed[512]:.0f} (x"
+                      + ", x".join(f"{r:.2f}" for r in ratios) + " the conservative solve, in turn)"])
 
 
 def closed_form(system, q, qd, params, b: int):
@@ -203,12 +203,12 @@ def variant_rows(variant: str, system, states: tuple, closed: dict, batches, rep
 
         st = median_ms(step, max(5, repeats // 2))
         ratio = float(cells[1]) / closed[512]
-        row(f"| {variant} | {name} | {str(dtype)[6:]} | " + " | ".join(cells) + f" | {st:.2f} | {ratio:.0f} |")
+        row(table_row([variant, name, str(dtype)[6:], *cells, f"{st:.2f}", f"{ratio:.0f}"]))
     if variant in ("film_lnn", "delan"):
         with torch.no_grad():
             cells = [median_ms(matmul_floor(model, b, dtype), repeats) for b in batches]
-        row(f"| {variant} | its matrix products alone | {str(dtype)[6:]} | "
-            + " | ".join(f"{c:.3f}" for c in cells) + f" | - | {cells[1] / closed[512]:.0f} |")
+        row(table_row([variant, "its matrix products alone", str(dtype)[6:], *(f"{c:.3f}" for c in cells), "-",
+                       f"{cells[1] / closed[512]:.0f}"]))
 
         def conservative(b):
             def call():
@@ -245,15 +245,14 @@ def main() -> None:
         lines.append(text)
         print(text, flush=True)
 
-    row(f"{header()}; medians of {repeats} after warm-up")
-    row("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
-        + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
-    row("|---" * (5 + len(batches)) + "|")
+    row(f"{machine_header()}; medians of {repeats} after warm-up")
+    for line in table_header(["variant", "path", "dtype", *(f"accel B={b} (ms)" for b in batches),
+                              "train step, 512-pt chunk (ms)", "accel B=512 / closed form"]):
+        row(line)
     for dtype in (torch.float32, torch.float64):
         qq, qqd, pp = q.to(dtype), qd.to(dtype), params.to(dtype)
         closed = {b: median_ms(closed_form(system, qq, qqd, pp, b), repeats) for b in batches}
-        row(f"| closed form | analytic | {str(dtype)[6:]} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
-            + " | - | 1 |")
+        row(table_row(["closed form", "analytic", str(dtype)[6:], *(f"{closed[b]:.3f}" for b in batches), "-", 1]))
         for variant in args.variants:
             variant_rows(variant, system, (qq, qqd, pp), closed, batches, repeats, compile_fast, args.per_row_params,
                          row)

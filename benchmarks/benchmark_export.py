@@ -33,8 +33,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from timing import HelpFormatter, add_output_file, header, run_seconds, wrote  # noqa: E402
+from timing import HelpFormatter, add_output_file, machine_header, run_seconds, wrote  # noqa: E402
 
+from lnn_torch.evaluation import table_row  # noqa: E402
 from lnn_torch.export import programs as ex  # noqa: E402
 from lnn_torch.perf import configure_cpu  # noqa: E402
 
@@ -78,7 +79,7 @@ def checked_call(module, function: str):
     if function == "inverse_dynamics":
         return module.inverse_dynamics
     if function == "mass_matrix":
-        return lambda q, params: module.model.mass_matrix_si(q, params)
+        return lambda q, params: module.model.mass_matrix(q, params)
     return None
 
 
@@ -120,7 +121,7 @@ def main() -> None:
     torch.set_num_threads(1)
     dtype = ex.DTYPES[args.dtype]
     if args.checkpoint:
-        from lnn_torch.training.checkpoints import load_model
+        from lnn_torch import load_model
 
         module, label = load_model(args.checkpoint), args.checkpoint
     else:
@@ -174,11 +175,12 @@ def main() -> None:
                       file=sys.stderr, flush=True)
     command = "python " + " ".join(shlex.quote(a) for a in ["benchmarks/benchmark_export.py", *sys.argv[1:]])
     lines = ["# Exported dynamics: latency per call (lnn-torch export)", "",
-             f"Model: {label}; {args.dtype}; one CPU thread: {header()} (at the end).", "",
+             f"Model: {label}; {args.dtype}; one CPU thread: {machine_header()} (at the end).", "",
              "Median time per call over " f"{args.repeats} runs (batch 1: 200 calls a run; batch 4096: 3).", "",
-             "| function | batch | " + " | ".join(columns) + " |", "|---|---:|" + "---:|" * len(columns)]
+             table_row(["function", "batch", *columns]),
+             table_row(["---", "---:", *["---:"] * len(columns)])]  # the numbers right-aligned
     for function, batch, row in rows:
-        lines.append(f"| {function} | {batch} | " + " | ".join(cell(row.get(c)) for c in columns) + " |")
+        lines.append(table_row([function, batch, *(cell(row.get(c)) for c in columns)]))
     lines += ["", "torch.export per function: " + ", ".join(f"{f} {s:.1f} s" for f, s in export_seconds.items())
               + (("; AOTInductor compilation: " + ", ".join(f"{f} {s:.0f} s" for f, s in aoti_seconds.items()))
                  if aoti_seconds else "") + "."]

@@ -23,9 +23,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from timing import ROOT, HelpFormatter, add_output_file, header, in_turn, wrote
+from timing import ROOT, HelpFormatter, add_output_file, in_turn, machine_header, wrote
 
-from lnn_torch.evaluation.report import markdown_table
+from lnn_torch.evaluation import markdown_table
 
 CHILD = r"""
 import json, statistics, sys, time
@@ -33,7 +33,7 @@ t0 = time.perf_counter()
 import torch
 torch.set_num_threads(1)
 import lnn_torch.perf
-from lnn_torch.training.checkpoints import load_model
+from lnn_torch import load_model
 if sys.argv[1] == "configure_cpu":
     lnn_torch.perf.configure_cpu()
 t_import = time.perf_counter() - t0
@@ -87,7 +87,7 @@ def main() -> None:
     keys = ("import_s", "load_s", "accel_first_ms", "accel_median_ms", "rollout_first_s", "rollout_second_s")
     lines = ["# A library user's first calls, in fresh processes", "",
              f"Command: `python benchmarks/benchmark_first_call.py --repeats {args.repeats}`; torch threads 1; "
-             f"medians over {args.repeats} fresh processes per variant, run alternately. {header()}.", "",
+             f"medians over {args.repeats} fresh processes per variant, run alternately. {machine_header()}.", "",
              markdown_table(["variant", "import (s)", "load model (s)", "512 accel, first call (ms)",
                              "512 accel, median of 30 (ms)", "rollout 64 x 1000 RK4 steps, first (s)", "second (s)"],
                             [[name, *(f"{statistics.median(r[k] for r in rs):.3g}" for k in keys)]

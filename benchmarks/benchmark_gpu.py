@@ -36,7 +36,7 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from timing import HelpFormatter, add_output_file, header, in_turn, machine, wrote  # noqa: E402
+from timing import HelpFormatter, add_output_file, in_turn, machine, machine_header, wrote  # noqa: E402
 
 ACCEL_BATCHES = (512, 8192, 131072)
 TRAIN_BATCHES = (512, 8192)
@@ -84,7 +84,7 @@ def torch_calls(name: str, device, compiled: bool, only=None) -> dict:
 
     from lnn_torch import load_pretrained
     from lnn_torch.perf import adamw
-    from lnn_torch.training.training_pass import TrainingPass
+    from lnn_torch.training import TrainingPass
 
     module = load_pretrained(name).to(device)
     module.train()
@@ -242,8 +242,8 @@ def use_cuda_graphs() -> None:
     """The library's compiled calls through ``torch.compile(mode="reduce-overhead")`` (CUDA graphs)."""
     import torch
 
-    import lnn_torch.networks.compiled as compiled
     import lnn_torch.perf as perf
+    from lnn_torch.networks import compiled
 
     def compile_fn(fn, device="cpu"):
         return torch.compile(fn, dynamic=False, mode="reduce-overhead")
@@ -284,26 +284,28 @@ def save(args, times: dict, warm: float, jax_device, device, rounds: int, fell_b
 
 def report(head: dict, rows: list) -> str:
     """The Markdown table: one line per scene and call, one column per model and path (median ms)."""
+    from lnn_torch.evaluation import table_row
+
     columns = list(dict.fromkeys((r["model"], r["path"]) for r in rows))
     lines = ["# The GPU path", "", f"`{head['command']}`", ""]
     if head["gpu"]:
         g = head["gpu"]
         lines.append(f"GPU: {g['gpu']} ({g['memory_gib']} GiB, {g['multiprocessors']} multiprocessors, CUDA "
                      f"{g['cuda']}); JAX device: {head['jax_device']}.")
-    lines += [f"Machine: {header(head['machine'])}.", "",
+    lines += [f"Machine: {machine_header(head['machine'])}.", "",
               f"Median ms per call over {head['rounds']} rounds (each: the median of {head['calls']} calls after "
               "one untimed call, synchronised), float32, every candidate timed in turn in one process.", ""]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         cols = [c for c in columns if any(r["scene"] == scene and (r["model"], r["path"]) == c for r in rows)]
-        lines += [f"## {scene}", "", "| call | " + " | ".join(f"{m}, {p}" for m, p in cols) + " |",
-                  "|---|" + "---:|" * len(cols)]
+        lines += [f"## {scene}", "", table_row(["call", *(f"{m}, {p}" for m, p in cols)]),
+                  table_row(["---", *["---:"] * len(cols)])]  # the times right-aligned
         for call in dict.fromkeys(r["call"] for r in rows if r["scene"] == scene):
             cells = []
             for m, p in cols:
                 hit = [r for r in rows if (r["scene"], r["model"], r["path"], r["call"]) == (scene, m, p, call)]
                 cells.append("" if not hit else f"{hit[0]['ms']:.3g}" + (" (fell back to eager)"
                                                                       if hit[0].get("fell_back_to_eager") else ""))
-            lines.append(f"| {call} | " + " | ".join(cells) + " |")
+            lines.append(table_row([call, *cells]))
         lines.append("")
     return "\n".join(lines)
 

@@ -78,13 +78,13 @@ import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from timing import CpuShare, HelpFormatter, header, in_turn, median_ratio  # noqa: E402
+from timing import CpuShare, HelpFormatter, in_turn, machine_header, median_ratio  # noqa: E402
 
-from lnn_torch.evaluation.report import markdown_table  # noqa: E402
+from lnn_torch.evaluation import markdown_table, table_header, table_row  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.perf import adamw, compile_fn, configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import GRAVITY, get_system  # noqa: E402
-from lnn_torch.training.losses import acceleration_loss, energy_variance  # noqa: E402
+from lnn_torch.training import acceleration_loss, energy_variance  # noqa: E402
 
 try:
     import optax
@@ -292,8 +292,7 @@ def run_benchmark(repeats: int, batches) -> None:
                                                                                                   tp[:b]), repeats, 3)
                   for b in batches}
         name = np.dtype(dtype).name
-        rows.append(f"| closed form | analytic | {name} | " + " | ".join(f"{closed[b]:.3f}" for b in batches)
-                    + " | - | 1 |")
+        rows.append(table_row(["closed form", "analytic", name, *(f"{closed[b]:.3f}" for b in batches), "-", 1]))
         model = init_model(0, dtype)
         qn, qdn, pn, tn = normalise(q, qd, qdd, params, dtype)
         cells = {}
@@ -309,15 +308,14 @@ def run_benchmark(repeats: int, batches) -> None:
             jax.block_until_ready((state[0], loss))
 
         st = jax_median_ms(step, max(5, repeats // 2), share)
-        rows.append(f"| {VARIANT} | {PATH} | {name} | " + " | ".join(f"{cells[b]:.3f}" for b in batches)
-                    + f" | {st:.2f} | {cells[512] / closed[512]:.0f} |")
-    print(f"{header()}; jax {jax.__version__} ({jax.default_backend()}, x64 enabled), XLA_FLAGS="
+        rows.append(table_row([VARIANT, PATH, name, *(f"{cells[b]:.3f}" for b in batches), f"{st:.2f}",
+                               f"{cells[512] / closed[512]:.0f}"]))
+    print(f"{machine_header()}; jax {jax.__version__} ({jax.default_backend()}, x64 enabled), XLA_FLAGS="
           f"'{os.environ['XLA_FLAGS']}', XLA client created on 1 CPU, optimizer "
           f"{'optax.adam' if optax else 'hand-written Adam'}, medians of {repeats} after warm-up; "
           f"CPU/wall over the JAX timings {share.share:.2f}")
-    print("| variant | path | dtype | " + " | ".join(f"accel B={b} (ms)" for b in batches)
-          + " | train step, 512-pt chunk (ms) | accel B=512 / closed form |")
-    print("|---" * (5 + len(batches)) + "|")
+    print("\n".join(table_header(["variant", "path", "dtype", *(f"accel B={b} (ms)" for b in batches),
+                                  "train step, 512-pt chunk (ms)", "accel B=512 / closed form"])))
     for row in rows:
         print(row)
 
@@ -386,7 +384,8 @@ def run_interleaved(rounds: int) -> None:
     # per round and candidate one untimed call (the caches then hold this candidate's data, not the previous
     # one's), then one timed call
     times = in_turn(cands, rounds, lambda fn: median_seconds(fn, 1, warmup=1))
-    print(f"{header()}; jax {jax.__version__}, one thread each, float32, {rounds} rounds in turn (per round and "
+    print(f"{machine_header()}; jax {jax.__version__}, one thread each, float32, {rounds} rounds in turn "
+          "(per round and "
           "candidate: one untimed call, then one timed call), medians")
     rows = []
     for k, v in times.items():

@@ -14,12 +14,12 @@ import sys
 from pathlib import Path
 
 import torch
-from timing import ROOT, HelpFormatter, add_output_file, header, wrote
+from timing import ROOT, HelpFormatter, add_output_file, machine_header, wrote
 
 from lnn_torch import load_model
 from lnn_torch.control import MPPI, plant_of
-from lnn_torch.evaluation.report import markdown_table
-from lnn_torch.identification.two_link import RigidArmModel
+from lnn_torch.evaluation import markdown_table
+from lnn_torch.identification import RigidArmModel
 from lnn_torch.perf import median_seconds
 
 LAB = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
         compiled.model.compile_dynamics(True)
         plants["learned model, compiled"] = plant_of(compiled)
     plants["lab model (closed form)"] = plant_of(RigidArmModel.from_yaml(LAB))
-    machine = header()  # before the loop sets the thread counts it times
+    machine = machine_header()  # before the loop sets the thread counts it times
     goal = torch.tensor([[math.pi, 0.0]], dtype=torch.float64)
     q, qd = goal + 0.05, torch.zeros(1, 2, dtype=torch.float64)
     rows = []

@@ -21,9 +21,9 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")  # no compile worker
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from timing import HelpFormatter, add_output_file, header, in_turn, median_ratio, wrote  # noqa: E402
+from timing import HelpFormatter, add_output_file, in_turn, machine_header, median_ratio, wrote  # noqa: E402
 
-from lnn_torch.evaluation.report import markdown_table  # noqa: E402
+from lnn_torch.evaluation import markdown_table  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.perf import compile_fn, configure_cpu, median_seconds  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
@@ -67,7 +67,8 @@ def main() -> None:
     times = in_turn({name: timed(fn) for name, fn in candidates.items()}, args.rounds,
                     lambda call: 1e3 * median_seconds(call, args.repeats, 5))
     cpp, py = times["compile_fn (C++ wrapper)"], times["torch.compile, Python wrapper"]
-    lines += ["", f"{header()}; float32, {args.batch} states, {args.rounds} rounds in turn, medians of {args.repeats} "
+    lines += ["", f"{machine_header()}; float32, {args.batch} states, {args.rounds} rounds in turn, "
+              f"medians of {args.repeats} "
               "calls per round",
               markdown_table(["path", "median (ms)", "range over rounds (ms)", "median per-round ratio to eager"],
                              [[name, f"{statistics.median(t):.3f}", f"{min(t):.3f} – {max(t):.3f}",

@@ -44,7 +44,7 @@ import json  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 
-from timing import ROOT, HelpFormatter, header, in_turn, median_ratio, wrote  # noqa: E402
+from timing import ROOT, HelpFormatter, in_turn, machine_header, median_ratio, wrote  # noqa: E402
 
 from lnn_torch.perf import median_seconds  # noqa: E402
 
@@ -106,7 +106,7 @@ def train(args) -> None:
     import torch
 
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.training.lightning_cli import make_trainer
+    from lnn_torch.training import make_trainer
 
     OUT.mkdir(parents=True, exist_ok=True)
     CKPT.mkdir(parents=True, exist_ok=True)
@@ -157,7 +157,7 @@ def torch_candidates(name: str, compiled: bool, dtype, batch: dict, untrained: b
 
     from lnn_torch import LNNModule, load_model
     from lnn_torch.perf import adamw
-    from lnn_torch.training.training_pass import TrainingPass
+    from lnn_torch.training import TrainingPass
 
     ckpt = CKPT / f"{slug(name)}.ckpt"
     if ckpt.exists():
@@ -240,7 +240,7 @@ class OriginalAsModel:
         return torch.from_numpy(self.m.accel(q.numpy(), qd.numpy(), params.numpy()).astype("float64")).to(q.dtype)
 
     def rollout(self, q0, qd0, params, dt, num_steps, method="rk4", tau=None):
-        from lnn_torch.mechanics.integrators import rollout
+        from lnn_torch.mechanics import rollout
 
         return rollout(self.acceleration, q0, qd0, params, dt, num_steps, method)
 
@@ -325,7 +325,7 @@ def time_all(args) -> None:
                 base = times[(ORIGINAL, "jit", "float32", what)]
                 row[f"{what} / original"] = median_ratio(own, base)
         rows.append(row)
-    head = {"machine": header(), "rounds": args.rounds, "calls_per_round": args.calls,
+    head = {"machine": machine_header(), "rounds": args.rounds, "calls_per_round": args.calls,
             "command": " ".join(["python", *sys.argv]), "original_accuracy": original_accuracy,
             "untrained_networks": bool(args.untrained)}
     (OUT / "time.json").write_text(json.dumps({"header": head, "rows": rows}, indent=1))
@@ -338,8 +338,9 @@ def time_all(args) -> None:
 def report(args) -> None:
     import numpy as np
 
-    from lnn_torch.evaluation.plots import plt
+    from lnn_torch.evaluation import plots, table_header, table_row
 
+    plt = plots.plt
     trained = json.loads((OUT / "train.json").read_text())
     timed = json.loads((OUT / "time.json").read_text())
     head, rows = timed["header"], timed["rows"]
@@ -361,9 +362,9 @@ def report(args) -> None:
              + (" Points whose checkpoint was absent when timed were timed as freshly initialised networks of the "
                 "same architecture (`--untrained`: a call's cost does not depend on the weights' values); their "
                 "accuracy is that of the trained network (`train.json`)." if head.get("untrained_networks") else ""),
-             "", "| point | parameters | path | dtype | test acc. error | time within 0.1 rad, median (s) | "
-             "512 accel (ms) | × original | train step (ms) | × original | RK4 step, 64 traj. (ms) | × original |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "", *table_header(["point", "parameters", "path", "dtype", "test acc. error",
+                                "time within 0.1 rad, median (s)", "512 accel (ms)", "× original", "train step (ms)",
+                                "× original", "RK4 step, 64 traj. (ms)", "× original"])]
     for r in rows:
         if r["point"] == ORIGINAL:
             acc, div, n = (orig_acc or {}).get("acc_rel_err"), (orig_acc or {}).get("divergence_median_s"), 36680
@@ -374,15 +375,15 @@ def report(args) -> None:
                  "-" if div is None else f"{div:.2f}"]
         for what in ("accel", "train step", "rollout step"):
             cells += [f"{r[f'{what} ms']:.2f}", f"{r.get(f'{what} / original', float('nan')):.2f}"]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(table_row(cells))
     lines += ["", "Where an eager call of 512 accelerations goes (torch profiler, one call): operator calls and the "
               "share of the profiled CPU time in matrix products; the rest is element-wise work and per-operator "
               "dispatch, which compilation removes.", "",
-              "| point | dtype | aten operator calls (incl. nested) | matrix-product share |", "|---|---|---|---|"]
+              *table_header(["point", "dtype", "aten operator calls (incl. nested)", "matrix-product share"])]
     for r in rows:
         if "aten calls (incl. nested)" in r and r["point"] not in LONGER:
-            lines.append(f"| {r['point']} | {r['dtype']} | {r['aten calls (incl. nested)']} | "
-                         f"{100 * r['matrix-product share']:.0f} % |")
+            lines.append(table_row([r["point"], r["dtype"], r["aten calls (incl. nested)"],
+                                    f"{100 * r['matrix-product share']:.0f} %"]))
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
     summary(rows, trained, orig_acc)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -423,14 +424,17 @@ SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 
 
 def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:
     """``summary.md``: the README's table (ratios to the original, eager / compiled)."""
+    from lnn_torch.evaluation import table_header, table_row
+
     by = {(r["point"], r["path"], r["dtype"]): r for r in rows}
     orig = by.get((ORIGINAL, "jit", "float32"))
-    lines = ["| configuration | held-out acc. error | time within 0.1 rad (median) | 512 accel, eager / compiled | "
-             "train step, eager / compiled | RK4 step of 64, eager / compiled |", "|---|---|---|---|---|---|"]
+    lines = table_header(["configuration", "held-out acc. error", "time within 0.1 rad (median)",
+                          "512 accel, eager / compiled", "train step, eager / compiled",
+                          "RK4 step of 64, eager / compiled"])
     if orig is not None and orig_acc:
-        lines.append(f"| JAX original (released, 50,000 steps) | {100 * orig_acc['acc_rel_err']:.2f} % | "
-                     f"{orig_acc['divergence_median_s']:.1f} s | 1 ({orig['accel ms']:.2f} ms) | "
-                     f"1 ({orig['train step ms']:.1f} ms) | 1 ({orig['rollout step ms']:.2f} ms) |")
+        lines.append(table_row(["JAX original (released, 50,000 steps)", f"{100 * orig_acc['acc_rel_err']:.2f} %",
+                                f"{orig_acc['divergence_median_s']:.1f} s", f"1 ({orig['accel ms']:.2f} ms)",
+                                f"1 ({orig['train step ms']:.1f} ms)", f"1 ({orig['rollout step ms']:.2f} ms)"]))
     for point, label in SUMMARY.items():
         eager, comp = by.get((point, "eager", "float32")), by.get((point, "compiled", "float32"))
         if point not in trained or eager is None or comp is None:
@@ -441,7 +445,7 @@ def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:
                  f"≥ {t['horizon_s']:.0f} s" if div >= t["horizon_s"] else f"{div:.1f} s"]
         for what in ("accel", "train step", "rollout step"):
             cells.append(f"{eager[f'{what} / original']:.2f} / {comp[f'{what} / original']:.2f} ×")
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(table_row(cells))
     (OUT / "summary.md").write_text("\n".join(lines) + "\n")
 
 

@@ -1,5 +1,6 @@
 """What every benchmark shares: timing candidates in turn over rounds, the machine header, and the
-scripts' command-line conventions.
+command-line conventions. The one helper module of ``benchmarks/`` (with ``jax_original.py``, the wrapper
+of the JAX original that some benchmarks time).
 
 * Timing in turn: ``in_turn(candidates, rounds, measure)`` measures every candidate once per round, in
   order, so that a load on the machine that changes over minutes (timings on a shared machine drift by
@@ -10,11 +11,14 @@ scripts' command-line conventions.
   ``lnn_torch.perf.median_seconds(fn, 1, warmup=1)`` (one call after an untimed one).
 * The machine header: ``machine()`` (a dict for the JSON results: CPU, cores, threads, the versions of
   Python, torch, Lightning, MuJoCo and jax, the inductor cache's state, the load average) and
-  ``header(machine())`` (one line for the reports); ``CpuShare`` measures the share of a core the timed
+  ``machine_header(machine())`` (one line for the reports); ``CpuShare`` measures the share of a core the timed
   code had (1: a core to itself).
-* ``ROOT``, ``HelpFormatter``, ``add_output_dir``, ``add_output_file``, ``wrote``: the conventions of
-  ``scripts/_cli.py`` (one module for the scripts and the benchmarks; imported here so that a benchmark
-  imports one module).
+* ``ROOT``, ``HelpFormatter``, ``add_output_dir``, ``add_output_file``, ``wrote``: the command-line
+  conventions of the scripts and the package's commands. A folder of results is ``--output-dir`` / ``-o``,
+  a single file ``--output`` / ``-o`` (an old spelling keeps working, hidden, with one line on stderr); a
+  benchmark ends by printing every path it wrote (``wrote PATH, PATH, ...``); the help states each
+  default once. The scripts' helper (``scripts/_common.py``) holds the same conventions: each folder
+  imports only its own helper (``tests/test_scripts_conventions.py`` holds the two alike).
 
 Not a benchmark: the others import it (``python benchmarks/X.py`` puts this folder on ``sys.path``).
 """
@@ -22,26 +26,18 @@ Not a benchmark: the others import it (``python benchmarks/X.py`` puts this fold
 from __future__ import annotations
 
 import gc
-import importlib.metadata
-import os
-import platform
 import statistics
-import sys
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-from lnn_torch.perf import median_seconds
+from lnn_torch.cli import HelpFormatter, add_output_dir, add_output_file, wrote
+from lnn_torch.perf import machine, machine_header, median_seconds
 
-_SCRIPTS = str(Path(__file__).resolve().parents[1] / "scripts")
-if _SCRIPTS not in sys.path:
-    sys.path.append(_SCRIPTS)
-
-from _cli import ROOT, HelpFormatter, add_output_dir, add_output_file, wrote  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 __all__ = ["ROOT", "HelpFormatter", "add_output_dir", "add_output_file", "wrote", "median_ms", "run_seconds",
-           "calls_per_run", "in_turn", "median_ratio", "CpuShare", "machine", "header", "load_average"]
+           "calls_per_run", "in_turn", "median_ratio", "CpuShare", "machine", "machine_header"]
 
 
 # ---------------------------------------------------------------------------- one candidate
@@ -118,71 +114,3 @@ class CpuShare:
         return self.cpu_seconds / max(self.seconds, 1e-12)
 
 
-# ---------------------------------------------------------------------------- the machine
-def _version(package: str) -> str | None:
-    try:
-        return importlib.metadata.version(package)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        return platform.processor() or platform.machine()
-
-
-def load_average() -> list[float] | None:
-    """The load average over 1, 5 and 15 minutes (None where the system has none)."""
-    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
-
-
-def inductor_cache() -> dict:
-    """The folder of inductor's on-disk cache of compiled kernels (``TORCHINDUCTOR_CACHE_DIR``, else its
-    default) and its state: ``absent``, ``empty`` or ``N entries`` (top-level). A compilation on a
-    cold cache costs several times one on a warm cache."""
-    path = os.environ.get("TORCHINDUCTOR_CACHE_DIR") or os.path.join(
-        tempfile.gettempdir(), "torchinductor_" + "".join(c if c.isalnum() else "_" for c in _user()))
-    try:
-        entries = len(os.listdir(path))
-    except FileNotFoundError:
-        return {"path": path, "state": "absent"}
-    except OSError:
-        return {"path": path, "state": "unreadable"}
-    return {"path": path, "state": f"{entries} entries" if entries else "empty"}
-
-
-def _user() -> str:
-    try:
-        import getpass
-
-        return getpass.getuser()
-    except Exception:  # noqa: BLE001 - no user name (a container without one): inductor falls back alike
-        return "unknown"
-
-
-def machine() -> dict:
-    """The machine and the software a benchmark ran on, for its JSON result: CPU model, cores, torch
-    threads and ``OMP_NUM_THREADS``, the versions of Python, torch, Lightning, MuJoCo and jax (None where
-    not installed), the inductor cache (``inductor_cache``) and the load average now."""
-    torch = sys.modules.get("torch")
-    return {"cpu": _cpu_model(), "machine": platform.machine(), "cores": os.cpu_count(),
-            "torch_threads": torch.get_num_threads() if torch is not None else None,
-            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "python": platform.python_version(),
-            "torch": _version("torch"), "lightning": _version("lightning"), "mujoco": _version("mujoco"),
-            "jax": _version("jax"), "inductor_cache": inductor_cache(), "load_average": load_average()}
-
-
-def header(m: dict | None = None) -> str:
-    """One line for a report: ``machine()``'s CPU, threads, versions, cache and load."""
-    m = machine() if m is None else m
-    versions = ", ".join(f"{name} {m[key]}" for name, key in (("Python", "python"), ("torch", "torch"),
-                                                               ("lightning", "lightning"), ("mujoco", "mujoco"),
-                                                               ("jax", "jax")) if m.get(key))
-    cache = m.get("inductor_cache") or {}
-    load = ", ".join(str(x) for x in m["load_average"]) if m.get("load_average") else "n/a"
-    return (f"{m['cpu']} ({m['cores']} cores), torch threads {m['torch_threads']}, OMP_NUM_THREADS="
-            f"{m['omp_num_threads']}; {versions}; inductor cache {cache.get('path')} ({cache.get('state')}); "
-            f"load average (1, 5, 15 min) {load}")

@@ -20,9 +20,12 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import importlib.metadata
 import os
+import platform
 import statistics
 import sys
+import tempfile
 import time
 import warnings
 
@@ -208,3 +211,73 @@ def quiet_compile_logs() -> None:
     import logging
 
     logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
+
+
+# ---------------------------------------------------------------------------- the machine a timing ran on
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or platform.machine()
+
+
+def load_average() -> list[float] | None:
+    """The load average over 1, 5 and 15 minutes (None where the system has none)."""
+    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
+
+
+def inductor_cache() -> dict:
+    """The folder of inductor's on-disk cache of compiled kernels (``TORCHINDUCTOR_CACHE_DIR``, else its
+    default) and its state: ``absent``, ``empty`` or ``N entries`` (top-level). A compilation on a
+    cold cache costs several times one on a warm cache."""
+    path = os.environ.get("TORCHINDUCTOR_CACHE_DIR") or os.path.join(
+        tempfile.gettempdir(), "torchinductor_" + "".join(c if c.isalnum() else "_" for c in _user()))
+    try:
+        entries = len(os.listdir(path))
+    except FileNotFoundError:
+        return {"path": path, "state": "absent"}
+    except OSError:
+        return {"path": path, "state": "unreadable"}
+    return {"path": path, "state": f"{entries} entries" if entries else "empty"}
+
+
+def _user() -> str:
+    try:
+        import getpass
+
+        return getpass.getuser()
+    except Exception:  # noqa: BLE001 - no user name (a container without one): inductor falls back alike
+        return "unknown"
+
+
+def machine() -> dict:
+    """The machine and the software a benchmark ran on, for its JSON result: CPU model, cores, torch
+    threads and ``OMP_NUM_THREADS``, the versions of Python, torch, Lightning, MuJoCo and jax (None where
+    not installed), the inductor cache (``inductor_cache``) and the load average now."""
+    torch = sys.modules.get("torch")
+    return {"cpu": _cpu_model(), "machine": platform.machine(), "cores": os.cpu_count(),
+            "torch_threads": torch.get_num_threads() if torch is not None else None,
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "python": platform.python_version(),
+            "torch": _version("torch"), "lightning": _version("lightning"), "mujoco": _version("mujoco"),
+            "jax": _version("jax"), "inductor_cache": inductor_cache(), "load_average": load_average()}
+
+
+def machine_header(m: dict | None = None) -> str:
+    """One line for a report: ``machine()``'s CPU, threads, versions, cache and load."""
+    m = machine() if m is None else m
+    versions = ", ".join(f"{name} {m[key]}" for name, key in (("Python", "python"), ("torch", "torch"),
+                                                               ("lightning", "lightning"), ("mujoco", "mujoco"),
+                                                               ("jax", "jax")) if m.get(key))
+    cache = m.get("inductor_cache") or {}
+    load = ", ".join(str(x) for x in m["load_average"]) if m.get("load_average") else "n/a"
+    return (f"{m['cpu']} ({m['cores']} cores), torch threads {m['torch_threads']}, OMP_NUM_THREADS="
+            f"{m['omp_num_threads']}; {versions}; inductor cache {cache.get('path')} ({cache.get('state')}); "
+            f"load average (1, 5, 15 min) {load}")

@@ -24,14 +24,14 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, add_output_file, wrote
+from _common import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(name: str, overrides: list[str], args) -> dict:
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.training.lightning_cli import LNNCLI, TRAINER_DEFAULTS
+    from lnn_torch.training import LNNCLI, TRAINER_DEFAULTS
 
     if args.steps:  # a step budget: deterministic, and immune to other load on the machine
         budget = [f"--trainer.max_steps={args.steps}", "--trainer.max_epochs=100000"]
@@ -75,17 +75,20 @@ def parser() -> argparse.ArgumentParser:
 
 def main() -> None:
     args = parser().parse_args()
+    from lnn_torch.evaluation import table_header, table_row
+
     torch.set_num_threads(args.threads)
     rows = [run(s[0], s[1:], args) for s in args.setting]
     budget = f"{args.steps} steps" if args.steps else f"{args.minutes:g} min"
     lines = [f"config {Path(args.config).name}, {budget} of training per setting on {args.threads} threads, "
              f"seed {args.seed} unless a setting sets one; test split; RK4 rollouts (data dt) of {args.rollouts} "
              f"test trajectories over {args.rollout_seconds:g} s", "",
-             "| setting | steps | train time (s) | test acc. rel. L2 | median time to 0.1 rad (s) "
-             "| mean true-energy drift | skipped steps |", "|---|---|---|---|---|---|---|"]
+             *table_header(["setting", "steps", "train time (s)", "test acc. rel. L2", "median time to 0.1 rad (s)",
+                            "mean true-energy drift", "skipped steps"])]
     for r in rows:
-        lines.append(f"| {r['name']} | {r['steps']} | {r['train_seconds']:.0f} | {r['test/acc_rel_err']:.4f} | "
-                     f"{r['test/divergence_time']:.2f} | {r['test/energy_drift']:.2e} | {r['skipped_steps']} |")
+        lines.append(table_row([r["name"], r["steps"], f"{r['train_seconds']:.0f}", f"{r['test/acc_rel_err']:.4f}",
+                                f"{r['test/divergence_time']:.2f}", f"{r['test/energy_drift']:.2e}",
+                                r["skipped_steps"]]))
     table = "\n".join(lines)
     print("\n" + table)
     if args.output:

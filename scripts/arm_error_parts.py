@@ -21,16 +21,16 @@ import json
 from pathlib import Path
 
 import torch
-from _cli import ROOT, HelpFormatter, add_output_dir, wrote
+from _common import ROOT, HelpFormatter, add_output_dir, wrote
 
 BANDS = ((0.0, 0.5), (0.5, 1.5), (1.5, 2.5), (2.5, 3.0))  # payload mass bands (kg); the last one closed
 
 
 def parts(model, q, qd, qdd, params) -> dict:
     """The model's torque parts (N m, ``(N, dof)`` each): inertial, gravity, Coriolis and friction."""
-    M, g = model.mass_matrix_si(q, params), model.gravity_si(q, params)
+    M, g = model.mass_matrix(q, params), model.gravity(q, params)
     return {"inertial (M qdd)": (M @ qdd[..., None])[..., 0], "gravity": g,
-            "Coriolis and centrifugal": model.bias_si(q, qd, params) - g, "friction": model.friction_si(q, qd, params)}
+            "Coriolis and centrifugal": model.bias(q, qd, params) - g, "friction": model.friction(q, qd, params)}
 
 
 def rms(x: torch.Tensor) -> list[float]:
@@ -49,10 +49,9 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "error_parts"),
                    "the folder of error_parts.md and error_parts.json")
     args = ap.parse_args()
-    from lnn_torch.data import read_dataset
+    from lnn_torch import load_model
+    from lnn_torch.data import points, read_dataset
     from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.identification.arm_comparison import points
-    from lnn_torch.training.checkpoints import load_model
 
     torch.set_grad_enabled(False)
     module = load_model(args.model)
@@ -93,23 +92,24 @@ def main() -> None:
 
 
 def markdown(r: dict, threshold: float) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     dof = len(r["reference_rms"]["gravity"])
-    joints = " | ".join(f"joint {j + 1}" for j in range(dof))
-    cells = " | ".join
+    joints = [f"joint {j + 1}" for j in range(dof)]
 
     lines = [f"`{r['model']}` against `{r['reference']}` on {r['num_test']} test trajectories of `{r['data']}` "
              f"(`{r['command']}`): acceleration error {100 * r['acc_rel_err']['total']:.2f} %, median time within "
              f"{threshold:g} rad {r['time_to_threshold']['median']:.2f} s.", "",
              "Torque error of each part, RMS per joint (N m); the reference's part in the first row of each:", "",
-             f"| part | payload | {joints} |", "|---|---|" + "---|" * dof]
+             *table_header(["part", "payload", *joints])]
     for name, by_band in r["error_rms"].items():
-        lines.append(f"| {name} | (the reference's size) | {cells(f'{v:.3g}' for v in r['reference_rms'][name])} |")
+        lines.append(table_row([name, "(the reference's size)", *(f"{v:.3g}" for v in r["reference_rms"][name])]))
         for band, v in by_band.items():
-            lines.append(f"| {name} | {band} | {cells(f'{x:.3g}' for x in v)} |")
+            lines.append(table_row([name, band, *(f"{x:.3g}" for x in v)]))
     first = ", ".join(f"{j} {n}" for j, n in r["first_joint_over"].items())
     lines += ["", f"Open loop: the joint that first leaves {threshold:g} rad, per trajectory: {first}. Angle error, "
-              "RMS over the trajectories (rad):", "", f"| time | {joints} |", "|---|" + "---|" * dof]
-    lines += [f"| {t} | {cells(f'{x:.3g}' for x in v)} |" for t, v in r["angle_error_rms"].items()]
+              "RMS over the trajectories (rad):", "", *table_header(["time", *joints])]
+    lines += [table_row([t, *(f"{x:.3g}" for x in v)]) for t, v in r["angle_error_rms"].items()]
     return "\n".join(lines) + "\n"
 
 

@@ -21,7 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "robot_arm.yaml"
@@ -147,15 +147,17 @@ def main() -> None:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
+    from lnn_torch.evaluation import table_header, table_row
+
     marks = (5000, 10000, 15000, 20000, 60000, 100000, 160000, 220000, 280000)
     head = [f"val. acc. error at {' / '.join(f'{k // 1000}k' for k in marks)} steps", "open loop (s), last"]
-    print("| setting | " + " | ".join(head) + " |\n|---|---|---|")
+    print("\n".join(table_header(["setting", *head])))
     for name, r in result.items():
         acc = dict((int(s), v) for s, v in r["curves"].get("val/acc_rel_err", []))
         cells = " / ".join(f"{100 * acc[k - 1]:.1f} %" if k - 1 in acc else "–"
                            for k in marks)
         div = r["curves"].get("val/divergence_time", [[0, float("nan")]])[-1][1]
-        print(f"| {name} | {cells} | {div:.2f} |")
+        print(table_row([name, cells, f"{div:.2f}"]))
     wrote(out / "curves.json", out / "curves.png")
 
 

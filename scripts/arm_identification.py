@@ -38,15 +38,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def observations(args):
     """Noise-free and noisy observations of ``--payloads`` payloads: dict of arrays ``(N, T, .)``."""
-    from lnn_torch.data import DatasetSpec
-    from lnn_torch.data.generate import generate_arrays
+    from lnn_torch.data import DatasetSpec, generate_arrays
 
     spec = DatasetSpec(scene="robot_arm", num_trajectories=args.payloads, duration=args.seconds, dt=args.dt,
                        seed=args.seed, split=(1.0, 0.0, 0.0))
@@ -59,9 +58,8 @@ def observations(args):
 def smoothed(arrays, dt):
     """Velocities, accelerations and torques through one smoothing of the noisy angles (and torques)."""
     from lnn_torch.data import derivatives
-    from lnn_torch.identification.learned import NOISY
 
-    s = derivatives.settings({**NOISY, "use_measured_velocity": False})
+    s = derivatives.settings({**derivatives.NOISY, "use_measured_velocity": False})
     qd, qdd, tau = [], [], []
     for i in range(len(arrays["q_noisy"])):
         a, b = derivatives.estimate(arrays["q_noisy"][i], dt, s)
@@ -71,40 +69,6 @@ def smoothed(arrays, dt):
     # the smoothed angles themselves: the smoothing that smooth_inputs applies to the torques
     q = np.stack([derivatives.smooth_inputs(x, dt, s) for x in arrays["q_noisy"]])
     return q, np.stack(qd), np.stack(qdd), np.stack(tau), derivatives.describe(s)
-
-
-def least_squares_payloads(q, qd, qdd, tau, edge: int):
-    """Per observation, on the engine's payload regressor ``Y`` (``tau - tau_arm = Y pi``,
-    ``RobotArm.linear_regressor``): the classical
-    linear least squares of the ten inertial parameters (``m = pi_0``, ``c = pi_1:4 / m``), and the
-    point-mass fit (the payloads are point masses: ``pi(m, c)``, four unknowns, Gauss-Newton from the
-    linear estimate). Returns ``{"linear": (mass, com), "point mass": (mass, com)}``."""
-    from lnn_torch.robots.mujoco_arm import MujocoArm
-    from lnn_torch.systems import get_system
-
-    system = get_system("robot_arm")
-    out = {"linear": ([], []), "point mass": ([], [])}
-    for i in range(len(q)):
-        sl = slice(edge, len(q[i]) - edge)  # the smoothing's ends are least reliable
-        Y, b, _ = system.linear_regressor(q[i][sl], qd[i][sl], qdd[i][sl], tau[i][sl])  # the scene's classical form
-        pi = torch.linalg.lstsq(Y, b[:, None]).solution[:, 0]
-        out["linear"][0].append(float(pi[0]))
-        out["linear"][1].append((pi[1:4] / pi[0]).numpy())
-        theta = torch.cat([pi[:1], pi[1:4] / pi[0]])
-
-        def residual(th, Y=Y, b=b):
-            return Y @ MujocoArm.inertial_parameters(th) - b
-
-        for _ in range(20):
-            r = residual(theta)
-            Jr = torch.func.jacrev(residual)(theta)
-            step = torch.linalg.lstsq(Jr, -r[:, None]).solution[:, 0]
-            theta = theta + step
-            if step.abs().max() < 1e-12:
-                break
-        out["point mass"][0].append(float(theta[0]))
-        out["point mass"][1].append(theta[1:4].numpy())
-    return {k: (np.array(m), np.array(c)) for k, (m, c) in out.items()}
 
 
 def errors(mass, com, truth) -> dict:
@@ -119,9 +83,9 @@ def errors(mass, com, truth) -> dict:
 
 
 def model_payloads(checkpoint, t, q_noisy, tau, starts, stride):
-    from lnn_torch.identification.learned import identify_batch
+    from lnn_torch import load_model
+    from lnn_torch.identification import identify_batch
     from lnn_torch.systems import get_system
-    from lnn_torch.training.checkpoints import load_model
 
     module = load_model(checkpoint)
     system = get_system("robot_arm")
@@ -132,6 +96,8 @@ def model_payloads(checkpoint, t, q_noisy, tau, starts, stride):
 
 
 def payload_study(args) -> dict:
+    from lnn_torch.identification import payload_least_squares
+
     spec, arrays = observations(args)
     truth = arrays["params"]
     t = arrays["t"]
@@ -139,12 +105,12 @@ def payload_study(args) -> dict:
     edge = int(round(0.1 / args.dt))
     rows = {}
     start = time.perf_counter()
-    fits = least_squares_payloads(q, qd, qdd, tau, edge)
+    fits = payload_least_squares(q, qd, qdd, tau, edge)
     seconds = (time.perf_counter() - start) / 2
     rows["least squares, true arm, point mass (ceiling)"] = {**errors(*fits["point mass"], truth), "seconds": seconds}
     rows["least squares, true arm, ten inertial parameters"] = {**errors(*fits["linear"], truth), "seconds": seconds}
     # noise-free, exact accelerations: what the regressor gives without noise (a check of the study)
-    exact = least_squares_payloads(arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau"], 0)
+    exact = payload_least_squares(arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau"], 0)
     rows["least squares, true arm, noise-free (check)"] = errors(*exact["linear"], truth)
     for name, ckpt in (("film_lnn", args.film_lnn), ("grey box", args.grey_box)):
         if ckpt:
@@ -156,11 +122,11 @@ def payload_study(args) -> dict:
 
 
 def base_parameter_study(args) -> dict:
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
-    from lnn_torch.robots import kinematics, regressor
-    from lnn_torch.robots.mujoco_arm import MujocoArm
+    from lnn_torch.identification import base_least_squares
+    from lnn_torch.robots import MujocoArm, kinematics, regressor
     from lnn_torch.systems import get_system
-    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.perturbed_data)
     system = get_system("robot_arm", **data.spec.get("scene_config", {}))
@@ -189,7 +155,7 @@ def base_parameter_study(args) -> dict:
         pis["grey box (learned)"] = regressor.parameter_vector(rep["pseudo_inertia"], rep["armature"],
                                                                b.reshape(-1).double())
     betas = {k: base["map"] @ v.detach().numpy() for k, v in pis.items()}
-    betas["least squares (ceiling)"] = regressor.least_squares(Y, tau, base)
+    betas["least squares (ceiling)"] = base_least_squares(Y, tau, base)
     truth = betas["truth (perturbed engine)"]
     tau_np = tau.numpy().reshape(-1)
     YB = Y.numpy()[:, base["independent"]]
@@ -208,6 +174,8 @@ def base_parameter_study(args) -> dict:
 
 
 def markdown(result: dict) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     lines = ["# Identification on the 7-joint arm", "", f"Command: `{result['command']}`", ""]
     p = result.get("payload")
     if p:
@@ -215,14 +183,14 @@ def markdown(result: dict) -> str:
                   f"{p['payloads']} held-out payloads (mass 0-3 kg, centre of mass within the scene's box), the "
                   f"scene's excitation at {1 / p['dt']:g} Hz, encoder noise {p['noise_rad']:g} rad; derivatives: "
                   f"{p['derivatives']} (every method sees the same estimates).", "",
-                  "| method | mass error, median (q75) | centre-of-mass error, median (q75), mm | "
-                  "payloads >= 0.5 kg: mass / com median | time (s) |", "|---|---|---|---|---|"]
+                  *table_header(["method", "mass error, median (q75)", "centre-of-mass error, median (q75), mm",
+                                 "payloads >= 0.5 kg: mass / com median", "time (s)"])]
         for name, r in p["rows"].items():
-            lines.append(f"| {name} | {100 * r['mass_rel_median']:.2f} % ({100 * r['mass_rel_q75']:.2f} %) | "
-                         f"{r['com_mm_median']:.2f} ({r['com_mm_q75']:.2f}) | "
-                         f"{100 * r['mass_rel_median_heavy']:.2f} % / "
-                         f"{r['com_mm_median_heavy']:.2f} mm ({r['num_heavy']}) | "
-                         f"{r.get('seconds', float('nan')):.1f} |")
+            lines.append(table_row([name, f"{100 * r['mass_rel_median']:.2f} % ({100 * r['mass_rel_q75']:.2f} %)",
+                                    f"{r['com_mm_median']:.2f} ({r['com_mm_q75']:.2f})",
+                                    f"{100 * r['mass_rel_median_heavy']:.2f} % / "
+                                    f"{r['com_mm_median_heavy']:.2f} mm ({r['num_heavy']})",
+                                    f"{r.get('seconds', float('nan')):.1f}"]))
         lines.append("")
     b = result.get("base")
     if b:
@@ -232,12 +200,11 @@ def markdown(result: dict) -> str:
                   f"regressor has rank {b['rank']} of {b['num_parameters']} parameters (ten per link, armature and "
                   f"damping per joint); no number for {len(b['unidentified'])} that move no torque "
                   f"({', '.join(b['unidentified'])}).", "",
-                  "| parameters | base-parameter error vs truth, median / max "
-                  "| torque nMSE on these trajectories (fraction) |",
-                  "|---|---|---|"]
+                  *table_header(["parameters", "base-parameter error vs truth, median / max",
+                                 "torque nMSE on these trajectories (fraction)"])]
         for name, r in b["rows"].items():
-            lines.append(f"| {name} | {100 * r['base_rel_err_median']:.2f} % / {100 * r['base_rel_err_max']:.1f} % | "
-                         f"{r['torque_nmse']:.2e} |")
+            lines.append(table_row([name, f"{100 * r['base_rel_err_median']:.2f} % / "
+                                          f"{100 * r['base_rel_err_max']:.1f} %", f"{r['torque_nmse']:.2e}"]))
     return "\n".join(lines) + "\n"
 
 

@@ -20,7 +20,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = (1.0, 1.5, 2.0)  # open-loop times (s) whose acceleration error the line gives
@@ -49,6 +49,8 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "robot_arm" / "film_lnn" / "open_loop"),
                    "the folder of open_loop.md and open_loop.png")
     args = ap.parse_args()
+    from lnn_torch.evaluation import table_header, table_row
+
     files = [*args.results, *args.physics]
     table = rows(files)
     physics = set(rows(args.physics))
@@ -62,17 +64,16 @@ def main() -> None:
     command = " ".join(args.results) + (f" --physics {' '.join(args.physics)}" if args.physics else "")
     lines = [f"Held-out rows of {', '.join(f'`{p}`' for p in files)}; "
              f"`python scripts/arm_open_loop_vs_error.py {command}`.", "",
-             "| model | acceleration rel. L2 | open loop within 0.1 rad, median | the line's time |",
-             "|---|---|---|---|"]
+             *table_header(["model", "acceleration rel. L2", "open loop within 0.1 rad, median", "the line's time"])]
     for name, (e, s) in sorted(table.items(), key=lambda kv: -kv[1][0]):
-        lines.append(f"| {name} | {100 * e:.3g} % | {s:.2f} s | {a + b * math.log(1 / e):.2f} s |")
+        lines.append(table_row([name, f"{100 * e:.3g} %", f"{s:.2f} s", f"{a + b * math.log(1 / e):.2f} s"]))
     left_out = f" (the {len(physics)} physics models' rows left out)" if physics else ""
     lines += ["", f"The line through the {len(learned)} learned rows{left_out}: "
               f"t = {a:.3f} s + {b:.3f} s x ln(1 / error) "
               f"(residuals' RMS {np.sqrt(np.mean(resid ** 2)):.3f} s): {b * math.log(2):.3f} s more for each "
               "halving of the acceleration error.", "",
-              "| open loop asked for | acceleration error the line gives |", "|---|---|"]
-    lines += [f"| {s:.1f} s | {100 * math.exp(-(s - a) / b):.2g} % |" for s in TARGETS]
+              *table_header(["open loop asked for", "acceleration error the line gives"])]
+    lines += [table_row([f"{s:.1f} s", f"{100 * math.exp(-(s - a) / b):.2g} %"]) for s in TARGETS]
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "open_loop.md").write_text("\n".join(lines) + "\n")

@@ -23,8 +23,7 @@ import argparse
 import copy
 
 import torch
-from _cli import ROOT, HelpFormatter, add_output_file
-from arm_results import add_row, evaluate, save  # this folder's evaluation of arm models
+from _common import ROOT, HelpFormatter, add_output_file, add_row, evaluate_arm, save_arm_table
 
 NOISE = (1e-4, 1.5e-4, 3e-4, 1e-3, 2e-3)
 
@@ -42,8 +41,8 @@ def main() -> None:
                     "the Markdown table (the JSON is written beside it)")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
-    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.data)
     test = data.trajectories("test", args.test_trajectories)
@@ -64,8 +63,8 @@ def main() -> None:
             with torch.no_grad():
                 raw.add_(s * noise.to(raw.dtype))
             add_row(result, f"grey box, inertials perturbed (noise {s:g}, seed {seed})",
-                    evaluate(module.model, module.system, test, args.horizon))
-    save(result, args.output)
+                    evaluate_arm(module.model, module.system, test, args.horizon))
+    save_arm_table(result, args.output)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 
 def parser() -> argparse.ArgumentParser:
@@ -36,7 +36,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main() -> None:
     args = parser().parse_args()
-    from lnn_torch.data.export_csv import export_recordings
+    from lnn_torch.data import export_recordings
 
     config = args.config or str(Path(args.output_dir) / "import.yaml")
     paths, config_path = export_recordings(args.data, args.output_dir, config, prefix=args.prefix,

@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, add_output_file, wrote
+from _common import HelpFormatter, add_output_file, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
@@ -70,6 +70,8 @@ def torque_nmse(module, data, stride: int) -> dict:
 
 
 def markdown(result: dict) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     joints = result["joints"]
     lines = [f"Test split ({result['num_test']} trajectories, every {result['stride']}th point); the reference: "
              f"the recorded velocities with the engine's accelerations (`{result['scene_data']}`), or velocities and "
@@ -77,9 +79,9 @@ def markdown(result: dict) -> str:
              "the recorded torques. The two files' test splits differ by at most "
              f"{max(result['signal_difference'].values()):.3g} (q, qd, tau, params). "
              f"Command: `{result['command']}`", "",
-             "| model | trained on | torque nMSE, engine's accelerations | per joint (1-7) | torque nMSE, "
-             "estimated accelerations | ratio to the model's first row (engine / estimated) | largest weight "
-             "difference to it |", "|---|---|---|---|---|---|---|"]
+             *table_header(["model", "trained on", "torque nMSE, engine's accelerations", "per joint (1-7)",
+                            "torque nMSE, estimated accelerations",
+                            "ratio to the model's first row (engine / estimated)", "largest weight difference to it"])]
     first: dict = {}  # each model's first row, the reference of its ratios
     for name, r in result["rows"].items():
         model, _, source = (s.strip() for s in name.partition("|"))
@@ -92,16 +94,17 @@ def markdown(result: dict) -> str:
         per_joint = " / ".join(f"{100 * r['engine'][j]:.3g}" for j in joints) + " %"
         weights = r["weight_difference"]
         weights = "—" if weights is None else f"{weights:.3g}"
-        lines.append(f"| {model} | {source} | **{100 * true:.4g} %** | {per_joint} | {100 * est:.4g} % | {ratio} | "
-                     f"{weights} |")
+        lines.append(table_row([model, source, f"**{100 * true:.4g} %**", per_joint, f"{100 * est:.4g} %", ratio,
+                                weights]))
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     args = parser().parse_args()
     torch.set_num_threads(1)
-    from lnn_torch.data import TrajectoryDataModule, derivatives, read_dataset
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch import load_model
+    from lnn_torch.data import derivatives, read_dataset
+    from lnn_torch.training import TrajectoryDataModule
 
     targets = derivatives.settings(json.loads(args.targets))
     scene_file = read_dataset(args.scene_data)

@@ -15,31 +15,19 @@ Writes the table (Markdown) and its JSON beside it.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, add_output_file, wrote
+from _common import HelpFormatter, add_output_file, add_row, evaluate_arm, save_arm_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def evaluate(model, system, test, horizon: float) -> dict:
-    from lnn_torch.evaluation import evaluate_model
-
-    r = evaluate_model(model, system, test, sections=("accelerations", "torques", "rollouts", "energy"),
-                       accel_stride=5, horizon=horizon, thresholds=(0.1,))
-    return {"acc_rel_err": r["acc_rel_err"]["total"], "torque_nmse": r.get("torque_nmse"),
-            "torque_nrmse": r.get("torque_nrmse"), "time_to_0.1": r["divergence_time@0.1"]["model"],
-            "power_balance_mean": r["power_balance_error"]["mean"]}
-
-
 def description_row(system, test, horizon: float) -> dict:
     """The shipped (unperturbed) description in the engine against a perturbed arm's data."""
-    from lnn_torch.evaluation import ClosedForm, evaluate_model
-    from lnn_torch.evaluation.metrics import normalized_rmse
-    from lnn_torch.robots.mujoco_arm import MujocoArm
-    from lnn_torch.systems import get_system
+    from lnn_torch.evaluation import evaluate_model, normalized_rmse
+    from lnn_torch.robots import MujocoArm
+    from lnn_torch.systems import ClosedForm, get_system
 
     nominal = get_system("robot_arm", description=system.description)
     r = evaluate_model(ClosedForm(nominal), system, test, sections=("accelerations", "rollouts", "energy"),
@@ -59,43 +47,6 @@ def description_row(system, test, horizon: float) -> dict:
             "time_to_0.1": r["divergence_time@0.1"]["model"], "power_balance_mean": r["power_balance_error"]["mean"]}
 
 
-def markdown(result: dict) -> str:
-    split = result.get("split", "test").capitalize()
-    lines = [f"{split} split of `{result['data']}` ({result['num_test']} trajectories of {result['seconds']:g} s, "
-             f"every 5th point for the errors); rollouts with RK4 at the data's dt, driven by the recorded torques, "
-             f"from each trajectory's first state, over {result['horizon']:g} s. Command: `{result['command']}`", "",
-             "| model | torque nMSE, mean over joints | torque nMSE per joint (1-7) | acceleration rel. L2 | "
-             "time within 0.1 rad, median (q25) | power-balance error, mean |", "|---|---|---|---|---|---|"]
-    for name, r in result["rows"].items():
-        nmse = r["torque_nmse"]
-        if nmse is None:  # a model without inverse dynamics (black-box LNN, direct MLP)
-            mean, joints = "n/a", "n/a (no inverse dynamics)"
-        else:
-            mean = f"**{100 * nmse['mean']:.3g} %**"
-            joints = " / ".join(f"{100 * v:.3g}" for k, v in nmse.items() if k != "mean") + " %"
-        t = r["time_to_0.1"]
-        cap = "≥ " if t["median"] >= result["horizon"] - 1e-9 else ""
-        lines.append(f"| {name} | {mean} | {joints} | {100 * r['acc_rel_err']:.3g} % | "
-                     f"{cap}{t['median']:.2f} s ({t['q25']:.2f}) | {r['power_balance_mean']:.2e} |")
-    return "\n".join(lines) + "\n"
-
-
-def add_row(result: dict, name: str, row: dict) -> None:
-    """Add a model's row to ``result`` and print it (the torque's root-mean-square errors left out)."""
-    result["rows"][name] = row
-    print(name, json.dumps({k: v for k, v in row.items() if k != "torque_nrmse"}), flush=True)
-
-
-def save(result: dict, output) -> None:
-    """Write the table (Markdown) to ``output`` and its JSON beside it; print the table and the paths."""
-    out = Path(output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(markdown(result))
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    print(markdown(result))
-    wrote(out, out.with_suffix(".json"))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--data", required=True, help="the arm's dataset (.h5); its test split is used (--split)")
@@ -110,9 +61,9 @@ def main() -> None:
                     "the Markdown table (the JSON is written beside it)")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.systems import get_system
-    from lnn_torch.training.checkpoints import load_model
 
     data = read_dataset(args.data)
     spec = data.spec
@@ -131,8 +82,8 @@ def main() -> None:
     for item in args.model:
         name, _, path = item.partition("=")
         module = load_model(path)
-        add_row(result, name, evaluate(module.model, module.system, test, args.horizon))
-    save(result, args.output)
+        add_row(result, name, evaluate_arm(module.model, module.system, test, args.horizon))
+    save_arm_table(result, args.output)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import ROOT, HelpFormatter, add_output_dir, wrote
+from _common import ROOT, HelpFormatter, add_output_dir, wrote
 
 EFFECTS = {"friction": {}, "spring": {}, "cogging": {}, "sensor_offset": {}}
 GREY_BOX = {"kinetic": {"spatial": {}}, "potential": {"spatial": {}}}
@@ -64,7 +64,7 @@ def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = N
     fitted grey box, whose weights start the run and stay as they are (only the force residual trains:
     ``init_from``, ``train_only: residual_force``)."""
     from lnn_torch import LNNModule
-    from lnn_torch.training.lightning_cli import make_trainer
+    from lnn_torch.training import make_trainer
 
     torch.manual_seed(args.seed)
     module = LNNModule(scene="robot_arm", scene_config=scene_config, variant="film_lnn", eps=0.0,
@@ -84,7 +84,7 @@ def fit(model_options: dict, dm, scene_config: dict, args, save: Path | None = N
 # ---------------------------------------------------------------------------- evaluation
 def points(data, stride: int) -> dict:
     """Every ``stride``-th point of a split's trajectories, flattened: q, qd, qdd, tau ``(N, 7)``, params."""
-    from lnn_torch.identification.arm_comparison import points as flatten
+    from lnn_torch.data import points as flatten
 
     return dict(zip(("q", "qd", "qdd", "tau", "params"), flatten(data, stride), strict=True))
 
@@ -134,11 +134,11 @@ def rollout_times(model, system, test, horizon: float) -> dict:
 def evaluate(name: str, module, system, split: dict, test, args) -> dict:
     """A trained model's row: torque nMSE per joint, the effects still in its torque error, the rollouts,
     the residuals' torque shares."""
-    from lnn_torch.networks.shares import torque_shares
+    from lnn_torch.networks import torque_shares
 
     model = module.model.double()
     with torch.no_grad():
-        pred = model.inverse_dynamics_si(split["q"], split["qd"], split["qdd"], split["params"])
+        pred = model.inverse(split["q"], split["qd"], split["qdd"], split["params"])
     row = {"torque_nmse": nmse(pred, split["tau"]),
            "effects": effect_shares(split["tau"] - pred, split["effects"], split["tau"]),
            "shares": torque_shares(model, split["q"], split["qd"], split["qdd"], split["params"], split["tau"]),
@@ -150,8 +150,7 @@ def evaluate(name: str, module, system, split: dict, test, args) -> dict:
 
 def description_row(system, split: dict, test, args) -> dict:
     """The engine's arm without the effects (the description, nothing learned)."""
-    from lnn_torch.evaluation import ClosedForm
-    from lnn_torch.systems import get_system
+    from lnn_torch.systems import ClosedForm, get_system
 
     nominal = get_system("robot_arm")
     pred = nominal.arm.inverse(split["q"], split["qd"], split["qdd"], split["params"])
@@ -162,51 +161,48 @@ def description_row(system, split: dict, test, args) -> dict:
 
 def validation_nmse(module, val: dict) -> float:
     with torch.no_grad():
-        pred = module.model.double().inverse_dynamics_si(val["q"], val["qd"], val["qdd"], val["params"])
+        pred = module.model.double().inverse(val["q"], val["qd"], val["qdd"], val["params"])
     return float(np.mean(nmse(pred, val["tau"])))
 
 
 # ---------------------------------------------------------------------------- report
-def pct(x: float) -> str:
-    return f"{100 * x:.3g} %"
-
-
 def markdown(result: dict) -> str:
+    from lnn_torch.evaluation import pct, table_header, table_row
+
     rows = result["rows"]
     lines = [f"Test split of `{result['data']}` ({result['num_test']} trajectories of {result['duration']:g} s, "
              f"every {result['stride']}th point for the torques); rollouts with RK4 at the data's dt, driven by the "
              f"recorded torques, over {result['horizon']:g} s. Effects (seed {result['effects_seed']}): "
              f"{', '.join(result['effects'])}, defaults. Training: {result['steps']} steps each, batch "
              f"{result['batch']}, one thread. Command: `{result['command']}`", "",
-             "| model | torque nMSE, mean over joints | per joint (1-7) | validation torque nMSE | time within 0.1 "
-             "rad, median (q25) | training |", "|---|---|---|---|---|---|"]
+             *table_header(["model", "torque nMSE, mean over joints", "per joint (1-7)", "validation torque nMSE",
+                            "time within 0.1 rad, median (q25)", "training"])]
     for name, r in rows.items():
         t = r["time_to_0.1"]
         val = pct(r["val_nmse"]) if "val_nmse" in r else "-"
         train = f"{r['train_seconds'] / 60:.1f} min" if "train_seconds" in r else "-"
-        lines.append(f"| {name} | **{pct(np.mean(r['torque_nmse']))}** | "
-                     f"{' / '.join(f'{100 * v:.3g}' for v in r['torque_nmse'])} % | {val} | "
-                     f"{t['median']:.2f} s ({t['q25']:.2f}) | {train} |")
+        lines.append(table_row([name, f"**{pct(np.mean(r['torque_nmse']))}**",
+                                f"{' / '.join(f'{100 * v:.3g}' for v in r['torque_nmse'])} %", val,
+                                f"{t['median']:.2f} s ({t['q25']:.2f})", train]))
     lines += ["", result["selection"], "", "Each effect before and after: its torque RMS per joint (N m), and the "
               "share of it each model's torque error still holds (1 = all of it missed, 0 = captured; least "
               "squares per joint, pooled weighted by the effect's variance), with its part of the model's torque "
               "nMSE (mean over joints) in brackets; `rest`: the nMSE no effect explains.", "",
-              "| effect | torque RMS per joint (N m) | " + " | ".join(rows) + " |",
-              "|---|---|" + "---|" * len(rows)]
+              *table_header(["effect", "torque RMS per joint (N m)", *rows])]
     for effect, rms in result["effect_rms"].items():
         cells = [f"{r['effects'][effect]['missing']:.3g} ({pct(r['effects'][effect]['nmse'])})" for r in rows.values()]
-        lines.append(f"| {effect} | {' / '.join(f'{v:.3g}' for v in rms)} | " + " | ".join(cells) + " |")
-    lines.append("| rest | | " + " | ".join(pct(r["effects"]["rest"]["nmse"]) for r in rows.values()) + " |")
+        lines.append(table_row([effect, " / ".join(f"{v:.3g}" for v in rms), *cells]))
+    lines.append(table_row(["rest", "", *(pct(r["effects"]["rest"]["nmse"]) for r in rows.values())]))
     lines += ["", "The torque each residual carries on the test split (RMS per joint, N m; beside the model's torque "
-              "RMS):", "", "| model | residual | RMS per joint (N m) | share of the model's torque, mean |",
-              "|---|---|---|---|"]
+              "RMS):", "", *table_header(["model", "residual", "RMS per joint (N m)",
+                                          "share of the model's torque, mean"])]
     for name, r in rows.items():
         shares = r.get("shares")
         if not shares:
             continue
-        lines.append(f"| {name} | (model's torque) | {' / '.join(f'{v:.3g}' for v in shares['model_rms'])} | |")
+        lines.append(table_row([name, "(model's torque)", " / ".join(f"{v:.3g}" for v in shares["model_rms"]), ""]))
         for res, s in shares["residuals"].items():
-            lines.append(f"| {name} | {res} | {' / '.join(f'{v:.3g}' for v in s['rms'])} | {pct(s['share_mean'])} |")
+            lines.append(table_row([name, res, " / ".join(f"{v:.3g}" for v in s["rms"]), pct(s["share_mean"])]))
     return "\n".join(lines) + "\n"
 
 
@@ -242,8 +238,9 @@ def main() -> None:
     args.horizon = args.duration if args.horizon is None else args.horizon
     torch.set_num_threads(args.threads)
 
+    from lnn_torch import TrajectoryDataModule
+    from lnn_torch.evaluation import pct
     from lnn_torch.systems import get_system
-    from lnn_torch.training.datamodule import TrajectoryDataModule
 
     scene_config = {"unmodelled": {"seed": args.effects_seed, **EFFECTS}}
     path = Path(args.data or ROOT / "data" / f"robot_arm_unmodelled_{args.trajectories}x{args.duration:g}s.h5")

@@ -25,18 +25,14 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import ROOT, HelpFormatter, add_output_dir, wrote
+from _common import ROOT, HelpFormatter, add_output_dir, wrote
 
-from lnn_torch.perf import median_seconds
-
-sys.path.append(str(ROOT / "benchmarks"))  # the machine header of the timings (benchmarks/timing.py)
-from timing import header  # noqa: E402
+from lnn_torch.perf import machine_header, median_seconds
 
 OUT = ROOT / "results" / "benchmark"
 
@@ -106,7 +102,7 @@ def train(name: str, overrides: dict, scene: str, cfg: dict, args) -> tuple:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.training.lightning_cli import make_trainer
+    from lnn_torch.training import make_trainer
 
     class Curve(L.Callback):
         """Validation error on a fixed sample of validation points against training time (the
@@ -186,7 +182,8 @@ def evaluate_dynamics(name: str, model, system, test, cfg: dict, first_order: bo
     """Rows (one per integrator x dt) of speed and accuracy for one dynamics model: accuracy from
     ``lnn_torch.evaluation.evaluate_model`` (the same pipeline as ``lnn-torch evaluate`` and
     validation), speed timed here on one thread."""
-    from lnn_torch.evaluation import evaluate_model, model_rollout
+    from lnn_torch.evaluation import evaluate_model
+    from lnn_torch.networks import model_rollout
 
     torch.set_num_threads(1)
     base = evaluate_model(model, system, test, sections=("accelerations", "torques"), accel_stride=10)
@@ -269,6 +266,8 @@ def drift_cell(r: dict) -> str:
 
 
 def markdown(result: dict) -> str:
+    from lnn_torch.evaluation import stability_markdown, table_header, table_row
+
     scene = result["scene"]
     lines = [f"### {scene}", "",
              f"{result['machine']}; each variant trained {result['minutes']:g} min on {result['train_threads']} "
@@ -276,27 +275,25 @@ def markdown(result: dict) -> str:
              f"(same data, seed, budget); speed on 1 thread; {result['num_test']} test trajectories, rollouts over "
              f"{result['horizon']:g} s. Command: `{result['command']}`"
              + "".join(f"; then `{c}`" for c in result.get("added", [])), "",
-             "| model | integrator | dt (s) | accel. throughput (states/s) | rollout cost (s / 1000 steps, batch 64) | "
-             f"x closed form | test acc. rel. L2 | time to 0.1 error, median (s) | {energy_label(result)}, mean |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             *table_header(["model", "integrator", "dt (s)", "accel. throughput (states/s)",
+                            "rollout cost (s / 1000 steps, batch 64)", "x closed form", "test acc. rel. L2",
+                            "time to 0.1 error, median (s)", f"{energy_label(result)}, mean"])]
     ceiling = {(r["integrator"], r["dt"]): r for r in result["rows"] if r["model"] == "closed form"}
     for r in result["rows"]:
         if "note" in r:
-            lines.append(f"| {r['model']} | {r['integrator']} | {r['dt']:g} | {r['states_per_s']:.3g} | {r['note']} "
-                         f"| - | {acc_cell(r)} | - | - |")
+            lines.append(table_row([r["model"], r["integrator"], f"{r['dt']:g}", f"{r['states_per_s']:.3g}", r["note"],
+                                    "-", acc_cell(r), "-", "-"]))
             continue
         base = ceiling.get((r["integrator"], r["dt"]), {}).get("rollout_s_per_1000_steps_b64")
         ratio = r["rollout_s_per_1000_steps_b64"] / base if base else None
-        lines.append(f"| {r['model']} | {r['integrator']} | {r['dt']:g} | {r['states_per_s']:.3g} | "
-                     f"{r['rollout_s_per_1000_steps_b64']:.3g} | {fmt(ratio, '.0f')} | {acc_cell(r)} | "
-                     f"{fmt(r.get('divergence_time_median'), '.2f')} | {drift_cell(r)} |")
+        lines.append(table_row([r["model"], r["integrator"], f"{r['dt']:g}", f"{r['states_per_s']:.3g}",
+                                f"{r['rollout_s_per_1000_steps_b64']:.3g}", fmt(ratio, ".0f"), acc_cell(r),
+                                fmt(r.get("divergence_time_median"), ".2f"), drift_cell(r)]))
     lines += ["", "Training (same budget): steps done, skipped steps, final validation error:", "",
-              "| model | steps | skipped | val. acc. rel. L2 at the end |", "|---|---|---|---|"]
+              *table_header(["model", "steps", "skipped", "val. acc. rel. L2 at the end"])]
     for name, t in result["training"].items():
-        lines.append(f"| {name} | {t['steps']} | {t['skipped_steps']} | {t['curve'][-1][1]:.4f} |")
+        lines.append(table_row([name, t["steps"], t["skipped_steps"], f"{t['curve'][-1][1]:.4f}"]))
     if result.get("stability"):
-        from lnn_torch.evaluation.stability import stability_markdown
-
         lines += ["", f"Stability on hard cases (trained models, RK4, dt = 0.005 s, "
                       f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
                   stability_markdown(result["stability"])]
@@ -304,8 +301,9 @@ def markdown(result: dict) -> str:
 
 
 def plots(result: dict, out: Path) -> list[Path]:
-    from lnn_torch.evaluation.plots import plt
+    from lnn_torch.evaluation import plots as figures
 
+    plt = figures.plt
     scene = result["scene"]
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     for name, t in result["training"].items():
@@ -343,23 +341,23 @@ def plots(result: dict, out: Path) -> list[Path]:
 
 def summary(result: dict, integrator: str = "rk4", dt: float = 0.005) -> str:
     """One row per model: its row at ``integrator``/``dt``, with both costs relative to the closed form."""
+    from lnn_torch.evaluation import table_header, table_row
+
     rows = [r for r in result["rows"] if r["integrator"] == integrator and r["dt"] == dt]
     ceiling = next(r for r in rows if r["model"] == "closed form")
     torques = any(r.get("torque_nrmse") is not None for r in rows)
     lines = [f"**{result['scene']}** ({result['minutes']:g} min of training per model on {result['train_threads']} "
              f"thread(s); {result['num_test']} test trajectories; {integrator}, dt = {dt:g} s, {result['horizon']:g} s "
              f"rollouts; `{result['command']}`)", "",
-             "| model | training steps | test acc. rel. L2 | time to 0.1 error, median (s) | "
-             f"{energy_label(result)}, mean | "
-             + ("torque nRMSE | " if torques else "") + "accel. cost x closed form | rollout cost x closed form |",
-             "|---" * (7 + torques) + "|"]
+             *table_header(["model", "training steps", "test acc. rel. L2", "time to 0.1 error, median (s)",
+                            f"{energy_label(result)}, mean", *(["torque nRMSE"] if torques else []),
+                            "accel. cost x closed form", "rollout cost x closed form"])]
     for r in rows:
         steps = result["training"].get(r["model"], {}).get("steps")
-        lines.append(f"| {r['model']} | {fmt(steps, ',')} | {acc_cell(r)} | "
-                     f"{fmt(r.get('divergence_time_median'), '.2f')} | "
-                     f"{drift_cell(r)} | " + (f"{fmt(r.get('torque_nrmse'), '.4f')} | " if torques else "")
-                     + f"{ceiling['states_per_s'] / r['states_per_s']:.0f} | "
-                     f"{r['rollout_s_per_1000_steps_b64'] / ceiling['rollout_s_per_1000_steps_b64']:.1f} |")
+        lines.append(table_row([r["model"], fmt(steps, ","), acc_cell(r), fmt(r.get("divergence_time_median"), ".2f"),
+                                drift_cell(r), *([fmt(r.get("torque_nrmse"), ".4f")] if torques else []),
+                                f"{ceiling['states_per_s'] / r['states_per_s']:.0f}",
+                                f"{r['rollout_s_per_1000_steps_b64'] / ceiling['rollout_s_per_1000_steps_b64']:.1f}"]))
     return "\n".join(lines) + "\n"
 
 
@@ -372,7 +370,7 @@ def report(out: Path) -> None:
                      f"![{result['scene']} pareto]({result['scene']}_pareto.png)\n")
         short.append(summary(result))
         if result.get("stability"):
-            from lnn_torch.evaluation.stability import stability_pivot
+            from lnn_torch.evaluation import stability_pivot
 
             short += [f"Stability on hard cases (max true-energy drift / (V_max - V_min), RK4, dt = 0.005 s, "
                       f"{result['stability_seconds']:g} s, 8 trajectories per case):", "",
@@ -427,10 +425,10 @@ def main() -> None:
         wrote(out / f"{args.scene}.json", out / f"{args.scene}.md")
         return
     from lnn_torch import LNNModule
-    from lnn_torch.evaluation import ClosedForm, model_rollout
-    from lnn_torch.evaluation.stability import hard_cases, run_hard_cases
+    from lnn_torch.evaluation import hard_cases, run_hard_cases
+    from lnn_torch.networks import model_rollout
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.systems import get_system
+    from lnn_torch.systems import ClosedForm, get_system
 
     THREADS = args.threads
     configure_cpu(args.threads)
@@ -445,7 +443,7 @@ def main() -> None:
     rows_spec = [v for v in variants_for(system, cfg) if args.variants is None or v[0] in args.variants]
     result = {"scene": args.scene, "has_forces": system.has_forces, "minutes": args.minutes,
               "train_threads": args.threads,
-              "machine": header(),
+              "machine": machine_header(),
               "horizon": cfg["horizon"], "energy_weight": args.energy_weight,
               "command": "python scripts/benchmark.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
                                                                    (("scene", args.scene), ("minutes", args.minutes),

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _cli import HelpFormatter, add_output_dir, wrote  # noqa: E402
+from _common import HelpFormatter, add_output_dir, wrote  # noqa: E402
 
 MASKS = {"full": None, "pendubot": (True, False), "acrobot": (False, True)}
 
@@ -50,6 +50,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     from lnn_torch import load_model
     from lnn_torch.control import LQR, calibrate_on, closed_loop, plant_of, wrap
+    from lnn_torch.evaluation import table_header, table_row
 
     args = parser().parse_args(argv)
     torch.set_num_threads(1)
@@ -103,11 +104,10 @@ def main(argv=None) -> int:
              f"parameter sets, {K} starts each within {args.ball:g} rad of the upright, {args.seconds:g} s at "
              f"{args.control_hz:g} Hz; stabilised: both angles within 0.01 rad at the end.", "",
              f"The truth-designed LQR stabilises {100 * result['truth_starts_stabilised']:.1f} % of the starts.", "",
-             "| design | sets where it stabilises every start the truth's LQR does "
-             "| starts stabilised of the truth's |",
-             "|---|---|---|"]
-    lines += [f"| {name} | {100 * r['sets_all_truth_starts_stabilised']:.1f} % | "
-              f"{100 * r['starts_stabilised_of_truths']:.1f} % |" for name, r in rows.items()]
+             *table_header(["design", "sets where it stabilises every start the truth's LQR does",
+                            "starts stabilised of the truth's"])]
+    lines += [table_row([name, f"{100 * r['sets_all_truth_starts_stabilised']:.1f} %",
+                         f"{100 * r['starts_stabilised_of_truths']:.1f} %"]) for name, r in rows.items()]
     lines += ["", f"Calibrated torque scales (model units per N m): median {result['torque_scale_median']:.3g}, "
                   f"range {result['torque_scale_range'][0]:.3g}–{result['torque_scale_range'][1]:.3g} "
                   f"(from {args.calibration_seconds:g} s of random torques per set)."]

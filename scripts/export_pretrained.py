@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, wrote
+from _common import HelpFormatter, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 

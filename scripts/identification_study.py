@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 QUANTITIES = ("l1", "l2", "m2/m1")
 
@@ -32,8 +32,8 @@ def truth_of(params: torch.Tensor) -> dict:
 
 
 def run_case(model, system, tr, seconds: float, noise: float, args, rng) -> dict:
-    from lnn_torch.evaluation import ClosedForm
-    from lnn_torch.identification.learned import identify_batch, least_squares_reference
+    from lnn_torch.identification import identify_batch, least_squares_reference
+    from lnn_torch.systems import ClosedForm
 
     T = int(round(seconds / tr.dt)) + 1
     t = np.arange(T) * tr.dt
@@ -102,8 +102,8 @@ def main() -> None:
         wrote(out / "study.json", out / "study.md", out / "study.png")
         return
 
+    from lnn_torch import load_model
     from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
-    from lnn_torch.training.checkpoints import load_model
 
     generated = [] if Path(args.data).exists() else [args.data]
     if generated:
@@ -132,21 +132,22 @@ def main() -> None:
 
 
 def write_table(cases, path: Path, args) -> None:
+    from lnn_torch.evaluation import pct, table_header, table_row
+
     lines = [f"Median relative error (90th percentile) of the identified quantities; {args.checkpoint}, "
              f"{args.method} fit, {args.starts} starts; beside it the same fit on the true equations (closed form) "
              "and linear least squares on the true equations, from the same positions.", "",
-             "| observation | noise (rad) | trajectories | l1 | l2 | m2/m1 | closed form l1 / l2 / m2/m1 | "
-             "least squares l1 / l2 / m2/m1 | within 2 std | mass scale flagged | s per identification |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             *table_header(["observation", "noise (rad)", "trajectories", *QUANTITIES, "closed form l1 / l2 / m2/m1",
+                            "least squares l1 / l2 / m2/m1", "within 2 std", "mass scale flagged",
+                            "s per identification"])]
     for c in cases:
         s = c["summary"]
-        pct = lambda v: f"{100 * v:.2g} %"  # noqa: E731
-        lines.append(f"| {c['seconds']:g} s | {c['noise']:g} | {c['trajectories']} | "
-                     + " | ".join(f"{pct(s[k]['median'])} ({pct(s[k]['p90'])})" for k in QUANTITIES) + " | "
-                     + " / ".join(pct(s[k]["closed_form_median"]) for k in QUANTITIES) + " | "
-                     + " / ".join(pct(s[k]["least_squares_median"]) for k in QUANTITIES) + " | "
-                     + " / ".join(f"{100 * s[k]['within_2std']:.0f} %" for k in QUANTITIES) + " | "
-                     + f"{100 * c['mass_scale_flagged']:.0f} % | {c['time_per_id']:.2f} |")
+        lines.append(table_row([f"{c['seconds']:g} s", f"{c['noise']:g}", c["trajectories"],
+                                *(f"{pct(s[k]['median'], 2)} ({pct(s[k]['p90'], 2)})" for k in QUANTITIES),
+                                " / ".join(pct(s[k]["closed_form_median"], 2) for k in QUANTITIES),
+                                " / ".join(pct(s[k]["least_squares_median"], 2) for k in QUANTITIES),
+                                " / ".join(f"{100 * s[k]['within_2std']:.0f} %" for k in QUANTITIES),
+                                f"{100 * c['mass_scale_flagged']:.0f} %", f"{c['time_per_id']:.2f}"]))
     path.write_text("\n".join(lines) + "\n")
 
 

@@ -20,25 +20,19 @@ import json
 from pathlib import Path
 
 import numpy as np
-from _cli import HelpFormatter, add_output_file, wrote
+from _common import HelpFormatter, add_output_file, wrote
 
 SAME = ("scene", "scene_json", "robot", "param_names", "targets", "integrator", "substeps", "gravity", "conventions",
         "units")
 
 
 def _read(path: Path) -> tuple[dict, dict, dict]:
-    import h5py
-
-    from lnn_torch.data.hdf5 import OPTIONAL_ARRAYS, read_dataset
+    from lnn_torch.data import read_arrays, read_dataset
 
     info = read_dataset(path)  # checks the format, names the file in its error
     if info.measured:
         raise SystemExit(f"{path} holds imported recordings; only generated files can be joined")
-    with h5py.File(path, "r") as f:
-        arrays = {k: f[k][()] for k in ("t", "q", "qd", "params", *OPTIONAL_ARRAYS) if k in f}
-        splits = {k: f["splits"][k][()] for k in f["splits"]}
-        attrs = dict(f.attrs)
-    return arrays, splits, attrs
+    return read_arrays(info)
 
 
 def join(first: Path, second: Path) -> tuple[dict, dict, dict]:
@@ -81,7 +75,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.output is None:
         ap.error("name the joined file: --output / -o")
-    from lnn_torch.data.hdf5 import check_writable, write_dataset
+    from lnn_torch.data import check_writable, write_dataset
 
     check_writable(args.output, args.overwrite)
     arrays, splits, attrs = join(args.first, args.second)

@@ -24,14 +24,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 SCENE = "actuated_double_pendulum"
 ENCODER = 2 * np.pi / 4096  # a 12-bit encoder's step, rad
@@ -68,6 +66,7 @@ def settings_at(mode: dict, dt: float) -> dict:
 def part_targets(args, out: Path) -> list[Path]:
     """Part 1; the paths it wrote."""
     from lnn_torch.data import DatasetSpec, derivatives, generate_dataset, read_dataset
+    from lnn_torch.evaluation import table_header, table_row
 
     path = Path(args.work) / "targets_1khz.h5"
     generated = [] if path.exists() else [path]
@@ -94,22 +93,23 @@ def part_targets(args, out: Path) -> list[Path]:
     (out / "targets.json").write_text(json.dumps(rows, indent=1))
     lines = ["Relative L2 error of the target accelerations against the exact ones (ends of 0.1 s left out); "
              "noise: position sigma plus 12-bit quantisation, velocity noise 10 sigma rad/s.", "",
-             "| rate | sigma (rad) | " + " | ".join(TARGET_MODES) + " |", "|---|---|" + "---|" * len(TARGET_MODES)]
+             *table_header(["rate", "sigma (rad)", *TARGET_MODES])]
     for rate in args.rates:
         for sigma in args.sigmas:
             cells = []
             for name in TARGET_MODES:
                 r = [x for x in rows if x["rate_hz"] == rate and x["sigma"] == sigma and x["mode"] == name]
                 cells.append(f"{100 * r[0]['acc_rel_err']:.3g} %" if r else "–")
-            lines.append(f"| {rate:g} Hz | {sigma:g} | " + " | ".join(cells) + " |")
+            lines.append(table_row([f"{rate:g} Hz", f"{sigma:g}", *cells]))
     (out / "targets.md").write_text("\n".join(lines) + "\n")
     plot_targets(rows, args, out / "targets.png")
     return [out / "targets.json", out / "targets.md", out / "targets.png", *generated]
 
 
 def plot_targets(rows, args, path: Path) -> None:
-    from lnn_torch.evaluation.plots import plt
+    from lnn_torch.evaluation import plots
 
+    plt = plots.plt
     fig, axes = plt.subplots(1, len(args.rates), figsize=(3.2 * len(args.rates), 3.2), sharey=True, squeeze=False)
     for ax, rate in zip(axes[0], args.rates, strict=True):
         for k, name in enumerate(TARGET_MODES):
@@ -131,9 +131,9 @@ def plot_targets(rows, args, path: Path) -> None:
 def part_training(args, out: Path) -> list[Path]:
     """Part 2; the paths it wrote."""
     from lnn_torch import LNNModule, TrajectoryDataModule
-    from lnn_torch.data import DatasetSpec, generate_dataset, read_dataset
-    from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.training.lightning_cli import make_trainer
+    from lnn_torch.data import DatasetSpec, copy_dataset, generate_dataset, read_dataset
+    from lnn_torch.evaluation import evaluate_model, table_header, table_row
+    from lnn_torch.training import make_trainer
 
     dt = 1.0 / args.rate
     clean = Path(args.work) / f"train_{args.rate:g}hz.h5"
@@ -142,11 +142,10 @@ def part_training(args, out: Path) -> list[Path]:
     if not clean.exists():
         generate_dataset(DatasetSpec(scene=SCENE, num_trajectories=args.train_trajectories, duration=4.0, dt=dt,
                                      seed=12), clean)
-    if not noisy.exists():
-        shutil.copy(clean, noisy)
-        with h5py.File(noisy, "r+") as f:
-            qn, qdn = corrupt(f["q"][...], f["qd"][...], dt, args.sigma, np.random.default_rng(1))
-            f["q"][...], f["qd"][...] = qn, qdn
+    if not noisy.exists():  # the clean file with noisy angles and velocities
+        f = read_dataset(clean)
+        qn, qdn = corrupt(f.read("q"), f.read("qd"), dt, args.sigma, np.random.default_rng(1))
+        copy_dataset(clean, noisy, arrays={"q": qn, "qd": qdn})
     spec = dict(read_dataset(clean).spec)
     test = TrajectoryDataModule(path=str(clean), spec=spec).trajectories("test", args.test_trajectories)
     sg = settings_at(TARGET_MODES["Savitzky-Golay 0.1 s"], dt)
@@ -196,12 +195,11 @@ def part_training(args, out: Path) -> list[Path]:
              f"velocity noise {10 * args.sigma:g} rad/s; film_lnn 64x64, {args.steps} steps each; judged on "
              f"{len(test)} clean held-out trajectories (rollouts {args.horizon:g} s, driven by the recorded "
              "torques).", "",
-             "| training target | batch (chunks x points) | held-out acc. rel. L2 | median time within 0.1 rad (s) "
-             "| training (s) |",
-             "|---|---|---|---|---|"]
+             *table_header(["training target", "batch (chunks x points)", "held-out acc. rel. L2",
+                            "median time within 0.1 rad (s)", "training (s)"])]
     for r in rows:
-        lines.append(f"| {r['mode']} | {r['batch']} | {100 * r['acc_rel_err']:.2f} % | {r['time_to_0.1_median']:.2f} | "
-                     f"{r['train_seconds']:.0f} |")
+        lines.append(table_row([r["mode"], r["batch"], f"{100 * r['acc_rel_err']:.2f} %",
+                                f"{r['time_to_0.1_median']:.2f}", f"{r['train_seconds']:.0f}"]))
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
     return [out / f"{name}.json", out / f"{name}.md", *generated]
 

@@ -29,7 +29,7 @@ import json
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 MATCHED = {"source": "franka_panda", "remove": ["hand"], "armature": "zero", "damping": "zero"}
 
@@ -59,21 +59,19 @@ def main() -> None:
                     "driven by the measured torques from a start every 0.25 s of the held-out window, stays "
                     "within 0.1 rad of the recording (censored there)")
     args = ap.parse_args()
-    from lnn_torch.data import read_dataset
-    from lnn_torch.evaluation.plots import torque_figure
-    from lnn_torch.identification.arm_comparison import (
+    from lnn_torch import load_model
+    from lnn_torch.data import points, read_dataset
+    from lnn_torch.evaluation import torque_figure
+    from lnn_torch.identification import (
         classical_torque,
         compare_on_arm,
         description_model,
         feedback_rows,
         fit_classical,
         model_torque,
-        points,
     )
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch.training import TrajectoryDataModule, data_hparams
 
     configure_cpu(args.threads)
     models = dict(item.split("=", 1) for item in args.models)
@@ -160,8 +158,8 @@ def _carried(model, data, joints) -> dict | None:
     """What each of the model's residuals carries on ``data`` (``lnn_torch.networks.shares``): per joint,
     the RMS of the torque it adds to the inverse dynamics (N m) and its share of the model's torque; None
     for a model without residuals."""
-    from lnn_torch.identification.arm_comparison import points
-    from lnn_torch.networks.shares import torque_shares
+    from lnn_torch.data import points
+    from lnn_torch.networks import torque_shares
 
     if not getattr(model, "residual_names", tuple)():
         return None
@@ -260,26 +258,26 @@ def _open_loop(row: dict) -> str:
 
 
 def report(result: dict) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     names = result["joints"]
     header = ["model", *names, "mean, test", "mean, validation", "open loop within 0.1 rad (s)", "command"]
     order = sorted(result["rows"], key=lambda k: result["rows"][k]["rms_mean"])
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines = table_header(header)
     for name in order:
         r = result["rows"][name]
         cmd = result.get("commands", {}).get(name, "")
-        lines.append(f"| {name} | " + " | ".join(f"{r['rms'][n]:.2f}" for n in names)
-                     + f" | **{r['rms_mean']:.3f}** | {r['val_rms_mean']:.3f} | {_open_loop(r)} | "
-                     + f"{f'`{cmd}`' if cmd else ''} |")
-    lines.append("| torque std of the data | " + " | ".join(f"{result['torque_std'][n]:.2f}" for n in names)
-                 + " | | | | |")
+        lines.append(table_row([name, *(f"{r['rms'][n]:.2f}" for n in names), f"**{r['rms_mean']:.3f}**",
+                                f"{r['val_rms_mean']:.3f}", _open_loop(r), f"`{cmd}`" if cmd else ""]))
+    lines.append(table_row(["torque std of the data", *(f"{result['torque_std'][n]:.2f}" for n in names),
+                            "", "", "", ""]))
     carriers = [(name, part, c) for name in order for part, c in result["rows"][name].get("carried", {}).items()]
     if carriers:
         lines += ["", "What each residual carries on the held-out window (`lnn_torch.networks.shares`: the RMS of the "
                   "torque it adds to the model's inverse dynamics, N m per joint; in brackets, its share of the "
-                  "model's torque):", "", "| model | residual | " + " | ".join(names) + " |",
-                  "|---|---|" + "---|" * len(names)]
-        lines += [f"| {name} | {part} | " + " | ".join(f"{c['rms'][n]:.3f} ({100 * c['share'][n]:.0f} %)"
-                                                        for n in names) + " |" for name, part, c in carriers]
+                  "model's torque):", "", *table_header(["model", "residual", *names])]
+        lines += [table_row([name, part, *(f"{c['rms'][n]:.3f} ({100 * c['share'][n]:.0f} %)" for n in names)])
+                  for name, part, c in carriers]
     return "\n".join(lines) + "\n"
 
 

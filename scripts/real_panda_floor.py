@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 FEATURES = {
     "its own friction shapes (tanh(v/0.02), v, tanh(v/0.2), v abs(v))": ("fric",),
@@ -140,11 +140,10 @@ def main() -> None:
                     help="the angle-locked ripple's search: cycles per joint revolution")
     add_output_dir(ap, "results/real_panda", "the folder of floor.md and floor.json")
     args = ap.parse_args()
-    from lnn_torch.identification import velocity_feedback
-    from lnn_torch.identification.arm_comparison import feedback_band, points
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch import load_model
+    from lnn_torch.data import points
+    from lnn_torch.identification import feedback_band, velocity_feedback
+    from lnn_torch.training import TrajectoryDataModule, data_hparams
 
     torch.set_grad_enabled(False)
     model = load_model(args.checkpoint).model.double()
@@ -153,8 +152,8 @@ def main() -> None:
     splits = {}
     for s in ("train", "val", "test"):
         q, qd, qdd, tau, p = points(dm.trajectories(s))
-        pred = model.inverse_dynamics_si(q, qd, qdd, p)
-        splits[s] = {"q": q, "qd": qd, "qdd": qdd, "tau": tau, "pred": pred, "g": model.gravity_si(q, p),
+        pred = model.inverse(q, qd, qdd, p)
+        splits[s] = {"q": q, "qd": qd, "qdd": qdd, "tau": tau, "pred": pred, "g": model.gravity(q, p),
                      "r": tau - pred}
     joints = splits["test"]["q"].shape[1]
     grey = splits["test"]["r"].pow(2).mean(0).sqrt().tolist()
@@ -167,7 +166,7 @@ def main() -> None:
     for cut in args.cutoffs:
         other = TrajectoryDataModule(path=args.data, targets={**targets, "cutoff": cut})
         q, qd, qdd, tau, p = points(other.trajectories("test"))
-        cutoffs[cut] = (tau - model.inverse_dynamics_si(q, qd, qdd, p)).pow(2).mean(0).sqrt().tolist()
+        cutoffs[cut] = (tau - model.inverse(q, qd, qdd, p)).pow(2).mean(0).sqrt().tolist()
     # 3. what the state explains
     ridge = {name: ridge_row(splits, kinds) for name, kinds in FEATURES.items()}
     # 4. an angle-locked ripple
@@ -198,54 +197,56 @@ def main() -> None:
     wrote(out / "floor.md", out / "floor.json")
 
 
-def _cells(values) -> str:
-    return " | ".join(f"{v:.3f}" for v in values) + f" | **{np.mean(values):.3f}**"
+def _cells(values) -> list[str]:
+    """A row's cells of per-joint values and their mean (in bold)."""
+    return [*(f"{v:.3f}" for v in values), f"**{np.mean(values):.3f}**"]
 
 
 def _head(joints: int, extra: tuple[str, ...] = ()) -> str:
-    names = [f"joint{j + 1}" for j in range(joints)] + ["mean", *extra]
-    return "| | " + " | ".join(names) + " |\n|---" + "|---" * len(names) + "|"
+    from lnn_torch.evaluation import table_header
+
+    return "\n".join(table_header(["", *(f"joint{j + 1}" for j in range(joints)), "mean", *extra]))
 
 
 def markdown(r: dict, joints: int) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     t = r["targets"]
     lines = ["# The real Panda: what is left to learn", "",
              "Held-out window 10.5-13.8 s, N m RMS per joint (`python scripts/real_panda_floor.py CHECKPOINT`; "
              f"the grey box `{r['checkpoint']}`; targets: {t['method']}, {t['cutoff']:g} Hz, order {t['order']}).",
              "", _head(joints),
-             f"| the grey box's torque error | {_cells(r['grey_box_test'])} |",
-             f"| the measured torque above {t['cutoff']:g} Hz (less its targets' low-pass) | "
-             f"{_cells(r['above_cutoff'])} |",
+             table_row(["the grey box's torque error", *_cells(r["grey_box_test"])]),
+             table_row([f"the measured torque above {t['cutoff']:g} Hz (less its targets' low-pass)",
+                        *_cells(r["above_cutoff"])]),
              "", "The same grey box (nothing refitted) judged with targets filtered at other cutoffs:", "",
              _head(joints)]
-    lines += [f"| {k} Hz | {_cells(v)} |" for k, v in r["cutoffs"].items()]
+    lines += [table_row([f"{k} Hz", *_cells(v)]) for k, v in r["cutoffs"].items()]
     lines += ["", "The grey box's error after a ridge correction on features of the state, fitted on the training "
               "window, its weight chosen on the validation window (validation mean in the last column):", "",
               _head(joints, ("validation",))]
-    lines += [f"| {name} | {_cells(row['test'])} | {row['val_mean']:.3f} |" for name, row in r["ridge"].items()]
+    lines += [table_row([name, *_cells(row["test"]), f"{row['val_mean']:.3f}"]) for name, row in r["ridge"].items()]
     if "ripple" in r:
         rp = r["ripple"]
         lines += ["", "An angle-locked ripple `a sin(k q(t - d) + phi)` per joint: its training window's strongest "
                   "component (cycles per revolution k, delay d) at a constant amplitude, kept where it lowers the "
                   "validation error:", "", _head(joints, ("validation",)),
-                  "| k (cycles per revolution) | " + " | ".join(f"{k:.1f}" for k in rp["k"]) + " | | |",
-                  "| delay d (ms) | " + " | ".join(f"{d:.0f}" for d in rp["delay_ms"]) + " | | |",
-                  "| amplitude on the training window | " + " | ".join(f"{a:.3f}" for a in rp["amplitude"]) + " | | |",
-                  "| kept by validation | " + " | ".join("yes" if k else "no" for k in rp["kept"]) + " | | |",
-                  f"| the grey box's error with it | {_cells(rp['test'])} | {rp['val_mean']:.3f} |"]
+                  table_row(["k (cycles per revolution)", *(f"{k:.1f}" for k in rp["k"]), "", ""]),
+                  table_row(["delay d (ms)", *(f"{d:.0f}" for d in rp["delay_ms"]), "", ""]),
+                  table_row(["amplitude on the training window", *(f"{a:.3f}" for a in rp["amplitude"]), "", ""]),
+                  table_row(["kept by validation", *("yes" if k else "no" for k in rp["kept"]), "", ""]),
+                  table_row(["the grey box's error with it", *_cells(rp["test"]), f"{rp['val_mean']:.3f}"])]
     if "feedback" in r:
         lines += ["", "The robot's feedback on its measured velocity: the grey box's error against the velocity's part "
                   f"above {t['cutoff']:g} Hz, one gain D per joint (torque -D times that part; N m s/rad) fitted on "
                   "the training window, kept where it lowers the validation error:", "", _head(joints, ("validation",))]
         for name, fb in r["feedback"].items():
-            lines += [f"| D from {name} | " + " | ".join(f"{g:.1f}" for g in fb["gains"]) + " | | |",
-                      f"| the grey box's error with it | {_cells(fb['test'])} | {fb['val_mean']:.3f} |"]
+            lines += [table_row([f"D from {name}", *(f"{g:.1f}" for g in fb["gains"]), "", ""]),
+                      table_row(["the grey box's error with it", *_cells(fb["test"]), f"{fb['val_mean']:.3f}"])]
         fb = next(iter(r["feedback"].values()))
         lines += ["", "The recorded velocity's gains fitted on each window alone (N m s/rad):", "",
-                  "| window | " + " | ".join(f"joint{j + 1}" for j in range(joints)) + " |",
-                  "|---" * (joints + 1) + "|"]
-        lines += [f"| {w} | " + " | ".join(f"{g:.1f}" for g in gains) + " |"
-                  for w, gains in fb["gains_per_window"].items()]
+                  *table_header(["window", *(f"joint{j + 1}" for j in range(joints))])]
+        lines += [table_row([w, *(f"{g:.1f}" for g in gains)]) for w, gains in fb["gains_per_window"].items()]
     return "\n".join(lines) + "\n"
 
 

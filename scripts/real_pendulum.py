@@ -26,26 +26,7 @@ import math
 from pathlib import Path
 
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
-
-ROOT = Path(__file__).resolve().parents[1]
-PARAMS = ROOT / "lnn_torch" / "datasets" / "real_double_pendulum" / "identified_parameters.yml"
-LAB = "lab's identified model"
-LEAST_SQUARES = {"torque": "least squares of the torques (the lab model's form, on the training recordings)",
-                 "acceleration": "least squares of the accelerations (the lab model's form, on the training "
-                                 "recordings)"}
-
-
-def least_squares(data, space: str):
-    """Classical identification on recordings (``Trajectories``; their torques as given, filtered or not):
-    the lab model's rigid-body and friction form (``lnn_torch.identification.two_link``), its ten base parameters by
-    least squares of the torque error at every point (``space="torque"``) or of the acceleration error
-    (``"acceleration"``: nonlinear in the mass matrix's parameters, ``RigidArmModel.least_squares``)."""
-    from lnn_torch.identification.arm_comparison import points
-    from lnn_torch.identification.two_link import RigidArmModel
-
-    q, qd, qdd, tau, _ = points(data)
-    return RigidArmModel.least_squares(q, qd, qdd, tau, space=space)
+from _common import LAB, LEAST_SQUARES, PARAMS, HelpFormatter, acceleration_report, add_output_dir, wrote
 
 
 def main() -> None:
@@ -61,14 +42,12 @@ def main() -> None:
     ap.add_argument("--note", default="", help="e.g. the training time, recorded in the report")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (more than one only on an idle machine)")
     args = ap.parse_args()
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
-    from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.evaluation.metrics import quartiles
-    from lnn_torch.identification.two_link import RigidArmModel
+    from lnn_torch.evaluation import evaluate_model, quartiles, table_header, table_row
+    from lnn_torch.identification import RigidArmModel
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams, output_dir
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch.training import TrajectoryDataModule, data_hparams, output_dir
 
     configure_cpu(args.threads)
     module = load_model(args.checkpoint)
@@ -80,7 +59,7 @@ def main() -> None:
     held_out = [names[int(i)] for i in data.index]
     lab = RigidArmModel.from_yaml(PARAMS)
     seen = dm.trajectories("train", smooth_inputs=True)  # what the checkpoint trained on
-    fitted = [(LEAST_SQUARES[space], least_squares(seen, space)) for space in LEAST_SQUARES]
+    fitted = [(LEAST_SQUARES[space], RigidArmModel.fit_recordings(seen, space)) for space in LEAST_SQUARES]
     horizons = (0.1, 0.25, 0.5, 1.0)
     results = {}
     for name, model in ((LAB, lab), *fitted, (f"{module.hparams.variant} (this checkpoint)", module.model)):
@@ -105,24 +84,22 @@ def main() -> None:
     lines = [f"Held-out recordings: {', '.join(held_out)}; reference accelerations: the checkpoint's estimate "
              f"({saved.get('targets')}); open-loop rollouts (RK4 at the data's 2 ms step, the recorded torques held "
              f"over each step) started every {args.start_every:g} s with the measured state. {args.note}", "",
-             "| model | acc. rel. L2, torques filtered alike (q1, q2) | with the recorded torques | angle error after "
-             + ", ".join(f"{h:g}" for h in horizons)
-             + " s: median [p90] (rad) | time to 0.1 rad: median [q25, q75] (s) |",
-             "|---|---|---|---|---|"]
+             *table_header(["model", "acc. rel. L2, torques filtered alike (q1, q2)", "with the recorded torques",
+                            "angle error after " + ", ".join(f"{h:g}" for h in horizons) + " s: median [p90] (rad)",
+                            "time to 0.1 rad: median [q25, q75] (s)"])]
     for name, r in results.items():
         a, ar, h = r["acc_rel_err"], r["acc_rel_err_recorded_torques"], r["horizons"]
         errs = ", ".join(f"{h[f'error@{x:g}s']['median']:.3f} [{h[f'error@{x:g}s']['p90']:.3f}]" for x in horizons)
         t = h["time_to@0.1"]
-        lines.append(f"| {name} | {100 * a['total']:.1f} % ({100 * a['q1']:.1f} %, {100 * a['q2']:.1f} %) | "
-                     f"{100 * ar['total']:.1f} % | {errs} | "
-                     f"{t['median']:.2f} [{t['q25']:.2f}, {t['q75']:.2f}] (of {h['horizon_s']:g}) |")
+        lines.append(table_row([name, f"{100 * a['total']:.1f} % ({100 * a['q1']:.1f} %, {100 * a['q2']:.1f} %)",
+                                f"{100 * ar['total']:.1f} %", errs,
+                                f"{t['median']:.2f} [{t['q25']:.2f}, {t['q75']:.2f}] (of {h['horizon_s']:g})"]))
     lines += ["", "Per recording, acc. rel. L2 with the torques filtered alike (with the recorded torques); the "
               "median time within 0.1 rad over the recording's own start points:", "",
-              "| model | " + " | ".join(held_out) + " |", "|---|" + "---|" * len(held_out)]
+              *table_header(["model", *held_out])]
     for name, r in results.items():
-        lines.append(f"| {name} | "
-                     + " | ".join(f"{100 * e['filtered_torques']:.1f} % ({100 * e['recorded_torques']:.1f} %); "
-                                  f"{e['time_to@0.1']['median']:.2f} s" for e in r["per_recording"].values()) + " |")
+        lines.append(table_row([name, *(f"{100 * e['filtered_torques']:.1f} % ({100 * e['recorded_torques']:.1f} %); "
+                                        f"{e['time_to@0.1']['median']:.2f} s" for e in r["per_recording"].values())]))
     m = structure["mass_matrix"]
     lines += ["", "Learned against the lab's model: mass matrix over q2 in [-pi, pi] (q1 = 0; the learned one in its "
               f"normalised units, after one best scale), relative Frobenius difference median {100 * m['median']:.1f} "
@@ -163,7 +140,7 @@ def compare_structure(model, lab, data, names) -> dict:
         qb, zero = data.q[b, :n], torch.zeros(n, 2, dtype=torch.float64)
         with torch.no_grad():
             lab_static = -(lab.mass_matrix(qb) @ lab.acceleration(qb, zero, tau=zero)[..., None])[..., 0]
-            learned = model.inverse_dynamics(qb, zero, zero, data.params[b : b + 1].expand(n, -1)).double()
+            learned = model.inverse(qb, zero, zero, data.params[b : b + 1].expand(n, -1)).double()
         diff = (learned - lab_static).norm(dim=-1)
         static[name] = {"rms": float(diff.pow(2).mean().sqrt()), "max": float(diff.max())}
     out = {"mass_matrix": {"median": float(err.median()), "max": float(err.max())}, "static_torque": static}
@@ -182,28 +159,10 @@ def compare_structure(model, lab, data, names) -> dict:
     return out
 
 
-def acceleration_report(model, data, coord_names) -> tuple[dict, list[float]]:
-    """The pooled acceleration errors (``lnn_torch.evaluation.metrics.acceleration_errors``) and the relative L2
-    error of each recording over its own length, from one prediction at every point."""
-    from lnn_torch.evaluation import model_accelerations
-    from lnn_torch.evaluation.metrics import acceleration_errors
-
-    pred = model_accelerations(model, data.q, data.qd, data.params, data.tau)
-    per = [math.sqrt(e / r) for e, r in squared_sums(pred, data)]
-    return acceleration_errors(pred, data.qdd, coord_names), per
-
-
-def squared_sums(pred, data) -> list[tuple[float, float]]:
-    """Per recording, over its own length: the summed squared acceleration error of ``pred`` and the
-    summed squared reference ``data.qdd`` (their ratio's root is the relative L2 error; summed over
-    recordings first, the pooled one)."""
-    return [(float((pred[b, : int(n)] - data.qdd[b, : int(n)]).pow(2).sum()), float(data.qdd[b, : int(n)].pow(2).sum()))
-            for b, n in enumerate(data.lengths)]
-
-
 def plot(results: dict, horizons, out: Path) -> None:
-    from lnn_torch.evaluation.plots import plt
+    from lnn_torch.evaluation import plots
 
+    plt = plots.plt
     fig, ax = plt.subplots(figsize=(6, 3.4))
     for name, r in results.items():
         h = r["horizons"]

@@ -26,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum_cv import CONFIGURATION, SETTINGS, fold_checkpoint  # the cross-validation's runs
+from _common import CONFIGURATION, SETTINGS, HelpFormatter, add_output_dir, fold_checkpoint, wrote
 
 ROOT = Path(__file__).resolve().parents[1]
 FEATURES = {
@@ -77,9 +76,9 @@ def recordings(model, path: Path, targets: dict, split: str) -> list[dict]:
     for b, n in enumerate(data.lengths.tolist()):
         q, qd, qdd, tau = (getattr(data, k)[b, :n].double() for k in ("q", "qd", "qdd", "tau"))
         p = data.params[b].double().expand(n, -1)
-        residual = qdd - model.forward_dynamics_si(q, qd, p, tau)
+        residual = qdd - model.forward(q, qd, p, tau)
         out.append({"q": q, "qd": qd, "qdd": qdd, "tau": tau, "e": residual,
-                    "Minv": torch.linalg.inv(model.mass_matrix_si(q, p))})
+                    "Minv": torch.linalg.inv(model.mass_matrix(q, p))})
     return out
 
 
@@ -92,8 +91,8 @@ def main() -> None:
     add_output_dir(ap, str(ROOT / "results" / "real_double_pendulum" / "cross_validation" / "residual"),
                    "the folder of corrections.md and corrections.json")
     args = ap.parse_args()
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch import load_model
+    from lnn_torch.training import data_hparams
 
     torch.set_grad_enabled(False)
     work = Path(args.work)
@@ -146,12 +145,14 @@ def _summary(err: dict, ref: dict) -> dict:
 
 
 def markdown(r: dict) -> str:
+    from lnn_torch.evaluation import table_header, table_row
+
     recs = list(r["none"]["per_recording"])
-    head = "| correction | ridge | pooled | " + " | ".join(recs) + " |\n|---|---|---|" + "---|" * len(recs)
+    head = "\n".join(table_header(["correction", "ridge", "pooled", *recs]))
 
     def row(name: str, lam: str, s: dict) -> str:
-        cells = " | ".join(f"{100 * v:.1f} %" for v in s["per_recording"].values())
-        return f"| {name} | {lam} | **{100 * s['pooled']:.1f} %** | {cells} |"
+        return table_row([name, lam, f"**{100 * s['pooled']:.1f} %**",
+                          *(f"{100 * v:.1f} %" for v in s["per_recording"].values())])
 
     lines = ["# The real double pendulum: what a force correction of the configuration learns across recordings", "",
              "Leave-one-recording-out: each fold's configuration (fitted without the held-out recording) as it is, "

@@ -30,113 +30,32 @@ import sys
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum import LAB, LEAST_SQUARES, PARAMS, least_squares, squared_sums  # this folder's comparison script
+from _common import (
+    LAB,
+    LEAST_SQUARES,
+    PARAMS,
+    SETTINGS,
+    HelpFormatter,
+    add_output_dir,
+    fold_checkpoint,
+    fold_file,
+    run_folder,
+    setting_arguments,
+    squared_errors,
+    wrote,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-CHAIN = {"kinetic": {"chain": {"links": [[1, 0], [1, 1]]}}}
-DECAY = ["--model.weight_decay=0.1"]  # on network weights and on a residual beside the chain's gravity
-CONFIGURATION = "rigid chain + its gravity + static friction (the configuration)"
-SETTINGS = {
-    "MLP potential (the default)": {"model_options": {"mass_invariant": [0]}, "args": DECAY},
-    "harmonic potential": {"model_options": {"mass_invariant": [0], "potential": "harmonic"}, "args": DECAY},
-    "harmonic series + MLP": {"model_options": {"mass_invariant": [0], "potential": ["harmonic", "mlp"]},
-                              "args": DECAY},
-    "rigid chain + harmonic": {**CHAIN, "potential": "harmonic"},
-    "rigid chain + its gravity + harmonic residual": {"model_options": {**CHAIN, "potential": ["chain", "harmonic"]},
-                                                      "args": DECAY},
-    "rigid chain + its gravity": {**CHAIN, "potential": "chain"},
-    CONFIGURATION: {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"},
-    "the configuration + learned drive gains": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                                                "learn_input_matrix": "gains"},
-    "the configuration + learned input matrix": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                                                 "learn_input_matrix": True},
-    "the configuration + force residual (L2 1e-3)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                                                      "residual_force": {"weight": 1e-3}},
-    "the configuration + force residual (L2 1e-2)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                                                      "residual_force": {"weight": 1e-2}},
-    "the configuration + local force residual (L2 1e-3)": {
-        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-3}},
-    "the configuration + local force residual (L2 1e-2)": {
-        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-2}},
-    "the configuration + force residual (L2 1e-1)": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                                                      "residual_force": {"weight": 1e-1}},
-    "the configuration + local force residual (L2 1e-1)": {
-        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-1}},
-    "the configuration + local force residual (L2 1)": {
-        **CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1.0}},
-    "a local force residual (L2 1e-2) alone beside the fitted configuration": {
-        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                          "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1e-2}},
-        "beside": CONFIGURATION},
-    "a force residual (L2 1e-2) alone beside the fitted configuration": {
-        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction",
-                          "residual_force": {"weight": 1e-2}},
-        "beside": CONFIGURATION},
-    "the configuration, other training batches (data.seed 1)": {
-        "model_options": {**CHAIN, "potential": "chain", "dissipation": "joint+stiction"}, "args": ["--data.seed=1"]},
-    "the configuration, centres of mass on the links' lines": {
-        "kinetic": {"chain": {"links": [[1, 0], [1, 1]], "across": False}}, "potential": "chain",
-        "dissipation": "joint+stiction"},
-    "the configuration now + local force residual (L2 1)": {
-        "kinetic": {"chain": {"links": [[1, 0], [1, 1]], "across": False}}, "potential": "chain",
-        "dissipation": "joint+stiction",
-        "residual_force": {"local": True, "hidden": [16, 16], "harmonics": 3, "weight": 1.0}},
-}
-
-
-def run_folder(work: Path, recording: str, setting: str) -> Path:
-    """The folder of a setting's fit on the fold that holds ``recording`` out (its checkpoint:
-    ``fold_checkpoint``)."""
-    return work / f"fold_{recording}" / f"setting_{list(SETTINGS).index(setting)}"
-
-
-def fold_checkpoint(work: Path, recording: str, setting: str) -> Path:
-    """The last checkpoint of a setting's fit on the fold that holds ``recording`` out."""
-    return run_folder(work, recording, setting) / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt"
-
-
-def setting_arguments(setting: dict) -> tuple[dict, list[str]]:
-    """A setting's ``model.model_options`` and its other command-line overrides of the config: a setting
-    is either the options themselves or ``{"model_options": {...}, "args": ["--model.lr=...", ...]}``
-    (with ``"beside": NAME``: a force residual trained alone beside the setting NAME as fitted on the same
-    fold, which the study fits first: ``--model.init_from`` its run, ``--model.train_only residual_force``)."""
-    if "model_options" in setting:
-        return setting["model_options"], list(setting.get("args", []))
-    return setting, []
-
-
-def fold_file(source: Path, dest: Path, held_out: int, keep: list[int], test: np.ndarray) -> None:
-    """A copy of the imported dataset whose training split is ``keep`` and validation split ``held_out``."""
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy(source, dest)
-    with h5py.File(dest, "r+") as f:
-        for name, idx in (("train", keep), ("val", [held_out]), ("test", test)):
-            del f[f"splits/{name}"]
-            f.create_dataset(f"splits/{name}", data=np.asarray(idx, dtype=np.int64))
-
-
-def squared_errors(model, data) -> tuple[float, float]:
-    """Summed squared acceleration error and summed squared reference over a split's recordings."""
-    from lnn_torch.evaluation import model_accelerations
-
-    sums = squared_sums(model_accelerations(model, data.q, data.qd, data.params, data.tau), data)
-    return sum(e for e, _ in sums), sum(r for _, r in sums)
 
 
 def carried(model, data) -> dict | None:
     """What the model's residuals carry on a split's recordings (``lnn_torch.networks.shares``, over their
     own lengths): ``n`` points, and per residual, per motor, the sums of squares of its torque and of the
     model's (N m^2: pooled over folds by adding); None for a model without residuals."""
-    from lnn_torch.identification.arm_comparison import points
-    from lnn_torch.networks.shares import torque_shares
+    from lnn_torch.data import points
+    from lnn_torch.networks import torque_shares
 
     if not getattr(model, "residual_names", tuple)():
         return None
@@ -181,12 +100,11 @@ def main() -> None:
     unknown = [s for s in args.settings if s not in SETTINGS]
     if unknown:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
-    from lnn_torch.identification.two_link import RigidArmModel
+    from lnn_torch.identification import RigidArmModel
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch.training import TrajectoryDataModule, data_hparams
 
     configure_cpu(args.threads)
     source = read_dataset(args.data)
@@ -241,7 +159,7 @@ def main() -> None:
                 seen = dm.trajectories("train", smooth_inputs=True)
                 sums[LAB][rec], fitted[LAB][rec] = squared_errors(lab, reference), squared_errors(lab, seen)
                 for space, name in LEAST_SQUARES.items():
-                    ls = least_squares(seen, space)
+                    ls = RigidArmModel.fit_recordings(seen, space)
                     sums[name][rec], fitted[name][rec] = squared_errors(ls, reference), squared_errors(ls, seen)
             with torch.no_grad():
                 sums[setting][rec] = squared_errors(module.model, reference)
@@ -308,6 +226,8 @@ def _close(a, b, rel: float = 1e-9) -> bool:
 
 def write_report(result: dict, out: Path, save: bool = True) -> None:
     """``cross_validation.md`` from the study's JSON (printed; written unless ``save`` is False)."""
+    from lnn_torch.evaluation import table_header, table_row
+
     table, seconds = result["results"], result["fit_seconds"]
     recs = list(table[LAB]["per_recording"])
     lines = [f"Leave-one-recording-out cross-validation over the non-test recordings ({', '.join(recs)}): each held "
@@ -317,23 +237,22 @@ def write_report(result: dict, out: Path, save: bool = True) -> None:
              "folds' squared reference (the criterion). Seen: the same error on each fold's own training "
              "recordings, pooled over the folds. Fit: wall-clock seconds of the whole command (one thread; other jobs "
              "may have shared the machine). `python scripts/real_pendulum_cv.py`", "",
-             "| model | pooled | " + " | ".join(recs) + " | seen | fit (s, median) |",
-             "|---|---|" + "---|" * (len(recs) + 2)]
+             *table_header(["model", "pooled", *recs, "seen", "fit (s, median)"])]
     for name, r in table.items():
         fit = f"{np.median(seconds[name]):.0f}" if name in seconds else "–"
         seen = f"{100 * r['training_recordings_pooled']:.1f} %" if "training_recordings_pooled" in r else "–"
-        lines.append(f"| {name} | {100 * r['pooled']:.1f} % | "
-                     + " | ".join(f"{100 * r['per_recording'][rec]:.1f} %" for rec in recs) + f" | {seen} | {fit} |")
+        lines.append(table_row([name, f"{100 * r['pooled']:.1f} %",
+                                *(f"{100 * r['per_recording'][rec]:.1f} %" for rec in recs), seen, fit]))
     carriers = {name: r["carried"] for name, r in table.items() if r.get("carried")}
     if carriers:
         lines += ["", "What each residual carries on the held-out recordings (`lnn_torch.networks.shares`: the RMS "
                   "over all folds of the torque it adds to the model's inverse dynamics, per motor, N m; in brackets, "
-                  "its share of the model's torque there):", "", "| model | residual | motor 1 | motor 2 |",
-                  "|---|---|---|---|"]
+                  "its share of the model's torque there):", "",
+                  *table_header(["model", "residual", "motor 1", "motor 2"])]
         for name, carried_ in carriers.items():
             for part, c in carried_.items():
-                lines.append(f"| {name} | {part} | " + " | ".join(
-                    f"{r:.3f} ({100 * s:.1f} %)" for r, s in zip(c["rms"], c["share"], strict=True)) + " |")
+                lines.append(table_row([name, part, *(f"{r:.3f} ({100 * s:.1f} %)"
+                                                      for r, s in zip(c["rms"], c["share"], strict=True))]))
     if result.get("note"):
         lines += ["", result["note"]]
     text = "\n".join(lines) + "\n"

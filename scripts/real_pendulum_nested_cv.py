@@ -10,7 +10,7 @@ alone unless a residual's paired inner-fold differences favour it by more than o
 pick, fitted on all five, predicts the
 held-out recording, which no choice saw. The pooled error of those predictions is the rule's
 cross-validated error, beside each candidate's own and beside classical least squares fitted to the same
-five recordings (``scripts/real_pendulum.py``'s ``least_squares``) and the lab's identified model; with
+five recordings (``RigidArmModel.fit_recordings``) and the lab's identified model; with
 each model's open-loop time on the held-out recording (within 0.1 rad, driven by the recorded torques).
 
     python scripts/real_pendulum_nested_cv.py           # 42 fits, two at a time: about 45 min on two cores
@@ -36,9 +36,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum import LAB, LEAST_SQUARES, PARAMS, least_squares
-from real_pendulum_cv import CONFIGURATION, SETTINGS, fold_file, setting_arguments, squared_errors
+from _common import (
+    CONFIGURATION,
+    LAB,
+    LEAST_SQUARES,
+    PARAMS,
+    SETTINGS,
+    HelpFormatter,
+    add_output_dir,
+    fold_file,
+    setting_arguments,
+    squared_errors,
+    wrote,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESIDUAL = "the configuration + local force residual (L2 1)"
@@ -126,13 +136,12 @@ def main() -> None:
     unknown = [s for s in args.candidates if s not in SETTINGS]
     if unknown:
         raise SystemExit(f"unknown settings {unknown}; choose from {list(SETTINGS)}")
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
     from lnn_torch.evaluation import evaluate_model
-    from lnn_torch.identification.two_link import RigidArmModel
+    from lnn_torch.identification import RigidArmModel
     from lnn_torch.perf import configure_cpu
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch.training import TrajectoryDataModule, data_hparams
 
     configure_cpu(1)
     source = read_dataset(args.data)
@@ -204,7 +213,8 @@ def main() -> None:
         inner = {s: [errors((outer, i), s) for i in rest] for s in args.candidates}
         inner_pooled = {s: float(np.sqrt(sum(e for e, _ in v) / sum(r for _, r in v))) for s, v in inner.items()}
         chosen = choose(inner, args.candidates)
-        fixed = {LAB: lab, **{name: least_squares(seen((outer, None)), space) for space, name in LEAST_SQUARES.items()}}
+        fixed = {LAB: lab, **{name: RigidArmModel.fit_recordings(seen((outer, None)), space)
+                              for space, name in LEAST_SQUARES.items()}}
         held_out = {s: errors((outer, None), s) for s in args.candidates}
         held_out.update({name: errors((outer, None), args.candidates[0], m) for name, m in fixed.items()})
         times = {s: open_loop((outer, None), s) for s in args.candidates}
@@ -231,6 +241,8 @@ def main() -> None:
 
 def write_report(result: dict, out: Path) -> None:
     """``nested.md`` from the study's JSON (also printed)."""
+    from lnn_torch.evaluation import table_header, table_row
+
     folds, candidates = result["folds"], list(result["candidates"])
     recs = list(folds)
 
@@ -250,10 +262,9 @@ def write_report(result: dict, out: Path) -> None:
              f"`lnn-torch fit -c {result['config']}` with the candidate's "
              "`model.model_options`. Acceleration relative L2 error against the filtered reference, torques "
              "filtered alike; pooled over the held-out recordings.", "",
-             "| model | pooled | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
+             *table_header(["model", "pooled", *recs])]
     for name, sums in rows.items():
-        lines.append(f"| {name} | {pooled(sums):.1f} % | "
-                     + " | ".join(f"{100 * np.sqrt(e / r):.1f} %" for e, r in sums) + " |")
+        lines.append(table_row([name, f"{pooled(sums):.1f} %", *(f"{100 * np.sqrt(e / r):.1f} %" for e, r in sums)]))
     if "open_loop_times" in folds[recs[0]]:
         times = {name: [folds[rec]["open_loop_times"][name] for rec in recs]
                  for name in [LAB, *LEAST_SQUARES.values(), *candidates]}
@@ -262,17 +273,16 @@ def write_report(result: dict, out: Path) -> None:
         lines += ["", "Open loop on the held-out recordings: the time within 0.1 rad from each start point (every "
                   "0.25 s, 4 s at most; driven by the recorded torques, RK4 at the data's 2 ms step), median over all "
                   "folds' start points and per recording:", "",
-                  "| model | all | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
+                  *table_header(["model", "all", *recs])]
         for name, per in times.items():
-            lines.append(f"| {name} | {np.median(np.concatenate(per)):.2f} s | "
-                         + " | ".join(f"{np.median(t):.2f} s" for t in per) + " |")
+            lines.append(table_row([name, f"{np.median(np.concatenate(per)):.2f} s",
+                                    *(f"{np.median(t):.2f} s" for t in per)]))
     lines += ["", "What the inner cross-validation saw (pooled over the five inner folds) and chose:", "",
-              "| held out | " + " | ".join(candidates) + " | chosen: lowest | chosen: one standard error |",
-              "|---|" + "---|" * (len(candidates) + 2)]
+              *table_header(["held out", *candidates, "chosen: lowest", "chosen: one standard error"])]
     for rec in recs:
         f = folds[rec]
-        lines.append(f"| {rec} | " + " | ".join(f"{100 * f['inner_pooled'][s]:.1f} %" for s in candidates)
-                     + f" | {f['chosen']['lowest']} | {f['chosen']['one_se']} |")
+        lines.append(table_row([rec, *(f"{100 * f['inner_pooled'][s]:.1f} %" for s in candidates),
+                                f["chosen"]["lowest"], f["chosen"]["one_se"]]))
     text = "\n".join(lines) + "\n"
     (out / "nested.md").write_text(text)
     print(text)

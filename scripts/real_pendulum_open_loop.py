@@ -1,7 +1,7 @@
 """What decides how long a model of the real double pendulum stays close open loop: least squares of the
 accelerations against the learned configuration, the Coulomb friction's shape and each parameter.
 
-Least squares of the accelerations (``real_pendulum.least_squares``: the lab model's form, ten base
+Least squares of the accelerations (``RigidArmModel.fit_recordings``: the lab model's form, ten base
 parameters, Coulomb friction ``cf arctan(k qd)``) is fitted to the checkpoint's training recordings once
 for each slope ``k`` (``--slopes``; the lab's form has 100), and with ``cf tanh(k qd)`` for each of
 ``--tanh-slopes`` (the learned models' smoothing); each fit and each model of ``--model LABEL=CHECKPOINT``
@@ -28,8 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _cli import HelpFormatter, add_output_dir, wrote
-from real_pendulum import acceleration_report
+from _common import HelpFormatter, acceleration_report, add_output_dir, wrote
 
 
 def judge(model, system, data, smoothed, names, start_every: float, time_limit: float) -> dict:
@@ -52,10 +51,9 @@ def judge(model, system, data, smoothed, names, start_every: float, time_limit: 
 def held_out(checkpoint: str, data_of: str | None = None):
     """``(module, system, test data, its torques filtered, recording names, training data filtered)``; the
     data of the checkpoint ``data_of`` where ``checkpoint`` names none (a copy of a shipped model)."""
+    from lnn_torch import load_model
     from lnn_torch.data import read_dataset
-    from lnn_torch.training import TrajectoryDataModule
-    from lnn_torch.training.checkpoint_format import data_hparams
-    from lnn_torch.training.checkpoints import load_model
+    from lnn_torch.training import TrajectoryDataModule, data_hparams
 
     module = load_model(checkpoint)
     saved = data_hparams(checkpoint)
@@ -79,7 +77,7 @@ def swapped(checkpoint: str, data_of: str, q, qd, qdd, tau, judged) -> dict:
     ``judged(model)`` gives a row. The learned model's base parameters are those whose torques its own
     accelerations at the training points give exactly; a model whose largest torque residual there is
     above 1e-9 N m is not of that family and is refused."""
-    from lnn_torch.identification.two_link import BASE, RigidArmModel, base_regressor
+    from lnn_torch.identification import BASE, RigidArmModel, base_regressor
 
     module = held_out(checkpoint, data_of)[0]
     slope = 1.0 / float(module.system.coulomb_velocity)
@@ -123,8 +121,9 @@ def main() -> None:
     ap.add_argument("--time-limit", type=float, default=4.0, help="rollout length, s (censored there)")
     add_output_dir(ap, "results/real_double_pendulum/open_loop", "the folder of open_loop.json and open_loop.md")
     args = ap.parse_args()
-    from lnn_torch.identification.arm_comparison import points
-    from lnn_torch.identification.two_link import RigidArmModel
+    from lnn_torch.data import points
+    from lnn_torch.evaluation import table_header, table_row
+    from lnn_torch.identification import RigidArmModel
     from lnn_torch.perf import configure_cpu
 
     configure_cpu(1)
@@ -154,13 +153,12 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "open_loop.json").write_text(json.dumps({"checkpoint": args.checkpoint, "recordings": names,
                                                     "models": args.model, "swap": args.swap, "rows": rows}, indent=1))
-    lines = ["| model | acc. rel. L2, torques filtered alike | median time within 0.1 rad | "
-             + " | ".join(names) + " |", "|---|---|---|" + "---|" * len(names)]
+    lines = table_header(["model", "acc. rel. L2, torques filtered alike", "median time within 0.1 rad", *names])
     for label, r in rows.items():
         if "per_recording" not in r:
             continue
         cells = [f"{p['acc_rel_err']:.1%}; {p['time_to@0.1']:.2f} s" for p in r["per_recording"].values()]
-        lines.append(f"| {label} | {r['acc_rel_err']:.1%} | {r['time_to@0.1']:.2f} s | " + " | ".join(cells) + " |")
+        lines.append(table_row([label, f"{r['acc_rel_err']:.1%}", f"{r['time_to@0.1']:.2f} s", *cells]))
     (out / "open_loop.md").write_text("Held-out recordings; per recording: acceleration error; median time within "
                                     "0.1 rad.\n\n" + "\n".join(lines).replace("%", " %") + "\n")
     wrote(out / "open_loop.json", out / "open_loop.md")

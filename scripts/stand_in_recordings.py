@@ -28,7 +28,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from _cli import HelpFormatter, add_output_dir, wrote
+from _common import HelpFormatter, add_output_dir, wrote
 
 # one machine: every parameter range of the scene collapsed to a value (a range needs low < high)
 MACHINE = {"m_range": 0.6, "l1_range": 0.25, "l2_range": 0.22, "com_ratio": 0.8, "inertia_excess": 0.2,
@@ -69,7 +69,7 @@ def score(checkpoint: str, dataset: str, folder: Path) -> dict:
     params = q.new_zeros(len(q), 0)
     with torch.no_grad():
         a = model.acceleration(q, qd, params, tau)
-        torques = model.inverse_dynamics_si(q, qd, qdd, params)
+        torques = model.inverse(q, qd, qdd, params)
     return {"acc_rel_err": float((a - qdd).norm() / qdd.norm()),
             "torque_nrmse": float((torques - tau).norm() / tau.norm()), "test_recordings": len(test)}
 
@@ -84,8 +84,8 @@ def main() -> None:
         return
     import yaml
 
+    from lnn_torch import InputError
     from lnn_torch.data import DatasetSpec, generate_arrays
-    from lnn_torch.errors import InputError
 
     out = Path(args.output_dir)
     config_path = out / "import.yaml"

@@ -2,7 +2,7 @@
 
 import argparse
 
-from _cli import HelpFormatter
+from _common import HelpFormatter
 
 
 def main() -> None:

@@ -157,3 +157,14 @@ def session_arrays(tmp_path_factory, name: str, make) -> dict:
 
     with np.load(session_file(tmp_path_factory, f"{name}.npz", write)) as z:
         return {k: z[k] for k in z.files}
+
+
+def save_checkpoint(module, path) -> str:
+    """``module`` as a checkpoint that ``load_model`` reads (weights, hyper-parameters, the stamp)."""
+    from lnn_torch.training.checkpoint_format import stamp
+
+    ckpt = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+            "pytorch-lightning_version": L.__version__}
+    stamp(ckpt)
+    torch.save(ckpt, path)
+    return str(path)

@@ -23,7 +23,7 @@ from lnn_torch.export import programs as ex
 from lnn_torch.systems import get_system
 from lnn_torch.training.checkpoints import load_model
 
-from .helpers import perturbed, random_batch, random_inputs
+from .helpers import perturbed, random_batch, random_inputs, save_checkpoint
 
 ADP = get_system("actuated_double_pendulum")
 TOL = {torch.float64: dict(rtol=1e-10, atol=1e-10), torch.float32: dict(rtol=1e-5, atol=1e-5)}
@@ -57,19 +57,6 @@ def untrained_module(variant="film_lnn", scene="actuated_double_pendulum", seed=
     module.model.fit_normalizer(stats)
     perturbed(module.model, 0.1, seed)
     return module.eval()
-
-
-def save_checkpoint(module, path):
-    """``module`` as a checkpoint that ``load_model`` reads (weights, hyper-parameters, the stamp)."""
-    import lightning as L
-
-    from lnn_torch.training.checkpoint_format import stamp
-
-    ckpt = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
-            "pytorch-lightning_version": L.__version__}
-    stamp(ckpt)
-    torch.save(ckpt, path)
-    return str(path)
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "join_trajectories.py
 def script():
     spec = importlib.util.spec_from_file_location("join_trajectories", SCRIPT)
     module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(SCRIPT.parent))  # it imports _cli from its folder
+    sys.path.insert(0, str(SCRIPT.parent))  # it imports _common from its folder
     try:
         spec.loader.exec_module(module)
     finally:

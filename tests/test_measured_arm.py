@@ -200,7 +200,13 @@ def test_identify_finds_the_arms_feedback_on_its_measured_velocity(learned, tmp_
                                                       "test": ["arm[3.5:3.9]"]})
     data = import_recordings([csv], tmp_path / "arm.h5", spec)
     assert main(["identify", ckpt, str(data), "--feedback", "-o", str(tmp_path / "id")]) == 0
-    rows = json.loads((tmp_path / "id" / "identification.json").read_text())["rows"]
+    result = json.loads((tmp_path / "id" / "identification.json").read_text())
+    rows = result["rows"]
+    # what the training window determines: the excitation and an interval per coefficient, in the report too
+    u = result["uncertainty"]
+    assert 0 < u["condition_number"] < float("inf") and len(u["interval95"]) == len(u["names"])
+    assert all(lo <= v <= hi for v, (lo, hi) in zip(u["value"], u["interval95"], strict=True))
+    assert "What the training recordings determine" in (tmp_path / "id" / "report.md").read_text()
     consistent = "physically consistent + viscous+coulomb+offset"
     for base in ("film_lnn", "least squares + viscous+coulomb+offset", consistent):
         with_it = rows[f"{base} + velocity feedback"]

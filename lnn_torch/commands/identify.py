@@ -216,6 +216,7 @@ def _identify_arm(module, args) -> int:
         fit_classical,
         markdown,
         model_torque,
+        uncertainty_markdown,
     )
     from ..training.checkpoint_format import data_hparams
     from ..training.datamodule import TrajectoryDataModule
@@ -238,11 +239,14 @@ def _identify_arm(module, args) -> int:
         result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
-    result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result}
+    ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
+    result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
+              "uncertainty": ordinary.info["uncertainty"]}
     (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
     text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
             f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
-            f"Joint-torque RMS error (N m):\n\n{markdown(result)}\n")
+            f"Joint-torque RMS error (N m):\n\n{markdown(result)}\n\n## What the training recordings determine "
+            f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n")
     (out / "report.md").write_text(text)
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
@@ -321,7 +325,7 @@ def _plot(module, system, obs: Observation, q_used, result, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..identification.learned import estimate_derivatives
+    from ..data.derivatives import estimate_derivatives
 
     dt = float(obs.t[1] - obs.t[0])
     q = torch.as_tensor(q_used, dtype=torch.float64)

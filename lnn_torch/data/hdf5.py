@@ -267,3 +267,27 @@ def write_arrays(path: str | Path, arrays: dict, attrs: dict, overwrite: bool = 
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def read_arrays(f) -> tuple[dict, dict, dict]:
+    """The arrays, splits and attributes of a dataset file (``f``: a path, read and checked by
+    ``read_dataset``, or the ``TrajectoryFile`` it gave): every array of the schema the file
+    holds, as numpy arrays."""
+    f = read_dataset(f) if isinstance(f, (str, Path)) else f
+    arrays = {}
+    for name in ("t", "q", "qd", "params", *OPTIONAL_ARRAYS):
+        try:
+            arrays[name] = f.read(name)
+        except KeyError:  # an optional array the file does not hold
+            continue
+    return arrays, dict(f.splits), dict(f.attrs)
+
+
+def copy_dataset(source, dest, *, splits: dict | None = None, arrays: dict | None = None) -> Path:
+    """A copy of the dataset file ``source`` at ``dest`` (replaced where it exists) with ``splits`` (``{name:
+    indices}``) and ``arrays`` (``{name: values}``) in place of its own, the rest as it is; written by
+    ``write_dataset``."""
+    own, own_splits, attrs = read_arrays(source)
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    return write_dataset(dest, {**own, **(arrays or {})}, {**own_splits, **(splits or {})}, attrs, overwrite=True)

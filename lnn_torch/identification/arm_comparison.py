@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+import numpy as np
 import torch
 
 from ..data.trajectories import points
@@ -218,3 +219,23 @@ def markdown(result: dict) -> str:
             for name, r in result["rows"].items()]
     rows.append(["torque std of the data", *(f"{result['torque_std'][n]:.2f}" for n in names), ""])
     return markdown_table(header, rows)
+
+
+def uncertainty_markdown(uncertainty: dict, worst: int = 8) -> str:
+    """What the recordings determine (``classical_arm.least_squares``' ``info["uncertainty"]``): the
+    excitation, how many coefficients are determined to 10 % (relative standard error), the least
+    determined ones with their 95 % intervals, and the parameters determined only in combination or not
+    at all."""
+    value, std = np.asarray(uncertainty["value"]), np.asarray(uncertainty["std"])
+    relative = std / np.maximum(np.abs(value), 1e-12)
+    order = np.argsort(-relative)[:worst]
+    rows = [[uncertainty["names"][k], f"{value[k]:.4g}", f"{std[k]:.2g}",
+             f"[{uncertainty['interval95'][k][0]:.4g}, {uncertainty['interval95'][k][1]:.4g}]"] for k in order]
+    lines = [f"Excitation: condition number {uncertainty['condition_number']:.3g} of the scaled regressor; "
+             f"{int((relative < 0.1).sum())} of {len(value)} coefficients (base parameters and friction) determined "
+             f"to 10 % (standard errors cluster-robust over {uncertainty['block_samples']}-sample blocks). The least "
+             "determined:", "", markdown_table(["coefficient", "value", "std", "95 % interval"], rows), "",
+             f"Determined only in combination with others: {len(uncertainty['in_combination'])} parameters; not at "
+             f"all (they move no torque on these recordings, the description's values stand): "
+             f"{', '.join(uncertainty['undetermined']) or 'none'}."]
+    return "\n".join(lines)

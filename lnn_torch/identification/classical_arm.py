@@ -15,7 +15,18 @@ measured joint torques.
   ``J`` from the description's (the geometry-aware pull towards the description when the data cannot
   tell; 0: none).
 
-Both give an ``ArmModel``: ``torque(q, qd, qdd)`` in N m and a report of its parameters in SI.
+Both give an ``ArmModel`` (the rigid-body face ``mass_matrix``, ``bias``, ``gravity``, ``friction``,
+``inverse``, ``forward`` in SI) and a report of its parameters.
+
+Uncertainty and identifiability (least squares): before fitting, the excitation check
+(``excitation``: the condition number of the column-scaled regressor of the base parameters and the
+friction columns; above ``COND_WARN`` a warning says the recordings cannot determine the model), and
+after it the covariance of every estimated coefficient, cluster-robust over blocks of ``block``
+consecutive samples (each block's rows together: residuals correlated across the joints of a sample,
+or along a trajectory for ``block > 1``; the sandwich ``(A^T A)^-1 (sum_b s_b s_b^T) (A^T A)^-1`` with
+``s_b = A_b^T r_b``, times ``B / (B - 1)``), its standard errors and 95 % intervals per base parameter
+(``ArmModel.info["uncertainty"]``, named after the parameter each base combination is pivoted on), and
+the parameters the data determine only in combination with others or not at all, named.
 Shapes: ``q, qd, qdd, tau (N, n)``, float64.
 """
 
@@ -27,18 +38,24 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..mechanics.friction import COEFFICIENTS, DriveModel
+from ..mechanics.friction import COEFFICIENTS, SLOPE_LIMIT, DriveModel
 from ..robots.kinematics import SerialChain, reverse_cholesky
 from ..robots.regressor import (
     base_parameters,
     classical_of,
     inverse_dynamics,
+    parameter_names,
     parameter_vector,
     payload_torque,
+    pseudo_inertia_of,
     regressor,
 )
 
 _OFF = torch.triu_indices(4, 4, 1)
+# the condition number of the column-scaled regressor above which the recordings are said not to determine
+# the model (the exciting trajectories of identification papers reach 10-300; a stationary arm, infinity)
+COND_WARN = 1e3
+Z95 = 1.959963984540054  # the two-sided 95 % quantile of the normal distribution
 
 
 @dataclass
@@ -178,9 +195,44 @@ def _check(q, qd, qdd, tau, chain: SerialChain):
     return arrays
 
 
+def excitation(A: torch.Tensor) -> float:
+    """The condition number of ``A (rows, p)`` with its columns scaled to unit norm (the excitation of a
+    regressor: how well the data separate its columns; ``inf`` where a column is zero or dependent)."""
+    norms = A.norm(dim=0)
+    if bool((norms == 0).any()):
+        return float("inf")
+    s = torch.linalg.svdvals(A / norms)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+def coefficient_covariance(A: torch.Tensor, r: torch.Tensor, groups: torch.Tensor) -> torch.Tensor:
+    """The cluster-robust covariance ``(p, p)`` of least-squares coefficients of ``A (rows, p)`` with
+    residuals ``r (rows,)``, rows clustered by ``groups (rows,)`` (consecutive integers from 0)."""
+    inverse = torch.linalg.pinv(A.T @ A)
+    count = int(groups.max()) + 1
+    scores = torch.zeros(count, A.shape[1], dtype=A.dtype).index_add_(0, groups, A * r[:, None])
+    return inverse @ (scores.T @ scores) @ inverse * (count / max(count - 1, 1))
+
+
+def _base_names(base: dict, names: list[str]) -> list[str]:
+    """Each base parameter named after the parameter its combination is pivoted on, ``+ k more`` where
+    dependent parameters enter it."""
+    out = []
+    for k, j in enumerate(base["independent"]):
+        more = int(np.count_nonzero(np.abs(base["K"][k]) > 1e-12)) if base["K"].size else 0
+        out.append(names[j] + (f" (+ {more} more)" if more else ""))
+    return out
+
+
 def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: bool = False,
-                  rtol: float = 1e-6) -> ArmModel:
-    """Base parameters and friction by (weighted) least squares (module docstring)."""
+                  rtol: float = 1e-6, block: int = 1) -> ArmModel:
+    """Base parameters and friction by (weighted) least squares, with their uncertainty (module
+    docstring); ``block``: the samples per cluster of the covariance (1: each sample's joints together;
+    the number of samples in the residuals' correlation time for filtered recordings)."""
+    import warnings
+
+    from ..errors import UntrustedParameterWarning
+
     drive = DriveModel.of(drive)
     q, qd, qdd, tau = _check(q, qd, qdd, tau, chain)
     N, n = q.shape
@@ -199,19 +251,26 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
         x = torch.linalg.lstsq(A, target * w).solution
         return x, target * w - A @ x
 
+    condition = excitation(torch.cat([YB, F], 1))
+    if condition > COND_WARN:
+        warnings.warn(f"classical identification: the recordings excite the model poorly (condition number "
+                      f"{condition:.3g} of the scaled regressor, above {COND_WARN:g}): the base parameters are "
+                      "uncertain; record a more exciting trajectory", UntrustedParameterWarning, stacklevel=2)
     ones = torch.ones(N * n, dtype=q.dtype)
     phi = None
     if "sigmoid" in drive.forms:
-        phi = _variable_projection(lambda p: solve(p, ones)[1], n)
+        phi = _variable_projection(lambda p: solve(p, ones)[1], n, coulomb_velocity=drive.coulomb_velocity)
     x, r = solve(phi, ones)
+    w = ones
     weights = None
     if weighted:
         sigma = (r.reshape(N, n).pow(2).mean(0).sqrt()).clamp_min(1e-12)
         weights = (1.0 / sigma).numpy()
         w = (1.0 / sigma).repeat(N)
         if phi is not None:
-            phi = _variable_projection(lambda p: solve(p, w)[1], n, start=phi)
-        x, _ = solve(phi, w)
+            phi = _variable_projection(lambda p: solve(p, w)[1], n, start=phi,
+                                       coulomb_velocity=drive.coulomb_velocity)
+        x, r = solve(phi, w)
     r_B = base["rank"]
     beta, coefs = x[:r_B], x[r_B:]
     # the friction columns are per joint, each joint's forms together: column j k + i is joint j, form i
@@ -221,8 +280,23 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
         friction["phi2"], friction["phi3"] = phi[0].numpy(), phi[1].numpy()
     if "viscous" in drive.forms:  # the damping column's combination: its own base parameter where identifiable
         friction["b"] = _viscous_of(base, beta.numpy(), n)
-    return ArmModel(chain, drive, "weighted least squares" if weighted else "least squares", friction,
-                    base=base, beta=beta.numpy(), weights=weights)
+    cols = [YB, F] + ([_sigmoid_columns(qd, drive, *phi).reshape(N * n, -1)] if phi is not None else [])
+    A = torch.cat(cols, 1) * w[:, None]
+    groups = torch.arange(N).repeat_interleave(n) // max(int(block), 1)
+    std = coefficient_covariance(A, r, groups).diagonal().clamp_min(0).sqrt()
+    names = parameter_names(chain)
+    friction_names = [f"{chain.joint_names[j]}.{COEFFICIENTS[f][0]}" for j in range(n) for f in extra]
+    friction_names += [f"{chain.joint_names[j]}.phi1" for j in range(n)] if phi is not None else []
+    moving = np.flatnonzero(Y.reshape(N * n, -1).abs().amax(0).numpy() > 0)
+    uncertainty = {"condition_number": condition, "block_samples": int(block),
+                   "names": _base_names(base, names) + friction_names, "value": x.tolist(), "std": std.tolist(),
+                   "interval95": torch.stack([x - Z95 * std, x + Z95 * std], -1).tolist(),
+                   "in_combination": [names[j] for j in base["dependent"] if j in set(moving.tolist())],
+                   "undetermined": [names[j] for j in range(len(names)) if j not in set(moving.tolist())]}
+    model = ArmModel(chain, drive, "weighted least squares" if weighted else "least squares", friction,
+                     base=base, beta=beta.numpy(), weights=weights)
+    model.info["uncertainty"] = uncertainty
+    return model
 
 
 def _sigmoid_columns(qd, drive, phi2, phi3) -> torch.Tensor:
@@ -249,19 +323,21 @@ def base_least_squares(Y: torch.Tensor, tau: torch.Tensor, base: dict) -> np.nda
     return np.linalg.lstsq(YB, tau.detach().double().cpu().numpy().reshape(-1), rcond=None)[0]
 
 
-def _variable_projection(residual, n: int, start=None):
+def _variable_projection(residual, n: int, start=None, coulomb_velocity: float = 0.02):
     """``(phi2 (n,), phi3 (n,))`` minimising ``|residual(phi)|^2`` (scipy's least squares; ``phi2`` on a
-    log scale, starting at 30 s/rad, ``phi3`` at 0)."""
+    log scale, starting at 30 s/rad and bounded by ``SLOPE_LIMIT / coulomb_velocity``, ``phi3`` at 0)."""
     import scipy.optimize
 
+    top = np.log(SLOPE_LIMIT / coulomb_velocity)
     x0 = np.concatenate([np.log(np.full(n, 30.0)), np.zeros(n)]) if start is None else \
-        np.concatenate([np.log(start[0].numpy()), start[1].numpy()])
+        np.concatenate([np.minimum(np.log(start[0].numpy()), top - 1e-9), start[1].numpy()])
 
     def fun(x):
         phi2, phi3 = torch.as_tensor(np.exp(x[:n])), torch.as_tensor(x[n:])
         return residual((phi2, phi3)).numpy()
 
-    sol = scipy.optimize.least_squares(fun, x0, method="trf", x_scale="jac", max_nfev=200)
+    bounds = (np.full(2 * n, -np.inf), np.concatenate([np.full(n, top), np.full(n, np.inf)]))
+    sol = scipy.optimize.least_squares(fun, x0, method="trf", x_scale="jac", max_nfev=200, bounds=bounds)
     return torch.as_tensor(np.exp(sol.x[:n])), torch.as_tensor(sol.x[n:])
 
 
@@ -339,6 +415,45 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     friction = {k: v.detach().numpy() for k, v in values.items() if k != "b"}
     if "b" in values:
         friction["b"] = values["b"].detach().numpy()
-    return ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
-                    weights=None if weights is None else np.asarray(weights),
-                    info={"prior": prior, "iterations": int(sol.nit), "converged": bool(sol.success)})
+    model = ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
+                     weights=None if weights is None else np.asarray(weights),
+                     info={"prior": prior, "iterations": int(sol.nit), "converged": bool(sol.success)})
+    fr = torch.zeros(N * n, dtype=q.dtype)
+    if others:
+        fr = drive.torque(qd, {k: values[k].detach() for k in others} | {"b": torch.zeros(n)}).reshape(-1) * w_rows
+    residual = tw - Yw @ pi.detach() - fr
+    model.info["uncertainty"] = _physical_uncertainty(chain, Yw, residual, pi.detach(), J0, prior, N)
+    return model
+
+
+def _physical_uncertainty(chain: SerialChain, Yw, residual, pi, J0, prior: float, N: int) -> dict:
+    """The Laplace covariance of the physical parameters ``pi`` (the classical ten per link, armature,
+    damping) at a consistent fit: ``s^2 (Yw^T Yw + N prior H)^-1`` with ``s^2`` the residual variance and
+    ``H`` the prior's Hessian there. A parameter that moves along a direction the data do not determine
+    (``Yw^T Yw``'s eigenvalues below 1e-10 of its largest) is held by the prior towards the description,
+    and named: its interval is the prior's, not the data's."""
+    from torch.func import hessian
+
+    n = chain.dof
+    s2 = float(residual.pow(2).mean())
+
+    def divergence(links):
+        J = pseudo_inertia_of(links.reshape(n, 10))
+        return (torch.linalg.solve(J0, J).diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(J)).sum()
+
+    H = torch.zeros(12 * n, 12 * n, dtype=pi.dtype)
+    H[: 10 * n, : 10 * n] = hessian(divergence)(pi[: 10 * n])
+    data = Yw.T @ Yw
+    total = data + N * prior * H
+    keep = torch.nonzero(total.diagonal() > 0).reshape(-1)  # the damping of a drive without viscous friction: none
+    std = torch.full((12 * n,), float("nan"), dtype=pi.dtype)
+    std[keep] = (s2 * torch.linalg.pinv(total[keep][:, keep], hermitian=True)).diagonal().clamp_min(0).sqrt()
+    # the directions the data cannot determine: the data's curvature below 1e-10 of its largest
+    eigenvalues, vectors = torch.linalg.eigh(data[keep][:, keep])
+    null = vectors[:, eigenvalues < 1e-10 * eigenvalues.max()]
+    names = parameter_names(chain)
+    by_prior = [names[j] for j, weight in zip(keep.tolist(), null.abs().amax(1).tolist() if null.shape[1] else
+                                               [0.0] * len(keep), strict=True) if weight > 0.05]
+    return {"names": names, "value": pi.tolist(), "std": std.tolist(),
+            "interval95": torch.stack([pi - Z95 * std, pi + Z95 * std], -1).tolist(),
+            "held_by_prior": by_prior, "residual_std": s2 ** 0.5}

@@ -42,8 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..data.derivatives import estimate as estimate_from_positions
-from ..data.derivatives import settings as derivative_settings
+from ..data.derivatives import estimate_derivatives
 from ..errors import InputError
 from ..training.losses import shooting_residuals
 
@@ -137,7 +136,7 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
         window: the multiple-shooting windows of the trajectory fit, s.
         derivative: settings of ``lnn_torch.data.derivatives`` for estimating qd/qdd (default: a
             short Savitzky-Golay fit for noise-free positions, a smoothing spline (generalised
-            cross-validation) for noisy ones; ``position_noise``).
+            cross-validation) for noisy ones; ``lnn_torch.data.derivatives.position_noise``).
         accel_stride: the acceleration fit uses every ``accel_stride``-th point (default: at most
             about 200 points per trajectory).
     """
@@ -461,40 +460,3 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     std = (jac @ cov @ jac.T).diagonal().clamp_min(0).sqrt()
     return {name: {"value": float(v), "rel_std": float(s / v.abs())}
             for name, v, s in zip(system.identifiable_quantities(), values, std, strict=True)}
-
-
-# default derivative estimates, chosen per observation from its noise: a short quartic Savitzky-Golay
-# fit where the positions are smooth to NOISE_FREE (exact to ~1e-6 of the rms on noise-free motion at
-# 200 Hz), else a smoothing spline with its smoothing chosen by generalised cross-validation
-SMOOTH = {"method": "savgol", "window": 11, "polyorder": 4}
-NOISY = {"method": "spline", "lam": None}
-NOISE_FREE = 1e-6
-
-
-def position_noise(q: np.ndarray) -> float:
-    """The rms deviation of ``q (T, dof)`` from its short quartic Savitzky-Golay fit, corrected for the
-    fit's own share: an estimate of white position noise (~0 for smooth noise-free motion)."""
-    from scipy.signal import savgol_coeffs, savgol_filter
-
-    h = float(savgol_coeffs(SMOOTH["window"], SMOOTH["polyorder"])[SMOOTH["window"] // 2])
-    e = q - savgol_filter(q, SMOOTH["window"], SMOOTH["polyorder"], axis=0)
-    return float(np.sqrt(np.mean(e[SMOOTH["window"]:-SMOOTH["window"]] ** 2) / max(1 - h, 1e-6)))
-
-
-def estimate_derivatives(q: torch.Tensor, dt: float, qd: torch.Tensor | None = None, qdd: torch.Tensor | None = None,
-                         derivative: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Velocities and accelerations ``(N, T, dof)`` (rad/s and rad/s², or m/s and m/s²) of observed
-    positions ``q (N, T, dof)`` sampled every ``dt`` s: those given, else estimated (``derivative``:
-    settings of ``lnn_torch.data.derivatives``; None: chosen from each observation's noise, ``SMOOTH`` or
-    ``NOISY``). A given ``qd`` is used by the estimate of ``qdd``."""
-    if qd is not None and qdd is not None:
-        return qd, qdd
-    est = []
-    for i in range(len(q)):
-        choice = derivative or (SMOOTH if position_noise(q[i].numpy()) < NOISE_FREE else NOISY)
-        s = derivative_settings({**choice, "use_measured_velocity": qd is not None})
-        est.append(estimate_from_positions(q[i].numpy(), dt, s, None if qd is None else qd[i].numpy()))
-    return (qd if qd is not None else torch.as_tensor(np.stack([e[0] for e in est])),
-            qdd if qdd is not None else torch.as_tensor(np.stack([e[1] for e in est])))
-
-
