@@ -413,3 +413,33 @@ def test_combined_angle_features_tangents_and_pullback_match_autograd(rng):
     g = torch.randn(5, 6, dtype=torch.float64)
     (auto,) = torch.autograd.grad((phi * g).sum(), q)
     torch.testing.assert_close(model.features_vjp(q.detach(), g), auto, rtol=1e-12, atol=1e-12)
+
+
+def test_stiff_friction_slopes_are_bounded_and_training_through_them_keeps_finite_gradients(rng):
+    """A Coulomb step 50 times sharper than the default (``v_c`` = 1 ms^-1 rad: ``tanh(1000 qd)``) and a
+    sigmoid whose raw slope starts far beyond any data (softplus(1e4) / v_c): the slope is bounded
+    (``SLOPE_LIMIT / v_c``), and 40 Adam steps of the acceleration loss through it keep every gradient
+    and parameter finite."""
+    from lnn_torch.mechanics.friction import SLOPE_LIMIT
+    from lnn_torch.training.losses import acceleration_loss
+
+    system = get_system("actuated_double_pendulum", coulomb_velocity=1e-3)
+    model = build_model("film_lnn", system, friction="viscous+coulomb+sigmoid").double()
+    q, qd, params, tau = fitted(model, system, rng, 128)
+    qd = qd * torch.where(torch.rand_like(qd) < 0.5, 1e-3, 1.0)  # half the rates inside the steps
+    qdd = system.acceleration(q, qd, params, tau)
+    forces = model.forces
+    with torch.no_grad():
+        forces.coefficient_net[-1].bias[2 * forces.num_joints + forces.num_joints:][:forces.num_joints] = 1e4
+    coefficients = forces.drive_coefficients(model.normalizer.params(params))
+    assert float(coefficients["phi2"].max()) <= SLOPE_LIMIT / 1e-3 * (1 + 1e-12)
+    assert float(coefficients["phi2"].max()) > 0.99 * SLOPE_LIMIT / 1e-3
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    for _ in range(40):
+        optimizer.zero_grad()
+        loss = acceleration_loss(model.acceleration(q, qd, params, tau, check=False), qdd, 1.0)
+        loss.backward()
+        assert torch.isfinite(loss)
+        assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+        optimizer.step()
+    assert all(torch.isfinite(p).all() for p in model.parameters())

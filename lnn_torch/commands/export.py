@@ -23,6 +23,16 @@ function on one thread). ``lnn_torch.export.programs`` has the details.
     lnn-torch export lightning_logs/version_0/checkpoints/last.ckpt --format pt2 onnx --dtype float64
 
 In Python: ``torch.export.load("exported/forward_dynamics.pt2").module()(q, qd, params)``.
+
+``--format mjcf`` or ``urdf`` hands an arm's grey box (kinetic part ``spatial``) back as its robot
+description: the description it was built from with the identified link masses, centres of mass,
+inertias, joint armature, damping and friction loss (and ``--payload``, the load at the flange), nothing
+else changed; MuJoCo loaded from it has the model's rigid-body dynamics. What the format cannot express
+(Coulomb smoothing, friction offset, Stribeck, a learned residual, URDF's armature) is printed and
+kept in ``OUT.json`` beside it (``lnn_torch.export.description``). ``-o`` names the file (``.xml``,
+``.urdf``) or a folder:
+
+    lnn-torch export lightning_logs/version_0/checkpoints/last.ckpt --format mjcf -o panda_identified.xml
 """
 
 from __future__ import annotations
@@ -31,6 +41,7 @@ import argparse
 
 
 def _parser() -> argparse.ArgumentParser:
+    from ..export.description import FORMATS as DESCRIPTION_FORMATS
     from ..export.programs import DTYPES, FORMATS, FUNCTIONS
     from ..pretrained import available
 
@@ -40,9 +51,16 @@ def _parser() -> argparse.ArgumentParser:
                     help="a .ckpt written by lnn-torch fit, or pretrained:NAME for a shipped model "
                          f"({', '.join(available()) or 'none'})")
     ap.add_argument("--output-dir", "-o", default=None,
-                    help="default: export/NAME for pretrained:NAME, else <checkpoint folder>/../export")
-    ap.add_argument("--format", nargs="+", default=["pt2"], choices=FORMATS, dest="formats", metavar="FORMAT",
-                    help=f"one or more of {', '.join(FORMATS)} (default pt2)")
+                    help="default: export/NAME for pretrained:NAME, else <checkpoint folder>/../export; with only "
+                         "mjcf or urdf it may name the file (.xml, .urdf)")
+    formats = FORMATS + DESCRIPTION_FORMATS
+    ap.add_argument("--format", nargs="+", default=["pt2"], choices=formats, dest="formats", metavar="FORMAT",
+                    help=f"one or more of {', '.join(formats)} (default pt2); mjcf, urdf: the identified arm as its "
+                         "robot description (a grey box built from one)")
+    ap.add_argument("--payload", nargs="+", type=float, default=None, metavar="VALUE",
+                    help="mjcf, urdf: the load at the flange written as the body 'payload' (and the model "
+                         "evaluated with it): mass cx cy cz [Ixx Iyy Izz Ixy Ixz Iyz] (kg, m, kg m^2; flange frame, "
+                         "inertia about its centre of mass)")
     ap.add_argument("--functions", nargs="+", default=None, choices=FUNCTIONS, metavar="FUNCTION",
                     help=f"among {', '.join(FUNCTIONS)} (default: every one the model has)")
     ap.add_argument("--dtype", default=None, choices=sorted(DTYPES),
@@ -61,9 +79,41 @@ def _signature(entry: dict) -> str:
     return f"({args}) -> {out['name']}{shape(out)}"
 
 
+def _write_descriptions(module, args, out, formats) -> None:
+    """``--format mjcf|urdf``: the grey box's robot description with what it identified."""
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..export.description import SUFFIXES, refusal, write_description
+
+    why = refusal(module)
+    if why is not None:
+        raise InputError(why)
+    out = Path(out)
+    named = out.suffix.lower() in (".xml", ".mjcf", ".urdf")
+    if named and len(formats) > 1:
+        raise InputError(f"-o {out} names one file; {' and '.join(formats)} need a folder")
+    for fmt in formats:
+        if named:
+            path = out
+        else:
+            stem = module.model.part("kinetic", "spatial").description.path.stem
+            path = out / f"{stem}_identified{SUFFIXES[fmt]}"
+        result = write_description(module, path, fmt, payload=args.payload, overwrite=args.overwrite)
+        print(f"wrote {result.path} ({fmt}: the identified links' masses, centres of mass and inertias; the joints' "
+              + ("armature, " if fmt == "mjcf" else "") + "damping and friction)")
+        if result.unexpressed:
+            print(f"not expressed in {fmt.upper()} (values in {result.sidecar}):")
+            for line in result.unexpressed:
+                print(f"  - {line}")
+        for note in result.notes:
+            print(f"note: {note}")
+
+
 def main(argv: list[str]) -> int:
     import json
 
+    from ..export.description import FORMATS as DESCRIPTION_FORMATS
     from ..export.programs import export_model
     from ..perf import configure_cpu, quiet_compile_logs
     from ..training.checkpoint_format import output_dir
@@ -72,9 +122,20 @@ def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     configure_cpu(args.threads)
     quiet_compile_logs()
+    descriptions = [f for f in args.formats if f in DESCRIPTION_FORMATS]
+    programs = [f for f in args.formats if f not in DESCRIPTION_FORMATS]
+    if args.payload is not None and len(args.payload) not in (4, 10):
+        from ..errors import InputError
+
+        raise InputError(f"--payload takes 4 values (mass cx cy cz) or 10 (and Ixx Iyy Izz Ixy Ixz Iyz), got "
+                         f"{len(args.payload)}")
     module = load_model(args.checkpoint)
     out_dir = output_dir(args.checkpoint, args.output_dir, "export")
-    files = export_model(module, out_dir, functions=args.functions, formats=args.formats, dtype=args.dtype,
+    if descriptions:
+        _write_descriptions(module, args, out_dir, descriptions)
+    if not programs:
+        return 0
+    files = export_model(module, out_dir, functions=args.functions, formats=programs, dtype=args.dtype,
                          source=args.checkpoint, overwrite=args.overwrite)
     meta = json.loads(files[-1].read_text())
     width = max(map(len, meta["functions"]))

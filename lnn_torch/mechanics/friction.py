@@ -37,6 +37,10 @@ LINEAR = ("viscous", "coulomb", "offset", "stribeck")  # linear in their one coe
 PASSIVE = {"viscous": True, "coulomb": True, "offset": False, "stribeck": True, "sigmoid": True}
 COEFFICIENTS = {"viscous": ("b",), "coulomb": ("c",), "offset": ("o",), "stribeck": ("s",),
                 "sigmoid": ("phi1", "phi2", "phi3")}
+# the steepest slope a friction law's smoothed step may take, relative to the Coulomb smoothing velocity:
+# the sigmoid's phi2 <= SLOPE_LIMIT / v_c (2,500 s/rad at v_c = 0.02 rad/s; Gaz et al.'s Panda: 5-60 s/rad).
+# A step sharper than the data's velocity resolution is not identifiable, and its gradients are spikes
+SLOPE_LIMIT = 50.0
 UNITS = {"b": "N m s/rad", "c": "N m", "o": "N m", "s": "N m", "phi1": "N m", "phi2": "s/rad", "phi3": "rad/s"}
 
 

@@ -63,13 +63,14 @@ from ..mechanics.forces import (
     input_force,
     stick_weight,
 )
-from ..mechanics.friction import DriveModel
+from ..mechanics.friction import SLOPE_LIMIT, DriveModel
 from .normalization import trusted
 
 DISSIPATION = ("joint", "joint+rayleigh", "joint+stiction")
 _INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1 of their unit
 # the coefficients beyond (b, c), per joint, in the order of the drive model's forms: (name, raw start);
-# the sigmoid's phi2 = softplus(raw) / v_c starts at 0.6 / v_c (30 s/rad at v_c = 0.02 rad/s)
+# the sigmoid's phi2 = L tanh(softplus(raw) / L) / v_c (L = SLOPE_LIMIT: bounded) starts at 0.6 / v_c (30 s/rad at
+# v_c = 0.02 rad/s)
 _EXTRA = {"offset": (("o", 0.0),), "stribeck": (("s", _INIT),),
           "sigmoid": (("phi1", _INIT), ("phi2", math.log(math.expm1(0.6))), ("phi3", 0.0))}
 
@@ -210,8 +211,8 @@ class LearnedForces(nn.Module):
         torque = self.units[1].to(raw.dtype)
         for k, (name, _) in enumerate(self.extra):
             r = raw[..., k * self.num_joints:(k + 1) * self.num_joints]
-            if name == "phi2":
-                out[name] = F.softplus(r) / self.coulomb_velocity
+            if name == "phi2":  # bounded: SLOPE_LIMIT / v_c at most, softplus(raw) / v_c well below it
+                out[name] = SLOPE_LIMIT * torch.tanh(F.softplus(r) / SLOPE_LIMIT) / self.coulomb_velocity
             elif name == "phi3":
                 out[name] = r * self.coulomb_velocity
             elif name == "o":
