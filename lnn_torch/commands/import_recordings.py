@@ -1,4 +1,4 @@
-"""``lnn-torch import``: CSV recordings of a real system -> an lnn_torch HDF5 dataset.
+"""``lnn-torch import``: recordings of a real system (CSV files or ROS bags) -> an lnn_torch HDF5 dataset.
 
 One CSV per recording (``.csv`` or ``.csv.gz``; ``,``, ``;`` or tab delimited, as the header shows), a
 header row naming the columns. Name the columns of time, coordinates and (optionally) velocities and
@@ -9,8 +9,17 @@ fractions, seeded, or ``--split-recordings``; a recording is named by its file n
 and ``.csv``). Settings can also come from a YAML file (``--config``; the fields of
 ``lnn_torch.data.importer.ImportSpec``), which the command line overrides.
 
+ROS bags of sensor_msgs/JointState (ROS 2 ``.db3`` or ``.mcap``, the file alone or its rosbag2 folder;
+ROS 1 ``.bag``; needs ``pip install 'lnn-torch[bags]'``): the topic (``--topic``, default /joint_states)
+and the bag's joint names mapped to the model's in the config (``joints: {bag name: model name}``);
+positions, velocities and efforts are read, stale repeated messages dropped and counted. For every
+log with inputs the delay of the torques behind the positions is estimated and printed (applied with
+``--torque-delay auto`` or a number of seconds).
+
     lnn-torch import recordings/*.csv -o data/arm.h5 --coordinates pos1 pos2 --velocities vel1 vel2 \\
         --inputs tau1 tau2 --angle-combination 1 1 --conventions "q2 relative to link 1"
+    lnn-torch import ../shared/data/ros2_bags/panda_exciting_trajectory.db3 \\
+        --config configs/import/franka_bag.yaml -o data/franka_bag.h5
 """
 
 from __future__ import annotations
@@ -26,7 +35,8 @@ from ..errors import InputError
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lnn-torch import", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("files", nargs="+", help="CSV recordings (globs are expanded)")
+    ap.add_argument("files", nargs="+", help="CSV recordings, or ROS bags (.db3, .mcap, .bag, a rosbag2 folder); "
+                    "globs are expanded")
     ap.add_argument("--output", "-o", required=True, help="the HDF5 dataset to write")
     ap.add_argument("--config", default=None, help="YAML (or JSON) with ImportSpec fields")
     ap.add_argument("--time", default=None, help="time column (default 'time')")
@@ -60,6 +70,13 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--split-recordings", nargs="+", default=None, metavar="PART=NAME,NAME",
                     help="e.g. train=run1,run2 val=run3 test=run4 (names: file names without .gz, .csv)")
     ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--topic", default=None, help="a ROS bag's topic of sensor_msgs/JointState (default /joint_states)")
+    ap.add_argument("--torque-delay", default=None, metavar="S|auto|off",
+                    help="the inputs' delay behind the positions: estimated and reported by default; 'auto' applies "
+                    "the estimate, a number (s) applies that delay, 'off' skips the estimate")
+    ap.add_argument("--repeated-rows", choices=("drop", "keep"), default=None,
+                    help="rows identical to the previous one while the joints move (default: dropped from bags, "
+                    "kept in CSV files; counted either way)")
     ap.add_argument("--label", default=None, help="the system's name (recorded)")
     ap.add_argument("--overwrite", action="store_true")
     return ap
@@ -101,7 +118,8 @@ def spec_from_args(args):
              "angle_units": args.angle_units, "length_units": args.length_units, "delimiter": args.delimiter,
              "decimal": args.decimal, "conventions": args.conventions,
              "angle_combinations": args.angle_combination, "coulomb_velocity": args.coulomb_velocity, "dt": args.dt,
-             "max_gap": args.max_gap, "seed": args.seed, "label": args.label}
+             "max_gap": args.max_gap, "seed": args.seed, "label": args.label, "topic": args.topic,
+             "torque_delay": args.torque_delay, "repeated_rows": args.repeated_rows}
     fields.update({k: v for k, v in flags.items() if v is not None})
     if args.no_friction:
         fields["friction"] = False
@@ -115,8 +133,9 @@ def spec_from_args(args):
                 raise InputError(f"--split-recordings takes train=..., val=..., test=...; got {item!r}")
             split[part] = [n for n in names.split(",") if n]
         fields["split"] = split
-    if "coordinates" not in fields:
-        raise InputError("import: name the coordinate columns (--coordinates or the config's coordinates)")
+    if "coordinates" not in fields and "joints" not in fields:
+        raise InputError("import: name the coordinate columns (--coordinates or the config's coordinates), or a ROS "
+                         "bag's joints (the config's joints)")
     unknown = set(fields) - set(ImportSpec.__dataclass_fields__)
     if unknown:
         raise InputError(f"import config: unknown field(s) {', '.join(sorted(unknown))}")
@@ -137,8 +156,29 @@ def slow_sampling_note(provenance: dict) -> str | None:
             "or ns, set time_units (--time-units)")
 
 
+def source_lines(provenance: dict) -> list[str]:
+    """One line per bag read (format, topic, messages, the time's source) and per recording with repeated
+    rows (how many, dropped or kept)."""
+    lines = []
+    for src in provenance.get("sources", []):
+        if src.get("format"):
+            ignored = f"; ignored joints {', '.join(src['ignored_joints'])}" if src.get("ignored_joints") else ""
+            lines.append(f"{src['file']}: {src['format']}, topic {src['topic']} ({src['type']}), {src['messages']} "
+                         f"messages, time from {src['time']}{ignored}")
+        rep = src.get("repeated_rows") or {}
+        if rep.get("count"):
+            at = ("message" if src.get("format") else "line") + ("s" if rep["count"] > 1 else "")
+            first = ", ".join(str(x) for x in rep["first"]) + (", ..." if rep["count"] > len(rep["first"]) else "")
+            what = "dropped" if rep["dropped"] else "kept (repeated_rows: drop drops them)"
+            rows = f"{rep['count']} repeated row{'s' if rep['count'] > 1 else ''}"
+            lines.append(f"{src['file']}: {rows} (identical to the previous one while the joints move: stale; {at} "
+                         f"{first}) {what}")
+    return lines
+
+
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
+    from ..data.bags import delay_lines
     from ..data.importer import import_recordings
     from ..data.resampling import resampling_report
 
@@ -150,8 +190,12 @@ def main(argv: list[str]) -> int:
     names = json.loads(f.attrs["recordings"])
     splits = "; ".join(f"{k}: {', '.join(names[i] for i in v)}" for k, v in f.splits.items())
     provenance = json.loads(f.attrs["provenance"])
-    for line in resampling_report(provenance):
+    for line in source_lines(provenance) + resampling_report(provenance):
         print(line)
+    delay = provenance.get("torque_delay")
+    if delay:
+        for line in delay_lines(delay, delay["mode"], delay["applied_s"]):
+            print(line)
     note = slow_sampling_note(provenance)
     if note:
         print(note)

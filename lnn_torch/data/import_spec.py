@@ -20,6 +20,9 @@ ARM_PARAMS = ("payload_mass", "payload_x", "payload_y", "payload_z", "payload_ix
               "payload_ixy", "payload_ixz", "payload_iyz")
 MIN_SAMPLES = 16  # the fewest samples of an entry (a recording or a window) after resampling
 DT_SPREAD = 0.02  # the relative spread of median intervals beyond which the default dt needs them to round alike
+STREAMS = ("position", "velocity", "effort")  # the fields of a sensor_msgs/JointState message
+STAMPS = ("auto", "header", "receive")
+REPEATED_ROWS = ("drop", "keep")
 
 
 @dataclass
@@ -70,9 +73,36 @@ class ImportSpec:
             or ``{"train": 0.7, "val": 0.15, "test": 0.15}``. Every entry needs 16 samples or more.
         window_context: seconds of the recording kept on each side of a time window (for filters).
         label: the system's name (recorded).
+
+    ROS bags (``.db3``, ``.mcap``, ``.bag`` or a rosbag2 folder; ``lnn_torch.data.bags``) of
+    ``sensor_msgs/JointState``: ``coordinates``, ``velocities`` and ``inputs`` (or ``currents``) name the
+    bag's *joints* whose position, velocity and effort they take (velocities and inputs default to the
+    coordinates' joints, for the ``streams`` imported); or ``joints`` maps them:
+
+    Attributes:
+        topic: the bag's topic of ``sensor_msgs/JointState`` messages (default ``/joint_states``).
+        joints: ``{bag joint name: model coordinate name}``, instead of ``coordinates``: the coordinates
+            are then the model's in its order (a robot's joints; else ``coord_names``; else the mapping's
+            order), their velocities and efforts the velocities and inputs (for the ``streams``
+            imported). Every model coordinate must be mapped; a joint of the bag that is not mapped is
+            refused unless listed in ``ignore_joints``.
+        ignore_joints: joints of the bag not imported (e.g. a gripper's fingers).
+        streams: the JointState fields imported: ``position`` and any of ``velocity``, ``effort`` (default
+            all three).
+        stamps: a bag's time: ``header`` (the messages' header stamps), ``receive`` (the bag's receive
+            times) or ``auto`` (default: the header stamps unless every one is zero).
+        repeated_rows: a row identical to the previous one in every imported value (a stale message:
+            the publisher sent the last state again) is ``drop``-ped or ``keep``-t; default: dropped in a
+            bag, kept in a CSV (where it is reported). A row at rest (every measured velocity exactly
+            zero; without velocities, the next row's positions the same) is kept; one that also repeats
+            the time stamp is dropped even then.
+        torque_delay: the delay of the torque (input) stream behind the positions, s: estimated and
+            reported (default None: not applied), ``auto`` (the estimate applied), a number (that delay
+            applied: each input at t replaced by its value at t + delay) or ``off`` (not estimated).
+        torque_delay_range: the delays searched, +- s (default the larger of 5 samples and 50 ms).
     """
 
-    coordinates: list[str]
+    coordinates: list[str] | None = None
     time: str = "time"
     time_units: str = "s"
     velocities: list[str] | None = None
@@ -100,8 +130,21 @@ class ImportSpec:
     window_context: float = 0.5
     seed: int = 0
     label: str = "measured"
+    topic: str = "/joint_states"
+    joints: dict | None = None
+    ignore_joints: list[str] | None = None
+    streams: list[str] | None = None
+    stamps: str = "auto"
+    repeated_rows: str | None = None
+    torque_delay: float | str | None = None
+    torque_delay_range: float | None = None
 
     def __post_init__(self) -> None:
+        self._bag_fields()
+        if self.joints is not None:
+            self._mapped_joints()
+        if self.coordinates is None:
+            raise InputError("import: name the coordinate columns (coordinates), or a bag's joints (joints)")
         dof = len(self.coordinates)
         if dof == 0:
             raise InputError("import: name at least one coordinate column")
@@ -146,6 +189,107 @@ class ImportSpec:
     @property
     def input_columns(self) -> list[str]:
         return list(self.inputs or self.currents or [])
+
+    @property
+    def delay_mode(self) -> str:
+        """``estimate`` (reported only), ``auto``, ``off`` or ``fixed`` (``torque_delay`` s applied)."""
+        if self.torque_delay is None:
+            return "estimate"
+        return self.torque_delay if isinstance(self.torque_delay, str) else "fixed"
+
+    def _bag_fields(self) -> None:
+        """Check the fields for ROS bags (their types and values)."""
+        if not isinstance(self.topic, str) or not self.topic.strip("/"):
+            raise InputError(f"import: topic must name a topic, e.g. /joint_states; got {self.topic!r}")
+        if self.streams is not None:
+            streams = list(self.streams)
+            unknown = [x for x in streams if x not in STREAMS]
+            if unknown or "position" not in streams or len(set(streams)) != len(streams):
+                raise InputError(f"import: streams lists position and any of velocity, effort (the JointState "
+                                 f"fields imported), got {streams}")
+        for name, known in (("stamps", STAMPS), ("repeated_rows", (None, *REPEATED_ROWS))):
+            if getattr(self, name) not in known:
+                raise InputError(f"import: {name} must be one of {', '.join(str(k) for k in known if k)}, got "
+                                 f"{getattr(self, name)!r}")
+        delay = self.torque_delay
+        if isinstance(delay, str):
+            try:
+                self.torque_delay = delay = float(delay)  # a number given as text (the command line)
+            except ValueError:
+                if delay not in ("auto", "off"):
+                    raise InputError(f"import: torque_delay must be a delay in s, auto or off; got {delay!r}") from None
+        if delay is not None and not isinstance(delay, str):
+            if isinstance(delay, bool) or not math.isfinite(float(delay)):
+                raise InputError(f"import: torque_delay must be a delay in s, auto or off; got {delay!r}")
+            self.torque_delay = float(delay)
+        span = self.torque_delay_range
+        if span is not None and not (math.isfinite(span) and span > 0):
+            raise InputError(f"import: torque_delay_range must be positive (s), got {span}")
+        for name in ("ignore_joints",):
+            value = getattr(self, name)
+            if value is not None and not all(isinstance(x, str) for x in value):
+                raise InputError(f"import: {name} must list joint names, got {value!r}")
+
+    def _mapped_joints(self) -> None:
+        """``coordinates`` (the bag's joints) and ``coord_names`` (the model's) from ``joints``, in the
+        model's order: a robot's joints, else ``coord_names``, else the mapping's; every model coordinate
+        mapped once (the ones left over, or mapped twice, named)."""
+        joints = self.joints
+        if not isinstance(joints, dict) or not joints or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in joints.items()):
+            raise InputError(f"import: joints maps a bag's joint names to the model's coordinates ({{bag name: "
+                             f"model name}}), got {joints!r}")
+        names = list(joints.values())
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise InputError(f"import: joints maps several bag joints to {', '.join(twice)}")
+        if self.robot is not None:
+            from ..robots.mujoco_arm import MujocoArm
+
+            order, whose = list(MujocoArm(self.robot).joint_names), f"a joint of robot {self.robot}"
+        elif self.coord_names is not None:
+            order, whose = list(self.coord_names), "in coord_names"
+        else:
+            order, whose = names, ""
+        unmapped = [n for n in order if n not in names]
+        unknown = [f"{k} -> {v}" for k, v in joints.items() if v not in order]
+        if unmapped or unknown:
+            parts = ([f"no bag joint is mapped to {', '.join(unmapped)}"] if unmapped else []) + (
+                [f"{', '.join(unknown)}: not {whose} "
+                 f"({', '.join(order)})"] if unknown else [])
+            raise InputError(f"import: joints: {'; '.join(parts)}")
+        by_model = {v: k for k, v in joints.items()}
+        mapped = [by_model[n] for n in order]
+        if self.coordinates is not None and list(self.coordinates) != mapped:
+            raise InputError("import: give a bag's joints either as joints (mapped to the model's names) or as "
+                             "coordinates, not both")
+        self.coordinates = mapped
+        if self.coord_names is None:
+            self.coord_names = list(order)
+        streams = self.streams or STREAMS
+        if "velocity" in streams and self.velocities is None:
+            self.velocities = list(mapped)  # a bag's: the velocities of the same joints
+        if "effort" in streams and self.inputs is None and self.currents is None:
+            self.inputs = list(mapped)
+
+    def for_bags(self) -> ImportSpec:
+        """This spec for ROS bags: velocities and inputs default to the coordinates' joints (for the
+        ``streams`` imported), repeated rows to ``drop``."""
+        import dataclasses
+
+        streams = list(self.streams or STREAMS)
+        velocities, inputs = self.velocities, self.inputs
+        if "velocity" in streams:
+            velocities = list(self.coordinates) if velocities is None else velocities
+        elif velocities:
+            raise InputError("import: velocities are named, but streams leaves velocity out")
+        if "effort" in streams:
+            if inputs is None and self.currents is None:
+                inputs = list(self.coordinates)
+        elif self.input_columns:
+            raise InputError("import: inputs (or currents) are named, but streams leaves effort out")
+        return dataclasses.replace(self, velocities=velocities, inputs=inputs, streams=streams,
+                                   repeated_rows=self.repeated_rows or "drop")
 
     def _arm_joints(self) -> tuple[str, ...]:
         """The joint names of the ``robot`` description (its coordinates, in order), checked against the

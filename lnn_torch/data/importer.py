@@ -35,6 +35,13 @@ increase (or repeats), an empty, unreadable, NaN or Inf value, a gap longer than
 entry (recording or window) of fewer than 16 samples after resampling, an existing output (unless
 ``overwrite``). The file records the provenance: source names, SHA-256 checksums, the resampling
 report and every setting.
+
+ROS bags of ``sensor_msgs/JointState`` (``.db3``, ``.mcap``, ``.bag``, a rosbag2 folder) are read into the
+same table (``lnn_torch.data.bags``: ``read_table`` chooses the reader by the file), and everything after
+the table is shared. Rows that repeat the previous one while the joints move (stale messages) are
+dropped from bags (``repeated_rows``; counted in a CSV and kept unless asked), and the delay of the input
+(torque) columns behind the positions is estimated and reported, applied where ``torque_delay`` says so
+(``bags.torque_delay``); the provenance records both per recording.
 """
 
 from __future__ import annotations
@@ -49,54 +56,176 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import InputError
+from .bags import BAG_SUFFIXES, bag_name, is_bag, read_bag_table, repeated_rows, shift_inputs, torque_delay
 from .hdf5 import check_writable, write_dataset
-from .import_spec import ANGLE_UNITS, DT_SPREAD, LENGTH_UNITS, MIN_SAMPLES, TIME_UNITS, ImportSpec
+from .import_spec import ANGLE_UNITS, ARM_PARAMS, DT_SPREAD, LENGTH_UNITS, MIN_SAMPLES, TIME_UNITS, ImportSpec
 from .resampling import checked_time, resample
 from .splits import split_entries
 from .tables import EXTENSIONS, read_csv_table, recording_name
 
 
+def read_table(path: Path, spec: ImportSpec) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``(table (rows, 1 + k), lines (rows,), info)``: one recording as numbers, time in s first, then the
+    coordinates, velocities and inputs in the spec's order, whatever the file: a ROS bag
+    (``bags.read_bag_table``; ``lines`` its message numbers, ``info`` what was read) or a CSV table."""
+    if is_bag(path):
+        return read_bag_table(path, spec)
+    columns = [spec.time, *spec.coordinates, *(spec.velocities or []), *spec.input_columns]
+    raw, lines = read_csv_table(path, columns, spec.delimiter, spec.decimal)
+    if spec.time_units != "s":
+        raw[:, 0] = raw[:, 0] / TIME_UNITS[spec.time_units]
+    return raw, lines, {}
+
+
+def _name(path: Path) -> str:
+    return bag_name(path) if is_bag(path) else recording_name(path)
+
+
+def _checksum(path: Path) -> str:
+    """SHA-256 of a file, or of a folder's files (names and contents, in order of name)."""
+    digest = hashlib.sha256()
+    if not path.is_dir():
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+        return digest.hexdigest()
+    for f in sorted(p for p in path.rglob("*") if p.is_file()):
+        digest.update(str(f.relative_to(path)).encode() + b"\0" + bytes.fromhex(_checksum(f)))
+    return digest.hexdigest()
+
+
 def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bool = False) -> Path:
     """Read, check and resample the recordings, and write the dataset file (atomically).
 
-    ``files``: CSV paths, one recording each (its name: ``recording_name``). Returns the path written.
+    ``files``: CSV paths or ROS bags, one recording each (its name: ``recording_name``, ``bags.bag_name``).
+    Returns the path written.
     """
     files = [Path(f) for f in files]
     if not files:
         raise InputError("import: no recordings given")
-    stems = [recording_name(f) for f in files]  # run.csv and run.csv.gz are both "run"
+    bags = [is_bag(f) for f in files]
+    if any(bags) and not all(bags):
+        raise InputError("import: give CSV recordings or ROS bags, not both (their columns are named differently)")
+    if all(bags):
+        spec = spec.for_bags()
+    elif spec.joints is not None:
+        raise InputError("import: joints maps a ROS bag's joint names; a CSV's columns are named in coordinates")
+    stems = [_name(f) for f in files]  # run.csv and run.csv.gz are both "run"
     if len(set(stems)) != len(stems):
-        raise InputError(f"import: recording names (file names without .gz and {', '.join(EXTENSIONS)}) must be "
-                         f"unique: {stems}")
+        raise InputError(f"import: recording names (file names without .gz and {', '.join(EXTENSIONS)}, or "
+                         f"{', '.join(BAG_SUFFIXES)}) must be unique: {stems}")
     output = check_writable(output, overwrite)  # before any work
     decl, param_table = spec.parameter_table(stems)
     system = spec.system(decl)
-    columns = [spec.time, *spec.coordinates, *(spec.velocities or []), *spec.input_columns]
-    records, timing = [], []
-    for f in files:
-        raw, lines = read_csv_table(f, columns, spec.delimiter, spec.decimal)
-        if spec.time_units != "s":
-            raw[:, 0] = raw[:, 0] / TIME_UNITS[spec.time_units]
-        timing.append(checked_time(f, raw[:, 0], spec.max_gap, lines))
-        records.append(raw)
+    records, lines_of, timing, infos = _read(files, spec, system.dof)
     dt = _interval(files, timing, spec.dt)
     resampled = [resample(raw, dt) for raw in records]
+    delay, applied = _delay(system, spec, stems, resampled, param_table, decl, dt)
+    if applied:  # the inputs shifted on the recorded stamps, then every column resampled again
+        for i, f in enumerate(files):
+            records[i], lines_of[i] = shift_inputs(records[i], lines_of[i], system.num_inputs, applied)
+            if len(records[i]) < 2:
+                raise InputError(f"{f}: a torque delay of {applied:g} s leaves fewer than two samples")
+            timing[i] = _checked_time(f, records[i][:, 0], spec.max_gap, lines_of[i], bool(infos[i].get("format")))
+        resampled = [resample(raw, dt) for raw in records]
     entries, splits = split_entries(stems, spec.split, spec.seed, [len(r) * dt for r in resampled])
     pieces, windows = _pieces(entries, resampled, records, stems, dt, int(round(spec.window_context / dt)))
     arrays = _arrays(system, spec, resampled, pieces, windows, param_table, dt)
     settings = {**asdict(spec), "dt": dt}
-    provenance = {"sources": [{"file": f.name, "sha256": hashlib.sha256(f.read_bytes()).hexdigest(), "rows": len(r),
-                               "resampled_points": len(res), "timing": tm}
-                              for f, r, res, tm in zip(files, records, resampled, timing, strict=True)],
+    provenance = {"sources": [{"file": f.name, "sha256": _checksum(f), "rows": len(r), "t0_s": float(r[0, 0]),
+                               "resampled_points": len(res), "timing": tm, **info}
+                              for f, r, res, tm, info in zip(files, records, resampled, timing, infos, strict=True)],
                   "resampling": f"every column linearly interpolated onto t_0 + k dt, dt = {dt:g} s (median interval "
                                 f"of the first recording {timing[0]['median_interval_s']:.4g} s)", "settings": settings,
                   "entries": [{"name": name, "recording": stems[i], "from_s": lo * dt, "to_s": (hi - 1) * dt,
                                "window": list(w)} for (i, _, _, name), (_, lo, hi), w
                               in zip(entries, pieces, windows, strict=True)]}
+    if delay:
+        provenance["torque_delay"] = {**delay, "mode": spec.delay_mode, "applied_s": applied or 0.0}
     if spec.currents:
         provenance["inputs"] = {"from": "motor currents (A) times drive_gains (N m per A)", "columns": spec.currents,
                                 "drive_gains": [float(g) for g in spec.drive_gains]}
     return write_dataset(output, arrays, splits, _attributes(system, spec, entries, provenance), overwrite=overwrite)
+
+
+def _read(files: list[Path], spec: ImportSpec, dof: int) -> tuple[list, list, list, list]:
+    """Each recording's table (repeated rows dropped where ``repeated_rows`` says so), its lines (or
+    messages), its timing (checked) and what was read (with the repeated rows' count)."""
+    records, lines_of, timing, infos = [], [], [], []
+    drop = (spec.repeated_rows or "keep") == "drop"
+    for f in files:
+        raw, lines, info = read_table(f, spec)
+        repeated = repeated_rows(raw, dof, bool(spec.velocities))
+        info["repeated_rows"] = {"count": int(repeated.sum()), "dropped": drop,
+                                 "first": [int(x) for x in lines[repeated][:5]]}
+        if drop and repeated.any():
+            raw, lines = raw[~repeated], lines[~repeated]
+        timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines, bool(info.get("format"))))
+        records.append(raw)
+        lines_of.append(lines)
+        infos.append(info)
+    return records, lines_of, timing, infos
+
+
+def _delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, dt: float) -> tuple[dict, float]:
+    """``(report, applied s)``: the inputs' delay estimated (``_torque_delay``; none without inputs or with
+    ``torque_delay: off``) and the delay to apply: the estimate (``auto``: refused where it is not
+    determined or lies at the edge of the range searched), the given one, or 0."""
+    delay = {}
+    if system.num_inputs and spec.delay_mode != "off":
+        delay = _torque_delay(system, spec, stems, resampled, param_table, decl, dt)
+    if spec.delay_mode in ("fixed", "auto") and not system.num_inputs and spec.torque_delay:
+        raise InputError("import: torque_delay shifts the inputs (torques): these recordings have none")
+    if spec.delay_mode == "fixed":
+        return delay, float(spec.torque_delay)
+    if spec.delay_mode != "auto" or not system.num_inputs:
+        return delay, 0.0
+    if "delay_s" not in delay:
+        raise InputError("import: torque_delay auto: no recording is long enough to estimate the delay; set "
+                         "torque_delay (s)")
+    if not delay["consistent"]:
+        halves = ", ".join(f"{1e3 * x:+.3g}" for r in delay["recordings"] for x in r.get("halves_s", []))
+        raise InputError(f"import: torque_delay auto: the delay is not determined (the recordings' halves give "
+                         f"{halves} ms, beyond their errors: Birge ratio {delay['birge']:.2g}); set torque_delay (s)")
+    if delay["at_edge"]:
+        raise InputError(f"import: torque_delay auto: the estimate {1e3 * delay['delay_s']:+.3g} ms lies at the edge "
+                         f"of the delays searched (+-{1e3 * delay['searched_s']:.3g} ms): widen torque_delay_range, or "
+                         "set torque_delay (s)")
+    return delay, delay["delay_s"]
+
+
+def _checked_time(path: Path, t: np.ndarray, max_gap, lines: np.ndarray, bag: bool) -> dict:
+    """``resampling.checked_time``; a bag's refusals name its message (its ``lines``) rather than a line."""
+    try:
+        return checked_time(path, t, max_gap, lines)
+    except InputError as err:
+        if not bag:
+            raise
+        raise InputError(str(err).replace(f"{path}: line ", f"{path}: message ", 1)) from None
+
+
+def _torque_delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, dt: float) -> dict:
+    """The input columns' delay behind the positions (``bags.torque_delay``) on the resampled recordings:
+    by a robot arm's regressor where the inputs are its joint torques, else by the generic basis."""
+    series = []
+    for i, name in enumerate(stems):
+        q, qd, tau = _si(system, spec, resampled[i])
+        series.append({"name": name, "q": q, "qd": qd, "tau": tau, "params": param_table[i]})
+    chain, payload = None, False
+    description = system.config().get("description")
+    if description is not None and np.allclose(system.input_matrix(), np.eye(system.dof)):
+        from ..robots.kinematics import read_chain
+        from ..robots.mujoco_arm import load_description
+
+        chain = read_chain(load_description(description))
+        names = list(decl.get("names", ()))
+        payload = len(names) in (4, 10) and names == list(ARM_PARAMS[:len(names)])
+    report = torque_delay(series, dt, chain=chain, payload=payload, angle_mask=system.angle_mask,
+                          combinations=spec.angle_combinations, coulomb_velocity=spec.coulomb_velocity,
+                          span=spec.torque_delay_range)
+    units = set(system.input_units)
+    report["units"] = units.pop() if len(units) == 1 else ""
+    return report
 
 
 def _interval(files: list[Path], timing: list[dict], dt: float | None) -> float:
@@ -145,22 +274,18 @@ def _arrays(system, spec: ImportSpec, resampled, pieces, windows, param_table, d
     """The dataset's arrays in SI, NaN-padded to the longest entry: ``t, q, qd, params, lengths``, and
     ``windows``, ``tau`` where there are any."""
     dof, n_u = system.dof, system.num_inputs
-    unit = np.where(np.array(system.angle_mask), ANGLE_UNITS[spec.angle_units], LENGTH_UNITS[spec.length_units])
-    gains = np.asarray(spec.drive_gains, dtype=np.float64) if spec.currents else np.ones(n_u)
     lengths = [hi - lo for _, lo, hi in pieces]
     T, N = max(lengths), len(pieces)
     q, qd = np.full((N, T, dof), np.nan), np.full((N, T, dof), np.nan)
     tau = np.full((N, T, n_u), np.nan) if n_u else None
     for k, (i, lo, hi) in enumerate(pieces):
-        cols = resampled[i][lo:hi]
         L = hi - lo
-        q[k, :L] = cols[:, :dof] * unit
-        c = dof
-        if spec.velocities:
-            qd[k, :L] = cols[:, c:c + dof] * unit
-            c += dof
+        q_i, qd_i, tau_i = _si(system, spec, resampled[i][lo:hi])
+        q[k, :L] = q_i
+        if qd_i is not None:
+            qd[k, :L] = qd_i
         if n_u:
-            tau[k, :L] = cols[:, c:c + n_u] * gains
+            tau[k, :L] = tau_i
     arrays = {"t": dt * np.arange(T), "q": q, "qd": qd, "params": param_table[[i for i, _, _ in pieces]],
               "lengths": np.asarray(lengths, dtype=np.int64)}
     if any(w != (0, n) for w, n in zip(windows, lengths, strict=True)):
@@ -168,6 +293,18 @@ def _arrays(system, spec: ImportSpec, resampled, pieces, windows, param_table, d
     if n_u:
         arrays["tau"] = tau
     return arrays
+
+
+def _si(system, spec: ImportSpec, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """``(q, qd or None, inputs)`` in SI from resampled columns ``(T, k)`` (coordinates, [velocities],
+    inputs in the spec's units)."""
+    dof, n_u = system.dof, system.num_inputs
+    unit = np.where(np.array(system.angle_mask), ANGLE_UNITS[spec.angle_units], LENGTH_UNITS[spec.length_units])
+    gains = np.asarray(spec.drive_gains, dtype=np.float64) if spec.currents else np.ones(n_u)
+    q = cols[:, :dof] * unit
+    qd = cols[:, dof:2 * dof] * unit if spec.velocities else None
+    c = 2 * dof if spec.velocities else dof
+    return q, qd, cols[:, c:c + n_u] * gains
 
 
 def _attributes(system, spec: ImportSpec, entries, provenance: dict) -> dict:

@@ -1,0 +1,435 @@
+"""Robot logs as robotics users have them: ROS bags of ``sensor_msgs/JointState`` read as the table a CSV
+gives, and two checks ``lnn-torch import`` makes of every log (a CSV's too): rows that repeat the previous
+one (stale messages), and the delay of the torque stream behind the positions.
+
+Bags: ROS 2 (sqlite3 ``.db3``, MCAP ``.mcap``; the storage file alone, as users often have it, or a rosbag2
+folder with its ``metadata.yaml``) and ROS 1 (``.bag``), read by the ``rosbags`` library (the optional extra
+``pip install 'lnn-torch[bags]'``). One topic (``ImportSpec.topic``, default ``/joint_states``) of
+``sensor_msgs/JointState``; each message is a row: time (s from the first message: its header stamp, or
+the bag's receive time where every header stamp is zero; ``stamps``), then the positions, velocities and
+efforts of the named joints in the model's order (``coordinates``, ``velocities``, ``inputs``: joints of
+the bag; or ``joints``, a mapping of the bag's names to the model's). A joint the mapping needs that a
+message lacks, a joint of the bag neither mapped nor in ``ignore_joints``, an empty or short array and a
+NaN are refused in one line naming the message (counted from 1 along the topic). The recording's name is
+the file's without ``.db3``, ``.mcap`` or ``.bag`` (a folder's: its name).
+
+Repeated rows (``repeated_rows``): a row identical to the previous one in every imported value while the
+joints move (a publisher that sent its last state again) is dropped in a bag by default and counted; in a
+CSV it is counted and kept unless ``repeated_rows: drop``. A row at rest (every measured velocity exactly
+zero; without velocities, the next row's positions equal) is a legitimate sample and kept; an exact
+duplicate (the time stamp repeated too) is dropped whenever rows are dropped. Stamps that go backwards, or
+repeat with other values, are refused as in a CSV.
+
+The torque delay (``torque_delay``): the shift ``d`` of the input columns that best explains them by the
+state, ``tau(t + d) = f(q(t), qd(t), qdd(t))``: positive where the torques are stamped late (a sensor or
+bus delay). Both sides are low-passed alike by a zero-phase filter (4th-order Butterworth, ``min(10 Hz,
+0.2 / dt)``), accelerations differentiated from the (measured) velocities; the shifted torques are a cubic
+spline of the filtered ones (sub-sample shifts). For a robot arm with its description the model is the
+rigid body's inverse dynamics, linear in its inertial parameters (``lnn_torch.robots.regressor.regressor``:
+the base parameters with armature and viscous damping) plus Coulomb and offset friction per joint, fitted
+by ordinary least squares at each shift: the residual is smallest where torques and motion line up, since
+a delay leaves ``d * dtau/dt`` that the instantaneous state cannot explain. Without a description (any
+system) the same criterion with a compact basis, linear in its coefficients, of the terms that carry a
+torque's variation at the frequencies of motion: ``1``, every ``qdd_k`` (inertia with a mean mass
+matrix), ``qd_k`` and ``tanh(qd_k / v_c)`` (friction), ``sin q_k, cos q_k`` (gravity; a length enters as
+itself): ``3 + 3 dof`` coefficients per input. Few on purpose: on one smooth trajectory any rich function
+of the state is a rich function of time, which fits a shifted torque as well as the true one (a basis
+with products of accelerations and angles and sums of angles, 184 coefficients per input for six joints,
+fitted the UR10 bag's torques to 0.03 N m at every shift and ran to the end of any range searched).
+Measured on a simulated Panda with a known delay (20 s of a 4-harmonic trajectory of about +-0.8 rad, torque
+noise 0.05-0.1 N m): the arm's regressor within 0.4 ms at 30, 100, 125 and 500 Hz, the compact basis within
+2 ms at 100-500 Hz and 7 ms at 30 Hz (the tests hold the regressor to 1 ms at 30 and 100 Hz, the basis to 2
+ms at 125 Hz). Each recording's two halves are fitted apart and their delays compared with their standard
+errors (``torque_delay``: the Birge ratio); where they disagree the model misses part of the dynamics, the
+error is widened, the estimate marked, and ``auto`` refuses it. The estimate is reported with the residual
+at zero delay and at the estimate, and applied only when asked (``auto`` or a number): each input at ``t``
+replaced by its value at ``t + d`` (a cubic spline through the stamps), the rows at the recording's end
+(``d > 0``) or start (``d < 0``) without a shifted input dropped (``t0_s`` in the provenance: the first row
+kept, from which windows count).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+BAG_SUFFIXES = (".db3", ".mcap", ".bag")
+JOINT_STATE = ("sensor_msgs/msg/JointState", "sensor_msgs/JointState")
+INSTALL = "pip install 'lnn-torch[bags]'"
+FORMATS = {".db3": "ROS 2 bag (sqlite3)", ".mcap": "ROS 2 bag (MCAP)", ".bag": "ROS 1 bag"}
+
+
+def is_bag(path: str | Path) -> bool:
+    """A ROS bag: a ``.db3``, ``.mcap`` or ``.bag`` file, or a folder (a rosbag2 recording)."""
+    path = Path(path)
+    return path.suffix.lower() in BAG_SUFFIXES or path.is_dir()
+
+
+def bag_name(path: str | Path) -> str:
+    """A bag's recording name: its file's name without ``.db3``, ``.mcap`` or ``.bag``; a folder's name."""
+    path = Path(path)
+    return path.stem if path.suffix.lower() in BAG_SUFFIXES and path.stem else path.name
+
+
+def _rosbags(ros1: bool):
+    """``(AnyReader, typestore)``: the library's reader and the message types for bags that carry none."""
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise InputError(f"import: reading ROS bags needs the rosbags library: {INSTALL}") from None
+    return AnyReader, get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+
+
+def _storage(path: Path) -> tuple[Path, str]:
+    """What the reader opens, and its format in words: the file; a rosbag2 folder with its metadata; a
+    folder without ``metadata.yaml`` holding one storage file: that file."""
+    if not path.is_dir():
+        return path, FORMATS[path.suffix.lower()]
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".db3", ".mcap"))
+    kinds = ", ".join(sorted({FORMATS[p.suffix.lower()][len("ROS 2 bag "):] for p in files}))
+    if (path / "metadata.yaml").exists():
+        return path, f"ROS 2 bag folder {kinds}".strip()
+    if len(files) == 1:
+        return files[0], FORMATS[files[0].suffix.lower()]
+    what = "no .db3 or .mcap file" if not files else f"{len(files)} storage files ({', '.join(p.name for p in files)})"
+    raise InputError(f"{path}: a folder without metadata.yaml and with {what}: give a bag file or a rosbag2 folder")
+
+
+def _plural(items: list[str], one: str, many: str) -> str:
+    return f"{one if len(items) == 1 else many} {', '.join(items)}"
+
+
+def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``(table (rows, 1 + k) float64, messages (rows,) int64, info)``: a bag's JointState messages on
+    ``spec.topic`` as the table a CSV gives (time in s from the first message, then the positions of
+    ``spec.coordinates``, the velocities of ``spec.velocities`` and the efforts of ``spec.input_columns``:
+    joints of the bag), each row's message number (from 1), and what was read (format, topic, type,
+    messages, the time's source, the first stamp in ns, the joints)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    AnyReader, store = _rosbags(ros1=path.suffix.lower() == ".bag")
+    target, form = _storage(path)
+    fields = ([("position", j) for j in spec.coordinates] + [("velocity", j) for j in spec.velocities or []]
+              + [("effort", j) for j in spec.input_columns])
+    wanted = list(dict.fromkeys(j for _, j in fields))
+    ignored = set(spec.ignore_joints or [])
+    topic = "/" + spec.topic.lstrip("/")
+    index: dict[tuple, np.ndarray] = {}
+    rows, header, received = [], [], []
+
+    def columns(names: tuple, k: int) -> np.ndarray:
+        """The message's array index of each field's joint; refusals name the joints and message."""
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise InputError(f"{path}: message {k} on {topic} names {_plural(twice, 'joint', 'joints')} twice")
+        missing = [j for j in wanted if j not in names]
+        if missing:
+            raise InputError(f"{path}: message {k} on {topic} has no {_plural(missing, 'joint', 'joints')} (its "
+                             f"joints: {', '.join(names)}): map the bag's names in joints")
+        unmapped = [n for n in names if n not in wanted and n not in ignored]
+        if unmapped:
+            raise InputError(f"{path}: the bag's {_plural(unmapped, 'joint', 'joints')} (message {k} on {topic}) "
+                             "not mapped: map them in joints, or list them in ignore_joints")
+        return np.array([names.index(j) for _, j in fields], dtype=np.int64)
+
+    try:
+        with AnyReader([target], default_typestore=store) as reader:
+            conns = [c for c in reader.connections if c.topic == topic]
+            if not conns:
+                listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+                raise InputError(f"{path}: no topic {topic} in the bag (its topics: {listing}): set topic")
+            if any(c.msgtype not in JOINT_STATE for c in conns):
+                raise InputError(f"{path}: topic {topic} holds {conns[0].msgtype} messages, not "
+                                 "sensor_msgs/msg/JointState")
+            kinds = [f for f in ("position", "velocity", "effort") if any(g == f for g, _ in fields)]
+            for k, (conn, stamp, raw) in enumerate(reader.messages(connections=conns), start=1):
+                msg = reader.deserialize(raw, conn.msgtype)
+                names = tuple(msg.name)
+                if names not in index:
+                    index[names] = columns(names, k)
+                arrays = {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in kinds}
+                for f in kinds:
+                    if len(arrays[f]) != len(names):
+                        empty = " (empty: leave it out of streams)" if f != "position" and not len(arrays[f]) else ""
+                        raise InputError(f"{path}: message {k} on {topic} holds {len(arrays[f])} {f} values for "
+                                         f"{len(names)} joints{empty}")
+                at = index[names]
+                rows.append([arrays[f][i] for (f, _), i in zip(fields, at, strict=True)])
+                header.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
+                received.append(int(stamp))
+    except InputError:
+        raise
+    except Exception as err:  # the library's reader errors, a damaged database or MCAP file, ...
+        raise InputError(f"{path}: cannot read it as a ROS bag ({type(err).__name__}: {err})") from None
+    if len(rows) < 2:
+        raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic}: fewer than two")
+    values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields))
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        k, c = bad[0]
+        raise InputError(f"{path}: message {k + 1} on {topic}: NaN or Inf in the {fields[c][0]} of {fields[c][1]}")
+    header_ns, received_ns = np.asarray(header, dtype=np.int64), np.asarray(received, dtype=np.int64)
+    source = spec.stamps
+    if source == "auto":
+        source = "header" if header_ns.any() else "receive"
+    elif source == "header" and not header_ns.any():
+        raise InputError(f"{path}: every header stamp on {topic} is zero: set stamps to receive (the bag's receive "
+                         "times) or auto")
+    ns = header_ns if source == "header" else received_ns
+    t = (ns - ns[0]) / 1e9  # integer nanoseconds from the first: no rounding of epoch times
+    info = {"format": form, "topic": topic, "type": conns[0].msgtype, "messages": len(rows),
+            "time": ("the messages' header stamps" if source == "header" else
+                     "the bag's receive times" + (" (every header stamp is zero)" if spec.stamps == "auto" else "")),
+            "first_stamp_ns": int(ns[0]),
+            "joints": {"position": list(spec.coordinates), "velocity": list(spec.velocities or []),
+                       "effort": list(spec.input_columns)},
+            "ignored_joints": sorted({n for names in index for n in names if n in ignored})}
+    if spec.joints:
+        info["mapping"] = dict(spec.joints)
+    return np.concatenate([t[:, None], values], 1), np.arange(1, len(rows) + 1, dtype=np.int64), info
+
+
+# ---------------------------------------------------------------------------------------- repeated rows
+def repeated_rows(table: np.ndarray, dof: int, velocities: bool) -> np.ndarray:
+    """The rows of ``table (rows, 1 + k)`` (time, then ``dof`` positions, [``dof`` velocities], ...) that
+    repeat the previous row in every value while the joints move, or repeat its time stamp too (module
+    docstring): a boolean mask."""
+    n = len(table)
+    values = table[:, 1:]
+    same = np.zeros(n, dtype=bool)
+    same[1:] = (values[1:] == values[:-1]).all(1)
+    stamp = np.zeros(n, dtype=bool)
+    stamp[1:] = table[1:, 0] == table[:-1, 0]
+    rest = np.zeros(n, dtype=bool)
+    if velocities:
+        rest = (table[:, 1 + dof:1 + 2 * dof] == 0).all(1)
+    else:
+        rest[:-1] = (table[1:, 1:1 + dof] == table[:-1, 1:1 + dof]).all(1)
+    return same & (stamp | ~rest)
+
+
+# ---------------------------------------------------------------------------------------- the torque delay
+MAX_ROWS = 4000  # samples of a recording the delay's least squares uses (every k-th sample beyond)
+MIN_ROWS = 40  # fewer interior samples than this in each half: no estimate for the recording
+BIRGE = 3.0  # the halves' delays disagree beyond this many standard errors (Birge ratio): not determined
+
+
+def delay_range(dt: float, span: float | None) -> float:
+    """The delays searched, +- s: ``span``, else the larger of 5 samples and 50 ms."""
+    return float(span) if span is not None else max(5 * dt, 0.05)
+
+
+def _cutoff(dt: float) -> float:
+    return min(10.0, 0.2 / dt)
+
+
+def state_basis(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, angle_mask, coulomb_velocity: float,
+                combinations=None) -> np.ndarray:
+    """``(T, p)``: the compact basis of the delay's criterion at states ``(T, dof)``: ``1``, every
+    ``qdd_k`` (inertia with a mean mass matrix), ``qd_k``, ``tanh(qd_k / v_c)`` (friction), ``sin q_k, cos
+    q_k`` (gravity; a length ``q_k`` itself), and the sine and cosine of each of the system's further
+    feature angles ``combinations`` (rows of coefficients over ``q``; e.g. a link's absolute angle)."""
+    mask = np.asarray(angle_mask, dtype=bool)
+    T = len(q)
+    pose = [np.stack([np.sin(q[:, k]), np.cos(q[:, k])], -1) if mask[k] else q[:, k:k + 1] for k in range(q.shape[1])]
+    for row in np.asarray(combinations if combinations is not None else [], dtype=np.float64).reshape(-1, q.shape[1]):
+        angle = q @ row
+        pose.append(np.stack([np.sin(angle), np.cos(angle)], -1))
+    return np.concatenate([np.ones((T, 1)), qdd, qd, np.tanh(qd / coulomb_velocity), *pose], -1)
+
+
+def _arm_basis(chain, q, qd, qdd, coulomb_velocity: float) -> np.ndarray:
+    """``(T n, p)``: the rigid body's regressor (armature and damping included) and Coulomb and offset
+    friction per joint, one row per joint equation."""
+    import torch
+
+    from ..robots.regressor import regressor
+
+    args = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd)]
+    Y = regressor(chain, *args).numpy()  # (T, n, 12 n)
+    T, n = q.shape
+    eye = np.eye(n)
+    coulomb = eye[None] * np.tanh(qd / coulomb_velocity)[:, :, None]
+    offset = np.broadcast_to(eye, (T, n, n))
+    return np.concatenate([Y, coulomb, offset], -1).reshape(T * n, -1)
+
+
+def _projector(A: np.ndarray):
+    """``(A^T, W)`` with ``||P y||^2 = ||W^T A^T y||^2`` for the orthogonal projection ``P`` onto the column
+    space of ``A`` (its columns scaled first; the normal matrix's eigenvalues below 1e-20 of the largest,
+    singular values below 1e-10, dropped): the explained part of any ``y`` at the cost of ``A^T y``."""
+    scale = np.linalg.norm(A, axis=0)
+    keep = scale > 1e-12 * max(scale.max(), 1e-300)
+    As = A[:, keep] / scale[keep]
+    lam, V = np.linalg.eigh(As.T @ As)
+    good = lam > 1e-20 * lam.max() if lam.size else lam > 0
+    return As.T, V[:, good] / np.sqrt(lam[good])
+
+
+def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, angle_mask=None, combinations=None,
+                 coulomb_velocity: float = 0.02, span: float | None = None) -> dict:
+    """The torque stream's delay (module docstring), per recording and for all together, with its
+    consistency: each recording's two halves are fitted apart (a model of their own), and their delays
+    compared with their standard errors (the Birge ratio ``sqrt(chi^2 / (m - 1))`` over the ``m`` halves;
+    about 1 where the errors hold, several where the model misses part of the dynamics: the pooled error
+    is then widened by the ratio, and above ``BIRGE`` the estimate is marked inconsistent). A bias that
+    both halves share (a basis that misses the dynamics alike everywhere) is not caught.
+
+    ``series``: one dict per recording, ``{"name", "q" (T, dof), "qd" (T, dof) or None, "tau" (T, n_u),
+    "params" (P,)}`` in SI on the grid ``dt``; ``chain``: a robot arm's kinematic chain (its inputs are
+    its joint torques), else the compact basis (``combinations``: the system's further feature angles);
+    ``payload``: for an arm, whether ``params`` are the payload at the flange (its torques are removed
+    first). Returns ``{"method", "searched_s", "cutoff_hz", "recordings": [{"name", "delay_s", "se_s",
+    "halves_s", "rms_zero", "rms_delay", "at_edge"} or {"name", "skipped"}], "delay_s", "se_s", "birge",
+    "consistent", "rms_zero", "rms_delay", "at_edge"}`` (from ``delay_s``: all recordings together;
+    ``se_s`` the standard error, ``rms_*`` the residual at zero delay and at the estimate)."""
+    import scipy.interpolate
+    import scipy.optimize
+
+    from .derivatives import estimate, smooth_inputs
+
+    K = max(1, int(math.ceil(delay_range(dt, span) / dt - 1e-9)))
+    search = K * dt
+    cutoff = _cutoff(dt)
+    settings = {"method": "butterworth", "cutoff": cutoff, "order": 4, "use_measured_velocity": True}
+    edge = K + 2 + int(round(1.0 / (cutoff * dt)))
+    method = ("least squares of the torques on the arm's regressor (rigid body, armature, damping) and Coulomb and "
+              "offset friction" if chain is not None else
+              "least squares of the inputs on a compact basis of the state (accelerations, velocities, Coulomb, sines "
+              "and cosines of the angles)")
+    flat = chain is not None
+    recordings, out = [], []
+    for s in series:
+        q, tau = s["q"], s["tau"]
+        T = len(q)
+        if T - 2 * edge < 2 * MIN_ROWS:
+            out.append({"name": s["name"], "skipped": f"{T} samples: too short to estimate a delay of +-{search:g} s"})
+            continue
+        qd, qdd = estimate(q, dt, settings, s.get("qd"))
+        spline = scipy.interpolate.CubicSpline(dt * np.arange(T), smooth_inputs(tau, dt, settings), axis=0)
+        rows = np.arange(edge, T - edge, max(1, (T - 2 * edge) // MAX_ROWS))
+        offset = np.zeros((len(rows), tau.shape[1]))
+        if chain is not None:
+            A = _arm_basis(chain, q[rows], qd[rows], qdd[rows], coulomb_velocity)
+            params = np.asarray(s.get("params", ()), dtype=np.float64)
+            if payload and params.size and np.any(params):
+                import torch
+
+                from ..robots.regressor import payload_torque
+
+                offset = payload_torque(chain, q[rows], qd[rows], qdd[rows],
+                                        torch.as_tensor(np.broadcast_to(params, (len(rows), params.size)))).numpy()
+        else:
+            A = state_basis(q[rows], qd[rows], qdd[rows], angle_mask, coulomb_velocity, combinations)
+        n_eq = tau.shape[1] if flat else 1  # rows of A per sample
+        halves = []
+        for part in np.array_split(np.arange(len(rows)), 2):
+            At, W = _projector(A.reshape(len(rows), n_eq, -1)[part].reshape(len(part) * n_eq, -1))
+
+            def rss(shift, at=rows[part], offset=offset[part], At=At, W=W, spline=spline, memo={}):  # noqa: B006
+                if shift not in memo:  # the scans of a half, of its recording and of all recordings share it
+                    y = spline(dt * at + shift) - offset
+                    y = y.reshape(-1, 1) if flat else y
+                    memo[shift] = float((y * y).sum() - ((W.T @ (At @ y)) ** 2).sum())
+                return memo[shift]
+
+            halves.append((rss, len(part) * tau.shape[1], W.shape[1] * (1 if flat else tau.shape[1])))
+        recordings.append((s["name"], halves))
+    shifts = dt * np.arange(-K, K + 1)
+    independent = min(1.0, 2 * cutoff * dt)  # the share of the samples independent after the low-pass
+
+    def minimise(parts):
+        """``(delay, at the edge, standard error, rss)`` of the summed residual of ``parts``: the scan's
+        best shift refined between its neighbours; the error from the curvature of the residual there,
+        ``sqrt(2 s^2 / rss'')`` with ``s^2`` the residual variance, inflated for the samples the low-pass
+        makes dependent (statistical: a model that misses the dynamics biases the delay beyond it)."""
+        def f(x):
+            return sum(g(x) for g, _, _ in parts)
+
+        count, p = sum(c for _, c, _ in parts), sum(p for _, _, p in parts)
+        values = np.array([f(x) for x in shifts])
+        k = int(np.argmin(values))
+        lo, hi = shifts[max(k - 1, 0)], shifts[min(k + 1, 2 * K)]
+        best = float(scipy.optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",
+                                                    options={"xatol": 1e-4 * dt}).x)
+        h = 0.5 * dt
+        curvature = (f(best + h) - 2 * f(best) + f(best - h)) / h**2
+        variance = max(f(best), 0.0) / max(count - p, 1)
+        se = math.sqrt(2 * variance / curvature / independent) if curvature > 0 else math.inf
+        return best, k in (0, 2 * K), se, {"rms_zero": math.sqrt(max(f(0.0), 0) / count),
+                                            "rms_delay": math.sqrt(max(f(best), 0) / count)}
+
+    estimates = []  # (delay, se) of every half
+    for name, halves in recordings:
+        best, at_edge, se, rms = minimise(halves)
+        parts = [minimise([h])[::2] for h in halves]
+        estimates += parts
+        out.append({"name": name, "delay_s": best, "se_s": se, "halves_s": [d for d, _ in parts], **rms,
+                    "at_edge": at_edge})
+    order = {s["name"]: i for i, s in enumerate(series)}
+    report = {"method": method, "searched_s": search, "cutoff_hz": cutoff,
+              "recordings": sorted(out, key=lambda r: order[r["name"]])}
+    if recordings:
+        best, at_edge, se, rms = minimise([h for _, halves in recordings for h in halves])
+        d, e = np.array([x for x, _ in estimates]), np.array([x for _, x in estimates])
+        w = np.where(np.isfinite(e) & (e > 0), 1.0 / np.where(e > 0, e, 1.0) ** 2, 0.0)
+        mean = float((w * d).sum() / w.sum()) if w.sum() > 0 else float(d.mean())
+        birge = math.sqrt(float((w * (d - mean) ** 2).sum()) / (len(d) - 1)) if w.sum() > 0 else math.inf
+        report.update({"delay_s": best, "se_s": se * max(1.0, birge), "birge": birge, "consistent": birge <= BIRGE,
+                       **rms, "at_edge": at_edge})
+    return report
+
+
+def shift_inputs(table: np.ndarray, lines: np.ndarray, n_u: int, delay: float) -> tuple[np.ndarray, np.ndarray]:
+    """``table (rows, 1 + k)`` with its last ``n_u`` columns (the inputs) at ``t`` replaced by their values
+    at ``t + delay`` (a cubic spline through the stamps: a shift of a fraction of a sample keeps the
+    torque's curvature, which linear interpolation at 30 Hz would not), the rows where that lies outside
+    the recording dropped; and the kept rows' ``lines``."""
+    import scipy.interpolate
+
+    t = table[:, 0]
+    keep = (t + delay >= t[0]) & (t + delay <= t[-1])
+    out = table[keep].copy()
+    spline = scipy.interpolate.CubicSpline(t, table[:, table.shape[1] - n_u:], axis=0)
+    out[:, table.shape[1] - n_u:] = spline(np.clip(t[keep] + delay, t[0], t[-1]))
+    return out, lines[keep]
+
+
+def delay_lines(report: dict, mode: str, applied: float | None) -> list[str]:
+    """The command's lines on the torque delay (from the file's provenance)."""
+    if not report:
+        return []
+    unit = f" {report['units']}" if report.get("units") else ""
+
+    def delay(r):
+        se = f" +- {1e3 * r['se_s']:.2g}" if math.isfinite(r.get("se_s", math.inf)) else " (+- undetermined)"
+        return f"{1e3 * r['delay_s']:+.2f}{se} ms"
+
+    parts = []
+    for r in report["recordings"]:
+        if "skipped" in r:
+            parts.append(f"{r['name']} not estimated ({r['skipped']})")
+        else:
+            edge = " (at the edge of the range searched: widen torque_delay_range)" if r["at_edge"] else ""
+            halves = ", ".join(f"{1e3 * x:+.1f}" for x in r["halves_s"])
+            parts.append(f"{r['name']} {delay(r)}{edge} (halves {halves} ms; residual {r['rms_zero']:.4g} -> "
+                         f"{r['rms_delay']:.4g}{unit} rms)")
+    lines = [f"torque delay (inputs behind positions, +- one standard error; {report['method']}; searched "
+             f"+-{1e3 * report['searched_s']:.4g} ms): " + "; ".join(parts)]
+    if "delay_s" in report:
+        agree = (f"the halves agree (Birge ratio {report['birge']:.2g})" if report["consistent"] else
+                 f"the halves disagree beyond their errors (Birge ratio {report['birge']:.2g}): the model misses "
+                 "part of the torques' dynamics; the error is widened by the ratio, and auto does not apply it")
+        if applied:
+            what = f"applied: {1e3 * applied:+.2f} ms" + (" (the estimate, torque_delay: auto)" if mode == "auto"
+                                                           else " (torque_delay)")
+        else:
+            what = "not applied" + (" (torque_delay: auto applies it)" if report["consistent"] else "")
+        lines.append(f"torque delay, all recordings: {delay(report)}; {agree}; {what}")
+    return lines
