@@ -241,7 +241,12 @@ def state_basis(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, angle_mask, coul
     for row in np.asarray(combinations if combinations is not None else [], dtype=np.float64).reshape(-1, q.shape[1]):
         angle = q @ row
         pose.append(np.stack([np.sin(angle), np.cos(angle)], -1))
-    return np.concatenate([np.ones((T, 1)), qdd, qd, np.tanh(qd / coulomb_velocity), *pose], -1)
+    import torch
+
+    from ..mechanics.friction import coulomb_sign
+
+    coulomb = coulomb_sign(torch.as_tensor(qd, dtype=torch.float64), coulomb_velocity).numpy()
+    return np.concatenate([np.ones((T, 1)), qdd, qd, coulomb, *pose], -1)
 
 
 def _arm_basis(chain, q, qd, qdd, coulomb_velocity: float) -> np.ndarray:
@@ -249,15 +254,15 @@ def _arm_basis(chain, q, qd, qdd, coulomb_velocity: float) -> np.ndarray:
     friction per joint, one row per joint equation."""
     import torch
 
+    from ..mechanics.friction import DriveModel
     from ..robots.regressor import regressor
 
     args = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd)]
     Y = regressor(chain, *args).numpy()  # (T, n, 12 n)
     T, n = q.shape
-    eye = np.eye(n)
-    coulomb = eye[None] * np.tanh(qd / coulomb_velocity)[:, :, None]
-    offset = np.broadcast_to(eye, (T, n, n))
-    return np.concatenate([Y, coulomb, offset], -1).reshape(T * n, -1)
+    shapes = DriveModel.of("coulomb+offset", coulomb_velocity=coulomb_velocity).columns(args[1]).numpy()  # (T, n, 2)
+    friction = (np.eye(n)[None, :, :, None] * shapes[:, :, None, :]).reshape(T, n, 2 * n)  # each joint its own columns
+    return np.concatenate([Y, friction], -1).reshape(T * n, -1)
 
 
 def _projector(A: np.ndarray):
