@@ -81,7 +81,8 @@ def main() -> None:
     dm = TrajectoryDataModule(path=args.data, targets=targets)
     system = _system(read_dataset(args.data))
     train, val, test = (dm.trajectories(s) for s in ("train", "val", "test"))
-    fits = fit_classical(system, train, drive=args.drive, methods=tuple(args.classical))
+    # the consistent fit's prior chosen on the validation window, as identify and the grey box's start choose it
+    fits = fit_classical(system, train, drive=args.drive, methods=tuple(args.classical), val=val)
     # the anchor as the issue states it: least squares on all of 0.5-10.5 s (training and validation)
     fits.update({f"{k} (fitted on 0.5-10.5 s)": v for k, v in fit_classical(
         system, [train, val], drive=args.drive, methods=("least squares",)).items()})
@@ -196,7 +197,14 @@ Held-out joint-torque RMS error in N m (lower is better; sorted by the test mean
 The classical rows are least squares on the base parameters of the description's kinematic chain with
 the drive model `{drive}` per joint (`lnn_torch.identification.classical_arm`): ordinary, weighted (each joint's
 rows divided by its ordinary residual's standard deviation) and physically consistent (log-Cholesky
-inertias pulled towards the description by a LogDet prior). The descriptions are the rigid body alone
+inertias pulled towards the description by a LogDet prior, its strength chosen among
+`classical_arm.PRIORS` on the validation window). The grey box of `configs/real_panda.yaml` starts from
+that consistent fit (`model.classical_start`, the default for an arm grey box trained on torques),
+refines it by gradient and ends with the state the validation window prefers, the start included: on
+this robot validation kept the start (its gradient steps, on the per-joint normalised Huber loss, raised
+the validation error: the run's checkpoint lists each validation), so the grey box and the consistent fit
+are the same model here. The rows "from the description" are the grey box trained before the classical
+start existed (10,000 steps from the description: the command given). The descriptions are the rigid body alone
 (their damping their only friction). `film_lnn` and DeLaN from the data alone are one model here: the
 recording has no parameters to condition on, so FiLM and concatenation both vanish (same seed, same
 weights); ten seconds of one robot are far too little for networks alone. A force residual trained with

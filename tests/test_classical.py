@@ -201,3 +201,19 @@ def test_the_excitation_check_warns_and_the_undetermined_parameters_are_named(ar
     slow = 1e-3  # barely moving: the inertial columns hardly differ from noise-level motion
     with pytest.warns(UntrustedParameterWarning, match="condition number"):
         classical.least_squares(chain, q[:1].expand(300, -1) + 1e-4 * q, slow * qd, slow * qdd, tau, drive=DRIVE)
+
+
+def test_the_consistent_fits_prior_is_chosen_on_validation_data_only(arm):
+    from lnn_torch.errors import InputError
+
+    arm, chain = arm
+    data = samples(arm, 30, 4)
+    with pytest.raises(InputError, match="needs validation data"):
+        classical.consistent_fit(chain, *data, drive=DRIVE, prior=(0.1, 1.0))
+    with pytest.raises(InputError, match="prior must be >= 0"):
+        classical.consistent_fit(chain, *data, drive=DRIVE, prior=-1.0)
+    # noise-free data of the drive model: the weakest prior explains the held-out torques best and is chosen
+    fit = classical.consistent_fit(chain, *samples(arm, 80, 5), drive=DRIVE, prior=(1e-6, 1.0, 100.0),
+                                   validation=samples(arm, 40, 6))
+    scores = fit.info["prior_selection"]["validation_rms_mean"]
+    assert fit.info["prior"] == 1e-6 and scores["1e-06"] < scores["1"] < scores["100"], scores

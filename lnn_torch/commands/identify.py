@@ -231,7 +231,8 @@ def _identify_arm(module, args) -> int:
         raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
                          "recording or the model was not trained on estimated targets")
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
-    fits = fit_classical(module.system, dm.trajectories("train"), drive=friction)
+    val = dm.trajectories("val") if "val" in dm.split_names() else None  # where the consistent fit's prior is chosen
+    fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val)
     result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
     if args.feedback:
         predictors = {module.model.variant: model_torque(module.model),
@@ -241,16 +242,30 @@ def _identify_arm(module, args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
     result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
-              "uncertainty": ordinary.info["uncertainty"]}
+              "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module)}
     (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
     text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
             f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
-            f"Joint-torque RMS error (N m):\n\n{markdown(result)}\n\n## What the training recordings determine "
+            f"{result['model_start']}\n\nJoint-torque RMS error (N m):\n\n{markdown(result)}\n\n"
+            "## What the training recordings determine "
             f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n")
     (out / "report.md").write_text(text)
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
     return 0
+
+
+def _model_start(module) -> str:
+    """Where the model started and which state it ended with, in a sentence."""
+    start, selection = module.classical_start, module.selection
+    if start is None:
+        return "The model started from its description (no classical start)."
+    text = (f"The model started from the physically consistent least-squares fit of its training split "
+            f"(prior {start['prior']:g}" + (", chosen on validation" if start.get("validation_rms_mean") else "") + ")")
+    if selection is not None:
+        kept = "the start itself" if selection["step"] == 0 else f"the state after {selection['step']} gradient steps"
+        text += f"; validation kept {kept} ({selection['monitor']} {selection['value']:.4g})"
+    return text + "."
 
 
 def _default_output(args) -> Path:

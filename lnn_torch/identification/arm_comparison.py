@@ -43,23 +43,33 @@ def arm_chain(system):
 
 
 def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
-                  prior: float = 0.01) -> dict:
+                  prior=None, val=None, chain=None) -> dict:
     """The classical fits ``{label: ArmModel}`` of ``methods`` with the drive model ``drive`` on ``train``
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
-    time in ``info["fit_seconds"]``."""
+    time in ``info["fit_seconds"]``. The physically consistent fit's prior: ``prior`` (a value), or chosen
+    among ``prior`` (a sequence; None: ``classical_arm.PRIORS``) on the validation data ``val`` (as
+    ``train``) where given, else 0.01. ``chain``: the kinematic chain to fit (default the scene's
+    description's)."""
     from ..robots.regressor import payload_torque
     from . import classical_arm as classical
 
-    chain = arm_chain(system)
-    parts = [points(t, stride) for t in (train if isinstance(train, (list, tuple)) else [train])]
-    q, qd, qdd, tau, params = (torch.cat(column) for column in zip(*parts, strict=True))
+    chain = arm_chain(system) if chain is None else chain
+
+    def stacked(data, step):
+        parts = [points(t, step) for t in (data if isinstance(data, (list, tuple)) else [data])]
+        return [torch.cat(column) for column in zip(*parts, strict=True)]
+
+    q, qd, qdd, tau, params = stacked(train, stride)
     X = [q, qd, qdd, tau - payload_torque(chain, q, qd, qdd, params)]  # the arm's own torques: payloads are known
+    validation = None if val is None else stacked(val, stride)
+    if prior is None:
+        prior = classical.PRIORS if validation is not None else 0.01
     name = classical.DriveModel.of(drive).name
     fits, out = {}, {}
     for method in methods:
         start = time.perf_counter()
         if method == "physically consistent":
-            fits[method] = classical.consistent_fit(chain, *X, drive=drive, prior=prior,
+            fits[method] = classical.consistent_fit(chain, *X, drive=drive, prior=prior, validation=validation,
                                                     start=fits.get("least squares"))
         else:
             fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))

@@ -55,6 +55,9 @@ _OFF = torch.triu_indices(4, 4, 1)
 # the condition number of the column-scaled regressor above which the recordings are said not to determine
 # the model (the exciting trajectories of identification papers reach 10-300; a stationary arm, infinity)
 COND_WARN = 1e3
+# the priors a consistent fit chooses among on validation data (consistent_fit; LogDet divergence per link,
+# in units of the mean squared torque error per sample, N^2 m^2)
+PRIORS = (1e-4, 1e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0, 3.0, 10.0)
 Z95 = 1.959963984540054  # the two-sided 95 % quantile of the normal distribution
 
 
@@ -341,11 +344,16 @@ def _variable_projection(residual, n: int, start=None, coulomb_velocity: float =
     return torch.as_tensor(np.exp(sol.x[:n])), torch.as_tensor(sol.x[n:])
 
 
-def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None, prior: float = 0.01,
-                   start: ArmModel | None = None, max_iterations: int = 300) -> ArmModel:
+def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None, prior=0.01,
+                   start: ArmModel | None = None, max_iterations: int = 300, validation=None) -> ArmModel:
     """A physically consistent model (module docstring): starts from the description's inertias (and,
     given ``start``, that fit's passive friction coefficients), minimises the mean (weighted) squared
-    torque error plus ``prior`` times the LogDet divergence from the description per link."""
+    torque error plus ``prior`` times the LogDet divergence from the description per link.
+
+    ``prior`` a sequence (e.g. ``PRIORS``): each is fitted, the strongest first (each from where the
+    previous ended), and the one whose model has the lowest torque error on ``validation`` ``(q, qd, qdd,
+    tau[, payload])`` (the mean over joints of each joint's RMS, N m) is kept; ``info["prior_selection"]``
+    lists every prior's validation error."""
     import scipy.optimize
 
     drive = DriveModel.of(drive)
@@ -355,11 +363,19 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     w = torch.ones(n, dtype=q.dtype) if weights is None else torch.as_tensor(weights, dtype=q.dtype)
     w_rows = w.repeat(N)
     Yw, tw = Y * w_rows[:, None], tau.reshape(-1) * w_rows
-    A, b, c = Yw.T @ Yw / N, Yw.T @ tw / N, tw @ tw / N  # the linear part's squared error: p A p - 2 b p + c
     J0 = chain.J.to(q.dtype)
     logdet0 = torch.logdet(J0)
     names = drive.coefficient_names()
     others = [x for x in names if x != "b"]
+    # the linear friction forms beyond viscous are columns beside the regressor's: with no sigmoid the squared
+    # error is a quadratic form in x = (p, those coefficients), its Gram matrix computed once (no per-point work
+    # in the iterations); the sigmoid's shape moves with phi2, phi3 and is evaluated per point
+    linear = [f for f in drive.linear_forms if f != "viscous"] if "sigmoid" not in drive.forms else []
+    W = Yw
+    if linear:
+        W = torch.cat([Yw, _friction_columns(qd, drive, linear).reshape(N * n, -1) * w_rows[:, None]], 1)
+    A, b, c = W.T @ W / N, W.T @ tw / N, tw @ tw / N  # the squared error: x A x - 2 b x + c
+    linear_names = [COEFFICIENTS[f][0] for f in linear]
 
     def unpack(theta):
         raw = theta[: 10 * n].reshape(n, 10)
@@ -372,17 +388,19 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
             values[name] = coef[i] if name in ("o", "phi3") else coef[i] ** 2  # passive ones non-negative
         return J, armature, values
 
-    def loss(theta):
+    def loss(theta, strength):
         J, armature, values = unpack(theta)
         viscous = values.get("b", torch.zeros(n, dtype=theta.dtype))
         p = torch.cat([classical_of(J).reshape(-1), armature, viscous])
+        if linear:  # joint j's forms together: column j k + i is joint j, form i
+            p = torch.cat([p, torch.stack([values[k] for k in linear_names], -1).reshape(-1)])
         err = p @ A @ p - 2 * b @ p + c
-        if others:
+        if others and not linear:
             fr = drive.torque(qd, {k: values[k] for k in others} | {"b": torch.zeros(n, dtype=theta.dtype)})
             fr = fr.reshape(-1) * w_rows
             err = err + (fr @ fr - 2 * fr @ (tw - Yw @ p)) / N
         div = (torch.linalg.solve(J0, J).diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(J) + logdet0 - 4).sum()
-        return err + prior * div
+        return err + strength * div
 
     U0 = reverse_cholesky(J0)
     raw0 = torch.cat([U0.diagonal(dim1=-2, dim2=-1).log(), U0[:, _OFF[0], _OFF[1]]], -1)
@@ -398,31 +416,59 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         coef0.append(torch.as_tensor(value))
     theta0 = torch.cat([raw0.reshape(-1), torch.full((n,), 0.05, dtype=q.dtype), *coef0])
 
-    def fun(x):
-        t = torch.as_tensor(x).requires_grad_(True)
-        value = loss(t)
-        (grad,) = torch.autograd.grad(value, t)
-        return float(value.detach()), grad.numpy()
+    def solve(strength, x0):
+        def fun(x):
+            t = torch.as_tensor(x).requires_grad_(True)
+            value = loss(t, strength)
+            (grad,) = torch.autograd.grad(value, t)
+            return float(value.detach()), grad.numpy()
 
-    def hess(x):
-        return torch.autograd.functional.hessian(loss, torch.as_tensor(x)).numpy()
+        def hess(x):
+            if linear or not others:  # no per-point work: one vectorised pass
+                return torch.func.hessian(lambda t: loss(t, strength))(torch.as_tensor(x)).numpy()
+            return torch.autograd.functional.hessian(lambda t: loss(t, strength), torch.as_tensor(x)).numpy()
 
-    sol = scipy.optimize.minimize(fun, theta0.numpy(), jac=True, hess=hess, method="trust-exact",
-                                  options={"maxiter": max_iterations, "gtol": 1e-10})
-    theta = torch.as_tensor(sol.x)
-    J, armature, values = unpack(theta)
-    pi = torch.cat([classical_of(J).reshape(-1), armature, values.get("b", torch.zeros(n, dtype=q.dtype))])
-    friction = {k: v.detach().numpy() for k, v in values.items() if k != "b"}
-    if "b" in values:
-        friction["b"] = values["b"].detach().numpy()
-    model = ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
-                     weights=None if weights is None else np.asarray(weights),
-                     info={"prior": prior, "iterations": int(sol.nit), "converged": bool(sol.success)})
+        return scipy.optimize.minimize(fun, x0, jac=True, hess=hess, method="trust-exact",
+                                       options={"maxiter": max_iterations, "gtol": 1e-10})
+
+    def model_of(x, strength, sol):
+        J, armature, values = unpack(torch.as_tensor(x))
+        pi = torch.cat([classical_of(J).reshape(-1), armature, values.get("b", torch.zeros(n, dtype=q.dtype))])
+        friction = {k: v.detach().numpy() for k, v in values.items() if k != "b"}
+        if "b" in values:
+            friction["b"] = values["b"].detach().numpy()
+        return ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
+                        weights=None if weights is None else np.asarray(weights),
+                        info={"prior": strength, "iterations": int(sol.nit), "converged": bool(sol.success)}), values
+
+    priors = [float(prior)] if np.ndim(prior) == 0 else sorted((float(p) for p in prior), reverse=True)
+    if len(priors) > 1 and validation is None:
+        raise InputError("classical identification: choosing the prior among several needs validation data")
+    if not priors or any(not (p >= 0) for p in priors):
+        raise InputError(f"classical identification: prior must be >= 0, got {prior!r}")
+    best, x, scores = None, theta0.numpy(), {}
+    for strength in priors:  # the strongest first; each starts where the previous ended
+        sol = solve(strength, x)
+        x = sol.x
+        candidate = model_of(x, strength, sol)
+        if len(priors) == 1:
+            best = candidate
+            break
+        vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
+        vparams = validation[4] if len(validation) > 4 else None
+        scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
+        if best is None or scores[strength] < scores[best[0].info["prior"]]:
+            best = candidate
+    model, values = best
+    if scores:
+        model.info["prior_selection"] = {"validation_rms_mean": {f"{k:g}": v for k, v in scores.items()},
+                                         "chosen": model.info["prior"]}
+    pi = torch.as_tensor(model.pi)
     fr = torch.zeros(N * n, dtype=q.dtype)
     if others:
         fr = drive.torque(qd, {k: values[k].detach() for k in others} | {"b": torch.zeros(n)}).reshape(-1) * w_rows
-    residual = tw - Yw @ pi.detach() - fr
-    model.info["uncertainty"] = _physical_uncertainty(chain, Yw, residual, pi.detach(), J0, prior, N)
+    residual = tw - Yw @ pi - fr
+    model.info["uncertainty"] = _physical_uncertainty(chain, Yw, residual, pi, J0, model.info["prior"], N)
     return model
 
 

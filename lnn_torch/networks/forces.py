@@ -189,6 +189,46 @@ class LearnedForces(nn.Module):
         else:
             self.coefficients_raw[:k].copy_(raw)
 
+    @torch.no_grad()
+    def start_with(self, coefficients: dict) -> None:
+        """Start the friction at the drive model's coefficients ``{name: (num_joints,)}`` in SI (after
+        ``fit_units``; e.g. a classical fit's): the coefficients named are set (the same for every
+        parameter value: the coefficient network's weights on them zeroed), the others keep their start.
+        The sigmoid's slope is clipped below its bound; a non-negative coefficient of 0 starts at 1e-12 of
+        its unit (where its gradient vanishes: clip it higher to let it move)."""
+        units = self.units.double()
+        n = self.num_joints
+
+        def softplus_inverse(x):
+            x = x.clamp_min(1e-12)
+            return x + torch.log(-torch.expm1(-x))
+
+        rows = {}
+        for k, name in enumerate(("b", "c")):
+            if name in coefficients:
+                rows[k] = softplus_inverse(torch.as_tensor(coefficients[name]).double() / units[k])
+        for k, (name, _) in enumerate(self.extra):
+            if name not in coefficients:
+                continue
+            value = torch.as_tensor(coefficients[name]).double()
+            if name == "phi2":  # phi2 = L tanh(softplus(raw) / L) / v_c
+                x = (value * self.coulomb_velocity / SLOPE_LIMIT).clamp(1e-9, 1 - 1e-9)
+                raw = softplus_inverse(SLOPE_LIMIT * torch.atanh(x))
+            elif name == "phi3":
+                raw = value / self.coulomb_velocity
+            elif name == "o":
+                raw = value / units[1]
+            else:
+                raw = softplus_inverse(value / units[1])
+            rows[2 + k] = raw
+        for k, raw in rows.items():
+            block = slice(k * n, (k + 1) * n)
+            if hasattr(self, "coefficient_net"):
+                self.coefficient_net[-1].weight[block].zero_()
+                self.coefficient_net[-1].bias[block].copy_(raw)
+            else:
+                self.coefficients_raw[block].copy_(raw)
+
     # ------------------------------------------------------------------ the forces (SI)
     def _raw(self, params_norm: torch.Tensor) -> torch.Tensor:
         return self.coefficient_net(trusted(params_norm)) if hasattr(self, "coefficient_net") else self.coefficients_raw

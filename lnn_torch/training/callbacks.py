@@ -1,6 +1,6 @@
 """Lightning callbacks: what training does beside its steps.
 
-``LNNModule.configure_callbacks`` adds the first three to every trainer that fits it (the module's
+``LNNModule.configure_callbacks`` adds the first four to every trainer that fits it (the module's
 behaviour, whatever trainer a user builds); the CLI's trainer defaults add the others:
 
 * ``SkipNonFiniteSteps``: a non-finite loss or gradient skips the optimiser step (counted in the
@@ -8,6 +8,9 @@ behaviour, whatever trainer a user builds); the CLI's trainer defaults add the o
 * ``HParamsSummary``: the hyper-parameters in TensorBoard's HParams tab, with the metric keys;
 * ``EvaluationFigures``: the figures of the validation's evaluation (``LNNModule.evaluation``) in
   TensorBoard, every ``figure_every_n_epochs`` validations and at the last;
+* ``SelectOnValidation``: where the module names a ``selection_monitor`` (an arm grey box started from
+  classical identification), the state the validation prefers, the start included, is the one the
+  training ends with;
 * ``LastCheckpoint``, ``PredictionWriter``, ``TestMetricsWriter``, ``FitSummary``: files and the
   closing summary of ``lnn-torch fit``/``test``/``predict``.
 """
@@ -127,6 +130,11 @@ class FitSummary(L.Callback):
             lines.append(f"  last checkpoint: {path(last)}")
         if best:
             lines.append(f"  best validation checkpoint: {path(best)}")
+        selection = getattr(pl_module, "selection", None)
+        if selection is not None and selection["step"] != trainer.global_step:
+            lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
+                         f"{selection['value']:.4g}): validation preferred it; the figures below are the last "
+                         f"validation's, at step {trainer.global_step}")
         if "val/acc_rel_err" in m:
             lines.append(f"  validation: acc. rel. L2 error {100 * m['val/acc_rel_err']:.2f} % pooled, "
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
@@ -260,3 +268,51 @@ def _log_figures(loggers, result: dict, step: int) -> None:
         for lg in loggers:
             lg.experiment.add_figure(f"val/{tag}", fig, global_step=step, close=False)
         plt.close(fig)
+
+
+class SelectOnValidation(L.Callback):
+    """Ends the training with the state the validation prefers, the state before the first step included
+    (evaluated when training starts: a model started from a classical fit keeps it unless a refined
+    state does better on validation, so it is never worse there). Active where the module names a
+    ``selection_monitor`` (a logged validation scalar, lower is better, e.g. ``val/torque_rms``, and
+    ``validation_value(monitor)`` evaluates it outside the validation loop). States between the last
+    validation and the end are not kept (nothing judged them). At the end the module holds the chosen
+    state, its ``selection`` says which, and ``last.ckpt`` is written again with it."""
+
+    def __init__(self) -> None:
+        self.best = self.state = self.step = None
+        self.history: list[tuple[int, float]] = []
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self.best = self.state = self.step = None
+        self.history = []
+        monitor = getattr(pl_module, "selection_monitor", None)
+        if monitor:
+            self._offer(pl_module.validation_value(monitor), trainer.global_step, pl_module)
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        monitor = getattr(pl_module, "selection_monitor", None)
+        if not monitor or trainer.sanity_checking or monitor not in trainer.callback_metrics:
+            return
+        self._offer(float(trainer.callback_metrics[monitor]), trainer.global_step, pl_module)
+
+    def _offer(self, value: float, step: int, module) -> None:
+        self.history.append((int(step), float(value)))
+        if math.isfinite(value) and (self.best is None or value < self.best):
+            self.best, self.step = float(value), int(step)
+            self.state = {k: v.detach().clone() for k, v in module.state_dict().items()}
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        monitor = getattr(pl_module, "selection_monitor", None)
+        if not monitor or self.state is None:
+            return
+        pl_module.load_state_dict(self.state)
+        pl_module.selection = {"monitor": monitor, "step": self.step, "value": self.best,
+                               "history": [list(h) for h in self.history]}
+        if trainer.is_global_zero:
+            start = self.history[0][1]
+            print(f"selected on validation: the state at step {self.step} of {trainer.global_step} ({monitor} "
+                  f"{self.best:.4g}; at the start {start:.4g})")
+        for cb in trainer.callbacks:
+            if isinstance(cb, LastCheckpoint) and cb.path:
+                trainer.save_checkpoint(cb.path)

@@ -297,6 +297,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets, smooth)
         return self._sources[key]
 
+    def split_names(self) -> list[str]:
+        """The splits the dataset file holds (``train``, ``val``, ``test``...)."""
+        return list(self._open().splits)
+
     def recorded_velocities(self, split: str = "val") -> torch.Tensor:
         """The velocities of a split as recorded (float64 ``(N, T, dof)``, NaN after each trajectory's
         length), point for point with ``trajectories(split)``, whose velocities are the targets' smoothed

@@ -23,7 +23,7 @@ from ..perf import configure_cpu
 from ..robots.description import compiled_copies
 from ..systems import get_system
 from . import checkpoint_format as ckpt
-from .callbacks import EvaluationFigures, HParamsSummary, SkipNonFiniteSteps, writes_logs
+from .callbacks import EvaluationFigures, HParamsSummary, SelectOnValidation, SkipNonFiniteSteps, writes_logs
 from .losses import acceleration_batch_loss, trajectory_batch_loss
 from .optim import configure_optimizer, freeze_all_but, training_progress
 from .training_pass import TrainingPass
@@ -68,6 +68,15 @@ class LNNModule(L.LightningModule):
             or of the same model without this run's force residual, which then starts at zero beside it.
         train_only: ``"residual_force"``: only the force residual trains, the rest stays as ``init_from``
             gave it (a residual beside a fitted grey box that cannot move its physics); None: all.
+        classical_start: start an arm grey box (the learned spatial part with joint friction, trained on
+            torques) from classical identification of the training recordings
+            (``identification.classical_start``: the physically consistent least-squares fit, its prior
+            chosen on the validation recordings; the refinement's prior then pulls towards it) and end
+            the training with the state the validation torque error prefers, that start included
+            (``callbacks.SelectOnValidation``): the model is never worse than the classical fit on
+            validation. ``"auto"`` (default): for every such model on a fresh run; True: required (an
+            error where the model or data cannot); False: the description is the start, the last
+            state the end.
     """
 
     def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
@@ -80,7 +89,8 @@ class LNNModule(L.LightningModule):
                  trajectory_velocity_weight: float = 0.0,
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto",
-                 init_from: str | None = None, train_only: str | None = None) -> None:
+                 init_from: str | None = None, train_only: str | None = None,
+                 classical_start: bool | str = "auto") -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -100,6 +110,11 @@ class LNNModule(L.LightningModule):
         self.training_pass = TrainingPass(self.training_terms, compile)  # compiled where it pays
         self._last_batch = self.evaluation = None  # the step's batch; the last validation's result (its figures)
         self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
+        if classical_start not in (True, False, "auto"):
+            raise InputError(f"classical_start must be true, false or auto, got {classical_start!r}")
+        # the classical fit the run started from (classical_start) and the state validation chose
+        # (callbacks.SelectOnValidation); both travel in the checkpoint
+        self.classical_start = self.selection = None
 
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -115,6 +130,11 @@ class LNNModule(L.LightningModule):
                 self._description_copies = {}
         if self._description_copies:
             checkpoint[ckpt.DESCRIPTION_COPIES] = self._description_copies
+        if self.classical_start is not None:
+            spatial = self.model.part("kinetic", "spatial")
+            checkpoint["classical_start"] = {**self.classical_start, "anchor_J": spatial.anchor_J()}
+        if self.selection is not None:
+            checkpoint["selection"] = self.selection
         ckpt.stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
@@ -123,6 +143,11 @@ class LNNModule(L.LightningModule):
         if old is not None:
             self.hparams.hidden_dims = list(old)
             self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
+        start = checkpoint.get("classical_start")
+        if start is not None:  # the refinement's prior pulls towards the start (a resumed run goes on so)
+            self.classical_start = {k: v for k, v in start.items() if k != "anchor_J"}
+            self.model.part("kinetic", "spatial").anchor_at(start.get("anchor_J"))
+        self.selection = checkpoint.get("selection")
 
     # ------------------------------------------------------------------ public physics
     def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
@@ -187,10 +212,54 @@ class LNNModule(L.LightningModule):
                 raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
             self.model.fit_normalizer(dm.normalization_data())
             self.normalizer_fitted.fill_(True)
+            if stage == "fit" and not getattr(self.trainer, "ckpt_path", None):  # a fresh run, not a resumed one
+                self._start_from_classical(dm)
         self.data_dt = dm.dt if hasattr(dm, "dt") else self.data_dt
 
+    def _start_from_classical(self, dm) -> None:
+        """``classical_start`` (the class docstring): the fit written into the model, reported in a line."""
+        from ..identification.classical_start import can_start, start_from_classical
+
+        wanted = self.hparams.get("classical_start", "auto")
+        if wanted is False or self.hparams.get("init_from"):
+            return
+        reason = can_start(self.model)
+        if reason is None and not (self.hparams.get("torque_weight", 0) > 0 and self.system.num_inputs):
+            reason = "the model is not trained on torques (torque_weight 0 or a scene without inputs)"
+        if reason is None and "train" not in dm.split_names():
+            reason = "the data have no training split"
+        if reason is not None:
+            if wanted is True:
+                raise InputError(f"classical_start: {reason}")
+            return
+        val = dm.trajectories("val") if "val" in dm.split_names() else None
+        self.classical_start = start_from_classical(self.model, self.system, dm.trajectories("train"), val)
+        s = self.classical_start
+        scores = s["validation_rms_mean"]
+        chosen = "" if scores is None else f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there)"
+        print(f"classical start: the physically consistent least-squares fit ({s['drive']}, prior {s['prior']:g}"
+              f"{chosen}; {s['fit_seconds']:.1f} s)")
+
+    @property
+    def selection_monitor(self) -> str | None:
+        """The validation scalar ``callbacks.SelectOnValidation`` chooses the final state by (None: the last
+        state is the end): the torque error, where the run started from a classical fit."""
+        return "val/torque_rms" if self.classical_start is not None else None
+
+    def validation_value(self, name: str) -> float:
+        """A validation scalar (``val/<name>`` as validation logs it) of the current state, evaluated on
+        the DataModule's validation split outside the validation loop (only the section it needs)."""
+        from ..evaluation import evaluate_model
+
+        dm = self.trainer.datamodule
+        key = name.removeprefix("val/")
+        sections = {"torque_rms": ("torques",), "torque_nrmse": ("torques",)}.get(key, ("accelerations",))
+        result = evaluate_model(self.model, self.system, dm.trajectories("val"), sections=sections,
+                                accel_stride=int(dm.hparams.eval_stride))
+        return float(section_logs(result)[key])
+
     def configure_callbacks(self):
-        return [SkipNonFiniteSteps(), HParamsSummary(), EvaluationFigures()]
+        return [SkipNonFiniteSteps(), HParamsSummary(), EvaluationFigures(), SelectOnValidation()]
 
     def on_fit_start(self) -> None:
         configure_cpu()  # flush denormals, keep freed tensors in the heap (lnn_torch.perf)

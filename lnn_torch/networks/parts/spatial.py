@@ -116,15 +116,44 @@ class SpatialChain(KineticPart):
         return [self.raw, self.log_armature] if self.learn else []
 
     def regularization(self) -> torch.Tensor | None:
-        """``prior`` times the LogDet divergence of the learned links from the description's (option ``prior``)."""
+        """``prior`` times the LogDet divergence of the learned links from the anchor (option ``prior``):
+        the description's, or the start ``start_at`` set with ``anchor=True``."""
         if not (self.learn and self.prior):
             return None
         U = self.link_U(self.raw.dtype)
-        U0 = self.const("nominal_U", U)  # the description's factors: J0 = U0 U0^T
+        U0 = self.const("anchor_U" if "anchor_U" in self._constants else "nominal_U", U)  # J0 = U0 U0^T
         # J0^-1 J = U0^-T U0^-1 U U^T: with W = U0^-1 U, tr(J0^-1 J) = |W|^2 and log det(J0^-1 J) = 2 log |det W|
         W = torch.linalg.solve_triangular(U0, U, upper=True)
         logdet = 2 * torch.log(torch.diagonal(W, dim1=-2, dim2=-1).abs()).sum(-1)
         return self.prior * (W.pow(2).sum((-2, -1)) - logdet - 4).sum()
+
+    @torch.no_grad()
+    def start_at(self, J: torch.Tensor, armature: torch.Tensor, anchor: bool = True) -> None:
+        """Start the learned links at the pseudo-inertias ``J (n, 4, 4)`` (positive definite: a physically
+        consistent fit's) and the armature ``(n,)`` kg m^2 (at least 1e-8: a learned value is ``exp`` of
+        one); ``anchor``: the prior then pulls towards this start instead of the description
+        (``anchor_J`` reads it back, e.g. to keep it in a checkpoint)."""
+        if not self.learn:
+            raise InputError("kinetic part 'spatial' with learn: false keeps the description: nothing to start")
+        U = K.reverse_cholesky(torch.as_tensor(J, dtype=torch.float64))
+        raw = torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _OFF[0], _OFF[1]]], -1)
+        self.raw.copy_(raw.to(self.raw.dtype))
+        self.log_armature.copy_(torch.as_tensor(armature, dtype=torch.float64).clamp_min(1e-8).log()
+                                .to(self.log_armature.dtype))
+        if anchor:
+            self.anchor_at(J)
+
+    def anchor_at(self, J: torch.Tensor | None) -> None:
+        """The pseudo-inertias ``J (n, 4, 4)`` the prior pulls towards (None: the description's)."""
+        self._constants.pop("anchor_U", None)
+        self._cast = {}
+        if J is not None:
+            self._constants["anchor_U"] = K.reverse_cholesky(torch.as_tensor(J, dtype=torch.float64))
+
+    def anchor_J(self) -> torch.Tensor | None:
+        """The start the prior pulls towards (``start_at``), None where it pulls towards the description."""
+        U = self._constants.get("anchor_U")
+        return None if U is None else U @ U.mT
 
     # ------------------------------------------------------------------ the inertial parameters
     def link_U(self, dtype) -> torch.Tensor:

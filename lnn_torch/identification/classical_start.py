@@ -1,0 +1,73 @@
+"""A grey box of a robot arm started from classical identification: the rigid body's inertial parameters
+are linear in the joint torques, so they are solved, not walked to.
+
+``start_from_classical`` fits the physically consistent least-squares model
+(``classical_arm.consistent_fit``: every link's pseudo-inertia, the armature and the drive model's
+coefficients, with the prior towards the description chosen among ``classical_arm.PRIORS`` on the
+validation recordings) to the training recordings and writes it into a model with the learned spatial
+part (``networks.parts.spatial``): its links and armature exactly, its joint friction's coefficients, and
+the prior of the refinement that follows then pulls towards this start. Gradient steps refine it from
+there; ``training.callbacks.SelectOnValidation`` keeps the state the validation recordings prefer, the
+start included, so the trained model is never worse than the classical fit on validation.
+
+    report = start_from_classical(model, system, train, val)   # Trajectories with torques, SI
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+from ..errors import InputError
+from ..robots.regressor import pseudo_inertia_of
+from .classical_arm import PRIORS
+
+CONSISTENT = "physically consistent"
+
+
+def can_start(model) -> str | None:
+    """Why ``model`` cannot start from a classical fit (None: it can): it needs the learned spatial part
+    and joint friction on every joint (the drive model the fit uses)."""
+    spatial = model.part("kinetic", "spatial") if hasattr(model, "part") else None
+    if spatial is None or not spatial.learn:
+        return "the model has no learned spatial arm part (kinetic: {spatial: {...}})"
+    forces = getattr(model, "forces", None)
+    if forces is None or not forces.friction or forces.num_joints != spatial.dof:
+        return "the model has no joint friction on every joint (the drive model of the classical fit)"
+    return None
+
+
+def start_from_classical(model, system, train, val=None, *, priors=PRIORS, stride: int = 2) -> dict:
+    """Start ``model`` (a structured model with the learned spatial part and joint friction) at the
+    physically consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th
+    point), its prior chosen on ``val`` (None: 0.01). Returns the report: the prior, each prior's
+    validation error, the fit's validation error and time."""
+    from ..robots.kinematics import read_chain
+    from ..robots.mujoco_arm import load_description
+    from .arm_comparison import fit_classical
+
+    reason = can_start(model)
+    if reason is not None:
+        raise InputError(f"a classical start needs an arm grey box: {reason}")
+    spatial, forces = model.part("kinetic", "spatial"), model.forces
+    chain = read_chain(load_description(spatial.description))
+    began = time.perf_counter()
+    fits = fit_classical(system, train, drive=forces.drive, methods=("least squares", CONSISTENT), stride=stride,
+                         prior=priors if val is not None else 0.01, val=val, chain=chain)
+    fit = next(f for f in fits.values() if f.method == CONSISTENT)
+    n = chain.dof
+    pi = torch.as_tensor(fit.pi, dtype=torch.float64)
+    spatial.start_at(pseudo_inertia_of(pi[: 10 * n].reshape(n, 10)), pi[10 * n: 11 * n])
+    units = forces.units.double()
+    # a passive coefficient the fit puts at zero starts just above it (where the softplus still moves it)
+    floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "phi1": 1e-6 * units[1]}
+    coefficients = {}
+    for name, value in fit.friction_coefficients.items():
+        value = torch.as_tensor(value, dtype=torch.float64)
+        coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
+    forces.start_with(coefficients)
+    selection = fit.info.get("prior_selection")
+    return {"method": CONSISTENT, "drive": forces.drive.name, "prior": fit.info["prior"],
+            "validation_rms_mean": None if selection is None else selection["validation_rms_mean"],
+            "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points")}

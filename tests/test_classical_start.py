@@ -1,0 +1,113 @@
+"""An arm grey box started from classical identification and floored by validation
+(``lnn_torch.identification.classical_start``, ``LNNModule(classical_start=...)``,
+``training.callbacks.SelectOnValidation``), on a recording of the Panda simulated by MuJoCo (its
+description without the hand, armature and damping zero, as the real robot was logged): the started
+model's inverse dynamics is the physically consistent fit's exactly (float64); the consistent fit's prior
+is the one with the lowest validation error of those it tried; a training run whose gradient steps only
+make validation worse ends with the start, its checkpoint saying so; without the classical start the
+model starts at the description."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco")
+pytestmark = pytest.mark.slow  # a recording, its import and a short fit: about 30 s
+
+from lnn_torch.data.importer import ImportSpec, import_recordings  # noqa: E402
+from lnn_torch.data.trajectories import points  # noqa: E402
+from lnn_torch.identification.classical_start import start_from_classical  # noqa: E402
+from lnn_torch.training import LNNModule, TrajectoryDataModule  # noqa: E402
+from lnn_torch.training.checkpoints import load_model  # noqa: E402
+
+from .helpers import ROOT, cli_in_process  # noqa: E402
+from .test_measured_arm import ROBOT, record  # noqa: E402
+
+OPTIONS = {"kinetic": {"spatial": {"prior": 1.0e-4}}, "potential": {"spatial": {}},
+           "friction": "viscous+coulomb+offset"}
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    root = tmp_path_factory.mktemp("classical_start")
+    csv = record(root / "arm.csv", seconds=3.0)
+    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                      velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                      coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                      coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
+                      split={"train": ["arm[0.1:2.0]"], "val": ["arm[2.0:2.5]"], "test": ["arm[2.5:2.9]"]})
+    return root, import_recordings([csv], root / "arm.h5", spec)
+
+
+def test_the_started_model_is_the_consistent_fit_and_its_prior_was_chosen_on_validation(recording):
+    _, path = recording
+    dm = TrajectoryDataModule(path=str(path), targets="finite_difference")
+    scene, config = dm.model_scene()
+    module = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                       acceleration_weight=0.0, eps=0.0)
+    model = module.model.double()
+    model.fit_normalizer(dm.normalization_data())
+    report = start_from_classical(model, module.system, dm.trajectories("train"), dm.trajectories("val"))
+    scores = report["validation_rms_mean"]
+    assert len(scores) >= 5 and report["prior"] == min((float(k) for k in scores), key=lambda k: scores[f"{k:g}"])
+    # the fit again, as the start made it: the model's torques are its torques (to the 1e-6 of their unit at
+    # which a friction coefficient the fit puts at zero starts)
+    from lnn_torch.identification.arm_comparison import fit_classical
+
+    fits = fit_classical(module.system, dm.trajectories("train"), drive=model.forces.drive,
+                         methods=("least squares", "physically consistent"), val=dm.trajectories("val"))
+    fit = fits["physically consistent + viscous+coulomb+offset"]
+    q, qd, qdd, tau, params = points(dm.trajectories("test"))
+    with torch.no_grad():
+        ours = model.inverse(q, qd, qdd, params)
+    theirs = fit.inverse(q, qd, qdd, params)
+    assert (ours - theirs).abs().max() <= 1e-5 * theirs.abs().max(), float((ours - theirs).abs().max())
+    # the data are the engine's rigid body: the fit explains the held-out torques to a small fraction
+    assert float((theirs - tau).pow(2).mean().sqrt() / tau.std()) < 0.05
+    # the refinement's prior pulls towards the start: zero there
+    assert float(model.part("kinetic", "spatial").regularization()) < 1e-6
+
+
+def test_a_run_whose_steps_only_hurt_validation_ends_with_the_classical_start(recording):
+    root, path = recording
+    # a learning rate far too large: every step leaves the classical optimum
+    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "real_panda.yaml"), "--data.path", str(path),
+                         "--trainer.max_steps", "20", "--data.steps_per_epoch", "10",
+                         "--trainer.check_val_every_n_epoch", "1", "--model.lr", "0.3",
+                         "--trainer.enable_progress_bar", "false", "--data.targets", "finite_difference",
+                         "--model.val_rollout_seconds", "0.1", cwd=root)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "classical start: the physically consistent least-squares fit" in out.stdout
+    assert "selected on validation: the state at step 0 of 20" in out.stdout, out.stdout[-2000:]
+    (ckpt,) = root.glob("lightning_logs/version_*/checkpoints/last.ckpt")
+    saved = torch.load(ckpt, map_location="cpu", weights_only=False)
+    assert saved["selection"]["step"] == 0 and len(saved["selection"]["history"]) == 3
+    history = dict(saved["selection"]["history"])
+    assert history[0] < min(history[10], history[20])
+    module = load_model(str(ckpt))
+    assert module.classical_start["prior"] > 0
+    assert module.model.part("kinetic", "spatial").anchor_J() is not None
+    # the checkpoint's torques are the start's: the fit of the training split with the chosen prior
+    dm = TrajectoryDataModule(path=str(path), targets="finite_difference")
+    q, qd, qdd, tau, params = points(dm.trajectories("val"))
+    with torch.no_grad():
+        error = (module.model.inverse(*(x.float() for x in (q, qd, qdd, params))).double() - tau)
+    rms = float(error.pow(2).mean(0).sqrt().mean())
+    np.testing.assert_allclose(rms, history[0], rtol=2e-2)
+
+
+def test_without_the_classical_start_the_grey_box_starts_at_the_description(recording):
+    _, path = recording
+    dm = TrajectoryDataModule(path=str(path), targets="finite_difference")
+    scene, config = dm.model_scene()
+    module = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                       acceleration_weight=0.0, eps=0.0, classical_start=False)
+    spatial = module.model.part("kinetic", "spatial")
+    before = spatial.link_J().clone()
+    module._start_from_classical(dm)
+    assert module.classical_start is None and module.selection_monitor is None
+    assert torch.equal(spatial.link_J(), before) and spatial.anchor_J() is None
+    with pytest.raises(Exception, match="classical_start must be"):
+        LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, classical_start="sometimes")
