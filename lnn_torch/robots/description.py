@@ -150,10 +150,27 @@ class ArmDescription:
         """The ``mujoco.MjModel`` of the robot: the description with this one's changes, a massless
         ``payload`` body at the flange and the ``tool`` there; ``InputError`` in one line naming what
         the description lacks."""
-        mujoco = _mujoco()
         copy = _COPIES.get(self.to_json())
         if copy is not None and self.source not in DESCRIPTIONS and not Path(self.source).exists():
             return _from_copy(self, copy)
+        spec, path = self._spec()
+        try:
+            model = spec.compile()
+        except ValueError as err:
+            first, *where = str(err).splitlines()
+            where = f" ({', '.join(w.strip() for w in where if w.strip())})" if any(w.strip() for w in where) else ""
+            raise InputError(f"robot description {path} as changed ({self}): {first}{where}") from None
+        if self.source not in DESCRIPTIONS:  # what a checkpoint of a model built now carries (compiled_copies)
+            _BUILT[self.to_json()] = _mjb(model)
+        return model
+
+    def spec(self):
+        """The ``mujoco.MjSpec`` of the robot, as ``compile`` compiles it (the description file with this
+        one's changes): for tools that edit the model further, e.g. ``mujoco.sysid``."""
+        return self._spec()[0]
+
+    def _spec(self):
+        mujoco = _mujoco()
         path = description_path(self.source)
         try:
             spec = mujoco.MjSpec.from_file(str(path))
@@ -201,15 +218,7 @@ class ArmDescription:
             for joint, v in zip(joints, values, strict=True):
                 # damping is MuJoCo's polynomial (linear coefficient first): the value is viscous, N m s/rad
                 setattr(joint, key, float(v) if key == "armature" else [float(v), 0.0, 0.0])
-        try:
-            model = spec.compile()
-        except ValueError as err:
-            first, *where = str(err).splitlines()
-            where = f" ({', '.join(w.strip() for w in where if w.strip())})" if any(w.strip() for w in where) else ""
-            raise InputError(f"robot description {path} as changed ({self}): {first}{where}") from None
-        if self.source not in DESCRIPTIONS:  # what a checkpoint of a model built now carries (compiled_copies)
-            _BUILT[self.to_json()] = _mjb(model)
-        return model
+        return spec, path
 
     def _flange(self, spec, names: list[str], path):
         """``(body, pos, quat)`` where the payload attaches for a named flange (a body: its origin; a
