@@ -117,6 +117,52 @@ def _windows(dm, split: str, seconds: float, every: int = 1):
     return out
 
 
+SIM_ROBOT = {"source": "franka_panda", "remove": ["hand"]}  # the simulated arm's description (MuJoCo's settings)
+
+
+def _simulated_dataset(seed: int, folder: Path, seconds: float = 10.0, dt: float = 0.002):
+    """A recording of the Panda (``SIM_ROBOT``) perturbed by ``seed`` (``MujocoArm(perturbation=seed)``:
+    masses, centres of mass, inertias, armature and damping off the description, known), driven by a
+    computed-torque controller on its own dynamics along a sum of three sines per joint about a bent
+    configuration, as CSV, imported with the description as written (what every method starts from):
+    training 0.2-7 s, validation 7-8.5 s, test 8.5-10 s. Returns ``(dataset path, the truth's report)``."""
+    from lnn_torch import ImportSpec, import_recordings
+    from lnn_torch.robots import MujocoArm
+
+    arm = MujocoArm(SIM_ROBOT, perturbation=seed)
+    rng = np.random.default_rng(seed)
+    centre = np.array([0.0, -0.6, 0.0, -2.0, 0.0, 1.6, 0.8])
+    amp, freq, phase = rng.uniform(0.15, 0.35, (3, 7)), rng.uniform(0.2, 1.2, (3, 7)), rng.uniform(0, 6.3, (3, 7))
+    w = 2 * np.pi * freq
+    q, qd = centre + (amp * np.sin(phase)).sum(0), (amp * w * np.cos(phase)).sum(0)
+    arm.start(q, qd)
+    columns = {"time": []} | {f"{k}{j}": [] for k in ("q", "dq", "tau") for j in range(1, 8)}
+    for k in range(int(round(seconds / dt))):
+        t = k * dt
+        ref = centre + (amp * np.sin(w * t + phase)).sum(0)
+        ref_d, ref_dd = (amp * w * np.cos(w * t + phase)).sum(0), -(amp * w**2 * np.sin(w * t + phase)).sum(0)
+        tau = arm.inverse(q[None], qd[None], (ref_dd + 400.0 * (ref - q) + 40.0 * (ref_d - qd))[None])[0].numpy()
+        for j in range(7):
+            for key, value in (("q", q), ("dq", qd), ("tau", tau)):
+                columns[f"{key}{j + 1}"].append(value[j])
+        columns["time"].append(t)
+        arm.hold(tau, dt, 2)
+        q, qd = arm.state()
+    folder.mkdir(parents=True, exist_ok=True)
+    csv = folder / f"perturbed_panda_{seed}.csv"
+    names = list(columns)
+    rows = np.stack([np.asarray(columns[n], dtype=np.float64) for n in names], -1)
+    csv.write_text(",".join(names) + "\n" + "\n".join(",".join(f"{v:.17g}" for v in r) for r in rows) + "\n")
+    stem = csv.stem
+    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                      velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                      coord_names=[f"joint{j}" for j in range(1, 8)], robot=SIM_ROBOT, friction=True,
+                      coulomb_velocity=0.02, label="perturbed_panda", torque_delay="off",
+                      split={"train": [f"{stem}[0.2:7.0]"], "val": [f"{stem}[7.0:8.5]"], "test": [f"{stem}[8.5:10.0]"]})
+    path = import_recordings([csv], folder / f"perturbed_panda_{seed}.h5", spec, overwrite=True)
+    return path, arm.perturbation_report()
+
+
 def _inverse(model, q, qd, qdd) -> np.ndarray:
     """MuJoCo's inverse dynamics ``(N, n)`` of ``model`` at each point."""
     import mujoco
@@ -141,7 +187,12 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=2, help="keep every n-th window (the fit's time is the rollouts')")
     ap.add_argument("--max-iters", type=int, default=20, help="sysid's least-squares iterations")
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
-    ap.add_argument("--label", default="the real Panda", help="what the recording is, for the title")
+    ap.add_argument("--label", default=None, help="what the recording is, for the title (default: the real Panda, "
+                    "or the simulated arm)")
+    ap.add_argument("--simulate", type=int, default=None, metavar="SEED",
+                    help="instead of --data: a recording of the Panda perturbed by SEED (known truth), simulated and "
+                         "imported into --work; the table adds the truth's torques and the link masses")
+    ap.add_argument("--work", default="runs/mujoco_sysid", help="where --simulate writes its recording and dataset")
     add_output_dir(ap, "mujoco_sysid", "the folder of metrics.json and README.md")
     args = ap.parse_args()
     from mujoco import sysid
@@ -154,7 +205,12 @@ def main() -> None:
     from lnn_torch.training import TrajectoryDataModule
 
     torch.set_num_threads(args.threads)
-    dm = TrajectoryDataModule(path=args.data, targets=json.loads(args.targets))
+    truth = None
+    if args.simulate is not None:
+        args.data, truth = _simulated_dataset(args.simulate, Path(args.work))
+    title = args.label or ("the real Panda" if truth is None else
+                           f"a simulated Panda perturbed by seed {args.simulate}")
+    dm = TrajectoryDataModule(path=str(args.data), targets=json.loads(args.targets))
     scene, config = dm.model_scene()
     system = get_system(scene, **config)
     names = list(system.coord_names)
@@ -194,11 +250,24 @@ def main() -> None:
         start = module.classical_start or {}
         judge(label, model_torque(module.model), start.get("fit_seconds"))
 
+    masses = None
+    if truth is not None:
+        from lnn_torch.robots import MujocoArm
+
+        arm = MujocoArm(SIM_ROBOT, perturbation=args.simulate)
+        judge("the truth (the perturbed arm's own inverse dynamics)",
+              lambda q, qd, qdd, p: arm.inverse(q, qd, qdd))
+        consistent = next(f for f in fits.values() if f.method == "physically consistent")
+        masses = {"truth": [v["mass"][1] for v in truth["bodies"].values()],
+                  "description": [v["mass"][0] for v in truth["bodies"].values()],
+                  "mujoco.sysid": [float(identified.body_mass[identified.body(b).id]) for b in bodies],
+                  "physically consistent": consistent.report()["mass"]}
     vector = fitted.as_vector()
     finite = np.isfinite(half_widths)
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    metrics = {"data": args.data, "targets": json.loads(args.targets), "window": args.window, "windows": len(seq),
+    metrics = {"data": str(args.data), "simulated_seed": args.simulate, "link_masses": masses,
+               "targets": json.loads(args.targets), "window": args.window, "windows": len(seq),
                "max_iters": args.max_iters, "joints": names, "rows": rows,
                "sysid": {"parameters": fitted.as_vector().tolist(), "half_width95": half_widths.tolist(),
                          "finite_intervals": int(finite.sum()), "bodies": bodies}}
@@ -209,17 +278,22 @@ def main() -> None:
         [[k, *(f"{rows[k]['rms'][n]:.2f}" for n in names), f"**{rows[k]['rms_mean']:.3f}**",
           f"{rows[k]['val_rms_mean']:.3f}", "" if rows[k]["fit_seconds"] is None else f"{rows[k]['fit_seconds']:.0f}"]
          for k in order])
-    command_models = " ".join(shlex.quote(m) for m in args.models)
+    source = f"--simulate {args.simulate}" if truth is not None else f"--data {args.data}"
+    command = " ".join([source, *(shlex.quote(m) for m in args.models)])
     nth = f"every {args.every}{'nd' if args.every == 2 else 'th'} window" if args.every > 1 else "every window"
-    text = f"""# {args.label}: MuJoCo's own identification beside the classical fits and the grey box
+    mass_table = "" if masses is None else (
+        "\n\nThe truth's own row is the error of the targets (velocities and accelerations estimated from the "
+        "recording, as for a real arm), the floor of this table. Link masses (kg):\n\n") + markdown_table(
+        ["", *bodies], [[k, *(f"{v:.3f}" for v in values)] for k, values in masses.items()])
+    text = f"""# {title}: MuJoCo's own identification beside the classical fits and the grey box
 
-`python scripts/mujoco_sysid.py --data {args.data} {command_models}`
+`python scripts/mujoco_sysid.py {command}`
 (`pip install -e '.[sysid]'`; the dataset imported as its config says). Held-out joint-torque RMS error in
 N m, against the measured torques at the targets' velocities and accelerations
 ({json.loads(args.targets)['method']}), every model on the same points; fit time on this machine's 2 cores
 (the grey box's: its classical start; its checkpoint was trained with the command in its own results).
 
-{table}
+{table}{mass_table}
 
 `mujoco.sysid` fitted {len(vector)} parameters ({len(bodies)} bodies' pseudo-inertias, each joint's damping,
 friction loss and armature) to the recorded angles and velocities of {len(seq)} windows of {args.window:g} s of

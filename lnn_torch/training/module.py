@@ -243,8 +243,10 @@ class LNNModule(L.LightningModule):
     @property
     def selection_monitor(self) -> str | None:
         """The validation scalar ``callbacks.SelectOnValidation`` chooses the final state by (None: the last
-        state is the end): the torque error, where the run started from a classical fit."""
-        return "val/torque_rms" if self.classical_start is not None else None
+        state is the end): the torque error, where the run started from a classical fit and has validation
+        recordings (without them nothing judges the states)."""
+        start = self.classical_start
+        return "val/torque_rms" if start is not None and start.get("validation_rms_mean") is not None else None
 
     def validation_value(self, name: str) -> float:
         """A validation scalar (``val/<name>`` as validation logs it) of the current state, evaluated on
