@@ -269,7 +269,7 @@ def main() -> None:
     metrics = {"data": str(args.data), "simulated_seed": args.simulate, "link_masses": masses,
                "targets": json.loads(args.targets), "window": args.window, "windows": len(seq),
                "max_iters": args.max_iters, "joints": names, "rows": rows,
-               "sysid": {"parameters": fitted.as_vector().tolist(), "half_width95": half_widths.tolist(),
+               "sysid": {"parameters": vector.tolist(), "half_width95": half_widths.tolist(),
                          "finite_intervals": int(finite.sum()), "bodies": bodies}}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     order = sorted(rows, key=lambda k: rows[k]["rms_mean"])

@@ -39,7 +39,7 @@ import torch
 
 from ..errors import InputError
 from ..mechanics.friction import COEFFICIENTS, SLOPE_LIMIT, DriveModel
-from ..robots.kinematics import SerialChain, reverse_cholesky
+from ..robots.kinematics import SerialChain, log_cholesky, log_cholesky_factor
 from ..robots.regressor import (
     base_parameters,
     classical_of,
@@ -51,7 +51,6 @@ from ..robots.regressor import (
     regressor,
 )
 
-_OFF = torch.triu_indices(4, 4, 1)
 # the condition number of the column-scaled regressor above which the recordings are said not to determine
 # the model (the exciting trajectories of identification papers reach 10-300; a stationary arm, infinity)
 COND_WARN = 1e3
@@ -379,7 +378,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
 
     def unpack(theta):
         raw = theta[: 10 * n].reshape(n, 10)
-        U = torch.diag_embed(raw[:, :4].exp()).index_put((torch.arange(n)[:, None], _OFF[0], _OFF[1]), raw[:, 4:])
+        U = log_cholesky_factor(raw)
         J = U @ U.mT
         armature = theta[10 * n: 11 * n] ** 2
         coef = theta[11 * n:].reshape(len(names), n)
@@ -402,8 +401,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         div = (torch.linalg.solve(J0, J).diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(J) + logdet0 - 4).sum()
         return err + strength * div
 
-    U0 = reverse_cholesky(J0)
-    raw0 = torch.cat([U0.diagonal(dim1=-2, dim2=-1).log(), U0[:, _OFF[0], _OFF[1]]], -1)
+    raw0 = log_cholesky(J0)
     coef0 = []
     for name in names:
         value = np.zeros(n)
@@ -446,6 +444,9 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         raise InputError("classical identification: choosing the prior among several needs validation data")
     if not priors or any(not (p >= 0) for p in priors):
         raise InputError(f"classical identification: prior must be >= 0, got {prior!r}")
+    if len(priors) > 1:
+        vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
+        vparams = validation[4] if len(validation) > 4 else None
     best, x, scores = None, theta0.numpy(), {}
     for strength in priors:  # the strongest first; each starts where the previous ended
         sol = solve(strength, x)
@@ -454,8 +455,6 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         if len(priors) == 1:
             best = candidate
             break
-        vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
-        vparams = validation[4] if len(validation) > 4 else None
         scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
         if best is None or scores[strength] < scores[best[0].info["prior"]]:
             best = candidate

@@ -75,6 +75,11 @@ _EXTRA = {"offset": (("o", 0.0),), "stribeck": (("s", _INIT),),
           "sigmoid": (("phi1", _INIT), ("phi2", math.log(math.expm1(0.6))), ("phi3", 0.0))}
 
 
+def _softplus_inverse(x: torch.Tensor) -> torch.Tensor:
+    """``r`` with ``softplus(r) = x`` (``x > 0``)."""
+    return x + torch.log(-torch.expm1(-x))
+
+
 class LearnedForces(nn.Module):
     def __init__(self, scene, num_features: int, learn_input_matrix: bool = False, dissipation: str = "joint",
                  hidden: int = 16, friction: str = "viscous+coulomb") -> None:
@@ -181,7 +186,7 @@ class LearnedForces(nn.Module):
         units = self.units.double()
         b = (viscous.double().clamp_min(1e-6) / units[0])
         c = torch.full_like(b, coulomb)
-        raw = torch.cat([b + torch.log(-torch.expm1(-b)), c + torch.log(-torch.expm1(-c))])
+        raw = torch.cat([_softplus_inverse(b), _softplus_inverse(c)])
         k = 2 * self.num_joints  # the further forms' coefficients keep their start
         if hasattr(self, "coefficient_net"):
             self.coefficient_net[-1].weight[:k].zero_()
@@ -198,10 +203,7 @@ class LearnedForces(nn.Module):
         its unit (where its gradient vanishes: clip it higher to let it move)."""
         units = self.units.double()
         n = self.num_joints
-
-        def softplus_inverse(x):
-            x = x.clamp_min(1e-12)
-            return x + torch.log(-torch.expm1(-x))
+        softplus_inverse = lambda x: _softplus_inverse(x.clamp_min(1e-12))  # noqa: E731
 
         rows = {}
         for k, name in enumerate(("b", "c")):

@@ -214,6 +214,24 @@ def reverse_cholesky(J: torch.Tensor) -> torch.Tensor:
     return flip(torch.linalg.cholesky(flip(J)))
 
 
+_UPPER = torch.triu_indices(4, 4, 1)  # the six entries above the diagonal of a pseudo-inertia's factor
+
+
+def log_cholesky(J: torch.Tensor) -> torch.Tensor:
+    """``raw (n, 10)`` of pseudo-inertias ``J (n, 4, 4)``: the logs of the diagonal of ``U``
+    (``reverse_cholesky``), then its six entries above the diagonal (the log-Cholesky parameters: every
+    value is a physically consistent body)."""
+    U = reverse_cholesky(J)
+    return torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _UPPER[0], _UPPER[1]]], -1)
+
+
+def log_cholesky_factor(raw: torch.Tensor) -> torch.Tensor:
+    """``U (n, 4, 4)`` of the log-Cholesky parameters ``raw (n, 10)`` (``log_cholesky``): ``J = U U^T``."""
+    rows = torch.arange(raw.shape[0], device=raw.device)[:, None]
+    upper = _UPPER.to(raw.device)
+    return torch.diag_embed(raw[:, :4].exp()).index_put((rows, upper[0], upper[1]), raw[:, 4:])
+
+
 def _blocks(n: int, device) -> tuple[torch.Tensor, ...]:
     """Index lists of the nonzero blocks: pairs ``(k, i)`` with ``k <= i`` and triples ``(k, m, i)`` with
     ``k < m <= i``."""

@@ -29,7 +29,6 @@ from ...robots import kinematics as K
 from ...robots.description import ArmDescription
 from .base import BuildContext, KineticPart, PartInputs, PotentialPart, PotentialTerm
 
-_OFF = torch.triu_indices(4, 4, 1)  # the six entries above the diagonal of U
 ARMATURE_START = 1e-4  # kg m^2: where a learned armature starts if the description's is smaller (or 0)
 
 
@@ -85,9 +84,8 @@ class SpatialChain(KineticPart):
                            "gravity": chain.gravity, "nominal_J": chain.J, "nominal_U": K.reverse_cholesky(chain.J),
                            "damping": chain.damping}
         self._cast = {}
-        U = K.reverse_cholesky(chain.J)
         # in the default dtype (a float64 test builds the description's values exactly)
-        raw = torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _OFF[0], _OFF[1]]], -1).to(torch.get_default_dtype())
+        raw = K.log_cholesky(chain.J).to(torch.get_default_dtype())
         if self.learn:
             self.raw = nn.Parameter(raw)  # (n, 10): log of U's diagonal, then its six upper entries
             self.log_armature = nn.Parameter(chain.armature.clamp_min(ARMATURE_START).log().to(raw.dtype))
@@ -135,9 +133,7 @@ class SpatialChain(KineticPart):
         (``anchor_J`` reads it back, e.g. to keep it in a checkpoint)."""
         if not self.learn:
             raise InputError("kinetic part 'spatial' with learn: false keeps the description: nothing to start")
-        U = K.reverse_cholesky(torch.as_tensor(J, dtype=torch.float64))
-        raw = torch.cat([U.diagonal(dim1=-2, dim2=-1).log(), U[:, _OFF[0], _OFF[1]]], -1)
-        self.raw.copy_(raw.to(self.raw.dtype))
+        self.raw.copy_(K.log_cholesky(torch.as_tensor(J, dtype=torch.float64)).to(self.raw.dtype))
         self.log_armature.copy_(torch.as_tensor(armature, dtype=torch.float64).clamp_min(1e-8).log()
                                 .to(self.log_armature.dtype))
         if anchor:
@@ -158,10 +154,7 @@ class SpatialChain(KineticPart):
     # ------------------------------------------------------------------ the inertial parameters
     def link_U(self, dtype) -> torch.Tensor:
         """``U (n, 4, 4)``: each link's factor ``J_i = U_i U_i^T``."""
-        raw = self._raw("raw", dtype)
-        U = torch.diag_embed(raw[:, :4].exp())
-        return U.index_put((torch.arange(self.num_links, device=raw.device)[:, None], _OFF[0].to(raw.device),
-                            _OFF[1].to(raw.device)), raw[:, 4:])
+        return K.log_cholesky_factor(self._raw("raw", dtype))
 
     def link_J(self, dtype=torch.float64) -> torch.Tensor:
         U = self.link_U(dtype)
