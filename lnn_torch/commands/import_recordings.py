@@ -196,6 +196,11 @@ def main(argv: list[str]) -> int:
     if delay:
         for line in delay_lines(delay, delay["mode"], delay["applied_s"]):
             print(line)
+    if provenance.get("tools"):
+        from ..data.import_tools import tool_lines
+
+        for line in tool_lines(provenance["tools"]):
+            print(line)
     note = slow_sampling_note(provenance)
     if note:
         print(note)

@@ -61,7 +61,12 @@ class ImportSpec:
             "values": {recording: [...] or a tool's name}, "tools": {name: [...]}}``; for a robot arm
             the names default to the payload at its flange, ``payload_mass, payload_x, payload_y,
             payload_z`` (kg, m; ten values with the inertia about the centre of mass). A recording
-            without values carries zeros (no payload).
+            without values carries zeros (no payload). A robot arm's tool may declare only what is
+            known, ``{mass: 1.2}``, ``{mass, com: [x, y, z]}`` or ``{}`` (``inertia``: six values about
+            the centre of mass, payloads of ten): the rest is identified at import from the recordings
+            that carry it (``lnn_torch.data.import_tools``).
+        tool_targets: the derivative estimate for that identification (``lnn_torch.data.derivatives``
+            settings; default a 10 Hz Butterworth of the measured velocities).
         dt: resampling interval, s (default: the median interval of the first recording, rounded to 0.1
             ms; refused, asking for ``dt``, where the recordings' median intervals differ by over 2 % and
             round to different intervals).
@@ -138,6 +143,7 @@ class ImportSpec:
     repeated_rows: str | None = None
     torque_delay: float | str | None = None
     torque_delay_range: float | None = None
+    tool_targets: dict | None = None
 
     def __post_init__(self) -> None:
         self._bag_fields()
@@ -308,31 +314,26 @@ class ImportSpec:
 
     def parameter_table(self, names: list[str]) -> tuple[dict, np.ndarray]:
         """``(declaration, values (N, P))``: the parameters' names, units and kinds, and each recording's
-        values (a tool's by its name; zeros for a recording without values)."""
+        values (a tool's by its name, its unknown entries zero until identified; zeros for a recording
+        without values)."""
         if not self.parameters:
             return {"names": [], "units": [], "kinds": []}, np.zeros((len(names), 0))
         spec = dict(self.parameters)
         unknown = sorted(set(spec) - {"names", "units", "kinds", "values", "tools"})
         if unknown:
             raise InputError(f"import: parameters take names, units, kinds, values and tools, got {', '.join(unknown)}")
-        values, tools = dict(spec.get("values") or {}), dict(spec.get("tools") or {})
+        P, tools = self._width(), self.tools(names)
         rows = {}
-        for rec, value in values.items():
+        for rec, value in dict(spec.get("values") or {}).items():
             if rec not in names:
                 raise InputError(f"import: parameters given for an unknown recording {rec!r} (recordings: "
                                  f"{', '.join(names)})")
-            if isinstance(value, str):
-                if value not in tools:
-                    raise InputError(f"import: recording {rec!r} names tool {value!r}, which parameters.tools does "
-                                     f"not define ({', '.join(tools) or 'none'})")
-                value = tools[value]
-            rows[rec] = [float(v) for v in value]
+            rows[rec] = tools[value].known_row().tolist() if isinstance(value, str) else [float(v) for v in value]
         width = {len(r) for r in rows.values()}
-        if len(width) > 1:
+        if len(width) > 1 or (width and width.pop() != P):
             raise InputError(f"import: every recording's parameters need the same number of values, got "
-                             f"{sorted(width)}")
+                             f"{sorted({len(r) for r in rows.values()})}")
         if self.robot is not None:
-            P = width.pop() if width else 4
             default = list(ARM_PARAMS[:P]) if P in (4, 10) else None
             units = ["kg", "m", "m", "m"] + ["kg m^2"] * 6
             kinds = ["nonnegative", "real", "real", "real"] + ["real"] * 6
@@ -343,7 +344,6 @@ class ImportSpec:
             decl = {"names": list(names_p), "units": list(spec.get("units", units[:P])),
                     "kinds": list(spec.get("kinds", kinds[:P]))}
         else:
-            P = width.pop() if width else len(spec.get("names", []))
             decl = {"names": list(spec.get("names", [f"p{i + 1}" for i in range(P)])),
                     "units": list(spec.get("units", [""] * P)), "kinds": list(spec.get("kinds", ["real"] * P))}
         if any(len(decl[k]) != P for k in decl):
@@ -355,6 +355,49 @@ class ImportSpec:
         if not np.isfinite(table).all():
             raise InputError("import: a parameter value is NaN or Inf")
         return decl, table
+
+    def _width(self) -> int:
+        """The parameters per recording: the values' (given as lists), else ten where a tool declares an
+        inertia or ``names`` has ten, else four for a robot arm's payload (else ``names``' count)."""
+        spec = dict(self.parameters or {})
+        lists = [v for v in list((spec.get("values") or {}).values()) + list((spec.get("tools") or {}).values())
+                 if not isinstance(v, (str, dict))]
+        if lists:
+            return len(lists[0])
+        if "names" in spec:
+            return len(spec["names"])
+        if self.robot is None:
+            return 0
+        return 10 if any(isinstance(v, dict) and "inertia" in v for v in (spec.get("tools") or {}).values()) else 4
+
+    def tools(self, names: list[str] | None = None) -> dict:
+        """The named tools ``{name: identification.payload.Tool}`` (a list of values: known; a mapping of what
+        is known, ``mass``, ``com``, ``inertia``: the rest identified at import; robot arms only), each
+        recording's named tool checked against them."""
+        from ..identification.payload import Tool
+
+        spec = dict(self.parameters or {})
+        declared = dict(spec.get("tools") or {})
+        width = self._width()
+        tools = {}
+        for name, value in declared.items():
+            if isinstance(value, dict) and self.robot is None:
+                raise InputError(f"import: tool {name!r} leaves parameters to identify: only a robot arm's payloads "
+                                 "are identified (give its values as a list)")
+            if not isinstance(value, (list, tuple, dict)):
+                raise InputError(f"import: tool {name!r} needs a list of values or a mapping of what is known "
+                                 f"(mass, com, inertia), got {value!r}")
+            tools[name] = Tool.declared(name, value, width)
+        for rec, value in dict(spec.get("values") or {}).items():
+            if isinstance(value, str) and value not in tools:
+                raise InputError(f"import: recording {rec!r} names tool {value!r}, which parameters.tools does "
+                                 f"not define ({', '.join(tools) or 'none'})")
+        return tools
+
+    def tool_of(self, names: list[str]) -> dict:
+        """``{recording: tool name}`` for the recordings that name a tool."""
+        values = dict(dict(self.parameters or {}).get("values") or {})
+        return {rec: v for rec, v in values.items() if isinstance(v, str) and rec in names}
 
     def system(self, parameters: dict | None = None):
         """The ``MeasuredSystem`` these recordings declare (``parameters``: the declaration of

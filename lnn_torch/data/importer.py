@@ -26,7 +26,8 @@ span in ``windows`` (the DataModule cuts each entry to its window after estimati
 Windows of different splits may not overlap.
 
 Known parameters per recording (``parameters``: e.g. the payload a robot arm carried in each, or a
-named tool) are stored with each entry, and a robot arm's description (``robot``) with the scene:
+named tool, whose unknown entries are identified here: ``lnn_torch.data.import_tools``) are stored with
+each entry, and a robot arm's description (``robot``) with the scene:
 models condition on the parameters as on a simulated scene's, a grey box reads the description.
 
 Refused, with one line naming the file and the line of the file (and the column), before anything
@@ -131,6 +132,15 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     entries, splits = split_entries(stems, spec.split, spec.seed, [len(r) * dt for r in resampled])
     pieces, windows = _pieces(entries, resampled, records, stems, dt, int(round(spec.window_context / dt)))
     arrays = _arrays(system, spec, resampled, pieces, windows, param_table, dt)
+    tools = spec.tools(stems)
+    tools_report = None
+    if any(tool.unknown for tool in tools.values()):
+        from .import_tools import identify_at_import
+
+        if not system.num_inputs:
+            raise InputError("import: identifying a tool needs the joint torques (inputs)")
+        arrays["params"], tools_report = identify_at_import(system, spec, tools, spec.tool_of(stems), stems, entries,
+                                                            splits, arrays, dt)
     settings = {**asdict(spec), "dt": dt}
     provenance = {"sources": [{"file": f.name, "sha256": _checksum(f), "rows": len(r), "t0_s": float(r[0, 0]),
                                "resampled_points": len(res), "timing": tm, **info}
@@ -140,6 +150,8 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
                   "entries": [{"name": name, "recording": stems[i], "from_s": lo * dt, "to_s": (hi - 1) * dt,
                                "window": list(w)} for (i, _, _, name), (_, lo, hi), w
                               in zip(entries, pieces, windows, strict=True)]}
+    if tools_report is not None:
+        provenance["tools"] = tools_report
     if delay:
         provenance["torque_delay"] = {**delay, "mode": spec.delay_mode, "applied_s": applied or 0.0}
     if spec.currents:

@@ -1,13 +1,23 @@
-"""A payload's inertial parameters from an arm's recordings by classical least squares: per
-observation, the payload regressor of the robot-arm scene (``RobotArm.linear_regressor``: the joint
-torques less the arm's own, linear in the payload's ten inertial parameters), solved linearly, and as
-a point mass (four unknowns, Gauss-Newton from the linear estimate)."""
+"""A payload's inertial parameters from an arm's recordings by classical least squares.
+
+* ``payload_least_squares``: per observation of the simulated robot-arm scene, on its payload regressor
+  (``RobotArm.linear_regressor``: the joint torques less the arm's own, linear in the payload's ten
+  inertial parameters), solved linearly, and as a point mass (four unknowns, Gauss-Newton).
+* ``identify_tools``: named tools (``Tool``) that recordings carry, with what is known of each (mass,
+  centre of mass, inertia, all or nothing), the rest identified jointly across every recording that
+  carries the tool: either together with the arm's base parameters and friction (the tool's columns
+  beside the arm's; recordings without the tool tell the two apart) or against a given arm model, with
+  cluster-robust standard errors and 95 % intervals per identified entry (``ToolFit``).
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from ..errors import InputError
 from ..robots.mujoco_arm import MujocoArm
 from ..systems import get_system
 
@@ -44,3 +54,296 @@ def payload_least_squares(q, qd, qdd, tau, edge: int = 0, system=None) -> dict:
         out["point mass"][0].append(float(theta[0]))
         out["point mass"][1].append(theta[1:4].numpy())
     return {k: (np.array(m), np.array(c)) for k, (m, c) in out.items()}
+
+
+# ---------------------------------------------------------------- tools whose parameters are (partly) unknown
+ROW = ("mass", "x", "y", "z", "ixx", "iyy", "izz", "ixy", "ixz", "iyz")  # a payload row's entries (SI)
+FIELDS = {"mass": slice(0, 1), "com": slice(1, 4), "inertia": slice(4, 10)}  # what a declaration may give
+UNITS = ("kg", "m", "m", "m", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2")
+Z95 = 1.959963984540054
+STIFF = 1e-9  # a tool's columns whose scaled singular value falls below this share cannot be told apart
+
+
+class ToolsUndetermined(InputError):
+    """The recordings cannot tell a tool's unknown parameters from the arm's own (e.g. every recording
+    carries it and the arm is identified with it)."""
+
+
+@dataclass(frozen=True)
+class Tool:
+    """A tool (payload) some recordings carry at the flange, and what is known of it.
+
+    ``width``: 4 (a point mass: mass, centre of mass in the flange frame) or 10 (and its inertia about
+    the centre of mass: ixx, iyy, izz, ixy, ixz, iyz); ``known``: the known entries' values by index of
+    the row (``ROW``), the rest to identify."""
+
+    name: str
+    width: int
+    known: dict
+
+    @classmethod
+    def declared(cls, name: str, value, width: int) -> Tool:
+        """From an import declaration: a list (every value known, ``width`` long), or a mapping of what is
+        known (``mass`` kg, ``com`` [3] m, ``inertia`` [6] kg m^2 about the centre of mass; ``{}``:
+        nothing)."""
+        if not isinstance(value, dict):
+            values = [float(v) for v in value]
+            if len(values) != width:
+                raise InputError(f"import: tool {name!r} gives {len(values)} values; the payloads have {width}")
+            return cls(name, width, dict(enumerate(values)))
+        unknown = sorted(set(value) - set(FIELDS))
+        if unknown:
+            raise InputError(f"import: tool {name!r}: {', '.join(unknown)} is not a payload field (mass, com, "
+                             "inertia)")
+        if "inertia" in value and width != 10:
+            raise InputError(f"import: tool {name!r} declares an inertia, but the payloads are point masses "
+                             "(4 values)")
+        known = {}
+        for field_name, span in FIELDS.items():
+            if field_name not in value or span.start >= width:
+                continue
+            values = np.atleast_1d(np.asarray(value[field_name], dtype=np.float64))
+            size = span.stop - span.start
+            if values.shape != (size,) or not np.isfinite(values).all():
+                raise InputError(f"import: tool {name!r}: {field_name} needs {size} finite value(s), got "
+                                 f"{value[field_name]!r}")
+            known.update({span.start + k: float(v) for k, v in enumerate(values)})
+        if 0 in known and known[0] <= 0:
+            raise InputError(f"import: tool {name!r}: mass must be positive, got {known[0]}")
+        return cls(name, width, known)
+
+    @property
+    def unknown(self) -> list[int]:
+        """The row's indices to identify."""
+        return [k for k in range(self.width) if k not in self.known]
+
+    def row(self, theta: torch.Tensor) -> torch.Tensor:
+        """The payload row ``(width,)`` with the unknown entries ``theta (len(unknown),)``."""
+        base = torch.tensor([self.known.get(k, 0.0) for k in range(self.width)], dtype=theta.dtype)
+        return base.index_put((torch.tensor(self.unknown, dtype=torch.long),), theta) if self.unknown else base
+
+    def known_row(self) -> np.ndarray:
+        """The row with what is known (zeros where unknown)."""
+        return np.array([self.known.get(k, 0.0) for k in range(self.width)])
+
+    def describe(self) -> str:
+        if not self.unknown:
+            return "known"
+        if not self.known:
+            return "nothing known"
+        return "known: " + ", ".join(f for f, s in FIELDS.items() if all(k in self.known for k in
+                                                                         range(s.start, min(s.stop, self.width)))
+                                     and s.start < self.width)
+
+
+@dataclass
+class ToolFit:
+    """Identified tools: per tool its row (``values``), the standard errors and 95 % intervals of the
+    identified entries (cluster-robust over ``block``-sample blocks), what it was identified against
+    (``against``: the arm identified with it by least squares, or a given arm model), the recordings used,
+    and the fit's condition number and residual RMS per joint (N m)."""
+
+    tools: dict
+    values: dict
+    std: dict
+    against: str
+    used: dict
+    condition: float
+    residual_rms: list
+    block: int
+    arm: object = None  # the arm's least-squares model where identified jointly (``classical_arm.ArmModel``)
+
+    def report(self) -> dict:
+        out = {}
+        for name, tool in self.tools.items():
+            entries = {}
+            for k in range(tool.width):
+                value = float(self.values[name][k])
+                if k in tool.known:
+                    entries[ROW[k]] = {"value": value, "unit": UNITS[k], "known": True}
+                else:
+                    s = float(self.std[name][k])
+                    entries[ROW[k]] = {"value": value, "unit": UNITS[k], "std": s,
+                                       "interval95": [value - Z95 * s, value + Z95 * s]}
+            out[name] = {"declared": tool.describe(), "parameters": entries, "recordings": self.used[name]}
+        return {"tools": out, "against": self.against, "condition_number": self.condition,
+                "residual_rms": self.residual_rms, "block_samples": self.block}
+
+
+def _solve(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Least squares ``A x = b`` with ``A``'s columns scaled to unit norm first (a tool's inertia columns are
+    orders of magnitude below the arm's: unscaled, a rank-revealing solver would drop them)."""
+    norms = A.norm(dim=0)
+    norms = torch.where(norms > 0, norms, torch.ones_like(norms))
+    return torch.linalg.lstsq(A / norms, b[:, None], driver="gelsd").solution[:, 0] / norms
+
+
+def _start(pi: torch.Tensor, tool: Tool) -> torch.Tensor:
+    """The unknown entries from a free linear estimate of the payload's ten at the flange (``payload_ten``'s
+    layout), the known ones kept."""
+    known = tool.known
+    m = known.get(0, float(pi[9]))
+    m = m if m > 1e-3 else 1e-3  # a start needs a positive mass
+    c = torch.tensor([known.get(1 + k, float(pi[6 + k]) / m) for k in range(3)], dtype=pi.dtype)
+    row = [m, *c.tolist()]
+    if tool.width == 10:
+        I_o = torch.stack([torch.stack([pi[0], pi[3], pi[4]]), torch.stack([pi[3], pi[1], pi[5]]),
+                           torch.stack([pi[4], pi[5], pi[2]])])
+        I_c = I_o - m * (c.dot(c) * torch.eye(3, dtype=pi.dtype) - torch.outer(c, c))
+        free = [I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]]
+        row += [known.get(4 + k, float(free[k])) for k in range(6)]
+    return torch.tensor([row[k] for k in tool.unknown], dtype=pi.dtype)
+
+
+def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+coulomb+offset", block: int = 1,
+                   against: str | None = None, max_iterations: int = 50) -> ToolFit:
+    """The unknown entries of ``tools`` (``{name: Tool}``) from ``recordings``: a list of ``(name, q, qd,
+    qdd, tau, payload)`` per recording (``(T, n)`` arrays, SI; ``payload`` the tool's name, or a known row
+    ``(4 or 10,)``, or None), by least squares on the joint torques.
+
+    ``arm`` None: jointly with the arm -- its base parameters and ``drive``'s linear friction
+    (``classical_arm``) as further columns, so the tools must be told apart from the arm's last link by
+    recordings without them (or with others); else the arm's torques ``arm(q, qd, qdd) -> (T, n)``
+    (a model's without payload) are taken as known. Each tool's torques are its rigid body at the flange,
+    linear in its ten (``robots.regressor.payload_regressor``) and nonlinear in the row (mass, centre of
+    mass, inertia about it): Gauss-Newton from the free linear estimate, the linear coefficients solved
+    with each step. Raises ``ToolsUndetermined`` where the data cannot determine a tool's unknown
+    entries."""
+    from ..mechanics.friction import COEFFICIENTS, DriveModel
+    from ..robots.regressor import base_parameters, flange_map, parameter_names, payload_ten, payload_torque
+    from .classical_arm import ArmModel, _base_names, _friction_columns, _regressor, _viscous_of, coefficient_covariance
+
+    drive = DriveModel.of(drive)
+    if "sigmoid" in drive.forms:
+        raise InputError("tool identification: the drive model must be linear in its coefficients (no sigmoid)")
+    pending = {name: tool for name, tool in tools.items() if tool.unknown}
+    carried = {name: [r[0] for r in recordings if isinstance(r[5], str) and r[5] == name] for name in pending}
+    for name, used in carried.items():
+        if not used:
+            raise InputError(f"tool identification: no recording carries tool {name!r}")
+    rows_Y, rows_target, rows_F, Yp, groups, ends = [], [], [], {name: [] for name in pending}, [], 0
+    G = flange_map(chain)
+    n = chain.dof
+    for rec, q, qd, qdd, tau, payload in recordings:
+        q, qd, qdd, tau = (torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float64) for x in (q, qd, qdd, tau))
+        if q.ndim != 2 or q.shape[1] != n or not all(x.shape == q.shape for x in (qd, qdd, tau)):
+            raise InputError(f"tool identification: recording {rec!r} needs q, qd, qdd, tau of shape (T, {n})")
+        if not all(bool(torch.isfinite(x).all()) for x in (q, qd, qdd, tau)):
+            raise InputError(f"tool identification: recording {rec!r} has NaN or Inf")
+        T = q.shape[0]
+        Y = _regressor(chain, q, qd, qdd, drive)  # (T, n, 12 n)
+        target = tau if arm is None else tau - torch.as_tensor(arm(q, qd, qdd), dtype=torch.float64)
+        if isinstance(payload, str):
+            if payload not in tools:
+                raise InputError(f"tool identification: recording {rec!r} carries tool {payload!r}, not declared")
+            if payload not in pending:
+                target = target - payload_torque(chain, q, qd, qdd, tools[payload].row(q.new_zeros(0))[None]
+                                                 .expand(T, -1))
+        elif payload is not None and len(payload) and np.any(np.asarray(payload) != 0):
+            target = target - payload_torque(chain, q, qd, qdd, torch.as_tensor(payload)[None].expand(T, -1))
+        last = Y[..., 10 * (n - 1): 10 * n] @ G  # (T, n, 10): the payload's ten at the flange
+        for name in pending:
+            Yp[name].append(last if isinstance(payload, str) and payload == name else torch.zeros_like(last))
+        rows_Y.append(Y)
+        rows_target.append(target)
+        extra = [f for f in drive.linear_forms if f != "viscous"]
+        rows_F.append(_friction_columns(qd, drive, extra) if extra else q.new_zeros(T, n, 0))
+        groups.append(ends + (torch.arange(T) // max(int(block), 1)).repeat_interleave(n))
+        ends = int(groups[-1].max()) + 1
+    target = torch.cat(rows_target).reshape(-1)
+    rows = target.shape[0]
+    if arm is None:
+        Yall = torch.cat(rows_Y).reshape(rows, -1)
+        base = base_parameters(Yall)
+        A_lin = torch.cat([Yall[:, torch.as_tensor(base["independent"])], torch.cat(rows_F).reshape(rows, -1)], 1)
+    else:
+        base, A_lin = None, target.new_zeros(rows, 0)
+    Yp = {name: torch.cat(v).reshape(rows, 10) for name, v in Yp.items()}
+    names = list(pending)
+
+    # the free linear estimate of every tool's ten, then Gauss-Newton on the unknown entries
+    free = _solve(torch.cat([A_lin, *Yp.values()], 1), target)
+    theta = {name: _start(free[A_lin.shape[1] + 10 * i: A_lin.shape[1] + 10 * (i + 1)], pending[name])
+             for i, name in enumerate(names)}
+
+    def ten(name, th):
+        return payload_ten(pending[name].row(th)[None])[0]
+
+    def residual_and_jacobian(theta):
+        r, cols = target.clone(), [A_lin]
+        for name in names:
+            r = r - Yp[name] @ ten(name, theta[name])
+            cols.append(Yp[name] @ torch.func.jacfwd(lambda th, name=name: ten(name, th))(theta[name]))
+        return r, torch.cat(cols, 1)
+
+    def cost(theta):
+        r, A = residual_and_jacobian(theta)
+        x = _solve(A_lin, r) if A_lin.shape[1] else r.new_zeros(0)
+        return float((r - A_lin @ x).pow(2).sum())
+
+    current = cost(theta)
+    for _ in range(max_iterations if names else 0):
+        r, A = residual_and_jacobian(theta)
+        step = _solve(A, r)[A_lin.shape[1]:]
+        size = 1.0
+        while True:
+            trial, k0 = {}, 0
+            for name in names:
+                m = len(pending[name].unknown)
+                trial[name] = theta[name] + size * step[k0: k0 + m]
+                k0 += m
+            value = cost(trial)
+            if value <= current or size < 1e-4:
+                break
+            size *= 0.5
+        if value > current:  # no step lowers the cost: converged to round-off
+            break
+        theta, moved, current = trial, float((size * step).abs().max()), value
+        if moved < 1e-13:
+            break
+    r, A = residual_and_jacobian(theta)
+    x = _solve(A_lin, r) if A_lin.shape[1] else r.new_zeros(0)
+    r = r - A_lin @ x  # the final residual
+    norms = A.norm(dim=0).clamp_min(1e-300)
+    s = torch.linalg.svdvals(A / norms)
+    condition = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    tool_cols = A[:, A_lin.shape[1]:]
+    if tool_cols.shape[1] and (s[-1] < STIFF * s[0] or not bool(torch.isfinite(s).all())):
+        # find which tool is confounded: its columns' part outside the span of the rest
+        raise ToolsUndetermined(
+            f"tool identification: the recordings cannot tell tool(s) {', '.join(repr(t) for t in names)} from the "
+            "arm's own parameters (condition number " + f"{condition:.3g}): "
+            + ("add recordings without the tool (or with a known one), or identify it against a trained model "
+               "(lnn-torch identify CKPT DATA)" if arm is None else "the recordings do not excite it"))
+    groups = torch.cat(groups)
+    cov = coefficient_covariance(A, r, groups)
+    std_all = cov.diagonal().clamp_min(0).sqrt()
+    values, std, k0 = {}, {}, A_lin.shape[1]
+    for name, tool in tools.items():
+        values[name] = tool.known_row()
+        std[name] = np.zeros(tool.width)
+        if name in pending:
+            m = len(tool.unknown)
+            values[name] = pending[name].row(theta[name]).numpy()
+            std[name][tool.unknown] = std_all[k0: k0 + m].numpy()
+            k0 += m
+    rms = r.reshape(-1, n).pow(2).mean(0).sqrt().tolist()
+    arm_model = None
+    if arm is None:  # the arm identified with the tools: a least-squares ArmModel (base parameters, friction)
+        extra = [f for f in drive.linear_forms if f != "viscous"]
+        coefs = x[base["rank"]:]
+        friction = {COEFFICIENTS[f][0]: coefs[torch.arange(n) * len(extra) + i].numpy() for i, f in enumerate(extra)}
+        if "viscous" in drive.forms:
+            friction["b"] = _viscous_of(base, x[: base["rank"]].numpy(), n)
+        arm_model = ArmModel(chain, drive, "least squares with the tools", friction, base=base,
+                             beta=x[: base["rank"]].numpy())
+        labels = _base_names(base, parameter_names(chain))
+        labels += [f"{chain.joint_names[j]}.{COEFFICIENTS[f][0]}" for j in range(n) for f in extra]
+        coef_std = std_all[: A_lin.shape[1]]
+        arm_model.info["uncertainty"] = {"names": labels, "value": x.tolist(), "std": coef_std.tolist(),
+                                         "interval95": torch.stack([x - Z95 * coef_std, x + Z95 * coef_std],
+                                                                   -1).tolist(), "block_samples": int(block)}
+    label = against or ("the arm, identified with them by least squares" if arm is None else "the given arm")
+    return ToolFit(tools={n_: tools[n_] for n_ in tools}, values=values, std=std, against=label,
+                   used={name: carried.get(name, []) for name in tools}, condition=condition, residual_rms=rms,
+                   block=int(block), arm=arm_model)

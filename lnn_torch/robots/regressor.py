@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .kinematics import SerialChain, payload_at_flange, poses_and_twists
+from ..errors import InputError
+from .kinematics import SerialChain, payload_at_flange, payload_pseudo_inertia, poses_and_twists
 
 LINK_NAMES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "mcx", "mcy", "mcz", "m")
 
@@ -74,6 +75,32 @@ def payload_torque(chain: SerialChain, q, qd, qdd, payload: torch.Tensor) -> tor
     J = q.new_zeros(q.shape[0], chain.dof, 4, 4)
     J[:, -1] = payload_at_flange(chain.flange, payload)
     return rigid_body_torque(chain, q, qd, qdd, J)
+
+
+def payload_ten(payload: torch.Tensor) -> torch.Tensor:
+    """A payload's classical ten ``(B, 10)`` in the flange frame about the flange's origin (``LINK_NAMES``'
+    order: inertia about the origin, first moment ``m c``, mass) from its rows ``(B, 4 or 10)`` (mass,
+    centre of mass, [inertia about the centre of mass]): what its torques are linear in."""
+    return classical_of(payload_pseudo_inertia(payload))
+
+
+def flange_map(chain: SerialChain) -> torch.Tensor:
+    """``G (10, 10)``: the last link's classical ten of a payload whose classical ten at the flange is ``p``
+    (``payload_ten``) is ``G p`` (the pseudo-inertia carried from the flange's frame to the link's,
+    ``X J X^T``: linear)."""
+    Xf = chain.flange.to(torch.float64)
+    basis = pseudo_inertia_of(torch.eye(10, dtype=torch.float64))  # (10, 4, 4): J of each unit parameter
+    return classical_of(Xf @ basis @ Xf.T).T
+
+
+def payload_regressor(chain: SerialChain, q, qd, qdd, Y: torch.Tensor | None = None) -> torch.Tensor:
+    """``Y_p (B, n, 10)`` with the torques a payload adds ``= Y_p payload_ten(row)`` (exact: the last link's
+    columns of ``regressor`` through ``flange_map``; ``Y``: that regressor where already computed)."""
+    if chain.flange is None:
+        raise InputError("payload regressor: the robot description has no flange to carry a payload")
+    n = chain.dof
+    Y = regressor(chain, q, qd, qdd) if Y is None else Y
+    return Y[..., 10 * (n - 1): 10 * n] @ flange_map(chain).to(Y.dtype)
 
 
 def _motion(chain: SerialChain, q, qd, qdd):

@@ -1,0 +1,139 @@
+"""Tools whose parameters the recordings leave unknown, identified at import (``lnn-torch import``).
+
+A robot arm's recordings name the tool each carried (``parameters.values: {run: tool}``) and declare what
+is known of it (``parameters.tools: {tool: {mass: 1.2}}``: the mass; ``{mass, com}``; ``{}``: nothing; a
+list: everything). The unknown entries are identified here, before the file is written, so that every
+model conditions on them as on known ones (``lnn_torch.identification.payload.identify_tools``):
+
+* jointly with the arm, on the training and validation entries: the arm's base parameters and its
+  drive's linear friction (``viscous+coulomb+offset`` where the import models friction, else viscous)
+  beside each tool's columns; recordings without the tool (or with a known one) tell the two apart;
+* where they cannot (every such entry carries the tool), against the description as written, said so;
+* a tool that only held-out (test) entries carry: from those entries, against the arm identified
+  above (or by least squares on the entries with known payloads; else the description), said so: its
+  held-out error is then not independent of the fit, and its intervals take that arm as exact.
+
+Accelerations for the fit are estimated per entry with ``tool_targets`` (default: a 10 Hz fourth-order
+Butterworth of the measured velocities, as the shipped arm configurations train with); standard errors
+are cluster-robust over blocks of one cutoff period's half (the filtered residuals' correlation). The
+report (values, standard errors, 95 % intervals, the entries used, what they were identified against)
+is the file's provenance ``tools``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import InputError
+
+TOOL_TARGETS = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
+
+
+def correlation_block(targets: dict, dt: float) -> int:
+    """Samples per cluster of the standard errors: half a cutoff period (Butterworth), the window
+    (Savitzky-Golay), else one."""
+    if targets["method"] == "butterworth":
+        return max(1, int(math.ceil(0.5 / (float(targets["cutoff"]) * dt))))
+    if targets["method"] == "savgol":
+        return int(targets["window"])
+    return 1
+
+
+def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries, splits, arrays, dt: float):
+    """``(params (N, P), report)``: the entries' parameters with every unknown tool entry identified (module
+    docstring), and what was identified how."""
+    from ..identification.arm_comparison import arm_chain, description_model
+    from ..identification.payload import ToolsUndetermined, identify_tools
+    from . import derivatives
+
+    chain = arm_chain(system)
+    targets = derivatives.settings(spec.tool_targets or TOOL_TARGETS)
+    block = correlation_block(targets, dt)
+    drive = {"forms": "viscous+coulomb+offset" if spec.friction else "viscous",
+             "coulomb_velocity": spec.coulomb_velocity}
+    params = arrays["params"].copy()
+    windows = arrays.get("windows")
+    data = []
+    for k, (i, _, _, name) in enumerate(entries):
+        L = int(arrays["lengths"][k])
+        q, tau = arrays["q"][k, :L], arrays["tau"][k, :L]
+        qd = arrays["qd"][k, :L] if spec.velocities else None
+        qd_e, qdd_e = derivatives.estimate(q, dt, targets, qd)
+        a, b = (0, L) if windows is None else (int(windows[k][0]), int(windows[k][1]))
+        carried = tool_of.get(stems[i])
+        data.append((name, q[a:b], qd_e[a:b], qdd_e[a:b], tau[a:b], carried if carried else params[k]))
+    split_of = {int(k): s for s, idx in splits.items() for k in idx}
+    fitting = [k for k in range(len(entries)) if split_of.get(k) in ("train", "val")]
+    pending = {t: tool for t, tool in tools.items() if tool.unknown}
+    seen = {t for k in fitting if isinstance(data[k][5], str) for t in [data[k][5]]}
+    reports, values = [], {}
+    description = description_model(system)
+
+    def against_description(q, qd, qdd):
+        return description.inverse(q, qd, qdd)
+
+    arm = None
+    first = {t: tool for t, tool in pending.items() if t in seen}
+    known = {t: tool for t, tool in tools.items() if not tool.unknown}
+    if first:
+        rows = [data[k] for k in fitting]
+        try:
+            fit = identify_tools(chain, rows, known | first, drive=drive, block=block,
+                                 against="the arm, identified with them by least squares on the training and "
+                                         "validation entries")
+            arm = fit.arm
+        except ToolsUndetermined:  # every fitting entry carries a tool the arm cannot be told from
+            carrying = [r for r in rows if isinstance(r[5], str) and r[5] in first]
+            fit = identify_tools(chain, carrying, known | first, arm=against_description, block=block,
+                                 against="the description as written (every training and validation entry carries "
+                                         "the tool: it cannot be told from the arm's last link)")
+        reports.append(fit.report() | {"held_out": False})
+        values.update({t: fit.values[t] for t in first})
+    rest = {t: tool for t, tool in pending.items() if t not in seen}
+    free = [data[k] for k in fitting if not (isinstance(data[k][5], str) and data[k][5] in pending)]
+    if rest and arm is None and free:  # the arm from the fitting entries with known payloads alone
+        try:
+            arm = identify_tools(chain, free, known, drive=drive, block=block).arm
+        except InputError:
+            arm = None
+    if rest:
+        rows = [d for d in data if isinstance(d[5], str) and d[5] in rest]
+        if arm is not None:
+            label = "the arm identified on the training and validation entries (held-out entries used)"
+            fit = identify_tools(chain, rows, known | rest, arm=lambda q, qd, qdd: arm.inverse(q, qd, qdd), block=block,
+                                 against=label)
+        else:
+            fit = identify_tools(chain, rows, known | rest, arm=against_description, block=block,
+                                 against="the description as written (held-out entries used)")
+        reports.append(fit.report() | {"held_out": True})
+        values.update({t: fit.values[t] for t in rest})
+    for k, d in enumerate(data):
+        if isinstance(d[5], str):
+            if not np.isfinite(values.get(d[5], tools[d[5]].known_row())).all():
+                raise InputError(f"import: tool {d[5]!r} could not be identified (non-finite values)")
+            params[k] = values.get(d[5], tools[d[5]].known_row())
+    report = {"targets": targets, "drive": drive, "fits": reports,
+              "entries": {d[0]: d[5] for d in data if isinstance(d[5], str)}}
+    return params, report
+
+
+def tool_lines(report: dict) -> list[str]:
+    """The identified tools, a line per tool: each entry's value with its 95 % interval, what it was
+    identified against and from how many entries."""
+    lines = []
+    for fit in report.get("fits", []):
+        for name, tool in fit["tools"].items():
+            if not any("std" in p for p in tool["parameters"].values()):
+                continue
+            parts = []
+            for key, p in tool["parameters"].items():
+                scale, unit = (1e3, "mm") if p["unit"] == "m" else (1.0, p["unit"])
+                if "std" in p:
+                    parts.append(f"{key} {scale * p['value']:.4g} +- {scale * 1.959963984540054 * p['std']:.2g} {unit}")
+                else:
+                    parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
+            lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
+                         f"{fit['against']}): " + ", ".join(parts) + " (95 %)")
+    return lines
