@@ -22,6 +22,7 @@ LAYERS = [
     ("evaluation", ["evaluation"]),
     ("objectives", ["training.losses"]),
     ("identification", ["identification"]),
+    ("recorded import", ["data.importer", "data.import_tools"]),
     ("control", ["control"]),
     ("export", ["export"]),
     ("training", ["training"]),

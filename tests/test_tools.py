@@ -14,8 +14,9 @@ import torch
 
 from lnn_torch.errors import InputError
 from lnn_torch.identification.classical_arm import description_parameters
-from lnn_torch.identification.payload import Tool, ToolsUndetermined, identify_tools
+from lnn_torch.identification.payload import ToolsUndetermined, identify_tools
 from lnn_torch.robots.regressor import inverse_dynamics, payload_regressor, payload_ten, payload_torque
+from lnn_torch.robots.tools import Tool
 
 mujoco = pytest.importorskip("mujoco")
 

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..evaluation.report import number, pct, table_header, table_row
+from ..evaluation.report import markdown_table, number, pct, table_header, table_row
 
 
 @dataclass
@@ -231,28 +231,108 @@ def _identify_arm(module, args) -> int:
         raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
                          "recording or the model was not trained on estimated targets")
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
-    val = dm.trajectories("val") if "val" in dm.split_names() else None  # where the consistent fit's prior is chosen
-    fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val)
-    result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
-    if args.feedback:
-        predictors = {module.model.variant: model_torque(module.model),
-                      **{label: classical_torque(fit) for label, fit in fits.items()}}
-        result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
-    ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
-    result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
-              "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module)}
+    tools = _tools_on_split(module, path, dm, args.split)
+    width = read_dataset(path).read("params").shape[-1]
+    trains = len(read_dataset(path).splits.get("train", ())) > 0
+    if not trains or width != module.system.num_params:
+        # a new recording alone (no training split), or payloads the model does not condition on: its tools
+        why = ("no training split to fit the classical models on" if not trains else
+               f"its recordings carry {width} payload parameters, the model conditions on {module.system.num_params}")
+        result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, "tools": tools,
+                  "comparison": f"left out: {why}", "model_start": _model_start(module)}
+        text = (f"# {module.model.variant} on {path} ({args.split} split)\n\nNo classical comparison: {why}.\n\n"
+                + _tools_markdown(tools))
+    else:
+        val = dm.trajectories("val") if "val" in dm.split_names() else None  # the consistent fit's prior's choice
+        fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val)
+        result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
+        if args.feedback:
+            predictors = {module.model.variant: model_torque(module.model),
+                          **{label: classical_torque(fit) for label, fit in fits.items()}}
+            result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
+        ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
+        result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
+                  "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module), "tools": tools}
+        text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
+                f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
+                f"{result['model_start']}\n\nJoint-torque RMS error (N m):\n\n{markdown(result)}\n\n"
+                "## What the training recordings determine "
+                f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n"
+                + ("\n" + _tools_markdown(tools) if tools else ""))
     (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
-    text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
-            f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
-            f"{result['model_start']}\n\nJoint-torque RMS error (N m):\n\n{markdown(result)}\n\n"
-            "## What the training recordings determine "
-            f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n")
     (out / "report.md").write_text(text)
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
     return 0
+
+
+def _tools_on_split(module, path: Path, dm, split: str) -> dict | None:
+    """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
+    against the model's own arm (its torques without payload, the tool's rigid body at the flange:
+    ``identification.payload.identify_tools``): the load a new recording carries. None where the file
+    declares no such tool."""
+    from ..data import read_dataset
+    from ..data.import_tools import correlation_block
+    from ..identification.arm_comparison import arm_chain, model_torque
+    from ..identification.payload import identify_tools
+    from ..robots.tools import Tool
+
+    f = read_dataset(path)
+    provenance = json.loads(f.attrs["provenance"])
+    if not provenance.get("tools") or split not in f.splits:
+        return None
+    width = f.read("params").shape[-1]
+    declared = {name: Tool.declared(name, value, width)
+                for name, value in (provenance["settings"].get("parameters") or {}).get("tools", {}).items()}
+    names = json.loads(f.attrs["recordings"])
+    carried = provenance["tools"]["entries"]
+    data = dm.trajectories(split)
+    torque = model_torque(module.model)
+    P = module.system.num_params
+
+    def arm(q, qd, qdd):
+        return torque(q, qd, qdd, q.new_zeros(q.shape[0], P))
+
+    rows, imported = [], {}
+    for j, k in enumerate(f.splits[split]):
+        name, tool = names[int(k)], carried.get(names[int(k)])
+        if tool is None or not declared[tool].unknown:
+            continue
+        n = data.num_points if data.lengths is None else int(data.lengths[j])
+        rows.append((name, *(getattr(data, a)[j, :n].double() for a in ("q", "qd", "qdd", "tau")), tool))
+        imported[tool] = data.params[j].double().tolist()
+    if not rows:
+        return None
+    used = {t: declared[t] for t in imported}
+    block = correlation_block(dm.targets, float(data.dt)) if dm.targets is not None else 1
+    fit = identify_tools(arm_chain(module.system), rows, used, arm=arm, block=block,
+                         against=f"the model's arm ({module.model.variant}, without payload)")
+    report = fit.report()
+    for tool, values in imported.items():
+        report["tools"][tool]["at_import"] = values
+    return report
+
+
+def _tools_markdown(tools: dict | None) -> str:
+    """The tools identified against the model, a row per entry: value, 95 % interval, the import's value."""
+    if not tools:
+        return ""
+    lines = [f"## Loads identified against the model on this split\n\nAgainst {tools['against']}; intervals "
+             f"cluster-robust over {tools['block_samples']}-sample blocks, taking the model's arm as exact.\n"]
+    for name, tool in tools["tools"].items():
+        rows = []
+        for k, (key, p) in enumerate(tool["parameters"].items()):
+            at_import = tool["at_import"][k]
+            if "std" in p:
+                lo, hi = p["interval95"]
+                rows.append([key, p["unit"], f"{p['value']:.5g}", f"[{lo:.5g}, {hi:.5g}]", f"{at_import:.5g}"])
+            else:
+                rows.append([key, p["unit"], f"{p['value']:.5g}", "known", f"{at_import:.5g}"])
+        lines += [f"Tool {name} ({tool['declared']}; {', '.join(tool['recordings'])}):", "",
+                  markdown_table(["entry", "unit", "identified", "95 % interval", "at import"], rows), ""]
+    return "\n".join(lines)
 
 
 def _model_start(module) -> str:

@@ -374,7 +374,7 @@ class ImportSpec:
         """The named tools ``{name: identification.payload.Tool}`` (a list of values: known; a mapping of what
         is known, ``mass``, ``com``, ``inertia``: the rest identified at import; robot arms only), each
         recording's named tool checked against them."""
-        from ..identification.payload import Tool
+        from ..robots.tools import Tool
 
         spec = dict(self.parameters or {})
         declared = dict(spec.get("tools") or {})

@@ -43,8 +43,8 @@ def split_entries(names: list[str], split, seed: int, durations: list[float]) ->
                 raise InputError(f"split: {entry[3]!r} is named twice")
             out[part].append(len(entries))
             entries.append(entry)
-    if not out["train"]:
-        raise InputError("split: no training recording")
+    if not any(out.values()):
+        raise InputError("split: no recording in any split")
     for a in range(len(entries)):  # entries of different splits may not share any time of a recording
         for b in range(a + 1, len(entries)):
             (i, s0, e0, n0), (j, s1, e1, n1) = entries[a], entries[b]
@@ -70,8 +70,8 @@ def _by_name(names: list[str], split: dict) -> dict:
     used = np.concatenate(list(out.values()))
     if len(np.unique(used)) != len(used):
         raise InputError("split: a recording is named in more than one split")
-    if not len(out["train"]):
-        raise InputError("split: no training recording")
+    if not any(len(v) for v in out.values()):
+        raise InputError("split: no recording in any split")
     return out
 
 

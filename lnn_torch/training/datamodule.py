@@ -33,6 +33,7 @@ from ..data.generate import generate_dataset
 from ..data.hdf5 import TrajectoryFile, read_dataset
 from ..data.spec import DatasetSpec
 from ..data.trajectories import Trajectories
+from ..errors import InputError
 
 FIELDS = ("q", "qd", "qdd")
 
@@ -344,6 +345,9 @@ class TrajectoryDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         f = self._open()
         if stage in ("fit", None):
+            if not len(f.splits.get("train", ())):
+                raise InputError(f"{f.path}: no training recordings (a file imported to evaluate or identify with "
+                                 "only): import recordings with a train split to fit on")
             self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
                                           self.hparams.chunks_per_batch, self.hparams.steps_per_epoch,
                                           self.hparams.seed)
