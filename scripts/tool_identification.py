@@ -32,8 +32,7 @@ Z95 = 1.959963984540054
 def logs(root: Path, box, seed: int, seconds: float, dt: float, noise: float) -> list[Path]:
     """Three logs without a tool and three carrying ``box``, as CSV files, and the import config of the
     first group (``root / "free.yaml"``)."""
-    from lnn_torch.data import DatasetSpec, generate_dataset
-    from lnn_torch.data.export_csv import export_recordings
+    from lnn_torch.data import DatasetSpec, export_recordings, generate_dataset
 
     files = []
     for tag, row, offset in (("free", [0.0, 0.0, 0.0, 0.0], 0), ("box", box, 1)):
