@@ -52,15 +52,22 @@ def test_the_started_model_is_the_consistent_fit_and_its_prior_was_chosen_on_val
     priors = (1e-4, 1e-2, 1.0, 100.0)
     report = start_from_classical(model, module.system, dm.trajectories("train"), dm.trajectories("val"),
                                   priors=priors)
-    scores = report["validation_rms_mean"]
-    assert len(scores) == 4 and report["prior"] == min((float(k) for k in scores), key=lambda k: scores[f"{k:g}"])
+    search, scores = report["prior_search"], report["validation_rms_mean"]
+    assert len(search) == 4 and set(scores) <= set(search)
+    assert report["prior"] == min((float(k) for k in scores), key=lambda k: scores[f"{k:g}"])
+    # the friction form: the drive's terms and every form less one of them, the best on validation kept
+    forms = report["form_selection"]
+    assert set(forms) == {"viscous+coulomb+offset", "coulomb+offset", "viscous+offset", "viscous+coulomb"}
+    assert report["form"] == min(forms, key=forms.get)
     # the fit again, as the start made it: the model's torques are its torques (to the 1e-6 of their unit at
     # which a friction coefficient the fit puts at zero starts)
     from lnn_torch.identification.arm_comparison import fit_classical
 
-    fits = fit_classical(module.system, dm.trajectories("train"), drive=model.forces.drive,
-                         methods=("least squares", "physically consistent"), val=dm.trajectories("val"), prior=priors)
-    fit = fits["physically consistent + viscous+coulomb+offset"]
+    full = report["form"] == "viscous+coulomb+offset"
+    fits = fit_classical(module.system, dm.trajectories("train"), drive=report["form"],
+                         methods=("least squares", "physically consistent"), val=dm.trajectories("val"),
+                         prior=priors if full else report["prior"])
+    fit = fits[f"physically consistent + {report['form']}"]
     q, qd, qdd, tau, params = points(dm.trajectories("test"))
     with torch.no_grad():
         ours = model.inverse(q, qd, qdd, params)

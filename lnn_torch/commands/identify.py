@@ -341,7 +341,9 @@ def _model_start(module) -> str:
     if start is None:
         return "The model started from its description (no classical start)."
     text = (f"The model started from the physically consistent least-squares fit of its training split "
-            f"(prior {start['prior']:g}" + (", chosen on validation" if start.get("validation_rms_mean") else "") + ")")
+            f"(prior {start['prior']:g}" + (", chosen on validation" if start.get("validation_rms_mean") else "")
+            + (f"; friction {start['form']}, chosen on validation among {start['drive']} and its terms"
+               if start.get("form_selection") else "") + ")")
     if selection is not None:
         kept = "the start itself" if selection["step"] == 0 else f"the state after {selection['step']} gradient steps"
         text += f"; validation kept {kept} ({selection['monitor']} {selection['value']:.4g})"

@@ -444,7 +444,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         raise InputError("classical identification: choosing the prior among several needs validation data")
     if not priors or any(not (p >= 0) for p in priors):
         raise InputError(f"classical identification: prior must be >= 0, got {prior!r}")
-    if len(priors) > 1:
+    if validation is not None:
         vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
         vparams = validation[4] if len(validation) > 4 else None
     best, x, scores = None, theta0.numpy(), {}
@@ -452,7 +452,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         sol = solve(strength, x)
         x = sol.x
         candidate = model_of(x, strength, sol)
-        if len(priors) == 1:
+        if validation is None:
             best = candidate
             break
         scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())

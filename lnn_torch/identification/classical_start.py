@@ -4,7 +4,8 @@ are linear in the joint torques, so they are solved, not walked to.
 ``start_from_classical`` fits the physically consistent least-squares model
 (``classical_arm.consistent_fit``: every link's pseudo-inertia, the armature and the drive model's
 coefficients, with the prior towards the description chosen among ``classical_arm.PRIORS`` on the
-validation recordings) to the training recordings and writes it into a model with the learned spatial
+validation recordings, and its friction form too: the drive model's terms, or all but one, whichever
+validates best) to the training recordings and writes it into a model with the learned spatial
 part (``networks.parts.spatial``): its links and armature exactly, its joint friction's coefficients, and
 the prior of the refinement that follows then pulls towards this start. Gradient steps refine it from
 there; ``training.callbacks.SelectOnValidation`` keeps the state the validation recordings prefer, the
@@ -20,6 +21,7 @@ import time
 import torch
 
 from ..errors import InputError
+from ..mechanics.friction import COEFFICIENTS
 from ..robots.regressor import pseudo_inertia_of
 from .classical_arm import PRIORS
 
@@ -41,8 +43,11 @@ def can_start(model) -> str | None:
 def start_from_classical(model, system, train, val=None, *, priors=PRIORS, stride: int = 2) -> dict:
     """Start ``model`` (a structured model with the learned spatial part and joint friction) at the
     physically consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th
-    point), its prior chosen on ``val`` (None: 0.01). Returns the report: the prior, each prior's
-    validation error, the fit's validation error and time."""
+    point), its prior chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, then
+    its friction form (``_sub_forms``: the form less one term, each at the chosen prior and its neighbours
+    in ``priors``). Returns the report: the form and prior kept, the chosen form's validation error per
+    prior tried (``validation_rms_mean``), the whole prior search (``prior_search``), each form's
+    validation error (``form_selection``), the fit's time."""
     from ..robots.kinematics import read_chain
     from ..robots.mujoco_arm import load_description
     from .arm_comparison import fit_classical
@@ -56,6 +61,17 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     fits = fit_classical(system, train, drive=forces.drive, methods=("least squares", CONSISTENT), stride=stride,
                          prior=priors if val is not None else 0.01, val=val, chain=chain)
     fit = next(f for f in fits.values() if f.method == CONSISTENT)
+    search = fit.info.get("prior_selection")
+    forms = {forces.drive.name: _validation_error(fit)}
+    if val is not None and "sigmoid" not in forces.drive.forms:
+        # the friction form: each form less one of its terms, at the chosen prior and its neighbours
+        near = sorted({p for p in priors if fit.info["prior"] / 3.5 <= p <= 3.5 * fit.info["prior"]})
+        for drive in _sub_forms(forces.drive):
+            other = next(f for f in fit_classical(system, train, drive=drive, methods=(CONSISTENT,), stride=stride,
+                                                  prior=near, val=val, chain=chain).values())
+            forms[drive.name] = _validation_error(other)
+            if forms[drive.name] < _validation_error(fit):
+                fit = other
     n = chain.dof
     pi = torch.as_tensor(fit.pi, dtype=torch.float64)
     spatial.start_at(pseudo_inertia_of(pi[: 10 * n].reshape(n, 10)), pi[10 * n: 11 * n])
@@ -63,11 +79,32 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     # a passive coefficient the fit puts at zero starts just above it (where the softplus still moves it)
     floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "phi1": 1e-6 * units[1]}
     coefficients = {}
-    for name, value in fit.friction_coefficients.items():
-        value = torch.as_tensor(value, dtype=torch.float64)
-        coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
+    for form in forces.drive.forms:  # a term the chosen form leaves out starts at zero (its floor)
+        for name in COEFFICIENTS[form]:
+            value = fit.friction_coefficients.get(name, torch.zeros(n, dtype=torch.float64))
+            value = torch.as_tensor(value, dtype=torch.float64)
+            coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
     forces.start_with(coefficients)
     selection = fit.info.get("prior_selection")
-    return {"method": CONSISTENT, "drive": forces.drive.name, "prior": fit.info["prior"],
+    return {"method": CONSISTENT, "drive": forces.drive.name, "form": fit.drive.name, "prior": fit.info["prior"],
             "validation_rms_mean": None if selection is None else selection["validation_rms_mean"],
+            "prior_search": None if search is None else search["validation_rms_mean"],
+            "form_selection": forms if len(forms) > 1 else None,
             "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points")}
+
+
+def _validation_error(fit) -> float:
+    """The validation torque error (mean over joints of each joint's RMS, N m) of a consistent fit at its
+    chosen prior (NaN without validation data)."""
+    selection = fit.info.get("prior_selection")
+    return float("nan") if selection is None else selection["validation_rms_mean"][f"{fit.info['prior']:g}"]
+
+
+def _sub_forms(drive) -> list:
+    """The drive model less one of its terms, each (the forms validation chooses among)."""
+    from ..mechanics.friction import DriveModel
+
+    if len(drive.forms) < 2:
+        return []
+    return [DriveModel.of({"forms": [f for f in drive.forms if f != gone], "coulomb_velocity": drive.coulomb_velocity,
+                           "stribeck_velocity": drive.stribeck_velocity}) for gone in drive.forms]

@@ -237,7 +237,9 @@ class LNNModule(L.LightningModule):
         s = self.classical_start
         scores = s["validation_rms_mean"]
         chosen = "" if scores is None else f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there)"
-        print(f"classical start: the physically consistent least-squares fit ({s['drive']}, prior {s['prior']:g}"
+        form = s.get("form", s["drive"])
+        form = form if form == s["drive"] else f"{form}, the form validation chose among {s['drive']} and its terms"
+        print(f"classical start: the physically consistent least-squares fit ({form}; prior {s['prior']:g}"
               f"{chosen}; {s['fit_seconds']:.1f} s)")
 
     @property
