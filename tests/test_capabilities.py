@@ -175,7 +175,7 @@ def test_every_report_section_gives_values_or_a_reason(kind, scenes, tmp_path):
     system, data = scenes[kind]
     sections = report_sections()
     assert set(sections) >= {"accelerations", "rollouts", "energy", "predictability", "mass_matrix", "torques",
-                             "friction", "free_decay", "horizons", "ood", "stability"}
+                             "friction", "free_decay", "horizons", "ood", "stability", "regimes"}
     for variant in VARIANTS:
         if (variant, kind) not in EXPECTED:
             continue

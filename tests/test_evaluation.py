@@ -102,10 +102,10 @@ def test_validation_logs_what_evaluate_model_computes(tmp_path):
 # ---------------------------------------------------------------------------- registry
 def test_the_report_order_is_the_registration_order():
     """The package registers its sections module by module (accelerations, rollouts, structure,
-    horizons, cases): the report keeps the order it has always had."""
+    horizons, cases, regimes): the report keeps its order, the regimes last."""
     assert report_sections() == REPORT_SECTIONS == (
         "accelerations", "rollouts", "energy", "predictability", "mass_matrix", "torques", "friction", "free_decay",
-        "horizons", "ood", "stability")
+        "horizons", "ood", "stability", "regimes")
     assert tuple(SECTIONS)[: len(REPORT_SECTIONS)] == REPORT_SECTIONS
 
 

@@ -58,11 +58,13 @@ from .stability import hard_cases, run_hard_cases, stability_markdown, stability
 # the section modules register their sections on import: the report's order is this order, then the
 # order within each module
 # isort: off
-from . import accelerations, rollouts, structure, horizons, cases  # noqa: F401 - registers the sections
+from . import accelerations, rollouts, structure, horizons, cases, regimes  # noqa: F401 - registers the sections
 # isort: on
+from .regimes import regime_errors  # noqa: E402
 
 __all__ = [
-    "DEFAULT_SECTIONS", "REPORT_SECTIONS", "SECTIONS", "EvalContext", "SectionResult", "evaluate_model",
+    "DEFAULT_SECTIONS", "REPORT_SECTIONS", "regime_errors", "SECTIONS", "EvalContext", "SectionResult",
+    "evaluate_model",
     "evaluate_split",
     "report_sections", "section", "section_figures", "section_logs", "skip",
     # the metric functions (``metrics``)

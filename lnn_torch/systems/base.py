@@ -349,6 +349,16 @@ class System(abc.ABC):
         (SI tuples). Reported by ``lnn-torch evaluate``; default none."""
         return []
 
+    def regimes(self) -> dict:
+        """The regimes of motion a user of this scene meets, each reported apart (``lnn-torch evaluate``'s
+        ``regimes`` section): ``{name: sampler(rng, n) -> (q (n, dof), qd (n, dof), params (n, P))}``
+        (numpy, SI). Default: the training distribution alone (``sample_state``, ``sample_params``)."""
+        def within(rng, n):
+            q, qd = self.sample_state(rng, n)
+            return q, qd, self.sample_params(rng, n)
+
+        return {"in distribution": within}
+
     def hard_parameter_cases(self) -> dict[str, tuple[float, ...]]:
         """Named extreme parameter vectors for the stability cases (``lnn_torch.evaluation.stability``), in
         addition to the generic ones every scene gets (parameters x10 and x0.1); default none."""

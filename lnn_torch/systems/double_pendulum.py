@@ -185,6 +185,39 @@ class DoublePendulum(System):
                  ((3.0, 2.0, 2.8, 2.5), (-0.6, 0.6, -0.9, 0.9)), ((0.3, 0.2, 0.5, 0.6), (1.5, 1.0, -1.2, 0.35))]
         return [{"params": p, "q0": s[:2], "qd0": s[2:]} for p, s in cases]
 
+    def regimes(self) -> dict:
+        """In distribution (the sampled box); out of the parameter range (each of ``m2/m1``, ``l1`` and
+        ``l2/l1`` beyond a random end of its range by 5-30 % of that end, ``m1`` and the states as in
+        distribution); high energy over the whole circle (both angles uniform on the circle, the velocity's
+        direction uniform, its size giving a total energy ``V_min + f (V_max - V_min)``, ``f`` uniform in
+        [0.25, 1.5]: from well inside the potential's range to past the upright state, the separatrices
+        included; parameters in distribution)."""
+        def outside(rng, n, r):
+            side = rng.integers(0, 2, n).astype(bool)
+            beyond = rng.uniform(0.05, 0.30, n)
+            return np.where(side, r.high * (1 + beyond), r.low * (1 - beyond))
+
+        def out_of_range(rng, n):
+            q, qd = self.sample_state(rng, n)
+            m1 = np.exp(self.m1_log_std * rng.standard_normal(n))
+            m2, l1 = m1 * outside(rng, n, self.m2_ratio), outside(rng, n, self.l1_range)
+            return q, qd, np.stack([m1, m2, l1, l1 * outside(rng, n, self.l2_ratio)], -1)
+
+        def high_energy(rng, n):
+            params = torch.as_tensor(self.sample_params(rng, n))
+            q = torch.as_tensor(rng.uniform(-math.pi, math.pi, (n, 2)))
+            m1, m2, l1, l2 = params.unbind(-1)
+            top = GRAVITY * ((m1 + m2) * l1 + m2 * l2)  # V_max = -V_min
+            target = -top + torch.as_tensor(rng.uniform(0.25, 1.5, n)) * 2 * top
+            kinetic = (target - self.potential(q, params)).clamp_min(0.0)
+            direction = torch.as_tensor(rng.standard_normal((n, 2)))
+            unit = self.kinetic(q, direction, params)
+            qd = direction * torch.sqrt(kinetic / unit)[:, None]
+            return q.numpy(), qd.numpy(), params.numpy()
+
+        return {**super().regimes(), "out of the parameter range": out_of_range, "high energy, whole circle":
+                high_energy}
+
     def hard_parameter_cases(self):
         return {"m2/m1 = 1e-3": (1.0, 1e-3, 1.2, 1.2), "m2/m1 = 1e3": (0.1, 100.0, 1.2, 1.2),
                 "l2/l1 = 0.1": (1.0, 0.6, 1.5, 0.15), "l2/l1 = 10": (1.0, 0.6, 0.3, 3.0)}
