@@ -223,7 +223,8 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
     """A new log of the arm carrying a load nobody measured (imported alone, ``tools: {load: {}}``, all of it
     held out): ``lnn-torch identify CKPT new.h5`` identifies the load against the model's own arm (mass
     within 2 %, centre of mass within 5 mm; the interval's width stated) and says the classical comparison
-    needs a training split."""
+    needs a training split; ``lnn-torch export CKPT --format mjcf --tool new.h5 load`` writes that load as
+    the description's payload body."""
     from lnn_torch.data.importer import ImportSpec, import_recordings
 
     ckpt, _ = learned
@@ -243,3 +244,16 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
     assert abs(got[0] / load[0] - 1) < 0.02 and np.abs(np.subtract(got[1:], load[1:])).max() < 5e-3, got
     assert tool["recordings"] == ["new"] and "the model's arm" in result["tools"]["against"]
     assert "no training split" in result["comparison"] and "Loads identified against the model" in printed
+    # and the identified arm handed back with that tool as its payload body (the import's identification)
+    import mujoco
+
+    from lnn_torch.commands.export import tool_row
+
+    row = tool_row(str(data), "load")
+    assert abs(row[0] / load[0] - 1) < 0.02
+    out = tmp_path / "arm.xml"
+    assert main(["export", ckpt, "--format", "mjcf", "--tool", str(data), "load", "-o", str(out)]) == 0
+    written = mujoco.MjModel.from_xml_path(str(out))
+    body = mujoco.mj_name2id(written, mujoco.mjtObj.mjOBJ_BODY, "payload")
+    assert abs(written.body_mass[body] - row[0]) < 1e-9
+    np.testing.assert_allclose(written.body_ipos[body], row[1:4], atol=1e-9)

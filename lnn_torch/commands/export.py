@@ -26,8 +26,9 @@ In Python: ``torch.export.load("exported/forward_dynamics.pt2").module()(q, qd, 
 
 ``--format mjcf`` or ``urdf`` hands an arm's grey box (kinetic part ``spatial``) back as its robot
 description: the description it was built from with the identified link masses, centres of mass,
-inertias, joint armature, damping and friction loss (and ``--payload``, the load at the flange), nothing
-else changed; MuJoCo loaded from it has the model's rigid-body dynamics. What the format cannot express
+inertias, joint armature, damping and friction loss (and ``--payload``, the load at the flange, or
+``--tool DATA NAME``, a tool as an import identified it), nothing else changed; MuJoCo loaded from it
+has the model's rigid-body dynamics. What the format cannot express
 (Coulomb smoothing, friction offset, Stribeck, a learned residual, URDF's armature) is printed and
 kept in ``OUT.json`` beside it (``lnn_torch.export.description``). ``-o`` names the file (``.xml``,
 ``.urdf``) or a folder:
@@ -61,6 +62,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="mjcf, urdf: the load at the flange written as the body 'payload' (and the model "
                          "evaluated with it): mass cx cy cz [Ixx Iyy Izz Ixy Ixz Iyz] (kg, m, kg m^2; flange frame, "
                          "inertia about its centre of mass)")
+    ap.add_argument("--tool", nargs=2, default=None, metavar=("DATA", "NAME"),
+                    help="mjcf, urdf: instead of --payload, the tool NAME as the import of DATA (.h5) identified it "
+                         "(or declared it)")
     ap.add_argument("--functions", nargs="+", default=None, choices=FUNCTIONS, metavar="FUNCTION",
                     help=f"among {', '.join(FUNCTIONS)} (default: every one the model has)")
     ap.add_argument("--dtype", default=None, choices=sorted(DTYPES),
@@ -110,6 +114,26 @@ def _write_descriptions(module, args, out, formats) -> None:
             print(f"note: {note}")
 
 
+def tool_row(path: str, name: str) -> list[float]:
+    """The payload row of the tool ``name`` in an imported dataset file: as its import identified it (the
+    file's provenance ``tools``), or as declared where nothing was unknown."""
+    import json
+
+    from ..data import read_dataset
+    from ..errors import InputError
+
+    f = read_dataset(path)
+    provenance = json.loads(f.attrs["provenance"])
+    for fit in (provenance.get("tools") or {}).get("fits", []):
+        if name in fit["tools"]:
+            return [p["value"] for p in fit["tools"][name]["parameters"].values()]
+    declared = ((provenance.get("settings") or {}).get("parameters") or {}).get("tools") or {}
+    if isinstance(declared.get(name), list):
+        return [float(v) for v in declared[name]]
+    known = sorted(set(declared) | {t for fit in (provenance.get("tools") or {}).get("fits", []) for t in fit["tools"]})
+    raise InputError(f"{path}: no tool {name!r} (tools: {', '.join(known) or 'none'})")
+
+
 def main(argv: list[str]) -> int:
     import json
 
@@ -129,6 +153,13 @@ def main(argv: list[str]) -> int:
 
         raise InputError(f"--payload takes 4 values (mass cx cy cz) or 10 (and Ixx Iyy Izz Ixy Ixz Iyz), got "
                          f"{len(args.payload)}")
+    if args.tool is not None:
+        if args.payload is not None:
+            from ..errors import InputError
+
+            raise InputError("give --payload or --tool, not both")
+        args.payload = tool_row(*args.tool)
+        print(f"tool {args.tool[1]} of {args.tool[0]}: " + " ".join(f"{v:.6g}" for v in args.payload))
     module = load_model(args.checkpoint)
     out_dir = output_dir(args.checkpoint, args.output_dir, "export")
     if descriptions:
