@@ -54,3 +54,32 @@ def test_an_exact_model_scores_zero_in_every_regime_and_a_wrong_one_is_caught():
     # seeded: the same states for every model
     again = regime_errors(Scene(system, 1.2), system, num=500)
     assert again == wrong
+
+
+def test_the_wider_training_distributions_cover_the_regimes_and_leave_the_default_alone():
+    """``param_margin`` and ``whole_circle`` widen what the scene samples (and are recorded in its
+    configuration); off, the sampler draws exactly what it drew before (the same generator calls), and the
+    regimes stay those of the default box."""
+    default = get_system("double_pendulum")
+    wide = get_system("double_pendulum", param_margin=0.3, whole_circle={"fraction": 0.3, "omega": 6.0})
+    assert "param_margin" not in default.config() and wide.config()["whole_circle"] == {"fraction": 0.3, "omega": 6.0}
+    rng = np.random.default_rng(1)
+    m1 = np.exp(0.3 * rng.standard_normal(1000))
+    expected = np.stack([m1, m1 * rng.uniform(0.2, 1.0, 1000)], -1)
+    np.testing.assert_array_equal(default.sample_params(np.random.default_rng(1), 1000)[:, :2], expected)
+    p = wide.sample_params(np.random.default_rng(2), 20000)
+    ratio = p[:, 1] / p[:, 0]
+    assert ratio.min() < 0.2 / 1.25 and ratio.max() > 1.25 and ratio.min() >= 0.2 / 1.3 and ratio.max() <= 1.3
+    q, qd = wide.sample_state(np.random.default_rng(3), 20000)
+    circle = np.abs(q).max(-1) > np.pi / 2
+    assert 0.20 < circle.mean() < 0.25  # three quarters of the 30 % drawn over the circle land beyond +-90 degrees
+    assert np.abs(qd).max() > 5.9 and np.abs(q).max() > 3.1
+    assert list(wide.regimes()) == list(default.regimes())
+    import pytest
+
+    from lnn_torch.errors import InputError
+
+    with pytest.raises(InputError, match="whole_circle takes fraction and omega"):
+        get_system("double_pendulum", whole_circle={"share": 0.3})
+    with pytest.raises(InputError, match="param_margin must be in"):
+        get_system("double_pendulum", param_margin=-0.1)

@@ -20,6 +20,11 @@ Optional joint damping (``joint_damping = (b1, b2)`` in N m s/rad, off by defaul
 at the pivot (rate ``thetad1``) and at the elbow (rate ``thetad2 - thetad1``), ``Q = -D^T (b * D qd)``
 with ``D = [[1, 0], [-1, 1]]`` (``lnn_torch.mechanics.forces``). The coefficients are part of the scene's
 configuration, not of ``params``.
+
+Wider training distributions (off by default): ``param_margin`` widens the ratios' and ``l1``'s ranges by
+that fraction at both ends; ``whole_circle: {fraction, omega}`` draws that fraction of the initial states
+over the whole circle with rates up to ``omega`` rad/s. The regimes (``regimes``) stay those of the box
+and ranges above.
 """
 
 from __future__ import annotations
@@ -57,6 +62,8 @@ class DoublePendulum(System):
         theta_range=(-math.pi / 2, math.pi / 2),
         omega_range=(-math.pi / 5, math.pi / 5),
         joint_damping=(0.0, 0.0),
+        param_margin: float = 0.0,
+        whole_circle: dict | None = None,
     ) -> None:
         if not (math.isfinite(m1_log_std) and m1_log_std >= 0):
             raise InputError(f"double_pendulum: m1_log_std must be >= 0, got {m1_log_std}")
@@ -69,6 +76,16 @@ class DoublePendulum(System):
         for name in ("m2_ratio", "l1_range", "l2_ratio"):
             if getattr(self, name).low <= 0:
                 raise InputError(f"double_pendulum: {name} must be positive, got {getattr(self, name)}")
+        if not (math.isfinite(param_margin) and 0 <= param_margin < 1):
+            raise InputError(f"double_pendulum: param_margin must be in [0, 1), got {param_margin}")
+        self.param_margin = float(param_margin)
+        circle = dict(whole_circle or {})
+        unknown = sorted(set(circle) - {"fraction", "omega"})
+        if unknown:
+            raise InputError(f"double_pendulum: whole_circle takes fraction and omega, got {', '.join(unknown)}")
+        self.circle_fraction, self.circle_omega = float(circle.get("fraction", 0.0)), float(circle.get("omega", 6.0))
+        if not (0 <= self.circle_fraction <= 1 and self.circle_omega > 0):
+            raise InputError(f"double_pendulum: whole_circle needs fraction in [0, 1] and omega > 0, got {circle}")
         try:
             self.joint_damping = tuple(float(b) for b in joint_damping)
         except (TypeError, ValueError):
@@ -86,17 +103,30 @@ class DoublePendulum(System):
             "theta_range": pair(self.theta_range),
             "omega_range": pair(self.omega_range),
             **({"joint_damping": list(self.joint_damping)} if self.has_friction else {}),
+            **({"param_margin": self.param_margin} if self.param_margin else {}),
+            **({"whole_circle": {"fraction": self.circle_fraction, "omega": self.circle_omega}}
+               if self.circle_fraction else {}),
         }
 
     def sample_params(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """The box, each ratio's and ``l1``'s range widened by ``param_margin`` (relative) at both ends."""
+        k = 1.0 + self.param_margin
+        widen = lambda r, size: rng.uniform(r.low / k, r.high * k, size)  # noqa: E731
         m1 = np.exp(self.m1_log_std * rng.standard_normal(n))
-        m2 = m1 * self.m2_ratio.sample(rng, n)
-        l1 = self.l1_range.sample(rng, n)
-        l2 = l1 * self.l2_ratio.sample(rng, n)
+        m2 = m1 * widen(self.m2_ratio, n)
+        l1 = widen(self.l1_range, n)
+        l2 = l1 * widen(self.l2_ratio, n)
         return np.stack([m1, m2, l1, l2], axis=-1)
 
     def sample_state(self, rng: np.random.Generator, n: int):
-        return self.theta_range.sample(rng, (n, 2)), self.omega_range.sample(rng, (n, 2))
+        """``theta_range`` and ``omega_range``; with ``whole_circle``, a ``fraction`` of the states with both
+        angles uniform on the circle and rates uniform in ``+-omega`` instead (whirling, over the top)."""
+        q, qd = self.theta_range.sample(rng, (n, 2)), self.omega_range.sample(rng, (n, 2))
+        if self.circle_fraction:
+            pick = rng.uniform(size=n) < self.circle_fraction
+            q = np.where(pick[:, None], rng.uniform(-math.pi, math.pi, (n, 2)), q)
+            qd = np.where(pick[:, None], rng.uniform(-self.circle_omega, self.circle_omega, (n, 2)), qd)
+        return q, qd
 
     # ------------------------------------------------------------------ joint damping (optional)
     @property
