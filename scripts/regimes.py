@@ -23,6 +23,7 @@ def main() -> None:
     ap.add_argument("models", nargs="+", help="checkpoints or pretrained:<name>, all of one scene")
     ap.add_argument("--states", type=int, default=20000, help="seeded states per regime")
     ap.add_argument("--seed", type=int, default=0, help="the states' seed")
+    ap.add_argument("--note", default="", help="a paragraph placed after the table (e.g. how each model was trained)")
     add_output_dir(ap, "results/regimes", "the folder of metrics.json and README.md")
     args = ap.parse_args()
     from lnn_torch import load_model
@@ -54,7 +55,7 @@ regime (the same for every model); in brackets the per-state median and the coun
 The regimes: {" ".join(doc.split())}
 
 {table}
-"""
+{chr(10) + args.note + chr(10) if args.note else ""}"""
     (out / "README.md").write_text(text)
     print(table)
     wrote([out / "metrics.json", out / "README.md"])
