@@ -26,8 +26,6 @@ import numpy as np
 import yaml
 from _common import HelpFormatter, add_output_dir, wrote
 
-Z95 = 1.959963984540054
-
 
 def logs(root: Path, box, seed: int, seconds: float, dt: float, noise: float) -> list[Path]:
     """Three logs without a tool and three carrying ``box``, as CSV files, and the import config of the
@@ -87,7 +85,7 @@ def main() -> None:
             for label, declared in (("mass known", {"mass": box[0]}), ("nothing known", {})):
                 row, report, seconds = imported(root, files, declared, label.replace(" ", "_"))
                 com = 1e3 * np.abs(row[1:4] - np.array(box[1:4]))
-                half = [1e3 * Z95 * report[k]["std"] for k in ("x", "y", "z")]
+                half = [1e3 * (report[k]["interval95"][1] - report[k]["interval95"][0]) / 2 for k in ("x", "y", "z")]
                 inside = [bool(c <= h) for c, h in zip(com, half, strict=True)]
                 mass = 100 * abs(row[0] / box[0] - 1)
                 runs.append({"seed": seed, "declared": label, "truth": box, "identified": row.tolist(),

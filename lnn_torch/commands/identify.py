@@ -227,15 +227,15 @@ def _identify_arm(module, args) -> int:
                          "for the fits, --split to judge them), not a single CSV")
     targets = data_hparams(args.checkpoint).get("targets", "file")
     dm = TrajectoryDataModule(path=str(path), targets=targets)
-    if args.feedback and (dm.targets is None or not read_dataset(path).measured):
+    f = read_dataset(path)
+    if args.feedback and (dm.targets is None or not f.measured):
         raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
                          "recording or the model was not trained on estimated targets")
     friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
-    tools = _tools_on_split(module, path, dm, args.split)
-    width = read_dataset(path).read("params").shape[-1]
-    trains = len(read_dataset(path).splits.get("train", ())) > 0
+    tools = _tools_on_split(module, f, dm, args.split)
+    width, trains = f.read("params").shape[-1], len(f.splits.get("train", ())) > 0
     if not trains or width != module.system.num_params:
         # a new recording alone (no training split), or payloads the model does not condition on: its tools
         why = ("no training split to fit the classical models on" if not trains else
@@ -268,18 +268,16 @@ def _identify_arm(module, args) -> int:
     return 0
 
 
-def _tools_on_split(module, path: Path, dm, split: str) -> dict | None:
+def _tools_on_split(module, f, dm, split: str) -> dict | None:
     """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
-    ``identification.payload.identify_tools``): the load a new recording carries. None where the file
-    declares no such tool."""
-    from ..data import read_dataset
+    ``identification.payload.identify_tools``): the load a new recording carries. ``f``: the dataset file
+    (``TrajectoryFile``). None where the file declares no such tool."""
     from ..data.import_tools import correlation_block
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
     from ..robots.tools import Tool
 
-    f = read_dataset(path)
     provenance = json.loads(f.attrs["provenance"])
     if not provenance.get("tools") or split not in f.splits:
         return None

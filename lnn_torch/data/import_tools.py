@@ -67,7 +67,7 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
     split_of = {int(k): s for s, idx in splits.items() for k in idx}
     fitting = [k for k in range(len(entries)) if split_of.get(k) in ("train", "val")]
     pending = {t: tool for t, tool in tools.items() if tool.unknown}
-    seen = {t for k in fitting if isinstance(data[k][5], str) for t in [data[k][5]]}
+    seen = {data[k][5] for k in fitting if isinstance(data[k][5], str)}
     reports, values = [], {}
     description = description_model(system)
 
@@ -111,9 +111,10 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
         values.update({t: fit.values[t] for t in rest})
     for k, d in enumerate(data):
         if isinstance(d[5], str):
-            if not np.isfinite(values.get(d[5], tools[d[5]].known_row())).all():
+            row = values.get(d[5], tools[d[5]].known_row())
+            if not np.isfinite(row).all():
                 raise InputError(f"import: tool {d[5]!r} could not be identified (non-finite values)")
-            params[k] = values.get(d[5], tools[d[5]].known_row())
+            params[k] = row
     report = {"targets": targets, "drive": drive, "fits": reports,
               "entries": {d[0]: d[5] for d in data if isinstance(d[5], str)}}
     return params, report
@@ -131,7 +132,8 @@ def tool_lines(report: dict) -> list[str]:
             for key, p in tool["parameters"].items():
                 scale, unit = (1e3, "mm") if p["unit"] == "m" else (1.0, p["unit"])
                 if "std" in p:
-                    parts.append(f"{key} {scale * p['value']:.4g} +- {scale * 1.959963984540054 * p['std']:.2g} {unit}")
+                    half = (p["interval95"][1] - p["interval95"][0]) / 2
+                    parts.append(f"{key} {scale * p['value']:.4g} +- {scale * half:.2g} {unit}")
                 else:
                     parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "

@@ -276,7 +276,7 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
     r_B = base["rank"]
     beta, coefs = x[:r_B], x[r_B:]
     # the friction columns are per joint, each joint's forms together: column j k + i is joint j, form i
-    friction = {COEFFICIENTS[f][0]: coefs[torch.arange(n) * len(extra) + i].numpy() for i, f in enumerate(extra)}
+    friction = linear_friction(coefs, extra, n)
     if phi is not None:
         friction["phi1"] = coefs.reshape(-1)[len(extra) * n:].numpy()
         friction["phi2"], friction["phi3"] = phi[0].numpy(), phi[1].numpy()
@@ -287,7 +287,7 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
     groups = torch.arange(N).repeat_interleave(n) // max(int(block), 1)
     std = coefficient_covariance(A, r, groups).diagonal().clamp_min(0).sqrt()
     names = parameter_names(chain)
-    friction_names = [f"{chain.joint_names[j]}.{COEFFICIENTS[f][0]}" for j in range(n) for f in extra]
+    friction_names = linear_friction_names(chain, extra)
     friction_names += [f"{chain.joint_names[j]}.phi1" for j in range(n)] if phi is not None else []
     moving = np.flatnonzero(Y.reshape(N * n, -1).abs().amax(0).numpy() > 0)
     uncertainty = {"condition_number": condition, "block_samples": int(block),
@@ -299,6 +299,18 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
                      base=base, beta=beta.numpy(), weights=weights)
     model.info["uncertainty"] = uncertainty
     return model
+
+
+def linear_friction(coefs: torch.Tensor, forms, n: int) -> dict:
+    """``{coefficient name: (n,)}`` of the linear friction ``forms`` from their least-squares coefficients
+    (``_friction_columns``' layout: column ``j k + i`` is joint ``j``, form ``i``; extra entries after them
+    are ignored)."""
+    return {COEFFICIENTS[f][0]: coefs[torch.arange(n) * len(forms) + i].numpy() for i, f in enumerate(forms)}
+
+
+def linear_friction_names(chain: SerialChain, forms) -> list[str]:
+    """The names of ``_friction_columns``' coefficients, ``joint.coefficient`` in their order."""
+    return [f"{chain.joint_names[j]}.{COEFFICIENTS[f][0]}" for j in range(chain.dof) for f in forms]
 
 
 def _sigmoid_columns(qd, drive, phi2, phi3) -> torch.Tensor:

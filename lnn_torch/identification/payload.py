@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..robots.mujoco_arm import MujocoArm
 from ..robots.tools import ROW, UNITS, Tool
 from ..systems import get_system
+from .classical_arm import Z95
 
 
 def payload_least_squares(q, qd, qdd, tau, edge: int = 0, system=None) -> dict:
@@ -58,7 +59,6 @@ def payload_least_squares(q, qd, qdd, tau, edge: int = 0, system=None) -> dict:
 
 
 # ---------------------------------------------------------------- tools whose parameters are (partly) unknown
-Z95 = 1.959963984540054
 STIFF = 1e-9  # a tool's columns whose scaled singular value falls below this share cannot be told apart
 
 
@@ -140,9 +140,18 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     mass, inertia about it): Gauss-Newton from the free linear estimate, the linear coefficients solved
     with each step. Raises ``ToolsUndetermined`` where the data cannot determine a tool's unknown
     entries."""
-    from ..mechanics.friction import COEFFICIENTS, DriveModel
-    from ..robots.regressor import base_parameters, flange_map, parameter_names, payload_ten, payload_torque
-    from .classical_arm import ArmModel, _base_names, _friction_columns, _regressor, _viscous_of, coefficient_covariance
+    from ..mechanics.friction import DriveModel
+    from ..robots.regressor import base_parameters, parameter_names, payload_regressor, payload_ten, payload_torque
+    from .classical_arm import (
+        ArmModel,
+        _base_names,
+        _friction_columns,
+        _regressor,
+        _viscous_of,
+        coefficient_covariance,
+        linear_friction,
+        linear_friction_names,
+    )
 
     drive = DriveModel.of(drive)
     if "sigmoid" in drive.forms:
@@ -153,8 +162,8 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
         if not used:
             raise InputError(f"tool identification: no recording carries tool {name!r}")
     rows_Y, rows_target, rows_F, Yp, groups, ends = [], [], [], {name: [] for name in pending}, [], 0
-    G = flange_map(chain)
     n = chain.dof
+    extra = [f for f in drive.linear_forms if f != "viscous"]  # the friction columns beside the regressor's
     for rec, q, qd, qdd, tau, payload in recordings:
         q, qd, qdd, tau = (torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float64) for x in (q, qd, qdd, tau))
         if q.ndim != 2 or q.shape[1] != n or not all(x.shape == q.shape for x in (qd, qdd, tau)):
@@ -172,12 +181,11 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
                                                  .expand(T, -1))
         elif payload is not None and len(payload) and np.any(np.asarray(payload) != 0):
             target = target - payload_torque(chain, q, qd, qdd, torch.as_tensor(payload)[None].expand(T, -1))
-        last = Y[..., 10 * (n - 1): 10 * n] @ G  # (T, n, 10): the payload's ten at the flange
+        last = payload_regressor(chain, q, qd, qdd, Y=Y)  # (T, n, 10): the payload's ten at the flange
         for name in pending:
             Yp[name].append(last if isinstance(payload, str) and payload == name else torch.zeros_like(last))
         rows_Y.append(Y)
         rows_target.append(target)
-        extra = [f for f in drive.linear_forms if f != "viscous"]
         rows_F.append(_friction_columns(qd, drive, extra) if extra else q.new_zeros(T, n, 0))
         groups.append(ends + (torch.arange(T) // max(int(block), 1)).repeat_interleave(n))
         ends = int(groups[-1].max()) + 1
@@ -200,22 +208,23 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     def ten(name, th):
         return payload_ten(pending[name].row(th)[None])[0]
 
-    def residual_and_jacobian(theta):
-        r, cols = target.clone(), [A_lin]
-        for name in names:
-            r = r - Yp[name] @ ten(name, theta[name])
-            cols.append(Yp[name] @ torch.func.jacfwd(lambda th, name=name: ten(name, th))(theta[name]))
-        return r, torch.cat(cols, 1)
+    def residual(theta):
+        """The torques less every tool's at ``theta`` (the arm's columns still to solve)."""
+        return target - sum((Yp[name] @ ten(name, theta[name]) for name in names), torch.zeros_like(target))
+
+    def jacobian(theta):
+        """The arm's columns and each tool's ``Y_p d ten / d theta``."""
+        return torch.cat([A_lin, *(Yp[name] @ torch.func.jacfwd(lambda th, name=name: ten(name, th))(theta[name])
+                                   for name in names)], 1)
 
     def cost(theta):
-        r, A = residual_and_jacobian(theta)
+        r = residual(theta)
         x = _solve(A_lin, r) if A_lin.shape[1] else r.new_zeros(0)
         return float((r - A_lin @ x).pow(2).sum())
 
     current = cost(theta)
     for _ in range(max_iterations if names else 0):
-        r, A = residual_and_jacobian(theta)
-        step = _solve(A, r)[A_lin.shape[1]:]
+        step = _solve(jacobian(theta), residual(theta))[A_lin.shape[1]:]
         size = 1.0
         while True:
             trial, k0 = {}, 0
@@ -232,15 +241,13 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
         theta, moved, current = trial, float((size * step).abs().max()), value
         if moved < 1e-13:
             break
-    r, A = residual_and_jacobian(theta)
+    r, A = residual(theta), jacobian(theta)
     x = _solve(A_lin, r) if A_lin.shape[1] else r.new_zeros(0)
     r = r - A_lin @ x  # the final residual
     norms = A.norm(dim=0).clamp_min(1e-300)
     s = torch.linalg.svdvals(A / norms)
     condition = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    tool_cols = A[:, A_lin.shape[1]:]
-    if tool_cols.shape[1] and (s[-1] < STIFF * s[0] or not bool(torch.isfinite(s).all())):
-        # find which tool is confounded: its columns' part outside the span of the rest
+    if names and (s[-1] < STIFF * s[0] or not bool(torch.isfinite(s).all())):
         raise ToolsUndetermined(
             f"tool identification: the recordings cannot tell tool(s) {', '.join(repr(t) for t in names)} from the "
             "arm's own parameters (condition number " + f"{condition:.3g}): "
@@ -261,15 +268,13 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     rms = r.reshape(-1, n).pow(2).mean(0).sqrt().tolist()
     arm_model = None
     if arm is None:  # the arm identified with the tools: a least-squares ArmModel (base parameters, friction)
-        extra = [f for f in drive.linear_forms if f != "viscous"]
-        coefs = x[base["rank"]:]
-        friction = {COEFFICIENTS[f][0]: coefs[torch.arange(n) * len(extra) + i].numpy() for i, f in enumerate(extra)}
+        friction = linear_friction(x[base["rank"]:], extra, n)
         if "viscous" in drive.forms:
             friction["b"] = _viscous_of(base, x[: base["rank"]].numpy(), n)
         arm_model = ArmModel(chain, drive, "least squares with the tools", friction, base=base,
                              beta=x[: base["rank"]].numpy())
         labels = _base_names(base, parameter_names(chain))
-        labels += [f"{chain.joint_names[j]}.{COEFFICIENTS[f][0]}" for j in range(n) for f in extra]
+        labels += linear_friction_names(chain, extra)
         coef_std = std_all[: A_lin.shape[1]]
         arm_model.info["uncertainty"] = {"names": labels, "value": x.tolist(), "std": coef_std.tolist(),
                                          "interval95": torch.stack([x - Z95 * coef_std, x + Z95 * coef_std],

@@ -236,9 +236,8 @@ class DoublePendulum(System):
         def high_energy(rng, n):
             params = torch.as_tensor(self.sample_params(rng, n))
             q = torch.as_tensor(rng.uniform(-math.pi, math.pi, (n, 2)))
-            m1, m2, l1, l2 = params.unbind(-1)
-            top = GRAVITY * ((m1 + m2) * l1 + m2 * l2)  # V_max = -V_min
-            target = -top + torch.as_tensor(rng.uniform(0.25, 1.5, n)) * 2 * top
+            span = self.energy_scale(params)  # V_max - V_min, V_min = -span / 2
+            target = span * (torch.as_tensor(rng.uniform(0.25, 1.5, n)) - 0.5)
             kinetic = (target - self.potential(q, params)).clamp_min(0.0)
             direction = torch.as_tensor(rng.standard_normal((n, 2)))
             unit = self.kinetic(q, direction, params)
