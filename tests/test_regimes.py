@@ -75,6 +75,10 @@ def test_the_wider_training_distributions_cover_the_regimes_and_leave_the_defaul
     assert 0.20 < circle.mean() < 0.25  # three quarters of the 30 % drawn over the circle land beyond +-90 degrees
     assert np.abs(qd).max() > 5.9 and np.abs(q).max() > 3.1
     assert list(wide.regimes()) == list(default.regimes())
+    for name, draw in wide.regimes().items():  # the same states: judged in the default box's regimes
+        for got, want in zip(draw(np.random.default_rng(4), 50), default.regimes()[name](np.random.default_rng(4), 50),
+                             strict=True):
+            np.testing.assert_array_equal(got, want)
     import pytest
 
     from lnn_torch.errors import InputError

@@ -221,20 +221,28 @@ class DoublePendulum(System):
         distribution); high energy over the whole circle (both angles uniform on the circle, the velocity's
         direction uniform, its size giving a total energy ``V_min + f (V_max - V_min)``, ``f`` uniform in
         [0.25, 1.5]: from well inside the potential's range to past the upright state, the separatrices
-        included; parameters in distribution)."""
+        included; parameters in distribution). Drawn from the box and ranges alone: a scene widened for
+        training (``param_margin``, ``whole_circle``) is judged in the same regimes as the default one."""
+        box = self if not (self.param_margin or self.circle_fraction) else DoublePendulum(
+            **{k: v for k, v in self.config().items() if k not in ("param_margin", "whole_circle")})
+
+        def within(rng, n):
+            q, qd = box.sample_state(rng, n)
+            return q, qd, box.sample_params(rng, n)
+
         def outside(rng, n, r):
             side = rng.integers(0, 2, n).astype(bool)
             beyond = rng.uniform(0.05, 0.30, n)
             return np.where(side, r.high * (1 + beyond), r.low * (1 - beyond))
 
         def out_of_range(rng, n):
-            q, qd = self.sample_state(rng, n)
+            q, qd = box.sample_state(rng, n)
             m1 = np.exp(self.m1_log_std * rng.standard_normal(n))
             m2, l1 = m1 * outside(rng, n, self.m2_ratio), outside(rng, n, self.l1_range)
             return q, qd, np.stack([m1, m2, l1, l1 * outside(rng, n, self.l2_ratio)], -1)
 
         def high_energy(rng, n):
-            params = torch.as_tensor(self.sample_params(rng, n))
+            params = torch.as_tensor(box.sample_params(rng, n))
             q = torch.as_tensor(rng.uniform(-math.pi, math.pi, (n, 2)))
             span = self.energy_scale(params)  # V_max - V_min, V_min = -span / 2
             target = span * (torch.as_tensor(rng.uniform(0.25, 1.5, n)) - 0.5)
@@ -244,8 +252,8 @@ class DoublePendulum(System):
             qd = direction * torch.sqrt(kinetic / unit)[:, None]
             return q.numpy(), qd.numpy(), params.numpy()
 
-        return {**super().regimes(), "out of the parameter range": out_of_range, "high energy, whole circle":
-                high_energy}
+        return {"in distribution": within, "out of the parameter range": out_of_range,
+                "high energy, whole circle": high_energy}
 
     def hard_parameter_cases(self):
         return {"m2/m1 = 1e-3": (1.0, 1e-3, 1.2, 1.2), "m2/m1 = 1e3": (0.1, 100.0, 1.2, 1.2),
