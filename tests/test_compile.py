@@ -32,7 +32,7 @@ def test_compiled_dynamics_equal_eager(rng):
         q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
     torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
-    assert model._compile is True and set(model._compiled) == {"acceleration_norm", "_rollout_step"}
+    assert model._compile is True and set(model._compiled) == {"_acceleration_whole", "_rollout_step"}
     assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
     # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
     from lnn_torch.perf import RECOMPILE_LIMIT

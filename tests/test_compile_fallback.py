@@ -60,4 +60,4 @@ def test_the_model_and_the_module_compile_through_it(monkeypatch):
     monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)  # a "compilation" that runs fn itself
     q = torch.tensor([[0.3, -0.2]], dtype=torch.float64)
     model.acceleration(q, q, torch.tensor([[1.0, 0.5, 1.2, 1.3]], dtype=torch.float64))
-    assert isinstance(model._compiled["acceleration_norm"], CompiledFallback)
+    assert isinstance(model._compiled["_acceleration_whole"], CompiledFallback)
