@@ -75,7 +75,8 @@ def run_case(model, system, tr, seconds: float, noise: float, args, rng) -> dict
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
-    ap.add_argument("--checkpoint", default="pretrained:double_pendulum", help="the model: a .ckpt or pretrained:NAME")
+    ap.add_argument("--checkpoint", default="pretrained:double_pendulum_box",
+                    help="the model: a .ckpt or pretrained:NAME (default: the box model, whose table results/ shows)")
     ap.add_argument("--data", default="data/identification_study.h5", help="the dataset (generated when missing)")
     ap.add_argument("--trajectories", type=int, default=200, help="at the headline length (2 s)")
     ap.add_argument("--sweep-trajectories", type=int, default=30, help="at the other lengths")
