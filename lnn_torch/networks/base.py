@@ -291,11 +291,9 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         """
         if check:
             self.check_inputs(q, qd, params, tau)
-        if self._compile is True and not torch.compiler.is_compiling():
-            # the whole call in one program: the normalisation too (about a dozen small operators, a
-            # quarter of a batch-1 call when run eagerly around the compiled solve)
-            return self._compiled_fn(self._acceleration_whole, q.device, "accelerations")(q, qd, params, tau)
-        return self._acceleration_whole(q, qd, params, tau)
+        # compiled, the whole call is one program: the normalisation too (about a dozen small operators, a
+        # quarter of a batch-1 call when run eagerly around the compiled solve)
+        return self._run(self._acceleration_whole, q, qd, params, tau)
 
     def _acceleration_whole(self, q, qd, params, tau=None):
         """``acceleration`` without its checks: SI in, SI out (what the compiled path compiles whole)."""
