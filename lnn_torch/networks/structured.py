@@ -35,6 +35,7 @@ from ..mechanics.euler_lagrange import structured_acceleration_from_factor
 from ..systems.base import GRAVITY
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
+from .fused import fused_films, fused_solve, fusion_plan
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 from .residual_force import ResidualForce
@@ -429,7 +430,19 @@ class StructuredLagrangian(DynamicsModel):
         return qdd, T + V, T, V
 
     def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None):
+        plan = self._fusion_plan_for(q_norm)
+        if plan is not None:  # inference of the default composition: one stacked network (``fused``)
+            return fused_solve(self, plan, q_norm, qd_norm, params_norm, force=force_norm)
         return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False, force=force_norm)
+
+    def _fusion_plan_for(self, q_norm):
+        """The stacked weights of ``fused`` where they apply to this call: no gradient recorded, not
+        compiling (the compiler fuses the parts itself), inputs in the model's dtype; else None."""
+        if (torch.is_grad_enabled() or torch.compiler.is_compiling() or torch.compiler.is_exporting()
+                or torch.jit.is_tracing()):
+            return None
+        plan = fusion_plan(self)
+        return plan if plan is not None and plan.weights[0].dtype == q_norm.dtype else None
 
     def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None, force_norm=None):
         """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network
@@ -441,6 +454,10 @@ class StructuredLagrangian(DynamicsModel):
 
     def _acceleration_norm_films(self, q_norm, qd_norm, params_norm, films, tau_norm=None):
         return self.forced_acceleration_norm(lambda f: self._solve(q_norm, qd_norm, params_norm, films, False, f),
+                                             q_norm, qd_norm, params_norm, tau_norm)
+
+    def _fused_acceleration_norm(self, q_norm, qd_norm, params_norm, plan, films, tau_norm=None):
+        return self.forced_acceleration_norm(lambda f: fused_solve(self, plan, q_norm, qd_norm, params_norm, films, f),
                                              q_norm, qd_norm, params_norm, tau_norm)
 
     @property
@@ -459,12 +476,18 @@ class StructuredLagrangian(DynamicsModel):
         if not self._has_film:
             return super().acceleration_fn(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
-        films = self.films(params_norm)
+        plan = None if self._compile is True else self._fusion_plan_for(params_norm)
+        fused = None if plan is None else fused_films(plan, params_norm)
+        films = None
 
         def accel(q, qd, params_, tau=None):
+            nonlocal films
             if params_ is not params:
                 raise InputError("acceleration_fn(params) was called with other parameters than its own")
             extra = () if tau is None else (self.tau_norm(tau),)
+            if fused is not None and self._fusion_plan_for(params_norm) is plan:  # the same weights, no gradient
+                return self._acceleration_si(self._fused_acceleration_norm, q, qd, params_norm, plan, fused, *extra)
+            films = self.films(params_norm) if films is None else films
             return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films, *extra)
 
         return accel
