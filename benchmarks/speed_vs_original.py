@@ -4,7 +4,9 @@ One process, one CPU thread. The original (``jax_original``: its own model call,
 each lnn_torch model in each mode are timed in turn over ``--rounds`` rounds; a cell is the median over
 rounds of the per-round ratio to the original's time (and the median time per call). The modes:
 
-* ``eager``: ``model.acceleration(q, qd, params, check=False)`` under ``torch.no_grad()``;
+* ``eager``: ``model.acceleration(q, qd, params, check=False)`` under ``torch.no_grad()`` (for ``film_lnn``'s
+  default composition the two networks stacked into one, ``lnn_torch.networks.fused``);
+* ``eager, part by part``: the same with ``fuse_inference`` off (each network on its own, as under a gradient);
 * ``compiled``: the same after ``model.compile_dynamics(True)`` (``torch.compile``, C++ wrapper);
 * ``AOTInductor``: the exported forward dynamics (``lnn-torch export --format aoti``), loaded and called
   as ``lnn_torch.export.programs.load_program`` gives it (where a C++ compiler is found; ``--no-aoti``).
@@ -64,6 +66,9 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
     """``{(name, mode, batch): fn}`` for one model, and the seconds its compilations took."""
     module = load_model(name).float().eval()
     eager = module.model
+    parts = copy.deepcopy(eager)
+    fusable = getattr(parts, "fuse_inference", False)
+    parts.fuse_inference = False
     compiled = copy.deepcopy(eager).compile_dynamics(True)
     aoti, seconds = None, {}
     if aoti_dir is not None:
@@ -82,6 +87,8 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
                 return model.acceleration(q, qd, params, check=False)
 
         calls[(name, "eager", batch)] = lambda run=run: run(eager)
+        if fusable:
+            calls[(name, "eager, part by part", batch)] = lambda run=run: run(parts)
         start = time.perf_counter()
         run(compiled)  # compiles this batch shape
         seconds[f"compiled, batch {batch}"] = time.perf_counter() - start
@@ -145,7 +152,7 @@ def main() -> None:
     head = ["model", "mode", *(f"batch {b}" for b in args.batches)]
     table = []
     for name in [ORIGINAL, *args.models]:
-        for mode in ("jit",) if name == ORIGINAL else ("eager", "compiled", "AOTInductor"):
+        for mode in ("jit",) if name == ORIGINAL else ("eager", "eager, part by part", "compiled", "AOTInductor"):
             cells = [r for r in rows if r["model"] == name and r["mode"] == mode]
             if not cells:
                 continue

@@ -105,6 +105,8 @@ class StructuredLagrangian(DynamicsModel):
     """
 
     conditioning = ""  # "film" or "concat": fixed by the concrete variants
+    # inference of the default composition through ``fused`` (False: part by part, as under a gradient)
+    fuse_inference = True
     provides = frozenset({ENERGY, MASS_MATRIX, INVERSE_DYNAMICS, FRICTION, STATIC_FRICTION, FORCES})
 
     def __init__(self, scene, *, hidden_dims, activation, film_mode, potential_film, film_hidden, eps, diag_shift,
@@ -436,10 +438,11 @@ class StructuredLagrangian(DynamicsModel):
         return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False, force=force_norm)
 
     def _fusion_plan_for(self, q_norm):
-        """The stacked weights of ``fused`` where they apply to this call: no gradient recorded, not
-        compiling (the compiler fuses the parts itself), inputs in the model's dtype; else None."""
-        if (torch.is_grad_enabled() or torch.compiler.is_compiling() or torch.compiler.is_exporting()
-                or torch.jit.is_tracing()):
+        """The stacked weights of ``fused`` where they apply to this call: ``fuse_inference`` on, no
+        gradient recorded, not compiling (the compiler fuses the parts itself), inputs in the model's dtype;
+        else None."""
+        if (not self.fuse_inference or torch.is_grad_enabled() or torch.compiler.is_compiling()
+                or torch.compiler.is_exporting() or torch.jit.is_tracing()):
             return None
         plan = fusion_plan(self)
         return plan if plan is not None and plan.weights[0].dtype == q_norm.dtype else None
