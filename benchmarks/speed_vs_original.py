@@ -161,7 +161,8 @@ def main() -> None:
                                         f"{by_batch[b]['ratio']:.2f}× ({by_batch[b]['ms']:.3g} ms)"
                                         for b in args.batches)])
     lines = ["# Accelerations per call against the JAX original", "",
-             f"One CPU thread, one process: {machine_header()} (at the end).", "",
+             f"One CPU thread, one process held to one core (`os.sched_setaffinity`: jaxlib otherwise spreads the "
+             f"original over every core): {machine_header()} (at the end).", "",
              f"Each cell: the median over {args.rounds} rounds of the per-round ratio of the call's time to the "
              "original's at the same batch (in brackets the median time per call); the original's row gives its "
              "time. A round times every candidate in turn, each over about 20 ms of calls in a row.", "",
