@@ -89,6 +89,28 @@ def test_fused_path_follows_the_weights(rng):
         assert model._fusion_plan.weights[0].dtype == torch.float32
 
 
+@pytest.mark.parametrize("fused_kernel", [False, True])
+def test_an_optimiser_step_restacks_the_plan(fused_kernel, rng):
+    """Training and evaluating in turn (as Lightning validates between steps): every evaluation after an
+    optimiser step sees the new weights, also where the step does not bump the weights' version counters
+    (the fused AdamW kernel, which the training uses)."""
+    import copy
+
+    model, system = _model("double_pendulum", rng, hidden_dims=(16, 16))
+    q, qd, params = random_batch(system, rng, 8)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-2, fused=fused_kernel)
+    for _ in range(2):
+        with torch.no_grad():
+            got = model.acceleration(q, qd, params)
+            torch.testing.assert_close(got, plain(copy.deepcopy(model)).acceleration(q, qd, params),
+                                       rtol=1e-12, atol=1e-12)
+        model.acceleration(q, qd, params).square().sum().backward()
+        opt.step()
+        opt.zero_grad()
+    with torch.no_grad():
+        assert not torch.allclose(model.acceleration(q, qd, params), got)
+
+
 def test_fused_path_steps_aside_under_a_gradient(rng):
     """With a gradient recorded the part-by-part path runs: the weights get their gradients."""
     model, system = _model("double_pendulum", rng, hidden_dims=(16, 16))

@@ -97,4 +97,5 @@ class CompiledDynamics:
         state = super().__getstate__()  # a copy of __dict__
         if "_compiled" in state:
             state["_compiled"] = {}  # compiled code is rebuilt on first use (copies, pickles)
+        state.pop("_fusion_plan", None)  # the fused path's stacked weights (networks.fused): restacked on use
         return state

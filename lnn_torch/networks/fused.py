@@ -22,9 +22,23 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
+from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from ._kernels import sigmoid_backward, sigmoid_form_film
 from .normalization import trusted
+
+# Optimiser steps taken in this process, by any ``torch.optim`` optimiser: a step may change the weights
+# without bumping their version counters (the fused AdamW kernel does not), so a plan stacked before the
+# last step is stacked again. A global post-step hook only counts; it changes nothing else.
+_optimizer_steps = 0
+
+
+def _count_step(optimizer, args, kwargs) -> None:
+    global _optimizer_steps
+    _optimizer_steps += 1
+
+
+register_optimizer_step_post_hook(_count_step)
 
 
 @dataclass(frozen=True)
@@ -32,7 +46,7 @@ class FusionPlan:
     """The stacked weights of one model (index 0 the Cholesky MLP, 1 the potential MLP), in the model's
     dtype and device; ``key``: the identities, storages and versions of the tensors they were stacked from
     (``sources``: where they live; a weight replaced, moved, cast or changed in place gives another key),
-    ``parts``: the model's part tuples they were stacked for.
+    ``parts``: the model's part tuples they were stacked for, ``steps``: the process's optimiser steps then.
 
     Hidden layer ``i``: ``weights[i] (2, n_in, H)`` and ``biases[i] (2, 1, H)``, both times 2 (the tanh
     layers' sigmoid form: ``s = sigmoid(2 z)``); layer 0's kinetic rows for the parameters are zero (that
@@ -43,6 +57,7 @@ class FusionPlan:
     (2, 1, 2 S)`` in sigmoid form (``[2 gamma | beta - gamma]``, ``S`` the hidden widths' sum)."""
 
     key: tuple
+    steps: int
     sources: tuple
     parts: tuple
     dtype: torch.dtype
@@ -102,11 +117,14 @@ def _state(sources) -> tuple:
 
 def fusion_plan(model, dtype: torch.dtype | None = None, device=None) -> FusionPlan | None:
     """The model's stacked weights (cached on the model until a weight is replaced, cast, moved or
-    changed in place, or the model's parts are swapped, e.g. by ``residuals_off``), or None where the
-    model is not ``fusable``."""
+    changed in place, any optimiser takes a step, or the model's parts are swapped, e.g. by
+    ``residuals_off``), or None where the model is not ``fusable``. A write that bypasses the version
+    counters outside an optimiser (``param.data.add_(...)``) is not seen: set ``model.fuse_inference =
+    False`` around such code, or delete ``model._fusion_plan`` after it."""
     plan = model.__dict__.get("_fusion_plan")
-    if (plan is not None and model._kinetic_parts is plan.parts[0] and model._potential_parts is plan.parts[1]
-            and dtype in (None, plan.dtype) and device in (None, plan.device) and _state(plan.sources) == plan.key):
+    if (plan is not None and plan.steps == _optimizer_steps and model._kinetic_parts is plan.parts[0]
+            and model._potential_parts is plan.parts[1] and dtype in (None, plan.dtype)
+            and device in (None, plan.device) and _state(plan.sources) == plan.key):
         return plan
     if not fusable(model):
         return None
@@ -146,7 +164,8 @@ def _stack(model, sources, dtype, device) -> FusionPlan:
         film_in_bias.append(first.bias.to(**cast)[None])
         film_out.append(w.t())
         film_out_bias.append(b[None])
-    return FusionPlan(_state(sources), sources, (model._kinetic_parts, model._potential_parts), dtype, device,
+    return FusionPlan(_state(sources), _optimizer_steps, sources, (model._kinetic_parts, model._potential_parts),
+                      dtype, device,
                       tuple(kin.hidden_dims), tuple(weights), tuple(biases),
                       2 * kn.hidden[0].weight.to(**cast)[:, :num_features].t().contiguous(), out, out_bias,
                       torch.stack(film_in).contiguous(), torch.stack(film_in_bias).contiguous(),
