@@ -36,6 +36,8 @@ def _model(scene, rng, **kw):
     ("double_pendulum", {"hidden_dims": (16, 24, 16)}),
     ("actuated_double_pendulum", {"hidden_dims": (16, 16)}),  # inputs and learned friction
     ("chain_pendulum", {"scene_config": {"num_links": 3}, "hidden_dims": (16, 16)}),
+    ("mass_spring", {"hidden_dims": (16, 16)}),  # coordinates that are not angles
+    ("pendulum", {"hidden_dims": (16, 16)}),
 ])
 def test_fused_path_equals_the_parts(scene, kw, rng):
     """Accelerations (SI) and a rollout under ``no_grad`` (the fused path) equal the part-by-part path
