@@ -45,6 +45,7 @@ from timing import HelpFormatter, add_output_dir, calls_per_run, in_turn, machin
 from lnn_torch import load_model  # noqa: E402
 from lnn_torch.evaluation import markdown_table  # noqa: E402
 from lnn_torch.export import programs as ex  # noqa: E402
+from lnn_torch.networks import fusable  # noqa: E402
 from lnn_torch.perf import configure_cpu  # noqa: E402
 from lnn_torch.systems import get_system  # noqa: E402
 
@@ -67,7 +68,6 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
     module = load_model(name).float().eval()
     eager = module.model
     parts = copy.deepcopy(eager)
-    fusable = getattr(parts, "fuse_inference", False)
     parts.fuse_inference = False
     compiled = copy.deepcopy(eager).compile_dynamics(True)
     aoti, seconds = None, {}
@@ -87,7 +87,7 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
                 return model.acceleration(q, qd, params, check=False)
 
         calls[(name, "eager", batch)] = lambda run=run: run(eager)
-        if fusable:
+        if fusable(eager):  # the same call part by part, where eager runs fused
             calls[(name, "eager, part by part", batch)] = lambda run=run: run(parts)
         start = time.perf_counter()
         run(compiled)  # compiles this batch shape

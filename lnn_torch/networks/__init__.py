@@ -6,8 +6,9 @@ angle features), ``rigid_body`` (the SI rigid-body face and its convention), ``f
 generalised forces), ``compiled`` (opt-in compilation), ``scene`` (``SceneInfo``), ``structured``
 (``film_lnn``, ``delan``: the structured Lagrangian of its ``parts``), ``blackbox`` (``lnn``), ``direct``
 (``mlp``), ``hamiltonian`` (``hnn``), ``registry`` (name -> class, ``build_model``), ``layers`` (FiLM,
-TangentMLP), ``reference`` (the plain formulas the fast paths are tested against), ``_kernels`` (private
-CPU-oriented forms).
+TangentMLP), ``reference`` (the plain formulas the fast paths are tested against), ``fused`` (inference of
+``film_lnn``'s default composition as one stacked network; ``fusable`` says where it applies), ``_kernels``
+(private CPU-oriented forms).
 """
 
 from .base import DynamicsModel
@@ -15,6 +16,7 @@ from .blackbox import BlackBoxLagrangian
 from .calls import counting_failures, model_accelerations, model_rollout
 from .capabilities import ENERGY, INVERSE_DYNAMICS, capabilities_of, missing
 from .direct import DirectMLP
+from .fused import fusable
 from .hamiltonian import HamiltonianNN
 from .layers import FiLM, TangentMLP
 from .normalization import Normalizer
@@ -26,4 +28,4 @@ from .structured import DeLaN, FiLMLagrangian, StructuredLagrangian
 __all__ = ["FiLM", "TangentMLP", "Normalizer", "SceneInfo", "DynamicsModel", "StructuredLagrangian", "FiLMLagrangian",
            "DeLaN", "BlackBoxLagrangian", "DirectMLP", "HamiltonianNN", "MODELS", "VARIANTS", "build_model",
            "model_options", "counting_failures", "model_accelerations", "model_rollout", "capabilities_of",
-           "missing", "ENERGY", "INVERSE_DYNAMICS", "torque_shares"]
+           "missing", "ENERGY", "INVERSE_DYNAMICS", "torque_shares", "fusable"]

@@ -8,7 +8,7 @@ the part-by-part path (``structured.StructuredLagrangian._solve``) for the same 
 an eager call of a small network costs more in operators than in arithmetic (``results/speed``).
 
 It computes exactly what the parts compute (tests compare the two in float64), from the model's
-weights stacked once and cached until a weight changes (``Tensor._version``): inference only, so the
+weights stacked once and cached until a weight changes (``fusion_plan`` says what it sees): inference only, so the
 model uses it where no gradient is recorded (``torch.no_grad``, ``torch.inference_mode``) and not
 under ``torch.compile`` (which fuses the part-by-part path itself).
 
@@ -60,8 +60,6 @@ class FusionPlan:
     steps: int
     sources: tuple
     parts: tuple
-    dtype: torch.dtype
-    device: torch.device
     widths: tuple[int, ...]
     weights: tuple[torch.Tensor, ...]
     biases: tuple[torch.Tensor, ...]
@@ -115,7 +113,7 @@ def _state(sources) -> tuple:
     return tuple((id(t), t.data_ptr(), t._version) for t in (d[name] for d, name in sources))
 
 
-def fusion_plan(model, dtype: torch.dtype | None = None, device=None) -> FusionPlan | None:
+def fusion_plan(model) -> FusionPlan | None:
     """The model's stacked weights (cached on the model until a weight is replaced, cast, moved or
     changed in place, any optimiser takes a step, or the model's parts are swapped, e.g. by
     ``residuals_off``), or None where the model is not ``fusable``. A write that bypasses the version
@@ -123,23 +121,21 @@ def fusion_plan(model, dtype: torch.dtype | None = None, device=None) -> FusionP
     False`` around such code, or delete ``model._fusion_plan`` after it."""
     plan = model.__dict__.get("_fusion_plan")
     if (plan is not None and plan.steps == _optimizer_steps and model._kinetic_parts is plan.parts[0]
-            and model._potential_parts is plan.parts[1] and dtype in (None, plan.dtype)
-            and device in (None, plan.device) and _state(plan.sources) == plan.key):
+            and model._potential_parts is plan.parts[1] and _state(plan.sources) == plan.key):
         return plan
     if not fusable(model):
         return None
-    sources = _sources(model)
-    first = sources[0][0][sources[0][1]]
     with torch.no_grad():
-        plan = _stack(model, sources, dtype or first.dtype, device or first.device)
+        plan = _stack(model, _sources(model))
     object.__setattr__(model, "_fusion_plan", plan)  # a plain attribute: not a module, buffer or state
     return plan
 
 
-def _stack(model, sources, dtype, device) -> FusionPlan:
+def _stack(model, sources) -> FusionPlan:
     kin, pot = model._kinetic_parts[0], model._potential_parts[0]
     kn, pn = kin.net, pot.net
-    cast = dict(dtype=dtype, device=device)
+    first = sources[0][0][sources[0][1]]
+    cast = dict(dtype=first.dtype, device=first.device)  # the networks' own (the constant buffers follow)
     num_features = kn.hidden[0].in_features
     weights, biases = [], []
     for i, (lk, lp) in enumerate(zip(kn.hidden, pn.hidden, strict=True)):
@@ -165,7 +161,6 @@ def _stack(model, sources, dtype, device) -> FusionPlan:
         film_out.append(w.t())
         film_out_bias.append(b[None])
     return FusionPlan(_state(sources), _optimizer_steps, sources, (model._kinetic_parts, model._potential_parts),
-                      dtype, device,
                       tuple(kin.hidden_dims), tuple(weights), tuple(biases),
                       2 * kn.hidden[0].weight.to(**cast)[:, :num_features].t().contiguous(), out, out_bias,
                       torch.stack(film_in).contiguous(), torch.stack(film_in_bias).contiguous(),
