@@ -419,7 +419,7 @@ SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 
            "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`)",
            "w128": "`film_lnn` 128 × 128 (the configs, the shipped model)",
            "w32, 16k steps": "`film_lnn` 32 × 32, 16,000 steps",
-           "w64, 16k steps": "`film_lnn` 64 × 64, 16,000 steps (the main job's budget)"}
+           "w64, 16k steps": "`film_lnn` 64 × 64, 16,000 steps (the main job's budget before its higher learning rate)"}
 
 
 def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:

@@ -7,7 +7,6 @@ import torch
 from lnn_torch import LNNModule
 from lnn_torch.mechanics.euler_lagrange import SingularHessianError
 from lnn_torch.networks import build_model
-from lnn_torch.perf import compile_fn
 from lnn_torch.systems import get_system
 
 from .conftest import random_batch
