@@ -7,6 +7,7 @@ import torch
 from lnn_torch import LNNModule
 from lnn_torch.mechanics.euler_lagrange import SingularHessianError
 from lnn_torch.networks import build_model
+from lnn_torch.perf import compile_fn
 from lnn_torch.systems import get_system
 
 from .conftest import random_batch
@@ -130,39 +131,33 @@ def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never
 
 @pytest.mark.slow
 def test_compiled_training_matches_eager(dataset, tmp_path):
-    """compile=True: a short fit runs its training pass compiled without falling back; and on one
-    training batch (the supported size: chunks_per_batch x chunk_len, 4 x 16 here; evaluation stays
-    eager) that same compiled pass gives the eager loss and gradients. The fit runs in float64
-    (Lightning's 64-true precision: the comparison is an equality, not a float32 race), so the pass is
-    compiled once, as training compiles it (``perf.compile_fn``: static shapes, inductor's C++ wrapper,
-    which also compiles in about half the time of plain ``torch.compile``'s Python wrapper)."""
-    model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[16, 16], energy_weight=0.1)
-    trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False,
-                            precision="64-true")
-    dm = make_dm(dataset, steps_per_epoch=3)
-    trainer.fit(model, dm)
-    compiled = model.training_pass.compiled
-    assert compiled not in (None, False) and trainer.global_step == 3
-    assert next(model.parameters()).dtype == torch.float64
-    batch = {k: v.double() for k, v in dm.train_set[0].items()}
+    """compile=True: on one training batch (the supported size: chunks_per_batch x chunk_len, 4 x 16
+    here; evaluation stays eager) the compiled pass gives the eager loss and gradients; and a short
+    fit runs compiled without falling back. The pass is compiled as training compiles it
+    (``perf.compile_fn``: static shapes, inductor's C++ wrapper), which also compiles it in about half
+    the time of plain ``torch.compile``'s Python wrapper."""
+    dm = make_dm(dataset)
+    dm.setup("fit")
+    batch = {k: v.double() for k, v in dm.train_set[0].items()}  # float64: an equality, not a float32 race
+    model = LNNModule(val_rollouts=0, hidden_dims=[16, 16], energy_weight=0.1)
+    model.model.fit_normalizer(dm.normalization_data())
+    model = model.double()
     results = []
-    default = torch.get_default_dtype()
-    torch.set_default_dtype(torch.float64)  # as during the fit (a guard of the compiled graph)
-    try:
-        for pass_fn in (model.training_terms, compiled):
-            model.zero_grad()
-            loss, _ = model.batch_loss(batch, pass_fn)
-            loss.backward()
-            results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
-    finally:
-        torch.set_default_dtype(default)
-    assert not compiled.failed and model.training_pass.compiled is compiled  # no eager fallback
+    for pass_fn in (model.training_terms, compile_fn(model.training_terms)):
+        model.zero_grad()
+        loss, _ = model.batch_loss(batch, pass_fn)
+        loss.backward()
+        results.append((loss.detach(), [p.grad.clone() for p in model.parameters()]))
     (l0, g0), (l1, g1) = results
     torch.testing.assert_close(l1, l0, rtol=1e-12, atol=0)
     for a, b in zip(g0, g1, strict=True):
         # only the summation order differs between the two graphs (in float32 that alone reached
         # 1e-6 of the largest entry, and 5x relative on near-zero entries)
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-12 * max(float(a.abs().max()), 1e-3))
+    model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[16, 16])
+    trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False)
+    trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
+    assert model.training_pass.compiled not in (None, False) and trainer.global_step == 3
 
 
 def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset, tmp_path, monkeypatch):
