@@ -52,23 +52,27 @@ _COEFFICIENTS: dict = {}
 
 
 def _coefficients(name: str, dtype, device):
+    """The tableau of ``name`` as tensors: each stage's row ``(1, i)`` and the weights ``(1, s)``."""
     key = (name, dtype, device)
     if key not in _COEFFICIENTS:
         A, B = _TABLEAUX[name]()
-        _COEFFICIENTS[key] = ([torch.tensor(row, dtype=dtype, device=device) for row in A],
-                              torch.tensor(B, dtype=dtype, device=device))
+        _COEFFICIENTS[key] = ([torch.tensor([row], dtype=dtype, device=device) for row in A],
+                              torch.tensor([B], dtype=dtype, device=device))
     return _COEFFICIENTS[key]
 
 
 def explicit_rk_step(name: str, fn: VectorFieldFn, y: torch.Tensor, params: torch.Tensor, dt: float) -> torch.Tensor:
-    """One step of the explicit Runge-Kutta method ``name`` (``rk4`` or ``rk8``) for ``ydot = fn(y, params)``."""
+    """One step of the explicit Runge-Kutta method ``name`` (``rk4`` or ``rk8``) for ``ydot = fn(y, params)``.
+
+    The stages are written into one buffer ``(s, *y.shape)``; each stage's state and the step are one
+    matrix product with the tableau's row (few ops per stage, which matters for small batches)."""
     A, B = _coefficients(name, y.dtype, y.device)
-    ks = []
-    for a in A:
-        # (i,) x (i, *batch, n) -> (*batch, n)
-        yi = y if not ks else y + dt * torch.tensordot(a, torch.stack(ks), dims=1)
-        ks.append(fn(yi, params))
-    return y + dt * torch.tensordot(B, torch.stack(ks), dims=1)
+    stages = y.new_empty((len(A), *y.shape))
+    flat, y_row = stages.view(len(A), -1), y.reshape(1, -1)
+    for i, a in enumerate(A):
+        yi = y if i == 0 else torch.addmm(y_row, a, flat[:i], alpha=dt).view(y.shape)
+        stages[i] = fn(yi, params)
+    return torch.addmm(y_row, B, flat, alpha=dt).view(y.shape)
 
 
 def _second_order_rk(name: str, order: int, stages: int):
@@ -274,7 +278,8 @@ def rollout_adaptive(
         ``y (B, num_steps + 1, n)`` and the accepted steps per trajectory ``(B,)``. A trajectory
         whose step size collapses (below 1e-12 dt) or turns non-finite is NaN from there on.
     """
-    A, Bw = _coefficients("rk8", y0.dtype, y0.device)
+    rows_A, row_B = _coefficients("rk8", y0.dtype, y0.device)
+    A, Bw = [a[0] for a in rows_A], row_B[0]
     E5, E3 = (torch.tensor(w, dtype=y0.dtype, device=y0.device) for w in _dop853_error_weights())
     safety, min_factor, max_factor, exponent = 0.9, 0.2, 10.0, -1.0 / 8.0
     B, n = y0.shape

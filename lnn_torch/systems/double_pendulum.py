@@ -163,19 +163,23 @@ class DoublePendulum(System):
         return -(m1 + m2) * GRAVITY * l1 * torch.cos(q[..., 0]) - m2 * GRAVITY * l2 * torch.cos(q[..., 1])
 
     def free_acceleration(self, q, qd, params):
+        # M qdd = r with M = [[(m1 + m2) l1^2, m2 l1 l2 c], [m2 l1 l2 c, m2 l2^2]] (c = cos d, s = sin d,
+        # d = t1 - t2) solved in closed form: det M = m2 l1^2 l2^2 D, D = m1 + m2 s^2 > 0. Four
+        # transcendental calls; the rest by angle-sum identities, in few ops (this is the inner loop of
+        # every ground-truth rollout)
         m1, m2, l1, l2 = params.unbind(-1)
         w1, w2 = qd[..., 0], qd[..., 1]
-        g = GRAVITY
-        # four transcendental calls; the rest by angle-sum identities (d = t1 - t2)
         s1, c1 = torch.sin(q[..., 0]), torch.cos(q[..., 0])
         s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        s = s1 * c2 - c1 * s2  # sin d
-        c = c1 * c2 + s1 * s2  # cos d
-        den = 2 * m1 + m2 - m2 * (2 * c * c - 1)  # 2 m1 + m2 - m2 cos 2d
-        s1_2 = s * c2 - c * s2  # sin(t1 - 2 t2)
-        a1 = (-g * (2 * m1 + m2) * s1 - m2 * g * s1_2 - 2 * s * m2 * (w2**2 * l2 + w1**2 * l1 * c)) / (l1 * den)
-        a2 = (2 * s * (w1**2 * l1 * (m1 + m2) + g * (m1 + m2) * c1 + w2**2 * l2 * m2 * c)) / (l2 * den)
-        return torch.stack([a1, a2], dim=-1)
+        s = s1 * c2 - c1 * s2
+        c = c1 * c2 + s1 * s2
+        D = torch.addcmul(m1, m2, s * s)
+        total = m1 + m2
+        minus_r1 = torch.add(m2 * l2 * s * (w2 * w2), total * s1, alpha=GRAVITY)  # -r1 / l1
+        r2 = torch.add(l1 * s * (w1 * w1), s2, alpha=-GRAVITY)  # r2 / (m2 l2)
+        a1 = torch.addcmul(minus_r1, m2 * c, r2) / (l1 * D)
+        a2 = torch.addcmul(total * r2, c, minus_r1) / (l2 * D)
+        return torch.stack([a1.neg_(), a2], dim=-1)
 
     def energy_scale(self, params):
         m1, m2, l1, l2 = params.unbind(-1)
