@@ -367,3 +367,15 @@ def test_the_physics_layers_do_not_import_the_data_layer():
             "print(sorted(m for m in sys.modules if m.startswith('lnn_torch.data')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr
+
+
+def test_read_rows_equals_hdf5_point_selection(tmp_path):
+    """Rows read as one slice per run of consecutive rows equal h5py's own selection of the same rows."""
+    from lnn_torch.data.hdf5 import read_rows
+
+    values = np.arange(40 * 3 * 2, dtype=np.float64).reshape(40, 3, 2)
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        f["x"] = values
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        for rows in ([0], [39], [0, 1, 2, 7, 8, 20, 39], list(range(40)), [], [3, 5, 7]):
+            np.testing.assert_array_equal(read_rows(f["x"], rows), values[rows])

@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from ..data import derivatives
 from ..data.generate import generate_dataset
-from ..data.hdf5 import TrajectoryFile, read_dataset
+from ..data.hdf5 import TrajectoryFile, read_dataset, read_rows
 from ..data.spec import DatasetSpec
 from ..data.trajectories import Trajectories
 from ..errors import InputError
@@ -61,7 +61,7 @@ class _Source:
         if self.in_memory:
             order = np.argsort(np.argsort(self.indices))
             with file.open() as f:
-                arrays = {k: f[k][np.sort(self.indices)][order] for k in self.fields if k in f}
+                arrays = {k: read_rows(f[k], np.sort(self.indices))[order] for k in self.fields if k in f}
             if targets is not None or "qdd" not in arrays:
                 if targets is None:
                     raise ValueError(f"{file.path} has no accelerations (measured recordings): set data.targets to a "
