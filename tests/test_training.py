@@ -3,7 +3,9 @@ non-finite steps, DDP, learning what an HNN on (q, qd) cannot. The data: test_da
 command line and configs: test_cli.py; compiled training: test_compile.py."""
 
 import glob
+import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import lightning as L
 import numpy as np
@@ -162,6 +164,34 @@ def test_learning_rate_ten_times_too_high_stays_finite(dataset, tmp_path):
     assert all(torch.isfinite(p).all() for p in model.parameters())
     q = torch.tensor([[0.3, -0.2]])
     assert torch.isfinite(model.acceleration(q, q, torch.tensor([[1.0, 0.5, 1.2, 1.3]]))).all()
+
+
+def _watch(losses):
+    """The warnings ``DivergenceWatch`` gives on a sequence of training losses."""
+    from lnn_torch.training.callbacks import DivergenceWatch
+
+    watch, trainer = DivergenceWatch(), SimpleNamespace(global_step=0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for step, loss in enumerate(losses):
+            trainer.global_step = step
+            watch.on_before_backward(trainer, SimpleNamespace(hparams={"lr": 0.02}), torch.tensor(loss))
+    return [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+
+
+def test_a_finite_divergence_is_warned_once_and_a_noisy_descent_is_not():
+    """A loss that falls to 1e-3 and then climbs to ~1 (a learning rate past the edge: finite, ~100 %
+    error) warns once, naming the step and the learning rate; a noisy descent with spikes tenfold above
+    its trend, or a loss that plateaus, does not."""
+    rng = np.random.default_rng(0)
+    steps = np.arange(3000)
+    descent = 10.0 ** (-3 * np.minimum(steps, 1000) / 1000)  # 1 -> 1e-3 over 1000 steps, then flat
+    diverged = np.where(steps < 1500, descent, 1.0) * np.exp(rng.normal(0, 0.3, steps.size))
+    caught = _watch(diverged)
+    assert len(caught) == 1 and "training diverged at step 15" in caught[0] and "model.lr, now 0.02" in caught[0]
+    spiky = descent * np.exp(rng.normal(0, 0.5, steps.size)) * np.where(rng.random(steps.size) < 0.01, 10.0, 1.0)
+    assert _watch(spiky) == []
+    assert _watch(np.full(3000, 0.5)) == []
 
 
 def test_training_conditions_once_per_chunk(dataset):

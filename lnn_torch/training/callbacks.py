@@ -1,10 +1,12 @@
 """Lightning callbacks: what training does beside its steps.
 
-``LNNModule.configure_callbacks`` adds the first four to every trainer that fits it (the module's
+``LNNModule.configure_callbacks`` adds the first five to every trainer that fits it (the module's
 behaviour, whatever trainer a user builds); the CLI's trainer defaults add the others:
 
 * ``SkipNonFiniteSteps``: a non-finite loss or gradient skips the optimiser step (counted in the
   module's ``skipped_steps`` and ``train/skipped_steps``); logs ``train/grad_norm`` and ``train/lr``;
+* ``DivergenceWatch``: warns once when the training loss's running mean rises far above its lowest
+  (a learning rate past the edge diverges to finite nonsense, which no skipped step shows);
 * ``HParamsSummary``: the hyper-parameters in TensorBoard's HParams tab, with the metric keys;
 * ``EvaluationFigures``: the figures of the validation's evaluation (``LNNModule.evaluation``) in
   TensorBoard, every ``figure_every_n_epochs`` validations and at the last;
@@ -27,6 +29,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_warn
 
 
 class PredictionWriter(BasePredictionWriter):
@@ -197,6 +200,40 @@ class SkipNonFiniteSteps(L.Callback):
             pl_module.log("train/grad_norm", norm, on_step=True, on_epoch=False)
         pl_module.log("train/skipped_steps", pl_module.skipped_steps.float(), on_step=True, on_epoch=False)
         pl_module.log("train/lr", optimizer.param_groups[0]["lr"], on_step=True, on_epoch=False)
+
+
+class DivergenceWatch(L.Callback):
+    """Warns once when training diverges without a non-finite value: a learning rate past the model's
+    edge can carry the weights to a finite state of ~100 % error (``results/quickstart_ablation.md``:
+    the quickstart at 2e-2), which no skipped step reveals. The training loss's running mean (over about
+    ``window`` steps) is watched from step ``window`` on; when it rises ``factor`` times above the lowest
+    it reached, the warning names the step, both values and what to do."""
+
+    def __init__(self, factor: float = 100.0, window: int = 50) -> None:
+        self.factor, self.window = float(factor), int(window)
+        self.mean = self.best = None
+        self.best_step, self.steps, self.warned = 0, 0, False
+
+    def on_before_backward(self, trainer, pl_module, loss) -> None:
+        value = float(loss.detach())
+        if self.warned or not math.isfinite(value):
+            return
+        self.steps += 1
+        rate = 1.0 / min(self.steps, self.window)
+        self.mean = value if self.mean is None else self.mean + rate * (value - self.mean)
+        if self.steps < self.window:
+            return
+        if self.best is None or self.mean < self.best:
+            self.best, self.best_step = self.mean, self.steps
+        elif self.mean > self.factor * self.best:
+            self.warned = True
+            step = getattr(trainer, "global_step", self.steps)
+            lr = dict(getattr(pl_module, "hparams", {})).get("lr")
+            since = self.steps - self.best_step
+            rank_zero_warn(f"training diverged at step {step}: the training loss's running mean {self.mean:.3g} is "
+                           f"{self.mean / self.best:.0f} times its lowest ({self.best:.3g}, {since} steps earlier); "
+                           f"lower the learning rate (model.lr{f', now {lr:g}' if lr else ''})",
+                           category=RuntimeWarning)
 
 
 def _plain_hparams(hparams: dict, prefix: str = "") -> dict:

@@ -23,7 +23,14 @@ from ..perf import configure_cpu
 from ..robots.description import compiled_copies
 from ..systems import get_system
 from . import checkpoint_format as ckpt
-from .callbacks import EvaluationFigures, HParamsSummary, SelectOnValidation, SkipNonFiniteSteps, writes_logs
+from .callbacks import (
+    DivergenceWatch,
+    EvaluationFigures,
+    HParamsSummary,
+    SelectOnValidation,
+    SkipNonFiniteSteps,
+    writes_logs,
+)
 from .losses import acceleration_batch_loss, trajectory_batch_loss
 from .optim import configure_optimizer, freeze_all_but, training_progress
 from .training_pass import TrainingPass
@@ -263,7 +270,7 @@ class LNNModule(L.LightningModule):
         return float(section_logs(result)[key])
 
     def configure_callbacks(self):
-        return [SkipNonFiniteSteps(), HParamsSummary(), EvaluationFigures(), SelectOnValidation()]
+        return [SkipNonFiniteSteps(), DivergenceWatch(), HParamsSummary(), EvaluationFigures(), SelectOnValidation()]
 
     def on_fit_start(self) -> None:
         configure_cpu()  # flush denormals, keep freed tensors in the heap (lnn_torch.perf)
