@@ -338,8 +338,11 @@ def _model_start(module) -> str:
     start, selection = module.classical_start, module.selection
     if start is None:
         return "The model started from its description (no classical start)."
-    text = (f"The model started from the physically consistent least-squares fit of its training split "
+    method = start.get("method", "physically consistent")
+    text = (f"The model started from the {method} least-squares fit of its training split "
             f"(prior {start['prior']:g}" + (", chosen on validation" if start.get("validation_rms_mean") else "")
+            + ("; the rows' weighting (as recorded, or per joint as weighted least squares) chosen on validation"
+               if start.get("validation_rms_mean") else "")
             + (f"; friction {start['form']}, chosen on validation among {start['drive']} and its terms"
                if start.get("form_selection") else "") + ")")
     if selection is not None:

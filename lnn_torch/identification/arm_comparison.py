@@ -24,6 +24,8 @@ from ..mechanics.integrators import held, rk4_step
 from ..networks.calls import counting_failures
 
 METHODS = ("least squares", "weighted least squares", "physically consistent")
+# also available to ``fit_classical``: the physically consistent fit with the weighted fit's row weights
+WEIGHTED_CONSISTENT = "weighted physically consistent"
 
 
 def torque_errors(predicted: torch.Tensor, measured: torch.Tensor, names) -> dict:
@@ -44,7 +46,8 @@ def arm_chain(system):
 
 def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
                   prior=None, val=None, chain=None) -> dict:
-    """The classical fits ``{label: ArmModel}`` of ``methods`` with the drive model ``drive`` on ``train``
+    """The classical fits ``{label: ArmModel}`` of ``methods`` (of ``METHODS`` and ``WEIGHTED_CONSISTENT``) with
+    the drive model ``drive`` on ``train``
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
     time in ``info["fit_seconds"]``. The physically consistent fit's prior: ``prior`` (a value), or chosen
     among ``prior`` (a sequence; None: ``classical_arm.PRIORS``) on the validation data ``val`` (as
@@ -68,9 +71,14 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
     fits, out = {}, {}
     for method in methods:
         start = time.perf_counter()
-        if method == "physically consistent":
-            fits[method] = classical.consistent_fit(chain, *X, drive=drive, prior=prior, validation=validation,
-                                                    start=fits.get("least squares"))
+        if method in ("physically consistent", WEIGHTED_CONSISTENT):
+            weights = None
+            if method == WEIGHTED_CONSISTENT:  # each joint's rows divided by its ordinary residual's spread
+                weighted = fits.get("weighted least squares") or classical.least_squares(chain, *X, drive=drive,
+                                                                                         weighted=True)
+                weights = weighted.weights
+            fits[method] = classical.consistent_fit(chain, *X, drive=drive, weights=weights, prior=prior,
+                                                    validation=validation, start=fits.get("least squares"))
         else:
             fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))
         fits[method].info["fit_seconds"] = time.perf_counter() - start

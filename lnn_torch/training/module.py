@@ -246,7 +246,8 @@ class LNNModule(L.LightningModule):
         chosen = "" if scores is None else f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there)"
         form = s.get("form", s["drive"])
         form = form if form == s["drive"] else f"{form}, the form validation chose among {s['drive']} and its terms"
-        print(f"classical start: the physically consistent least-squares fit ({form}; prior {s['prior']:g}"
+        method = s.get("method", "physically consistent")
+        print(f"classical start: the {method} least-squares fit ({form}; prior {s['prior']:g}"
               f"{chosen}; {s['fit_seconds']:.1f} s)")
 
     @property
