@@ -73,10 +73,12 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
         start = time.perf_counter()
         if method in ("physically consistent", WEIGHTED_CONSISTENT):
             weights = None
-            if method == WEIGHTED_CONSISTENT:  # each joint's rows divided by its ordinary residual's spread
+            if method == WEIGHTED_CONSISTENT:  # each joint's rows divided by its ordinary residual's spread,
                 weighted = fits.get("weighted least squares") or classical.least_squares(chain, *X, drive=drive,
                                                                                          weighted=True)
-                weights = weighted.weights
+                # scaled to a mean square of one: the weights shape the joints' shares, not the error's size
+                # against the prior (noise-free data would otherwise weigh it 1e12 times and stall the solver)
+                weights = weighted.weights / np.sqrt(np.mean(np.square(weighted.weights)))
             fits[method] = classical.consistent_fit(chain, *X, drive=drive, weights=weights, prior=prior,
                                                     validation=validation, start=fits.get("least squares"))
         else:
