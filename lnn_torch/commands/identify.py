@@ -342,7 +342,7 @@ def _model_start(module) -> str:
     text = (f"The model started from the {method} least-squares fit of its training split "
             f"(prior {start['prior']:g}" + (", chosen on validation" if start.get("validation_rms_mean") else "")
             + ("; the rows' weighting (as recorded, or per joint as weighted least squares) chosen on validation"
-               if start.get("validation_rms_mean") else "")
+               if start.get("weighting_selection") else "")
             + (f"; friction {start['form']}, chosen on validation among {start['drive']} and its terms"
                if start.get("form_selection") else "") + ")")
     if selection is not None:

@@ -81,6 +81,7 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
                 weights = weighted.weights / np.sqrt(np.mean(np.square(weighted.weights)))
             fits[method] = classical.consistent_fit(chain, *X, drive=drive, weights=weights, prior=prior,
                                                     validation=validation, start=fits.get("least squares"))
+            fits[method].method = method
         else:
             fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))
         fits[method].info["fit_seconds"] = time.perf_counter() - start

@@ -447,8 +447,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         friction = {k: v.detach().numpy() for k, v in values.items() if k != "b"}
         if "b" in values:
             friction["b"] = values["b"].detach().numpy()
-        method = "physically consistent" if weights is None else "weighted physically consistent"
-        return ArmModel(chain, drive, method, friction, pi=pi.detach().numpy(),
+        return ArmModel(chain, drive, "physically consistent", friction, pi=pi.detach().numpy(),
                         weights=None if weights is None else np.asarray(weights),
                         info={"prior": strength, "iterations": int(sol.nit), "converged": bool(sol.success)}), values
 
