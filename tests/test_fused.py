@@ -39,7 +39,8 @@ def _model(scene, rng, **kw):
     ("mass_spring", {"hidden_dims": (16, 16)}),  # coordinates that are not angles
     ("pendulum", {"hidden_dims": (16, 16)}),
 ])
-def test_fused_path_equals_the_parts(scene, kw, rng):
+@pytest.mark.parametrize("batch", [1, 32])  # products with few outputs: as they are at 1, transposed at 32
+def test_fused_path_equals_the_parts(scene, kw, batch, rng):
     """Accelerations (SI) and a rollout under ``no_grad`` (the fused path) equal the part-by-part path
     to 1e-12 in float64."""
     import copy
@@ -47,8 +48,8 @@ def test_fused_path_equals_the_parts(scene, kw, rng):
     model, system = _model(scene, rng, **kw)
     assert fusable(model)
     reference = plain(copy.deepcopy(model))
-    q, qd, params = random_batch(system, rng, 32)
-    tau = random_inputs(system, rng, 32)
+    q, qd, params = random_batch(system, rng, batch)
+    tau = random_inputs(system, rng, batch)
     with torch.no_grad():
         got = model.acceleration(q, qd, params, tau)
         assert model._fusion_plan is not None  # it ran fused

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch.optim.optimizer import register_optimizer_step_post_hook
 
-from ._kernels import sigmoid_backward, sigmoid_form_film
+from ._kernels import SKINNY, mm_t, sigmoid_backward, sigmoid_form_film
 from .normalization import trusted
 
 # Optimiser steps taken in this process, by any ``torch.optim`` optimiser: a step may change the weights
@@ -52,7 +52,9 @@ class FusionPlan:
     layers' sigmoid form: ``s = sigmoid(2 z)``); layer 0's kinetic rows for the parameters are zero (that
     network reads the features alone). ``kinetic_first (F, H)``: layer 0's kinetic weights on the
     features (the tangents' first product). ``out (2, H, m)``, ``out_bias (2, 1, m)``: the Cholesky
-    entries scattered into the ``dof^2`` matrix (``m = dof^2``) and the potential in column 0.
+    entries scattered into the ``dof^2`` matrix (``m = dof^2``) and the potential in column 0;
+    ``out_t (2, m, H)``, ``out_bias_t (2, m, 1)``: the same transposed (a product with few output
+    columns is computed as ``(W @ h.T).T``, as ``_kernels.mm_t`` does).
     FiLM: ``film_in (2, P, h)``, ``film_in_bias (2, 1, h)``, ``film_out (2, h, 2 S)``, ``film_out_bias
     (2, 1, 2 S)`` in sigmoid form (``[2 gamma | beta - gamma]``, ``S`` the hidden widths' sum)."""
 
@@ -66,6 +68,8 @@ class FusionPlan:
     kinetic_first: torch.Tensor
     out: torch.Tensor
     out_bias: torch.Tensor
+    out_t: torch.Tensor
+    out_bias_t: torch.Tensor
     film_in: torch.Tensor
     film_in_bias: torch.Tensor
     film_out: torch.Tensor
@@ -163,6 +167,7 @@ def _stack(model, sources) -> FusionPlan:
     return FusionPlan(_state(sources), _optimizer_steps, sources, (model._kinetic_parts, model._potential_parts),
                       tuple(kin.hidden_dims), tuple(weights), tuple(biases),
                       2 * kn.hidden[0].weight.to(**cast)[:, :num_features].t().contiguous(), out, out_bias,
+                      out.transpose(1, 2).contiguous(), out_bias.transpose(1, 2).contiguous(),
                       torch.stack(film_in).contiguous(), torch.stack(film_in_bias).contiguous(),
                       torch.stack(film_out).contiguous(), torch.stack(film_out_bias).contiguous())
 
@@ -173,6 +178,14 @@ def fused_films(plan: FusionPlan, params_norm: torch.Tensor) -> torch.Tensor:
     cond = trusted(params_norm)
     hidden = F.silu(torch.baddbmm(plan.film_in_bias, cond.expand(2, *cond.shape), plan.film_in))
     return torch.baddbmm(plan.film_out_bias, hidden, plan.film_out)
+
+
+def _stacked_out(plan: FusionPlan, h: torch.Tensor) -> torch.Tensor:
+    """Both networks' output layers on their last hidden activations ``h (2, B, H)``: ``(2, B, m)``; with
+    few outputs (``m <= SKINNY < B``) as ``(W @ h.T).T`` (a transposed view), as ``_kernels.mm_t``."""
+    if plan.out.shape[-1] <= SKINNY < h.shape[1]:
+        return torch.baddbmm(plan.out_bias_t, plan.out_t, h.transpose(1, 2)).transpose(1, 2)
+    return torch.baddbmm(plan.out_bias, h, plan.out)
 
 
 def fused_solve(model, plan: FusionPlan, q_norm, qd_norm, params_norm, films: torch.Tensor | None = None,
@@ -195,17 +208,17 @@ def fused_solve(model, plan: FusionPlan, q_norm, qd_norm, params_norm, films: to
         gains.append(sigmoid_backward(gamma2, s))  # d h_next / d z (with the 2 of z in the weights)
         h = torch.addcmul(shift, gamma2, s)
         offset += width
-    out = torch.baddbmm(plan.out_bias, h, plan.out)  # (2, B, dof^2)
+    out = _stacked_out(plan, h)  # (2, B, dof^2)
     # the Cholesky MLP's tangents along each coordinate (forward), the potential's gradient (reverse)
     dof, B = dphi.shape[0], x.shape[0]
     dh = (torch.mm(dphi.reshape(dof * B, -1), plan.kinetic_first).view(dof, B, -1) * gains[0][0])
     for weight, gain in zip(plan.weights[1:], gains[1:], strict=True):
         dh = torch.mm(dh.view(dof * B, -1), weight[0]).view(dof, B, -1) * gain[0]
-    draw = torch.mm(dh.view(dof * B, -1), plan.out[0]).view(dof, B, -1)
+    draw = mm_t(dh.view(dof * B, -1), plan.out_t[0]).view(dof, B, -1)
     delta = plan.out[1, :, 0]  # (H,): dV/dh_L
     for i in range(len(plan.weights) - 1, -1, -1):
-        weight = plan.weights[i][1] if i else plan.weights[0][1, : phi.shape[-1]]
-        delta = torch.mm(delta * gains[i][1], weight.t())
+        weight = plan.weights[i][1] if i else plan.weights[0][1, : phi.shape[-1]]  # (n_in, H)
+        delta = mm_t(delta * gains[i][1], weight)
     dV = model.features_vjp(q_norm, delta, sin_cos)
     chol, dchol = chol_from(out[0], draw, model._kinetic_parts[0].diag, model._kinetic_parts[0].diag_shift, dof)
     return structured_acceleration_from_factor(chol, dchol, qd_norm, dV, model.eps, force=force)
