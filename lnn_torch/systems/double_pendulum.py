@@ -25,6 +25,10 @@ Wider training distributions (off by default): ``param_margin`` widens the ratio
 that fraction at both ends; ``whole_circle: {fraction, omega}`` draws that fraction of the initial states
 over the whole circle with rates up to ``omega`` rad/s. The regimes (``regimes``) stay those of the box
 and ranges above.
+
+Model features: besides ``sin``/``cos`` of both angles, models read those of the relative angle
+``theta1 - theta2`` (``angle_combinations``), on which the mass matrix alone depends (``relative_angle``,
+on by default; checkpoints saved before it existed load with it off, as they were trained).
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ class DoublePendulum(System):
         joint_damping=(0.0, 0.0),
         param_margin: float = 0.0,
         whole_circle: dict | None = None,
+        relative_angle: bool = True,
     ) -> None:
         if not (math.isfinite(m1_log_std) and m1_log_std >= 0):
             raise InputError(f"double_pendulum: m1_log_std must be >= 0, got {m1_log_std}")
@@ -86,6 +91,9 @@ class DoublePendulum(System):
         self.circle_fraction, self.circle_omega = float(circle.get("fraction", 0.0)), float(circle.get("omega", 6.0))
         if not (0 <= self.circle_fraction <= 1 and self.circle_omega > 0):
             raise InputError(f"double_pendulum: whole_circle needs fraction in [0, 1] and omega > 0, got {circle}")
+        if not isinstance(relative_angle, bool):
+            raise InputError(f"double_pendulum: relative_angle must be true or false, got {relative_angle!r}")
+        self.relative_angle = relative_angle
         try:
             self.joint_damping = tuple(float(b) for b in joint_damping)
         except (TypeError, ValueError):
@@ -106,6 +114,7 @@ class DoublePendulum(System):
             **({"param_margin": self.param_margin} if self.param_margin else {}),
             **({"whole_circle": {"fraction": self.circle_fraction, "omega": self.circle_omega}}
                if self.circle_fraction else {}),
+            **({} if self.relative_angle else {"relative_angle": False}),
         }
 
     def sample_params(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -127,6 +136,11 @@ class DoublePendulum(System):
             q = np.where(pick[:, None], rng.uniform(-math.pi, math.pi, (n, 2)), q)
             qd = np.where(pick[:, None], rng.uniform(-self.circle_omega, self.circle_omega, (n, 2)), qd)
         return q, qd
+
+    def angle_combinations(self):
+        """The relative angle ``theta1 - theta2`` (the kinetic energy's coupling ``cos(theta1 - theta2)``), a
+        feature angle of models unless ``relative_angle`` is off."""
+        return torch.tensor([[1.0, -1.0]], dtype=torch.float64) if self.relative_angle else None
 
     # ------------------------------------------------------------------ joint damping (optional)
     @property

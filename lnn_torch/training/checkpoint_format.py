@@ -20,7 +20,9 @@ DESCRIPTION_COPIES = "robot_descriptions"
 
 # The layout of what ``LNNModule`` saves (``stamp``): raised when a change makes older code unable to
 # read new checkpoints, so that such code refuses them in one line instead of failing inside.
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2
+# format 2: the double pendulum's models read the relative angle too (``DoublePendulum(relative_angle=True)``);
+# a checkpoint of format 1 or unstamped was trained without it (``scene_config_of_old``)
 
 # ---------------------------------------------------------------------------- old checkpoints
 # What ``LNNModule`` needs to load checkpoints saved by earlier versions with the weights they were
@@ -60,6 +62,17 @@ def old_default_widths(hparams) -> list | None:
     it recorded its widths or its variant's default never changed."""
     old = _OLD_DEFAULT_WIDTHS.get(hparams["variant"])
     return old if hparams.get("hidden_dims") is None else None
+
+
+def scene_config_of_old(checkpoint: dict, hparams) -> dict | None:
+    """The scene configuration a checkpoint of an earlier format was trained with where it differs from
+    what its hyper-parameters now build: a double pendulum saved before format 2 had no relative-angle
+    feature (``relative_angle: false``). None where the checkpoint builds as it was trained."""
+    fmt = int(checkpoint.get("lnn_torch", {}).get("format", 0))
+    config = dict(hparams.get("scene_config") or {})
+    if fmt >= 2 or hparams.get("scene", "double_pendulum") != "double_pendulum" or "relative_angle" in config:
+        return None
+    return {**config, "relative_angle": False}
 
 
 def stamp(checkpoint: dict) -> None:

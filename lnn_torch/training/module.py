@@ -145,11 +145,19 @@ class LNNModule(L.LightningModule):
         ckpt.stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        """A checkpoint that recorded no widths was trained with the variant's old default widths."""
+        """A checkpoint of an earlier format is built as it was trained: the variant's old default widths
+        where it recorded none, the scene's features of then (``checkpoint_format.scene_config_of_old``)."""
         old = ckpt.old_default_widths(self.hparams)
+        scene_config = ckpt.scene_config_of_old(checkpoint, self.hparams)
+        if scene_config is not None:
+            self.hparams.scene_config = scene_config
+            self.system = get_system(self.hparams.scene, **scene_config)
         if old is not None:
             self.hparams.hidden_dims = list(old)
-            self.model = build_model(self.hparams.variant, self.system, **{**self._model_options, "hidden_dims": old})
+            self._model_options = {**self._model_options, "hidden_dims": old}
+        if old is not None or scene_config is not None:
+            self.model = build_model(self.hparams.variant, self.system, **self._model_options)
+            freeze_all_but(self.model, self.hparams.get("train_only"), self.hparams.get("init_from"))
         start = checkpoint.get("classical_start")
         if start is not None:  # the refinement's prior pulls towards the start (a resumed run goes on so)
             self.classical_start = {k: v for k, v in start.items() if k != "anchor_J"}
