@@ -295,6 +295,37 @@ def test_checkpoints_record_their_widths_and_old_ones_load_with_the_old_default(
         torch.testing.assert_close(loaded.acceleration(q, qd, params), old.acceleration(q, qd, params))
 
 
+def test_a_double_pendulum_checkpoint_of_format_1_loads_without_the_relative_angle(dataset, tmp_path):
+    """Checkpoints of format 2 on read sin/cos of theta1 - theta2 too (6 features); one of format 1 (or
+    unstamped) was trained on the absolute angles alone (4) and loads so, with its own weights, recording
+    ``relative_angle: false`` from then on."""
+    new = LNNModule(val_rollouts=0, hidden_dims=[16, 16], compile=False)
+    assert new.model.angle_features.num_features == 6
+    old = LNNModule(val_rollouts=0, hidden_dims=[16, 16], compile=False, scene_config={"relative_angle": False})
+    assert old.model.angle_features.num_features == 4
+    trainer = quiet_trainer(tmp_path, max_steps=2, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    trainer.fit(old, make_dm(dataset))
+    trainer.save_checkpoint(tmp_path / "old.ckpt")
+    ckpt = torch.load(tmp_path / "old.ckpt", weights_only=False)
+    ckpt["hyper_parameters"]["scene_config"] = None  # as LNNModule() recorded it before format 2
+    q, qd, params = torch.zeros(3, 2) + 0.3, torch.ones(3, 2), torch.tensor([[1.0, 0.6, 1.2, 1.1]]).expand(3, -1)
+    for stamp in ({"version": "0.1.0", "format": 1}, None):
+        if stamp is None:
+            ckpt.pop("lnn_torch")
+        else:
+            ckpt["lnn_torch"] = stamp
+        torch.save(ckpt, tmp_path / "old.ckpt")
+        loaded = LNNModule.load_from_checkpoint(tmp_path / "old.ckpt")
+        assert loaded.model.angle_features.num_features == 4
+        assert loaded.hparams.scene_config == {"relative_angle": False}
+        with torch.no_grad():
+            torch.testing.assert_close(loaded.acceleration(q, qd, params), old.acceleration(q, qd, params))
+    ckpt["lnn_torch"] = {"version": "0.1.0", "format": 2}  # the same file as format 2 holds other weights
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    with pytest.raises(RuntimeError, match="size mismatch"):
+        LNNModule.load_from_checkpoint(tmp_path / "old.ckpt")
+
+
 def test_init_from_starts_a_run_from_a_checkpoints_weights_and_normaliser_with_a_fresh_schedule(dataset, tmp_path):
     """``init_from``: the weights and normaliser of a checkpoint start the run (its normaliser altered
     here so that a refit on the data would differ), the learning rate starts at ``lr`` again and the

@@ -43,6 +43,10 @@ class AngleFeatures(nn.Module):
             if C.shape[1] != dof or (C[:, linear] != 0).any():
                 raise InputError(f"angle_combinations must be rows of {dof} coefficients over angle coordinates only")
             G = torch.cat([G, C])
+        # a combination of integer coefficients (e.g. q1 - q2) takes its sin/cos from the coordinates' own
+        # by angle addition: exact to rounding at any angle, where the sum itself is rounded (in float32
+        # at 1e4 rad, by ~1e-3 rad). Each row: (angle column, +1/-1) once per unit of its coefficients.
+        self.combo_terms = _integer_terms(G[len(angles):], angles) if angle_combinations else None
         self.register_buffer("sel_angle", G.T.contiguous(), persistent=False)
         self.register_buffer("sel_linear", torch.eye(dof)[:, linear], persistent=False)
         self.num_features = 2 * G.shape[0] + len(linear)
@@ -58,6 +62,31 @@ class AngleFeatures(nn.Module):
             return q_norm @ self.sel_angle.to(q_norm.dtype)
         return q_norm[..., self.angle_idx]
 
+    def sin_cos(self, q_norm: torch.Tensor):
+        """``sin`` and ``cos`` of the feature angles ``(B, n_feature_angles)`` each: of the angle coordinates,
+        then of the combinations, from the coordinates' own by angle addition where the coefficients are
+        integers (``combo_terms``), else of the combined angle."""
+        if self.combo_terms is None:
+            qa = self.angles(q_norm)
+            if qa.device.type != "cpu":
+                qa = wrap_angle(qa)
+            return torch.sin(qa), torch.cos(qa)
+        qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+        if qa.device.type != "cpu":
+            qa = wrap_angle(qa)
+        s, c = torch.sin(qa), torch.cos(qa)
+        ss, cs = [s], [c]
+        for terms in self.combo_terms:
+            (i, sign), rest = terms[0], terms[1:]
+            sr, cr = (s[..., i:i + 1], c[..., i:i + 1]) if sign > 0 else (-s[..., i:i + 1], c[..., i:i + 1])
+            for i, sign in rest:  # sin(a + b) = sa cb + ca sb, cos(a + b) = ca cb - sa sb
+                si, ci = s[..., i:i + 1], c[..., i:i + 1]
+                si = si if sign > 0 else -si
+                sr, cr = sr * ci + cr * si, cr * ci - sr * si
+            ss.append(sr)
+            cs.append(cr)
+        return torch.cat(ss, -1), torch.cat(cs, -1)
+
     def compute(self, q_norm: torch.Tensor, tangents: bool = False):
         """``(phi (B, F), dphi (dof, B, F) or None, (sin, cos))``: the features, their tangents ``d phi /
         d q_k`` if asked, and ``sin``/``cos`` of the feature angles (reused by ``vjp``).
@@ -67,10 +96,7 @@ class AngleFeatures(nn.Module):
         angles are first wrapped to [-pi, pi) in float64 (``lnn_torch.mechanics.angles.wrap_angle``), in case a
         device kernel reduces large arguments inexactly. The dynamics and rollouts never see wrapped
         angles."""
-        qa = self.angles(q_norm)
-        if qa.device.type != "cpu":
-            qa = wrap_angle(qa)
-        s, c = torch.sin(qa), torch.cos(qa)
+        s, c = self.sin_cos(q_norm)
         phi = torch.cat([s, c] if self.all_angles else [s, c, q_norm[..., self.linear_idx]], -1)
         if not tangents:
             return phi, None, (s, c)
@@ -84,8 +110,7 @@ class AngleFeatures(nn.Module):
         """Pull a feature gradient ``(B, F)`` back to the coordinates ``(B, dof)``."""
         na = self.sel_angle.shape[1]
         if sin_cos is None:
-            qa = self.angles(q_norm)
-            sin_cos = torch.sin(qa), torch.cos(qa)
+            sin_cos = self.sin_cos(q_norm)
         s, c = sin_cos
         g_angle = g_phi[..., :na] * c - g_phi[..., na : 2 * na] * s
         if self.plain_angles:
@@ -94,3 +119,16 @@ class AngleFeatures(nn.Module):
         if not self.all_angles:
             out = out + g_phi[..., 2 * na :] @ self.sel_linear.to(g_phi.dtype).T
         return out
+
+
+def _integer_terms(rows: torch.Tensor, angles: list[int]):
+    """Each combination row's coefficients over the angle coordinates as a list of ``(angle column, +1 or
+    -1)``, one per unit of each coefficient (``[1, -1]`` -> ``[(0, 1), (1, -1)]``); None where a
+    coefficient is not an integer (those combinations are formed as angles)."""
+    out = []
+    for row in rows.tolist():
+        coeffs = [row[i] for i in angles]
+        if any(x != round(x) for x in coeffs) or not any(coeffs):
+            return None
+        out.append([(j, 1 if x > 0 else -1) for j, x in enumerate(coeffs) for _ in range(abs(round(x)))])
+    return out
