@@ -195,10 +195,12 @@ def test_conservative_scenes_build_no_forces_and_zero_dissipation_is_the_conserv
     """A model of a conservative scene has no force module (its parameter count is the one of a model
     without forces); a model of the forced scene with its friction coefficients at exactly zero and
     zero inputs accelerates like its own conservative solve, to the bit."""
-    dp = get_system("double_pendulum")
-    model = build_model("film_lnn", dp, hidden_dims=(128, 128))
-    assert model.forces is None and not any("forces" in k for k in model.state_dict())
-    assert sum(p.numel() for p in model.parameters()) == 52_899  # the count before forces existed (128 x 128)
+    for relative_angle, count in ((False, 52_899), (True, 52_899 + 2 * 2 * 128)):
+        dp = get_system("double_pendulum", relative_angle=relative_angle)
+        model = build_model("film_lnn", dp, hidden_dims=(128, 128))
+        assert model.forces is None and not any("forces" in k for k in model.state_dict())
+        # the count before forces existed (128 x 128); the relative angle adds two inputs to each network
+        assert sum(p.numel() for p in model.parameters()) == count
     forced = perturbed(build_model("film_lnn", ADP, hidden_dims=(16, 16)).double(), scale=0.1)
     fitted(forced, ADP, rng)
     with torch.no_grad():
