@@ -38,12 +38,19 @@ def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> 
     return torch.mm(x, weight.t()) if bias is None else torch.addmm(bias, x, weight.t())
 
 
+def transposed(outputs: int, rows: int) -> bool:
+    """Whether a product with ``outputs`` output columns over ``rows`` rows is computed as ``(W @ x.T).T``
+    (``mm_t``; the fused path's stacked output layers): few outputs (``<= SKINNY``) and more rows than
+    that, or any rows under ``torch.export`` (a program for every batch size: no branch on the batch)."""
+    return outputs <= SKINNY and (torch.compiler.is_exporting() or SKINNY < rows)
+
+
 def mm_t(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """``x @ weight.T`` for ``x (B, k)``, ``weight (n, k)``; with few outputs (``n <= SKINNY < B``)
     computed as ``(weight @ x.T).T`` (a transposed view): single-thread BLAS kernels for a skinny
     right-hand side are slow on the CPUs measured. Under ``torch.export`` (a program for every batch
     size: no branch on the batch) the transposed form whenever ``n <= SKINNY``."""
-    if weight.shape[0] <= SKINNY and (torch.compiler.is_exporting() or SKINNY < x.shape[0]):
+    if transposed(weight.shape[0], x.shape[0]):
         return torch.mm(weight, x.t()).t()
     return torch.mm(x, weight.t())
 

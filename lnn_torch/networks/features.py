@@ -68,20 +68,22 @@ class AngleFeatures(nn.Module):
         integers (``combo_terms``), else of the combined angle."""
         if self.combo_terms is None:
             qa = self.angles(q_norm)
-            if qa.device.type != "cpu":
-                qa = wrap_angle(qa)
-            return torch.sin(qa), torch.cos(qa)
-        qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
+        else:
+            qa = q_norm if self.all_angles else q_norm[..., self.angle_idx]
         if qa.device.type != "cpu":
             qa = wrap_angle(qa)
         s, c = torch.sin(qa), torch.cos(qa)
+        if self.combo_terms is None:
+            return s, c
+
+        def unit(i, sign):  # sin and cos of +-(angle column i)
+            return (s[..., i:i + 1] if sign > 0 else -s[..., i:i + 1]), c[..., i:i + 1]
+
         ss, cs = [s], [c]
-        for terms in self.combo_terms:
-            (i, sign), rest = terms[0], terms[1:]
-            sr, cr = (s[..., i:i + 1], c[..., i:i + 1]) if sign > 0 else (-s[..., i:i + 1], c[..., i:i + 1])
-            for i, sign in rest:  # sin(a + b) = sa cb + ca sb, cos(a + b) = ca cb - sa sb
-                si, ci = s[..., i:i + 1], c[..., i:i + 1]
-                si = si if sign > 0 else -si
+        for first, *rest in self.combo_terms:
+            sr, cr = unit(*first)
+            for term in rest:  # sin(a + b) = sa cb + ca sb, cos(a + b) = ca cb - sa sb
+                si, ci = unit(*term)
                 sr, cr = sr * ci + cr * si, cr * ci - sr * si
             ss.append(sr)
             cs.append(cr)

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch.optim.optimizer import register_optimizer_step_post_hook
 
-from ._kernels import SKINNY, mm_t, sigmoid_backward, sigmoid_form_film
+from ._kernels import mm_t, sigmoid_backward, sigmoid_form_film, transposed
 from .normalization import trusted
 
 # Optimiser steps taken in this process, by any ``torch.optim`` optimiser: a step may change the weights
@@ -182,8 +182,8 @@ def fused_films(plan: FusionPlan, params_norm: torch.Tensor) -> torch.Tensor:
 
 def _stacked_out(plan: FusionPlan, h: torch.Tensor) -> torch.Tensor:
     """Both networks' output layers on their last hidden activations ``h (2, B, H)``: ``(2, B, m)``; with
-    few outputs (``m <= SKINNY < B``) as ``(W @ h.T).T`` (a transposed view), as ``_kernels.mm_t``."""
-    if plan.out.shape[-1] <= SKINNY < h.shape[1]:
+    few outputs as ``(W @ h.T).T`` (a transposed view), as ``_kernels.mm_t`` (``_kernels.transposed``)."""
+    if transposed(plan.out.shape[-1], h.shape[1]):
         return torch.baddbmm(plan.out_bias_t, plan.out_t, h.transpose(1, 2)).transpose(1, 2)
     return torch.baddbmm(plan.out_bias, h, plan.out)
 
