@@ -324,6 +324,15 @@ def test_a_double_pendulum_checkpoint_of_format_1_loads_without_the_relative_ang
     torch.save(ckpt, tmp_path / "old.ckpt")
     with pytest.raises(RuntimeError, match="size mismatch"):
         LNNModule.load_from_checkpoint(tmp_path / "old.ckpt")
+    # starting a run with the relative angle from it is refused with the setting that fits named
+    ckpt["lnn_torch"] = {"version": "0.1.0", "format": 1}
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    from lnn_torch.errors import CheckpointError
+    from lnn_torch.training.checkpoint_format import load_start_weights
+
+    with pytest.raises(CheckpointError, match="without the relative-angle feature.*relative_angle: false"):
+        load_start_weights(LNNModule(val_rollouts=0, hidden_dims=[16, 16], compile=False), tmp_path / "old.ckpt")
+    load_start_weights(old, tmp_path / "old.ckpt")  # the model without it takes its weights
 
 
 def test_init_from_starts_a_run_from_a_checkpoints_weights_and_normaliser_with_a_fresh_schedule(dataset, tmp_path):
