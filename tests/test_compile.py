@@ -32,14 +32,30 @@ def test_compiled_dynamics_equal_eager(rng):
         q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
     torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
-    assert model._compile is True and set(model._compiled) == {"_acceleration_whole", "_rollout_step"}
+    torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=1e-5, atol=1e-5)  # autograd
+    # without a gradient the fused path is compiled (its stacked weights the program's inputs), with one the parts
+    assert model._compile is True and set(model._compiled) == {"_fused_whole", "_acceleration_whole", "_rollout_step"}
     assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
+    # weights changed in place after compilation: the compiled inference uses the new ones, not recompiled
+    from torch._dynamo.utils import counters
+
+    other = copy.deepcopy(model).compile_dynamics(False)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.mul_(1.05)
+        for p in other.parameters():
+            p.mul_(1.05)
+        graphs = counters["stats"]["unique_graphs"]
+        changed = model.acceleration(q[:1], qd[:1], params[:1])
+        assert counters["stats"]["unique_graphs"] == graphs
+        torch.testing.assert_close(changed, other.acceleration(q[:1], qd[:1], params[:1]), rtol=1e-5, atol=1e-5)
+        assert (changed - eager_accel[:1]).abs().max() > 1e-3
     # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
     from lnn_torch.perf import RECOMPILE_LIMIT
 
     assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT >= 32
     model.compile_dynamics(False)
-    torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=0, atol=0)
+    torch.testing.assert_close(model.acceleration(q, qd, params), other.acceleration(q, qd, params), rtol=0, atol=0)
 
 
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):

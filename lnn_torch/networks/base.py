@@ -293,7 +293,12 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
             self.check_inputs(q, qd, params, tau)
         # compiled, the whole call is one program: the normalisation too (about a dozen small operators, a
         # quarter of a batch-1 call when run eagerly around the compiled solve)
-        return self._run(self._acceleration_whole, q, qd, params, tau)
+        return self._run(*self._inference_call(q, qd, params, tau))
+
+    def _inference_call(self, q, qd, params, tau=None) -> tuple:
+        """``(fn, *args)`` that ``acceleration`` runs (compiled after ``compile_dynamics()``):
+        ``_acceleration_whole``; a model with a faster path for calls without a gradient gives it here."""
+        return self._acceleration_whole, q, qd, params, tau
 
     def _acceleration_whole(self, q, qd, params, tau=None):
         """``acceleration`` without its checks: SI in, SI out (what the compiled path compiles whole)."""

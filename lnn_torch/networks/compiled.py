@@ -98,4 +98,5 @@ class CompiledDynamics:
         if "_compiled" in state:
             state["_compiled"] = {}  # compiled code is rebuilt on first use (copies, pickles)
         state.pop("_fusion_plan", None)  # the fused path's stacked weights (networks.fused): restacked on use
+        state.pop("_fusion_view", None)
         return state

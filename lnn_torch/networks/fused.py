@@ -9,8 +9,10 @@ an eager call of a small network costs more in operators than in arithmetic (``r
 
 It computes exactly what the parts compute (tests compare the two in float64), from the model's
 weights stacked once and cached until a weight changes (``fusion_plan`` says what it sees): inference only, so the
-model uses it where no gradient is recorded (``torch.no_grad``, ``torch.inference_mode``) and not
-under ``torch.compile`` (which fuses the part-by-part path itself).
+model uses it where no gradient is recorded (``torch.no_grad``, ``torch.inference_mode``). Compiled
+(``compile_dynamics``), such a call compiles this path with the stacked weights as the program's inputs
+(``compiled_view``): a third faster than the compiled part-by-part path at batch 1 and 512
+(``results/speed``), since half the products remain to call.
 
     plan = fusion_plan(model)            # None where the model's composition is another
     qdd = fused_solve(model, plan, q_norm, qd_norm, params_norm)
@@ -18,6 +20,7 @@ under ``torch.compile`` (which fuses the part-by-part path itself).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -170,6 +173,18 @@ def _stack(model, sources) -> FusionPlan:
                       out.transpose(1, 2).contiguous(), out_bias.transpose(1, 2).contiguous(),
                       torch.stack(film_in).contiguous(), torch.stack(film_in_bias).contiguous(),
                       torch.stack(film_out).contiguous(), torch.stack(film_out_bias).contiguous())
+
+
+def compiled_view(model, plan: FusionPlan) -> FusionPlan:
+    """``plan`` as compiled code takes it: its stacked weights without the bookkeeping of ``fusion_plan``
+    (identities, versions, the parts), so that the compiler guards on the weights' shapes and dtypes alone
+    and a change of weights needs no recompilation (cached on the model with the plan it views)."""
+    cached = model.__dict__.get("_fusion_view")
+    if cached is not None and cached[0] is plan:
+        return cached[1]
+    view = dataclasses.replace(plan, key=(), steps=0, sources=(), parts=())
+    object.__setattr__(model, "_fusion_view", (plan, view))
+    return view
 
 
 def fused_films(plan: FusionPlan, params_norm: torch.Tensor) -> torch.Tensor:

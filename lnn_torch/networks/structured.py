@@ -35,7 +35,7 @@ from ..mechanics.euler_lagrange import structured_acceleration_from_factor
 from ..systems.base import GRAVITY
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
-from .fused import fused_films, fused_solve, fusion_plan
+from .fused import compiled_view, fused_films, fused_solve, fusion_plan
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 from .residual_force import ResidualForce
@@ -432,20 +432,36 @@ class StructuredLagrangian(DynamicsModel):
         return qdd, T + V, T, V
 
     def solve_norm(self, q_norm, qd_norm, params_norm, force_norm=None):
-        plan = self._fusion_plan_for(q_norm)
+        plan = self._fusion_plan_for(q_norm.dtype)
         if plan is not None:  # inference of the default composition: one stacked network (``fused``)
             return fused_solve(self, plan, q_norm, qd_norm, params_norm, force=force_norm)
         return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False, force=force_norm)
 
-    def _fusion_plan_for(self, q_norm):
+    def _fusion_plan_for(self, dtype: torch.dtype):
         """The stacked weights of ``fused`` where they apply to this call: ``fuse_inference`` on, no
-        gradient recorded, not compiling (the compiler fuses the parts itself), inputs in the model's dtype;
-        else None."""
+        gradient recorded, not compiling or exporting (compiled code takes the plan as an input:
+        ``_inference_call``), inputs of ``dtype`` the model's; else None."""
         if (not self.fuse_inference or torch.is_grad_enabled() or torch.compiler.is_compiling()
                 or torch.compiler.is_exporting() or torch.jit.is_tracing()):
             return None
         plan = fusion_plan(self)
-        return plan if plan is not None and plan.weights[0].dtype == q_norm.dtype else None
+        return plan if plan is not None and plan.weights[0].dtype == dtype else None
+
+    def _inference_call(self, q, qd, params, tau=None) -> tuple:
+        """Compiled and without a gradient, the fused path with the stacked weights as the compiled
+        program's inputs (``_fused_whole``); else ``DynamicsModel._inference_call``."""
+        if self._compile is True and not torch.compiler.is_compiling():
+            plan = self._fusion_plan_for(self.dtype)
+            if plan is not None:
+                return self._fused_whole, q, qd, params, tau, compiled_view(self, plan)
+        return super()._inference_call(q, qd, params, tau)
+
+    def _fused_whole(self, q, qd, params, tau, plan):
+        """``_acceleration_whole`` through the fused path with the stacked weights ``plan`` given."""
+        extra = () if tau is None else (self.tau_norm(tau),)
+        params_norm = self.normalizer.params(params.to(self.dtype))
+        return self._acceleration_si(self._fused_acceleration_norm, q, qd, params_norm, plan,
+                                     fused_films(plan, params_norm), *extra)
 
     def acceleration_and_energy_norm(self, q_norm, qd_norm, params_norm, chunks: int | None = None, force_norm=None):
         """Accelerations and the model's own ``H = T + V``, ``T``, ``V`` from ONE pass of each network
@@ -471,6 +487,9 @@ class StructuredLagrangian(DynamicsModel):
         if not self._has_film:
             return super().rollout_conditioning(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
+        plan = self._fusion_plan_for(self.dtype)  # without a gradient: the fused path, its weights as inputs
+        if plan is not None:
+            return "_fused_acceleration_norm", params_norm, (compiled_view(self, plan), fused_films(plan, params_norm))
         return "_acceleration_norm_films", params_norm, (self.films(params_norm),)
 
     def acceleration_fn(self, params: torch.Tensor):
@@ -479,7 +498,7 @@ class StructuredLagrangian(DynamicsModel):
         if not self._has_film:
             return super().acceleration_fn(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
-        plan = None if self._compile is True else self._fusion_plan_for(params_norm)
+        plan = None if self._compile is True else self._fusion_plan_for(params_norm.dtype)
         fused = None if plan is None else fused_films(plan, params_norm)
         films = None
 
@@ -488,7 +507,7 @@ class StructuredLagrangian(DynamicsModel):
             if params_ is not params:
                 raise InputError("acceleration_fn(params) was called with other parameters than its own")
             extra = () if tau is None else (self.tau_norm(tau),)
-            if fused is not None and self._fusion_plan_for(params_norm) is plan:  # the same weights, no gradient
+            if fused is not None and self._fusion_plan_for(params_norm.dtype) is plan:  # the same weights, no gradient
                 return self._acceleration_si(self._fused_acceleration_norm, q, qd, params_norm, plan, fused, *extra)
             films = self.films(params_norm) if films is None else films
             return self._acceleration_si(self._acceleration_norm_films, q, qd, params_norm, films, *extra)
