@@ -15,10 +15,11 @@ from .helpers import make_dm, perturbed, quiet_trainer
 
 
 @pytest.mark.slow
-def test_compiled_dynamics_equal_eager(rng):
+def test_compiled_dynamics_equal_eager(rng, monkeypatch):
     """compile_dynamics(): accelerations and a rollout through torch.compile (C++ wrapper) equal the
     eager ones, at batch sizes 1 and 5, under no_grad and with autograd; the compiled code is
-    dropped by copies."""
+    dropped by copies. Without a gradient the fused path is compiled up to ``COMPILED_MAX_ROWS`` rows,
+    the part-by-part path above (and with a gradient)."""
     import copy
 
     system = get_system("double_pendulum")
@@ -50,6 +51,13 @@ def test_compiled_dynamics_equal_eager(rng):
         assert counters["stats"]["unique_graphs"] == graphs
         torch.testing.assert_close(changed, other.acceleration(q[:1], qd[:1], params[:1]), rtol=1e-5, atol=1e-5)
         assert (changed - eager_accel[:1]).abs().max() > 1e-3
+        from lnn_torch.networks import structured
+
+        monkeypatch.setattr(structured, "COMPILED_MAX_ROWS", 4)  # batch 5 is above it: the parts, compiled
+        wide = copy.deepcopy(model).compile_dynamics(True)
+        torch.testing.assert_close(wide.acceleration(q, qd, params), other.acceleration(q, qd, params),
+                                   rtol=1e-5, atol=1e-5)
+        assert set(wide._compiled) == {"_acceleration_whole"}
     # several compiled models per process: dynamo's per-code cache allows them (8 entries by default)
     from lnn_torch.perf import RECOMPILE_LIMIT
 

@@ -11,8 +11,7 @@ It computes exactly what the parts compute (tests compare the two in float64), f
 weights stacked once and cached until a weight changes (``fusion_plan`` says what it sees): inference only, so the
 model uses it where no gradient is recorded (``torch.no_grad``, ``torch.inference_mode``). Compiled
 (``compile_dynamics``), such a call compiles this path with the stacked weights as the program's inputs
-(``compiled_view``): a third faster than the compiled part-by-part path at batch 1 and 512
-(``results/speed``), since half the products remain to call.
+(``compiled_view``) up to ``COMPILED_MAX_ROWS`` rows a call, where it is the faster of the two.
 
     plan = fusion_plan(model)            # None where the model's composition is another
     qdd = fused_solve(model, plan, q_norm, qd_norm, params_norm)
@@ -173,6 +172,12 @@ def _stack(model, sources) -> FusionPlan:
                       out.transpose(1, 2).contiguous(), out_bias.transpose(1, 2).contiguous(),
                       torch.stack(film_in).contiguous(), torch.stack(film_in_bias).contiguous(),
                       torch.stack(film_out).contiguous(), torch.stack(film_out_bias).contiguous())
+
+
+# compiled, the fused path is the faster one up to this many rows a call; above it the compiler's own program
+# of the part-by-part path is (one thread, in one process: a quarter faster at batch 1, 5 % at 512, even at
+# 1024, 7-12 % slower at 2048 and 4096)
+COMPILED_MAX_ROWS = 1024
 
 
 def compiled_view(model, plan: FusionPlan) -> FusionPlan:

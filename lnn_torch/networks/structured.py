@@ -35,7 +35,7 @@ from ..mechanics.euler_lagrange import structured_acceleration_from_factor
 from ..systems.base import GRAVITY
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
-from .fused import compiled_view, fused_films, fused_solve, fusion_plan
+from .fused import COMPILED_MAX_ROWS, compiled_view, fused_films, fused_solve, fusion_plan
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 from .residual_force import ResidualForce
@@ -448,9 +448,10 @@ class StructuredLagrangian(DynamicsModel):
         return plan if plan is not None and plan.weights[0].dtype == dtype else None
 
     def _inference_call(self, q, qd, params, tau=None) -> tuple:
-        """Compiled and without a gradient, the fused path with the stacked weights as the compiled
-        program's inputs (``_fused_whole``); else ``DynamicsModel._inference_call``."""
-        if self._compile is True and not torch.compiler.is_compiling():
+        """Compiled, without a gradient and up to ``fused.COMPILED_MAX_ROWS`` rows, the fused path with the
+        stacked weights as the compiled program's inputs (``_fused_whole``); else
+        ``DynamicsModel._inference_call``."""
+        if self._compile is True and not torch.compiler.is_compiling() and q.shape[0] <= COMPILED_MAX_ROWS:
             plan = self._fusion_plan_for(self.dtype)
             if plan is not None:
                 return self._fused_whole, q, qd, params, tau, compiled_view(self, plan)
@@ -487,7 +488,8 @@ class StructuredLagrangian(DynamicsModel):
         if not self._has_film:
             return super().rollout_conditioning(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
-        plan = self._fusion_plan_for(self.dtype)  # without a gradient: the fused path, its weights as inputs
+        # without a gradient, in batches where it is faster: the fused path, its weights the program's inputs
+        plan = self._fusion_plan_for(self.dtype) if params.shape[0] <= COMPILED_MAX_ROWS else None
         if plan is not None:
             return "_fused_acceleration_norm", params_norm, (compiled_view(self, plan), fused_films(plan, params_norm))
         return "_acceleration_norm_films", params_norm, (self.films(params_norm),)
