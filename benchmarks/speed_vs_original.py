@@ -7,7 +7,9 @@ rounds of the per-round ratio to the original's time (and the median time per ca
 * ``eager``: ``model.acceleration(q, qd, params, check=False)`` under ``torch.no_grad()`` (for ``film_lnn``'s
   default composition the two networks stacked into one, ``lnn_torch.networks.fused``);
 * ``eager, part by part``: the same with ``fuse_inference`` off (each network on its own, as under a gradient);
-* ``compiled``: the same after ``model.compile_dynamics(True)`` (``torch.compile``, C++ wrapper);
+* ``compiled``: the same after ``model.compile_dynamics(True)`` (``torch.compile``, C++ wrapper; up to
+  ``networks.fused.COMPILED_MAX_ROWS`` rows the stacked network is compiled);
+* ``compiled, part by part``: compiled with ``fuse_inference`` off (the program of each network on its own);
 * ``AOTInductor``: the exported forward dynamics (``lnn-torch export --format aoti``), loaded and called
   as ``lnn_torch.export.programs.load_program`` gives it (where a C++ compiler is found; ``--no-aoti``).
 
@@ -52,6 +54,7 @@ from lnn_torch.systems import get_system  # noqa: E402
 BATCHES = (1, 512, 4096)
 MODELS = ("pretrained:double_pendulum", "pretrained:double_pendulum_control")
 ORIGINAL = "JAX original (released, jit)"
+MODES = ("eager", "eager, part by part", "compiled", "compiled, part by part", "AOTInductor")
 
 
 def states(batch: int, seed: int = 0):
@@ -70,6 +73,7 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
     parts = copy.deepcopy(eager)
     parts.fuse_inference = False
     compiled = copy.deepcopy(eager).compile_dynamics(True)
+    compiled_parts = copy.deepcopy(parts).compile_dynamics(True)
     aoti, seconds = None, {}
     if aoti_dir is not None:
         fn = ex.wrap(module, "forward_dynamics", torch.float32)
@@ -93,6 +97,9 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
         run(compiled)  # compiles this batch shape
         seconds[f"compiled, batch {batch}"] = time.perf_counter() - start
         calls[(name, "compiled", batch)] = lambda run=run: run(compiled)
+        if fusable(eager):
+            run(compiled_parts)
+            calls[(name, "compiled, part by part", batch)] = lambda run=run: run(compiled_parts)
         if aoti is not None:
             calls[(name, "AOTInductor", batch)] = lambda q=q, qd=qd, params=params: aoti(q, qd, params)
         reference = run(eager)
@@ -118,9 +125,16 @@ def main() -> None:
     ap.add_argument("--batches", nargs="+", type=int, default=list(BATCHES))
     ap.add_argument("--rounds", type=int, default=15, help="rounds, each timing every candidate once")
     ap.add_argument("--no-aoti", action="store_true", help="leave out the AOTInductor export (~20 s a model)")
+    ap.add_argument("--compiled-max-rows", type=int, default=None,
+                    help="the largest batch whose compiled call runs the stacked network "
+                         "(default lnn_torch.networks.fused.COMPILED_MAX_ROWS)")
     add_output_dir(ap, None, "write README.md and speed.json there")
     args = ap.parse_args()
     configure_cpu(1)
+    if args.compiled_max_rows is not None:
+        from lnn_torch.networks import structured
+
+        structured.COMPILED_MAX_ROWS = args.compiled_max_rows
     torch.set_num_threads(1)
     has_aoti = not args.no_aoti and bool(shutil.which("g++") or shutil.which("clang++") or os.environ.get("CXX"))
     candidates = original_calls(args.batches)
@@ -152,7 +166,7 @@ def main() -> None:
     head = ["model", "mode", *(f"batch {b}" for b in args.batches)]
     table = []
     for name in [ORIGINAL, *args.models]:
-        for mode in ("jit",) if name == ORIGINAL else ("eager", "eager, part by part", "compiled", "AOTInductor"):
+        for mode in ("jit",) if name == ORIGINAL else MODES:
             cells = [r for r in rows if r["model"] == name and r["mode"] == mode]
             if not cells:
                 continue

@@ -196,9 +196,9 @@ def load_start_weights(module, source: str | Path) -> bool:
         detail = " ".join(line.strip() for line in str(err).splitlines()[1:])[:200]
         old = scene_config_of_old(checkpoint, theirs)
         if old is not None and old != dict(module.hparams.get("scene_config") or {}):
-            detail = (f"it was trained without the relative-angle feature (checkpoint format 1); train with "
-                      f"--data.spec.scene_config '{{relative_angle: false}}' (or that scene_config in the config) to "
-                      f"start from it")
+            detail = ("it was trained without the relative-angle feature (checkpoint format 1); train with "
+                      "--data.spec.scene_config '{relative_angle: false}' (or that scene_config in the config) to "
+                      "start from it")
         raise CheckpointError(f"init_from {source}: its weights do not fit this model (other widths, model "
                               f"options or degrees of freedom): {detail}") from None
     return fresh
