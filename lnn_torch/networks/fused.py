@@ -175,8 +175,8 @@ def _stack(model, sources) -> FusionPlan:
 
 
 # compiled, the fused path is the faster one up to this many rows a call; above it the compiler's own program
-# of the part-by-part path is (one thread, in one process: a quarter faster at batch 1, 5 % at 512, even at
-# 1024, 7-12 % slower at 2048 and 4096)
+# of the part-by-part path is (one thread, benchmarks/speed_vs_original.py, results/speed/batches*: a fifth
+# faster at batch 1, 6 % at 512, even at 1024; 5 % slower at 2048 and 15 % at 4096)
 COMPILED_MAX_ROWS = 1024
 
 
