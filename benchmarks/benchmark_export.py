@@ -77,9 +77,9 @@ def checked_call(module, function: str):
     if function == "forward_dynamics":
         return module.acceleration
     if function == "inverse_dynamics":
-        return module.inverse_dynamics
+        return module.inverse
     if function == "mass_matrix":
-        return lambda q, params: module.model.mass_matrix(q, params)
+        return module.mass_matrix
     return None
 
 
