@@ -2,7 +2,7 @@
 
 Every point of the sweep (hidden widths and depth, per-neuron or per-layer FiLM, FiLM on the
 potential or not) is trained with the same data, seed and step budget (``--steps`` steps of 512
-states: 64 chunks of 8 points of data/quickstart.h5, the quickstart's dataset; cosine learning rate
+states: 64 chunks of 8 points of data/front.h5, the 200-trajectory set of seed 0; cosine learning rate
 3e-3 -> 3e-5 over the budget), then evaluated on the test split with ``lnn_torch.evaluation``
 (acceleration error at every 10th point, median time until the angle error of an RK4 rollout at
 the data's step first exceeds 0.1 rad, 10 s horizon).
@@ -50,7 +50,7 @@ from lnn_torch.perf import median_seconds  # noqa: E402
 
 OUT = ROOT / "results" / "cost_accuracy"
 CKPT = ROOT / "data" / "front"
-DATA = ROOT / "data" / "quickstart.h5"
+DATA = ROOT / "data" / "front.h5"  # its own 200-trajectory set (the quickstart now trains on 2000)
 SPEC = dict(scene="double_pendulum", num_trajectories=200, duration=20.0, dt=0.005, seed=0)
 
 # name -> film_lnn options; "w128" is the configuration of the shipped model and the configs
@@ -73,7 +73,7 @@ POINTS = {
     "w96 shared": dict(hidden_dims=[96, 96], model_options={"shared": True}),
     "w128 shared": dict(hidden_dims=[128, 128], model_options={"shared": True}),
 }
-# the same networks trained longer (16,000 steps, the quickstart's budget): accuracy only, their costs
+# the same networks trained longer (16,000 steps): accuracy only, their costs
 # are those of the network they share
 LONGER = {"w64, 16k steps": ("w64", 16000), "w32, 16k steps": ("w32", 16000),
           "w64 shared, 16k steps": ("w64 shared", 16000), "w64 layer-FiLM, 16k steps": ("w64 layer-FiLM", 16000)}
@@ -350,14 +350,14 @@ def report(args) -> None:
     orig_acc = head.get("original_accuracy")
     lines = ["# Cost against accuracy: film_lnn configurations and the original JAX FiLM-LNN", "",
              f"Commands: `python benchmarks/cost_accuracy_front.py train` (each point {trained['w16']['steps']}"
-             f" steps of 512 states on `data/quickstart.h5`, seed 0; the points named '16k steps' 16,000 steps, "
-             f"with the costs of the network they share), then `{head['command']}` (run under the original's "
-             "environment, see the script), then `python benchmarks/cost_accuracy_front.py report`. The float64 row is "
-             "the float32-trained network cast to float64 (same accuracy to 1e-6).", "",
+             f" steps of 512 states on `data/front.h5`, 200 trajectories of seed 0; the points named '16k steps' "
+             f"16,000 steps, with the costs of the network they share), then `{head['command']}` (run under the "
+             "original's environment, see the script), then `python benchmarks/cost_accuracy_front.py report`. The "
+             "float64 row is the float32-trained network cast to float64 (same accuracy to 1e-6).", "",
              f"{head['machine']}; one thread; {head['rounds']} rounds in turn, each candidate's median of "
              f"{head['calls_per_round']} calls per round; the table gives the median over rounds and the median "
              "per-round ratio to the original (the comparable quantity on a shared machine).", "",
-             "Accuracy on the 20 held-out test trajectories of the quickstart dataset: acceleration rel. L2 error "
+             "Accuracy on the 20 held-out test trajectories of `data/front.h5`: acceleration rel. L2 error "
              "(every 10th point) and the median time until an RK4 rollout (dt = 5 ms) leaves 0.1 rad (10 s horizon)."
              + (" Points whose checkpoint was absent when timed were timed as freshly initialised networks of the "
                 "same architecture (`--untrained`: a call's cost does not depend on the weights' values); their "
@@ -416,10 +416,10 @@ def report(args) -> None:
 # the README's short table: point -> its label there
 SUMMARY = {"w8": "`film_lnn` 8 × 8", "w16 x1": "`film_lnn` one hidden layer of 16", "w16": "`film_lnn` 16 × 16",
            "w32": "`film_lnn` 32 × 32 (`configs/quickstart_fast.yaml`)",
-           "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`)",
-           "w128": "`film_lnn` 128 × 128 (the configs, the shipped model)",
+           "w64": "`film_lnn` 64 × 64 (the default of `film_lnn`, the shipped model's width)",
+           "w128": "`film_lnn` 128 × 128 (the quickstart's width, the box model's)",
            "w32, 16k steps": "`film_lnn` 32 × 32, 16,000 steps",
-           "w64, 16k steps": "`film_lnn` 64 × 64, 16,000 steps (the main job's budget before its higher learning rate)"}
+           "w64, 16k steps": "`film_lnn` 64 × 64, 16,000 steps"}
 
 
 def summary(rows: list, trained: dict, orig_acc: dict | None) -> None:
