@@ -73,7 +73,7 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
     parts = copy.deepcopy(eager)
     parts.fuse_inference = False
     compiled = copy.deepcopy(eager).compile_dynamics(True)
-    compiled_parts = copy.deepcopy(parts).compile_dynamics(True)
+    compiled_parts = copy.deepcopy(parts).compile_dynamics(True) if fusable(eager) else None
     aoti, seconds = None, {}
     if aoti_dir is not None:
         fn = ex.wrap(module, "forward_dynamics", torch.float32)
@@ -97,7 +97,7 @@ def model_calls(name: str, batches, aoti_dir: Path | None) -> tuple[dict, dict]:
         run(compiled)  # compiles this batch shape
         seconds[f"compiled, batch {batch}"] = time.perf_counter() - start
         calls[(name, "compiled", batch)] = lambda run=run: run(compiled)
-        if fusable(eager):
+        if compiled_parts is not None:
             run(compiled_parts)
             calls[(name, "compiled, part by part", batch)] = lambda run=run: run(compiled_parts)
         if aoti is not None:
@@ -132,9 +132,9 @@ def main() -> None:
     args = ap.parse_args()
     configure_cpu(1)
     if args.compiled_max_rows is not None:
-        from lnn_torch.networks import structured
+        from lnn_torch.networks import fused
 
-        structured.COMPILED_MAX_ROWS = args.compiled_max_rows
+        fused.COMPILED_MAX_ROWS = args.compiled_max_rows
     torch.set_num_threads(1)
     has_aoti = not args.no_aoti and bool(shutil.which("g++") or shutil.which("clang++") or os.environ.get("CXX"))
     candidates = original_calls(args.batches)

@@ -51,9 +51,9 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
         assert counters["stats"]["unique_graphs"] == graphs
         torch.testing.assert_close(changed, other.acceleration(q[:1], qd[:1], params[:1]), rtol=1e-5, atol=1e-5)
         assert (changed - eager_accel[:1]).abs().max() > 1e-3
-        from lnn_torch.networks import structured
+        from lnn_torch.networks import fused
 
-        monkeypatch.setattr(structured, "COMPILED_MAX_ROWS", 4)  # batch 5 is above it: the parts, compiled
+        monkeypatch.setattr(fused, "COMPILED_MAX_ROWS", 4)  # batch 5 is above it: the parts, compiled
         wide = copy.deepcopy(model).compile_dynamics(True)
         torch.testing.assert_close(wide.acceleration(q, qd, params), other.acceleration(q, qd, params),
                                    rtol=1e-5, atol=1e-5)

@@ -33,9 +33,10 @@ from torch import nn
 from ..errors import InputError
 from ..mechanics.euler_lagrange import structured_acceleration_from_factor
 from ..systems.base import GRAVITY
+from . import fused as _fused
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
-from .fused import COMPILED_MAX_ROWS, compiled_view, fused_films, fused_solve, fusion_plan
+from .fused import compiled_view, fused_films, fused_solve, fusion_plan
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 from .residual_force import ResidualForce
@@ -448,14 +449,19 @@ class StructuredLagrangian(DynamicsModel):
         return plan if plan is not None and plan.weights[0].dtype == dtype else None
 
     def _inference_call(self, q, qd, params, tau=None) -> tuple:
-        """Compiled, without a gradient and up to ``fused.COMPILED_MAX_ROWS`` rows, the fused path with the
-        stacked weights as the compiled program's inputs (``_fused_whole``); else
-        ``DynamicsModel._inference_call``."""
-        if self._compile is True and not torch.compiler.is_compiling() and q.shape[0] <= COMPILED_MAX_ROWS:
-            plan = self._fusion_plan_for(self.dtype)
-            if plan is not None:
-                return self._fused_whole, q, qd, params, tau, compiled_view(self, plan)
+        """Compiled, the fused path where it applies (``_compiled_plan``), its stacked weights the compiled
+        program's inputs (``_fused_whole``); else ``DynamicsModel._inference_call``."""
+        plan = self._compiled_plan(q.shape[0]) if self._compile is True else None
+        if plan is not None:
+            return self._fused_whole, q, qd, params, tau, plan
         return super()._inference_call(q, qd, params, tau)
+
+    def _compiled_plan(self, rows: int):
+        """The stacked weights as compiled code takes them (``fused.compiled_view``) where a compiled call of
+        ``rows`` rows runs the fused path: no gradient (``_fusion_plan_for``) and at most
+        ``fused.COMPILED_MAX_ROWS`` rows, above which the part-by-part program is the faster; else None."""
+        plan = self._fusion_plan_for(self.dtype) if rows <= _fused.COMPILED_MAX_ROWS else None
+        return None if plan is None else compiled_view(self, plan)
 
     def _fused_whole(self, q, qd, params, tau, plan):
         """``_acceleration_whole`` through the fused path with the stacked weights ``plan`` given."""
@@ -488,10 +494,9 @@ class StructuredLagrangian(DynamicsModel):
         if not self._has_film:
             return super().rollout_conditioning(params)
         params_norm = self.normalizer.params(params.to(self.dtype))
-        # without a gradient, in batches where it is faster: the fused path, its weights the program's inputs
-        plan = self._fusion_plan_for(self.dtype) if params.shape[0] <= COMPILED_MAX_ROWS else None
+        plan = self._compiled_plan(params.shape[0])  # the fused path, its weights the program's inputs
         if plan is not None:
-            return "_fused_acceleration_norm", params_norm, (compiled_view(self, plan), fused_films(plan, params_norm))
+            return "_fused_acceleration_norm", params_norm, (plan, fused_films(plan, params_norm))
         return "_acceleration_norm_films", params_norm, (self.films(params_norm),)
 
     def acceleration_fn(self, params: torch.Tensor):
