@@ -1,7 +1,7 @@
 """Where compiling pays: compilation time against the time it saves per acceleration call (rollouts)
 and per optimiser step (training).
 
-For the shipped double-pendulum model (film_lnn 128 x 128, float32, one thread, no autograd) and
+For the shipped double-pendulum model (film_lnn 64 x 64, float32, one thread, no autograd) and
 batch sizes 1, 20, 64 and 512: the time of one RK4 step eagerly and compiled (the whole step, as a rollout runs it)
 (medians), the first compiled call's time on an empty inductor cache (a fresh cache directory: what
 a user's first run pays) and again in a new process with that cache filled, and the break-even: the
@@ -156,7 +156,7 @@ def main() -> None:
     from lnn_torch.perf import AUTO_COMPILE_CALLS, AUTO_COMPILE_TRAIN_STEPS
 
     lines = ["# When a compiled rollout pays", "",
-             "Command: `python benchmarks/benchmark_compile_rule.py`. The shipped model (film_lnn 128 x 128, "
+             "Command: `python benchmarks/benchmark_compile_rule.py`. The shipped model (film_lnn 64 x 64, "
              "float32), one thread, no autograd; each batch size in two fresh processes sharing a new inductor cache "
              "directory (cold: empty cache, a user's first run; warm: the second process). Step times are medians of "
              "7 x 50 RK4 steps.", *(["", f"Machine: {measured['machine']}."] if "machine" in measured else []),

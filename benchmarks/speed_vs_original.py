@@ -7,8 +7,9 @@ rounds of the per-round ratio to the original's time (and the median time per ca
 * ``eager``: ``model.acceleration(q, qd, params, check=False)`` under ``torch.no_grad()`` (for ``film_lnn``'s
   default composition the two networks stacked into one, ``lnn_torch.networks.fused``);
 * ``eager, part by part``: the same with ``fuse_inference`` off (each network on its own, as under a gradient);
-* ``compiled``: the same after ``model.compile_dynamics(True)`` (``torch.compile``, C++ wrapper; up to
-  ``networks.fused.COMPILED_MAX_ROWS`` rows the stacked network is compiled);
+* ``compiled``: the same after ``model.compile_dynamics(True)``: up to ``networks.fused.COMPILED_MAX_ROWS``
+  rows the stacked network as an AOTInductor program called without dynamo (``networks.fused_aot``), above
+  it the networks part by part through ``torch.compile`` (C++ wrapper);
 * ``compiled, part by part``: compiled with ``fuse_inference`` off (the program of each network on its own);
 * ``AOTInductor``: the exported forward dynamics (``lnn-torch export --format aoti``), loaded and called
   as ``lnn_torch.export.programs.load_program`` gives it (where a C++ compiler is found; ``--no-aoti``).

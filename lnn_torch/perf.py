@@ -18,6 +18,7 @@ who wants them calls ``configure_cpu()`` or ``apply_cpu_defaults()`` (once per p
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import importlib.metadata
@@ -201,6 +202,24 @@ def adamw(parameters, **kwargs) -> torch.optim.AdamW:
         return torch.optim.AdamW(parameters, fused=True, **kwargs)
     except (RuntimeError, TypeError, ValueError):
         return torch.optim.AdamW(parameters, **kwargs)
+
+
+@contextlib.contextmanager
+def quiet_compilation():
+    """Warnings and inductor's log lines the user cannot act on, silenced while AOTInductor compiles
+    (e.g. "aten.linalg_cholesky_ex.default is missing a c-shim implementation, using proxy executor as
+    fallback": correct, a slower call of that one operator)."""
+    import logging
+
+    log = logging.getLogger("torch._inductor.ir")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        log.setLevel(level)
 
 
 def quiet_compile_logs() -> None:

@@ -7,6 +7,7 @@ import torch
 from lnn_torch import LNNModule
 from lnn_torch.mechanics.euler_lagrange import SingularHessianError
 from lnn_torch.networks import build_model
+from lnn_torch.networks.fused_aot import FusedPrograms
 from lnn_torch.perf import compile_fn
 from lnn_torch.systems import get_system
 
@@ -37,18 +38,25 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
     # without a gradient the fused path is compiled (its stacked weights the program's inputs), with one the parts
     assert model._compile is True and set(model._compiled) == {"_fused_whole", "_acceleration_whole", "_rollout_step"}
     assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
-    # weights changed in place after compilation: the compiled inference uses the new ones, not recompiled
-    from torch._dynamo.utils import counters
-
+    # on the CPU the fused path is an AOTInductor program (fused_aot), one per input signature: the accelerations'
+    # and the rollout's step (without a gradient); a rollout with one compiles its step through torch.compile
+    programs = model._compiled["_fused_whole"].compiled
+    assert isinstance(programs, FusedPrograms) and len(programs.programs) == 1
+    steps = model._compiled["_rollout_step"].compiled
+    assert isinstance(steps, FusedPrograms) and len(steps.programs) == 1 and steps.dynamo is None
+    q_g, qd_g = model.rollout(q, qd, params, 0.01, 2)
+    assert steps.dynamo is not None and q_g.requires_grad
+    torch.testing.assert_close(q_g, eager_q[:, :3], rtol=1e-5, atol=1e-5)
+    # weights and buffers changed in place after compilation: the compiled inference uses the new ones, not
+    # recompiled (every tensor is the program's input)
     other = copy.deepcopy(model).compile_dynamics(False)
     with torch.no_grad():
-        for p in model.parameters():
-            p.mul_(1.05)
-        for p in other.parameters():
-            p.mul_(1.05)
-        graphs = counters["stats"]["unique_graphs"]
+        for m in (model, other):
+            for p in m.parameters():
+                p.mul_(1.05)
+            m.normalizer.accel_rms.mul_(2.0)
         changed = model.acceleration(q[:1], qd[:1], params[:1])
-        assert counters["stats"]["unique_graphs"] == graphs
+        assert len(programs.programs) == 1 and model._compiled["_fused_whole"].compiled is programs
         torch.testing.assert_close(changed, other.acceleration(q[:1], qd[:1], params[:1]), rtol=1e-5, atol=1e-5)
         assert (changed - eager_accel[:1]).abs().max() > 1e-3
         from lnn_torch.networks import fused
@@ -64,6 +72,49 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
     assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT >= 32
     model.compile_dynamics(False)
     torch.testing.assert_close(model.acceleration(q, qd, params), other.acceleration(q, qd, params), rtol=0, atol=0)
+
+
+@pytest.mark.slow
+def test_compiled_fused_program_float64_with_inputs(rng):
+    """The fused path's AOTInductor program (``fused_aot.FusedPrograms``) of a float64 model of an actuated
+    scene equals the eager fused path to rounding, inputs included; another batch shape is another program,
+    a cast of the model another; a non-contiguous state is read as its values."""
+    import copy
+
+    system = get_system("actuated_double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16))).double()
+    q, qd, params = random_batch(system, rng, 3)
+    tau = torch.randn(3, system.num_inputs, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    compiled = copy.deepcopy(model).compile_dynamics(True)
+    with torch.no_grad():
+        expected = model.acceleration(q, qd, params, tau)
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
+        both = torch.stack([q, q], -1)[..., 0]  # a strided view: the program reads its values
+        assert not both.is_contiguous()
+        torch.testing.assert_close(compiled.acceleration(both, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
+        torch.testing.assert_close(compiled.acceleration(q[:1], qd[:1], params[:1], tau[:1]), expected[:1],
+                                   rtol=1e-10, atol=1e-10)
+        programs = compiled._compiled["_fused_whole"].compiled
+        assert isinstance(programs, FusedPrograms) and len(programs.programs) == 2
+        # every parameter changed in place, the learned friction's too (not part of the stacked weights): read
+        # on the next call, nothing recompiled
+        for m in (model, compiled):
+            for p in m.parameters():
+                p.mul_(1.05)
+        changed = model.acceleration(q, qd, params, tau)
+        assert (changed - expected).abs().max() > 1e-3
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), changed, rtol=1e-10, atol=1e-10)
+        assert len(programs.programs) == 2
+        expected = changed
+        # a rollout's step under inputs: one program of its own, the eager rollout's result
+        taus = tau[:, None].expand(-1, 3, -1)
+        for a, b in zip(compiled.rollout(q, qd, params, 0.001, 3, tau=taus),
+                        model.rollout(q, qd, params, 0.001, 3, tau=taus), strict=True):
+            torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-10)
+        assert len(compiled._compiled["_rollout_step"].compiled.programs) == 1
+        compiled.float()
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-4, atol=1e-4)
+        assert len(programs.programs) == 3 and compiled._compile is True
 
 
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
@@ -100,6 +151,26 @@ def test_compiled_dynamics_fall_back_once(monkeypatch, rng):
     with pytest.raises(SingularHessianError):
         model.acceleration(q, qd, params)
     assert model._compile is True
+
+
+def test_fused_program_failure_falls_back_once(monkeypatch, rng):
+    """The fused path's AOTInductor program failing to build (no C++ compiler, an export error) warns once
+    and the model continues with the eager fused path's result."""
+    from lnn_torch.networks import fused_aot
+
+    def broken(self, *args):
+        raise RuntimeError("AOTInductor: C++ compile failed")
+
+    monkeypatch.setattr(fused_aot.FusedPrograms, "_compile", broken)
+    system = get_system("double_pendulum")
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(8, 8)))
+    q, qd, params = (x.float() for x in random_batch(system, rng, 2))
+    with torch.no_grad():
+        expected = model.acceleration(q, qd, params)
+        model.compile_dynamics(True)
+        with pytest.warns(RuntimeWarning, match="C\\+\\+ compile failed.*continuing eagerly"):
+            torch.testing.assert_close(model.acceleration(q, qd, params), expected, rtol=0, atol=0)
+    assert model._compile == "failed"
 
 
 def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never(monkeypatch, rng):

@@ -59,7 +59,6 @@ trusted values as the model does (``describe`` records the range). Call the mode
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import json
 import math
@@ -71,6 +70,7 @@ from torch import nn
 
 from ..errors import InputError
 from ..networks.capabilities import FORCES, INVERSE_DYNAMICS, MASS_MATRIX
+from ..perf import quiet_compilation
 
 FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "mass_matrix", "bias_force", "gravity_force", "friction_force")
 FORMATS = ("pt2", "onnx", "aoti")
@@ -415,25 +415,6 @@ def contiguous_constant_views(program: torch.export.ExportedProgram) -> int:
     return count
 
 
-@contextlib.contextmanager
-def _quiet_compilation():
-    """Warnings and inductor's log lines the user cannot act on, silenced while AOTInductor compiles
-    (e.g. "aten.linalg_cholesky_ex.default is missing a c-shim implementation, using proxy executor as
-    fallback": correct, a slower call of that one operator)."""
-    import logging
-    import warnings
-
-    log = logging.getLogger("torch._inductor.ir")
-    level = log.level
-    log.setLevel(logging.ERROR)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    finally:
-        log.setLevel(level)
-
-
 def check_aoti(path: str | Path, fn: _Function, batch: int = 8) -> float:
     """The largest difference between the package at ``path`` and the eager ``fn`` on ``example_inputs``
     (seeded states near rest), relative to the largest entry of the eager result; ``InputError`` (one
@@ -459,7 +440,7 @@ def compile_aoti(program: torch.export.ExportedProgram, fn: _Function, path: str
     Needs a C++ compiler here; ``InputError`` (one line) where the compilation or the check fails."""
     path = Path(path)
     try:
-        with _quiet_compilation():
+        with quiet_compilation():
             program = copy.deepcopy(program)
             contiguous_constant_views(program)
             path = Path(torch._inductor.aoti_compile_and_package(program, package_path=str(path),

@@ -33,7 +33,9 @@ class CompiledDynamics:
 
         Compiled on first use for each batch shape, dtype and grad mode (10-30 s each the first
         time; inductor caches compiled code on disk across processes, later compilations take a few
-        seconds); the C++ wrapper on the CPU (``lnn_torch.perf.compile_fn``). If compilation or a
+        seconds); the C++ wrapper on the CPU (``lnn_torch.perf.compile_fn``). On the CPU a call
+        without a gradient of a model with a fused path (``networks.fused``) runs an AOTInductor
+        program instead, called without dynamo's per-call overhead (``networks.fused_aot``). If compilation or a
         compiled call fails, a warning is issued once and the model continues eagerly. Returns the model.
         """
         if enabled not in (True, False, "auto"):
@@ -58,8 +60,13 @@ class CompiledDynamics:
         if compiled is None:
             compiled = self._compiled[fn.__name__] = CompiledFallback(
                 fn, device, on_failure=lambda err: self._compile_failed(what, err),
-                passthrough=(InputError, SingularHessianError), eager=eager, compiler=compile_fn)
+                passthrough=(InputError, SingularHessianError), eager=eager, compiler=self._compiler_for(fn, device))
         return compiled
+
+    def _compiler_for(self, fn, device):
+        """What compiles ``fn`` for ``device``: ``compiler(fn, device) -> callable`` (``perf.compile_fn``; a model
+        with a better program for one of its functions gives it here)."""
+        return compile_fn
 
     def _compile_failed(self, what: str, err: Exception) -> None:
         """Warn once that compiled ``what`` failed and continue eagerly from now on."""

@@ -11,7 +11,8 @@ It computes exactly what the parts compute (tests compare the two in float64), f
 weights stacked once and cached until a weight changes (``fusion_plan`` says what it sees): inference only, so the
 model uses it where no gradient is recorded (``torch.no_grad``, ``torch.inference_mode``). Compiled
 (``compile_dynamics``), such a call compiles this path with the stacked weights as the program's inputs
-(``compiled_view``) up to ``COMPILED_MAX_ROWS`` rows a call, where it is the faster of the two.
+(``compiled_view``) up to ``COMPILED_MAX_ROWS`` rows a call, where it is the faster of the two: on the CPU
+as an AOTInductor program called without dynamo (``fused_aot``), elsewhere through ``torch.compile``.
 
     plan = fusion_plan(model)            # None where the model's composition is another
     qdd = fused_solve(model, plan, q_norm, qd_norm, params_norm)
@@ -104,7 +105,7 @@ def fusable(model) -> bool:
             and len(kin.net.hidden) == len(pot.net.hidden))
 
 
-def _sources(model) -> tuple[tuple[dict, str], ...]:
+def plan_sources(model) -> tuple[tuple[dict, str], ...]:
     """Where the tensors the plan is stacked from live: ``(module._parameters, name)`` of both networks'
     layers and both FiLM networks (read through those dicts: a weight replaced there is seen)."""
     kin, pot = model._kinetic_parts[0], model._potential_parts[0]
@@ -132,7 +133,7 @@ def fusion_plan(model) -> FusionPlan | None:
     if not fusable(model):
         return None
     with torch.no_grad():
-        plan = _stack(model, _sources(model))
+        plan = _stack(model, plan_sources(model))
     object.__setattr__(model, "_fusion_plan", plan)  # a plain attribute: not a module, buffer or state
     return plan
 

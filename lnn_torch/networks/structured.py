@@ -37,6 +37,7 @@ from . import fused as _fused
 from .base import DynamicsModel
 from .capabilities import ENERGY, FORCES, FRICTION, INVERSE_DYNAMICS, MASS_MATRIX, STATIC_FRICTION
 from .fused import compiled_view, fused_films, fused_solve, fusion_plan
+from .fused_aot import FusedPrograms
 from .parts import KINETIC_PARTS, POTENTIAL_PARTS, SHARED_PART, BuildContext, PartInputs, check_angles, parse_parts
 from .parts import part_options as _part_options
 from .residual_force import ResidualForce
@@ -438,15 +439,15 @@ class StructuredLagrangian(DynamicsModel):
             return fused_solve(self, plan, q_norm, qd_norm, params_norm, force=force_norm)
         return self._solve(q_norm, qd_norm, params_norm, self.films(params_norm), energy=False, force=force_norm)
 
-    def _fusion_plan_for(self, dtype: torch.dtype):
+    def _fusion_plan_for(self, dtype: torch.dtype | None):
         """The stacked weights of ``fused`` where they apply to this call: ``fuse_inference`` on, no
         gradient recorded, not compiling or exporting (compiled code takes the plan as an input:
-        ``_inference_call``), inputs of ``dtype`` the model's; else None."""
+        ``_inference_call``), inputs of ``dtype`` the model's (None: inputs cast to the model's); else None."""
         if (not self.fuse_inference or torch.is_grad_enabled() or torch.compiler.is_compiling()
                 or torch.compiler.is_exporting() or torch.jit.is_tracing()):
             return None
         plan = fusion_plan(self)
-        return plan if plan is not None and plan.weights[0].dtype == dtype else None
+        return plan if plan is not None and (dtype is None or plan.weights[0].dtype == dtype) else None
 
     def _inference_call(self, q, qd, params, tau=None) -> tuple:
         """Compiled, the fused path where it applies (``_compiled_plan``), its stacked weights the compiled
@@ -460,8 +461,18 @@ class StructuredLagrangian(DynamicsModel):
         """The stacked weights as compiled code takes them (``fused.compiled_view``) where a compiled call of
         ``rows`` rows runs the fused path: no gradient (``_fusion_plan_for``) and at most
         ``fused.COMPILED_MAX_ROWS`` rows, above which the part-by-part program is the faster; else None."""
-        plan = self._fusion_plan_for(self.dtype) if rows <= _fused.COMPILED_MAX_ROWS else None
+        # the compiled call casts its inputs to the model's dtype (that of the plan, stacked from its weights)
+        plan = self._fusion_plan_for(None) if rows <= _fused.COMPILED_MAX_ROWS else None
         return None if plan is None else compiled_view(self, plan)
+
+    def _compiler_for(self, fn, device):
+        """On the CPU, the accelerations and a rollout's step run the fused path's AOTInductor programs where
+        they take it (``fused_aot.FusedPrograms``: no dynamo on the call; other calls through ``torch.compile``);
+        else ``CompiledDynamics._compiler_for``."""
+        compiler = super()._compiler_for(fn, device)
+        if fn.__name__ in ("_fused_whole", "_rollout_step") and torch.device(device).type == "cpu":
+            return lambda fn_, device_: FusedPrograms(self, fn_, device_, compiler)
+        return compiler
 
     def _fused_whole(self, q, qd, params, tau, plan):
         """``_acceleration_whole`` through the fused path with the stacked weights ``plan`` given."""
