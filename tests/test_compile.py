@@ -211,6 +211,14 @@ def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never
     assert compiled == []
     with pytest.raises(ValueError, match="compile_dynamics takes"):
         model.compile_dynamics("sometimes")
+    # a model without a fused path (no FiLM on the potential) compiles its rollout step through compile_fn,
+    # with a gradient or without
+    layer = perturbed(build_model("film_lnn", system, hidden_dims=(8,), potential_film=False).double())
+    expected = layer.rollout(q, qd, params, 0.01, 2)
+    layer.compile_dynamics(True)
+    with torch.no_grad():
+        torch.testing.assert_close(layer.rollout(q, qd, params, 0.01, 2), expected, rtol=0, atol=0)
+    assert compiled.count("_rollout_step") == 2 and layer._compile is True
 
     def broken(fn, device):
         def run(*args):

@@ -124,11 +124,15 @@ class FusedPrograms:
         self.compiler = compiler or compile_fn  # for the calls that are not the fused path's
         self.programs: dict = {}
         self.dynamo = None  # compiler(fn, device), built on the first such call
-        # the model's tensors a program reads besides the plan: every buffer, and every parameter that the
-        # plan was not stacked from (friction, a residual force), each read where it lives on every call
-        stacked = {id(d) for d, _ in plan_sources(model)}
+        self.other_sources = self.other_names = None  # _others(), on the first program
+        self._view = self._view_flat = self.layout = None
+
+    def _others(self) -> None:
+        """The model's tensors a program reads besides the plan: every buffer, and every parameter that the
+        plan was not stacked from (friction, a residual force), each read where it lives on every call."""
+        stacked = {id(d) for d, _ in plan_sources(self.model)}
         sources, names = [], []
-        for prefix, module in model.named_modules():
+        for prefix, module in self.model.named_modules():
             for kind in ("_buffers", "_parameters"):
                 tensors = getattr(module, kind)
                 if kind == "_parameters" and id(tensors) in stacked:
@@ -138,7 +142,6 @@ class FusedPrograms:
                         sources.append((tensors, name))
                         names.append(f"{prefix}.{name}" if prefix else name)
         self.other_sources, self.other_names = tuple(sources), tuple(names)
-        self._view = self._view_flat = self.layout = None
 
     def _walk(self, x, tensors: list):
         """``x``'s signature (its structure, tensors' shapes and dtypes, other values), its tensors appended
@@ -164,10 +167,12 @@ class FusedPrograms:
         plan = next((a for a in args if isinstance(a, FusionPlan)), None)
         if plan is None:
             plan = next((v for a in args if isinstance(a, tuple) for v in a if isinstance(v, FusionPlan)), None)
-        if plan is None or torch.is_grad_enabled() or self.device.type != "cpu":
+        if plan is None or torch.is_grad_enabled() or plan.weights[0].device.type != "cpu":  # e.g. moved to a GPU
             if self.dynamo is None:
                 self.dynamo = self.compiler(self.fn, self.device)
             return self.dynamo(*args)
+        if self.other_sources is None:
+            self._others()
         tensors: list = []
         spec = ("tuple", tuple(self._walk(a, tensors) for a in args))
         model = self.model  # its settings read as Python values while tracing
