@@ -394,6 +394,36 @@ def test_every_hard_case_is_a_physical_system_of_its_scene(scene):
             assert (torch.linalg.eigvalsh(M)[..., 0] > 0).all(), (scene, case.name)
 
 
+def test_the_trusted_range_settled_from_the_extremes_equals_the_exact_check():
+    """``Normalizer.untrusted`` with each parameter's extremes (the input checks' one reduction) says what the
+    exact per-row check says: inside, just inside, just beyond either bound, a NaN, a mixed batch, and after
+    the statistics change."""
+    from lnn_torch.systems.base import param_extremes
+
+    model = fresh_model("film_lnn")
+    norm = model.normalizer
+    names, units = ["m1", "m2", "l1", "l2"], ["kg", "kg", "m", "m"]
+    low, high = (x.double() for x in norm.trusted_range())
+    inside = torch.tensor([[1.0, 0.8, 1.2, 1.1], [0.9, 1.1, 1.0, 0.7]], dtype=torch.float64)
+    cases = [inside]
+    for bound, factor in ((high, 1 - 1e-12), (high, 1 + 1e-6), (low, 1 + 1e-12), (low, 1 - 1e-6), (high, 50.0)):
+        for i in range(4):
+            x = inside.clone()
+            x[1, i] = float(bound[i]) * factor
+            cases.append(x)
+    nan = inside.clone()
+    nan[0, 1] = float("nan")
+    cases.append(nan)
+    for x in cases:
+        assert norm.untrusted(x, names, units, param_extremes(x)) == norm.untrusted(x, names, units)
+    assert norm.untrusted(inside, names, units, param_extremes(inside)) is None
+    assert norm.untrusted(cases[-2], names, units, param_extremes(cases[-2])) is not None
+    with torch.no_grad():
+        norm.param_log_std.mul_(0.01)  # a narrower range: the cached bounds follow
+    assert norm.untrusted(inside, names, units, param_extremes(inside)) == norm.untrusted(inside, names, units)
+    assert norm.untrusted(inside, names, units) is not None
+
+
 def test_parameters_beyond_the_trusted_range_condition_on_its_bound_with_a_warning_naming_them():
     """Normalised parameters are clamped to ``Normalizer.TRUST`` standard deviations: beyond it the
     accelerations equal those at the bound (finite, not a runaway extrapolation) and the model names

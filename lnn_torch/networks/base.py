@@ -23,7 +23,7 @@ from ..errors import InputError, UntrustedParameterWarning
 from ..mechanics import integrators
 from ..mechanics.forces import check_inputs as check_tau
 from ..perf import compile_pays
-from ..systems.base import check_param_signs
+from ..systems.base import check_param_signs, param_extremes
 from .capabilities import (
     ENERGY,
     FORCES,
@@ -187,11 +187,13 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
             for name, x in named:
                 if not torch.isfinite(x).all():
                     raise InputError(f"{name} contains NaN or Inf")
-        check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params")
+        extremes = param_extremes(params) if P else None  # one reduction for the signs and the trusted range
+        check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params",
+                          None if extremes is None else extremes[0])
         normalizer = getattr(self, "normalizer", None)
         if normalizer is not None and P:
             note = normalizer.untrusted(params, self.scene.param_names or [f"params[{i}]" for i in range(P)],
-                                        self.scene.param_units or [""] * P)
+                                        self.scene.param_units or [""] * P, extremes)
             if note:
                 warnings.warn(note, UntrustedParameterWarning, stacklevel=3)
 

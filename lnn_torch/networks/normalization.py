@@ -27,6 +27,8 @@ where a network reads them directly (the direct MLP).
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -118,10 +120,14 @@ class Normalizer(nn.Module):
         return self.params_to_phys(-bound), self.params_to_phys(bound)
 
     @torch.no_grad()
-    def untrusted(self, params: torch.Tensor, names, units) -> str | None:
+    def untrusted(self, params: torch.Tensor, names, units, extremes=None) -> str | None:
         """A sentence naming the parameters of ``params (B, P)`` beyond the trusted range (the first
-        offending value of each) and the bounds the model conditions on; None when all are inside."""
+        offending value of each) and the bounds the model conditions on; None when all are inside.
+        ``extremes``: each parameter's smallest and largest value where the caller has them
+        (``systems.base.param_extremes``): then a batch clearly inside is settled without a tensor operation."""
         if not self.num_params or self.exact:
+            return None
+        if extremes is not None and self._inside(*extremes):
             return None
         z = (self._transform(params.double()) - self.param_log_mean.double()) / self.param_log_std.double()
         out = (z.abs() > self.TRUST).any(0)
@@ -135,6 +141,27 @@ class Normalizer(nn.Module):
             parts.append(f"{names[i]} = {value:.4g} {units[i]} (trusted {float(low[i]):.3g} to {float(high[i]):.3g})")
         return (f"parameters beyond the model's trusted range ({self.TRUST:g} standard deviations of its training "
                 f"parameters): {', '.join(parts)}; the model is conditioned on the nearest trusted values")
+
+    def _inside(self, low: list[float], high: list[float]) -> bool:
+        """Whether every parameter between ``low`` and ``high`` (per parameter, SI) is inside the trusted
+        range by a margin (a value within 1e-9 standard deviations of a bound, a NaN or a non-positive value
+        of a positive parameter is left to the exact check). The transform is monotone, so the extremes decide."""
+        buffers = (self.param_log, self.param_log_mean, self.param_log_std)
+        key = tuple((id(b), b._version) for b in buffers)
+        cached = self.__dict__.get("_trust_floats")
+        if cached is None or cached[0] != key:
+            cached = (key, *(b.tolist() for b in buffers))
+            self.__dict__["_trust_floats"] = cached  # plain floats, kept until a statistic changes
+        _, logs, means, stds = cached
+        limit = self.TRUST - 1e-9
+        for lo, hi, log, mean, std in zip(low, high, logs, means, stds, strict=True):
+            if log:
+                if not lo > 0:
+                    return False
+                lo, hi = math.log(lo), math.log(hi)
+            if not (abs(lo - mean) <= limit * std and abs(hi - mean) <= limit * std):
+                return False
+        return True
 
     def accel_to_norm(self, qdd):
         return qdd * (self.time_scale.to(qdd.dtype) ** 2 / self.coord_scale.to(qdd.dtype))

@@ -65,10 +65,20 @@ def as_range(value, name: str) -> Range:
         raise InputError(f"{name}: expected a pair (low, high), got {value!r}") from None
 
 
-def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
+def param_extremes(params: torch.Tensor) -> tuple[list[float], list[float]] | None:
+    """The smallest and largest value of each parameter of ``params (*batch, P)`` as two lists (one
+    reduction; a NaN anywhere in a column is NaN in both), or None where there are no rows or parameters."""
+    if params.numel() == 0:
+        return None
+    low, high = torch.stack(torch.aminmax(params.reshape(-1, params.shape[-1]), dim=0)).tolist()
+    return low, high
+
+
+def check_param_signs(params: torch.Tensor, kinds, names, where: str, lowest: list[float] | None = None) -> None:
     """Raise ``InputError`` naming the parameters that are not positive (kind ``positive``) or are
     negative (kind ``nonnegative``, e.g. friction coefficients); a parameter of kind ``real`` (a
-    position, of either sign) may take any finite value."""
+    position, of either sign) may take any finite value. ``lowest``: each parameter's smallest value
+    where the caller has it (``param_extremes``)."""
     kinds = list(kinds)
     unknown = sorted(set(kinds) - set(PARAM_KINDS))
     if unknown:
@@ -76,7 +86,8 @@ def check_param_signs(params: torch.Tensor, kinds, names, where: str) -> None:
     if not kinds or params.numel() == 0:  # a system without parameters (a measured one), or no rows
         return
     # one reduction: the smallest value of each parameter (NaN propagates and is refused too)
-    lowest = params.reshape(-1, len(kinds)).amin(0).tolist()
+    if lowest is None:
+        lowest = params.reshape(-1, len(kinds)).amin(0).tolist()
     bad_pos = [n for n, k, v in zip(names, kinds, lowest, strict=True) if k == "positive" and not v > 0]
     bad_neg = [n for n, k, v in zip(names, kinds, lowest, strict=True) if k == "nonnegative" and not v >= 0]
     if bad_pos:
@@ -395,19 +406,23 @@ class System(abc.ABC):
                 f"{self.name}: params must have shape (*batch, {self.num_params}) "
                 f"({', '.join(self.param_names)}), got {tuple(params.shape)}"
             )
-        if not torch.isfinite(params).all():
+        extremes = param_extremes(params)  # one reduction: NaN and Inf show in the extremes
+        if extremes is not None and not all(math.isfinite(v) for v in (*extremes[0], *extremes[1])):
             raise InputError(f"{self.name}: params contain NaN or Inf")
-        check_param_signs(params, self.kinds, self.param_names, self.name)
+        check_param_signs(params, self.kinds, self.param_names, self.name, None if extremes is None else extremes[0])
 
     def check_state(self, q: torch.Tensor, qd: torch.Tensor | None = None) -> None:
         """Raise ``InputError`` for wrong shapes or non-finite states."""
-        for name, x in (("q", q), ("qd", qd)):
-            if x is None:
-                continue
+        named = [(name, x) for name, x in (("q", q), ("qd", qd)) if x is not None]
+        for name, x in named:
             if x.shape[-1:] != (self.dof,):
                 raise InputError(f"{self.name}: {name} must have shape (*batch, {self.dof}), got {tuple(x.shape)}")
-            if not torch.isfinite(x).all():
-                raise InputError(f"{self.name}: {name} contains NaN or Inf")
+        # one sum is finite unless something is NaN or Inf (or the sum overflows): only then each is checked
+        total = q.sum() if qd is None else q.sum() + qd.sum()
+        if not math.isfinite(float(total)):
+            for name, x in named:
+                if not torch.isfinite(x).all():
+                    raise InputError(f"{self.name}: {name} contains NaN or Inf")
         if qd is not None and q.shape != qd.shape:
             raise InputError(f"{self.name}: q and qd shapes differ: {tuple(q.shape)} vs {tuple(qd.shape)}")
 
