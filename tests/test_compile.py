@@ -78,11 +78,15 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
 def test_compiled_fused_program_float64_with_inputs(rng):
     """The fused path's AOTInductor program (``fused_aot.FusedPrograms``) of a float64 model of an actuated
     scene equals the eager fused path to rounding, inputs included; another batch shape is another program,
-    a cast of the model another; a non-contiguous state is read as its values."""
+    a cast of the model another; a non-contiguous state is read as its values; a force residual dropped by
+    ``residuals_off`` is dropped by the program too (another program: the model's structure is in its key)."""
     import copy
 
     system = get_system("actuated_double_pendulum")
-    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16))).double()
+    model = perturbed(build_model("film_lnn", system, hidden_dims=(16, 16), residual_force={"hidden": [8]})).double()
+    with torch.no_grad():
+        for p in model.forces.residual.parameters():
+            p.add_(0.3 * torch.randn(p.shape, generator=torch.Generator().manual_seed(1), dtype=p.dtype))
     q, qd, params = random_batch(system, rng, 3)
     tau = torch.randn(3, system.num_inputs, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     compiled = copy.deepcopy(model).compile_dynamics(True)
@@ -96,6 +100,13 @@ def test_compiled_fused_program_float64_with_inputs(rng):
                                    rtol=1e-10, atol=1e-10)
         programs = compiled._compiled["_fused_whole"].compiled
         assert isinstance(programs, FusedPrograms) and len(programs.programs) == 2
+        with model.residuals_off("force"):
+            without = model.acceleration(q, qd, params, tau)
+        assert (without - expected).abs().max() > 1e-3
+        with compiled.residuals_off("force"):
+            torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), without, rtol=1e-10, atol=1e-10)
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
+        assert len(programs.programs) == 3
         # every parameter changed in place, the learned friction's too (not part of the stacked weights): read
         # on the next call, nothing recompiled
         for m in (model, compiled):
@@ -104,7 +115,7 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         changed = model.acceleration(q, qd, params, tau)
         assert (changed - expected).abs().max() > 1e-3
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), changed, rtol=1e-10, atol=1e-10)
-        assert len(programs.programs) == 2
+        assert len(programs.programs) == 3
         expected = changed
         # a rollout's step under inputs: one program of its own, the eager rollout's result
         taus = tau[:, None].expand(-1, 3, -1)
@@ -114,7 +125,7 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         assert len(compiled._compiled["_rollout_step"].compiled.programs) == 1
         compiled.float()
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-4, atol=1e-4)
-        assert len(programs.programs) == 3 and compiled._compile is True
+        assert len(programs.programs) == 4 and compiled._compile is True
 
 
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):

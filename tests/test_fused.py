@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lnn_torch.networks import build_model
-from lnn_torch.networks.fused import fusable
+from lnn_torch.networks.fused import fusable, fusion_plan
 from lnn_torch.systems import get_system
 
 from .conftest import random_batch, random_inputs
@@ -112,6 +112,24 @@ def test_an_optimiser_step_restacks_the_plan(fused_kernel, rng):
         opt.zero_grad()
     with torch.no_grad():
         assert not torch.allclose(model.acceleration(q, qd, params), got)
+
+
+def test_a_model_made_under_inference_mode_runs_the_parts(rng):
+    """Weights that are inference tensors (a model built or cast under ``torch.inference_mode``) have no version
+    counter, so no stacked copy could tell when they change: such a model runs part by part, with the same
+    result."""
+    import copy
+
+    model, system = _model("double_pendulum", rng, hidden_dims=(16, 16))
+    q, qd, params = random_batch(system, rng, 4)
+    with torch.no_grad():
+        expected = model.acceleration(q, qd, params)
+    with torch.inference_mode():
+        copied = copy.deepcopy(model)  # every weight and buffer an inference tensor
+        assert next(copied.parameters()).is_inference()
+        got = copied.acceleration(q, qd, params)
+        assert fusion_plan(copied) is None
+    torch.testing.assert_close(got, expected, rtol=1e-12, atol=1e-12)
 
 
 def test_fused_path_steps_aside_under_a_gradient(rng):

@@ -115,9 +115,13 @@ def plan_sources(model) -> tuple[tuple[dict, str], ...]:
             (pot.net.out._parameters, "weight"))
 
 
-def _state(sources) -> tuple:
-    """Each source tensor's identity, storage and version."""
-    return tuple((id(t), t.data_ptr(), t._version) for t in (d[name] for d, name in sources))
+def _state(sources) -> tuple | None:
+    """Each source tensor's identity, storage and version; None where one is an inference tensor (made under
+    ``torch.inference_mode``: no version counter, so no plan can tell when it changes)."""
+    try:
+        return tuple((id(t), t.data_ptr(), t._version) for t in (d[name] for d, name in sources))
+    except RuntimeError:
+        return None
 
 
 def fusion_plan(model) -> FusionPlan | None:
@@ -130,7 +134,7 @@ def fusion_plan(model) -> FusionPlan | None:
     if (plan is not None and plan.steps == _optimizer_steps and model._kinetic_parts is plan.parts[0]
             and model._potential_parts is plan.parts[1] and _state(plan.sources) == plan.key):
         return plan
-    if not fusable(model):
+    if not fusable(model) or _state(plan_sources(model)) is None:  # inference-tensor weights: the parts' path
         return None
     with torch.no_grad():
         plan = _stack(model, plan_sources(model))

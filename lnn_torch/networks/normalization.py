@@ -146,13 +146,8 @@ class Normalizer(nn.Module):
         """Whether every parameter between ``low`` and ``high`` (per parameter, SI) is inside the trusted
         range by a margin (a value within 1e-9 standard deviations of a bound, a NaN or a non-positive value
         of a positive parameter is left to the exact check). The transform is monotone, so the extremes decide."""
-        buffers = (self.param_log, self.param_log_mean, self.param_log_std)
-        key = tuple((id(b), b._version) for b in buffers)
-        cached = self.__dict__.get("_trust_floats")
-        if cached is None or cached[0] != key:
-            cached = (key, *(b.tolist() for b in buffers))
-            self.__dict__["_trust_floats"] = cached  # plain floats, kept until a statistic changes
-        _, logs, means, stds = cached
+        # read every call (no cache that a write through ``.data`` or an inference tensor would defeat)
+        logs, means, stds = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std))
         limit = self.TRUST - 1e-9
         for lo, hi, log, mean, std in zip(low, high, logs, means, stds, strict=True):
             if log:
