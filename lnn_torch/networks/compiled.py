@@ -36,7 +36,7 @@ class CompiledDynamics:
         seconds); the C++ wrapper on the CPU (``lnn_torch.perf.compile_fn``). On the CPU, accelerations
         and rollout steps without a gradient of a model with a fused path (``networks.fused``) run an
         AOTInductor program instead, called without dynamo's per-call overhead (``networks.fused_aot``;
-        about 10 s to build, cached on disk alike). If compilation or a
+        10-20 s to build, cached on disk alike). If compilation or a
         compiled call fails, a warning is issued once and the model continues eagerly. Returns the model.
         """
         if enabled not in (True, False, "auto"):
