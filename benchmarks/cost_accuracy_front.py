@@ -53,7 +53,7 @@ CKPT = ROOT / "data" / "front"
 DATA = ROOT / "data" / "front.h5"  # its own 200-trajectory set (the quickstart now trains on 2000)
 SPEC = dict(scene="double_pendulum", num_trajectories=200, duration=20.0, dt=0.005, seed=0)
 
-# name -> film_lnn options; "w128" is the configuration of the shipped model and the configs
+# name -> film_lnn options; "w64" has the shipped model's widths, "w128" the quickstart's and the box model's
 POINTS = {
     "w8": dict(hidden_dims=[8, 8]),
     "w16 x1": dict(hidden_dims=[16]),

@@ -243,9 +243,9 @@ class FusedPrograms:
                 raise RuntimeError("the fused program reads model tensors that are not its inputs")
             # the graph, its inputs' layout, its constants (e.g. a cached 1.0) and the machine it is built for
             digest = hashlib.sha256()
-            layout = [(tuple(x.shape), tuple(x.stride()), str(x.dtype)) for x in inputs]
             digest.update("\n".join([torch.__version__, platform.machine(), torch.backends.cpu.get_cpu_capability(),
-                                     repr(sorted(_AOTI_OPTIONS.items())), str(program.graph), repr(layout)]).encode())
+                                     repr(sorted(_AOTI_OPTIONS.items())), str(program.graph),
+                                     repr(_layout(inputs))]).encode())
             for name, value in sorted(program.constants.items()):
                 digest.update(name.encode() + repr(value.tolist()).encode())
             path = _package_dir() / f"{digest.hexdigest()[:32]}.pt2"
