@@ -161,3 +161,58 @@ def test_an_import_config_names_its_description_relative_to_itself(tmp_path, mon
     assert robot["source"] == str((arm_dir / "two.urdf").resolve())
     with pytest.raises(InputError, match="no such file, and not a shipped one"):
         MujocoArm({"source": "missing.urdf"})
+
+
+def _with_meshes(text: str) -> str:
+    """``URDF`` as a ROS package ships it: every link's collision and visual geometry a mesh named
+    ``package://...`` (which MuJoCo cannot open)."""
+    for link in ("base", "l1", "l2"):
+        text = text.replace(f'<link name="{link}">', f'<link name="{link}"><visual><geometry><mesh filename='
+                            f'"package://two_description/meshes/visual/{link}.dae"/></geometry></visual><collision>'
+                            f'<geometry><mesh filename="package://two_description/meshes/collision/{link}.stl"/>'
+                            '</geometry></collision>')
+    return text
+
+
+def test_a_description_whose_meshes_are_not_there_is_its_inertials(tmp_path):
+    """A URDF from a ROS package (meshes as ``package://``, not there) loads with a warning naming the
+    files left out, and is the same arm as the URDF without any geometry: the dynamics come from the
+    inertials as written; the file is never edited. A mesh that is there stays."""
+    bare, meshed = tmp_path / "bare.urdf", tmp_path / "meshed.urdf"
+    bare.write_text(URDF)
+    meshed.write_text(_with_meshes(URDF))
+    with pytest.warns(UserWarning, match=r"3 mesh file\(s\) not found \(package://two_description/meshes/collision/"
+                                         r"base.stl.*their geoms are left out"):
+        arm = MujocoArm({"source": str(meshed), "flange": "tool0"})
+    reference = MujocoArm({"source": str(bare), "flange": "tool0"})
+    q, qd, qdd = states(reference)
+    torch.testing.assert_close(arm.mass_matrix(q), reference.mass_matrix(q), rtol=1e-14, atol=0)
+    torch.testing.assert_close(arm.inverse(q, qd, qdd), reference.inverse(q, qd, qdd), rtol=1e-14, atol=0)
+    assert arm.model.ngeom == 0 and meshed.read_text() == _with_meshes(URDF)
+    # a mesh that is there is kept: a tetrahedron as the collision mesh of l1 (MuJoCo reads OBJ)
+    (tmp_path / "l1.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    meshed.write_text(_with_meshes(URDF).replace("package://two_description/meshes/collision/l1.stl", "l1.obj"))
+    with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found"):
+        kept = MujocoArm({"source": str(meshed), "flange": "tool0"})
+    assert kept.model.ngeom == 1
+    torch.testing.assert_close(kept.mass_matrix(q), reference.mass_matrix(q), rtol=1e-14, atol=0)
+
+
+def test_a_moving_body_whose_inertia_comes_from_a_missing_mesh_is_refused(tmp_path):
+    """MuJoCo computes the inertia of a body without an inertial from its geoms: with the mesh gone that
+    body cannot be modelled, and the error names it and the file; a body that does not move (welded to
+    the world) loses its mesh silently."""
+    text = """<mujoco><compiler meshdir="assets"/><asset><mesh name="base" file="base.stl"/>
+      <mesh name="l1" file="l1.stl"/></asset><worldbody><body name="base"><geom type="mesh" mesh="base"/>
+      <body name="l1"><joint name="j1" axis="0 0 1"/><geom type="mesh" mesh="l1"/>{inertial}</body></body>
+      </worldbody></mujoco>"""
+    path = tmp_path / "arm.xml"
+    path.write_text(text.format(inertial=""))
+    with pytest.raises(InputError, match=r"body 'l1' takes its inertia from mesh 'l1.stl', which is not there "
+                                         r"\(it has no inertial written\)"):
+        ArmDescription.of(str(path)).compile()
+    path.write_text(text.format(inertial='<inertial pos="0 0.1 0" mass="2" diaginertia="0.01 0.02 0.02"/>'))
+    with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found \(assets/base.stl, assets/l1.stl\)|"
+                                         r"2 mesh file\(s\) not found \(base.stl, l1.stl\)"):
+        model = ArmDescription.of(str(path)).compile()
+    assert model.ngeom == 0 and model.body_mass[2] == 2.0

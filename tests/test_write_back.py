@@ -210,6 +210,28 @@ def test_mujoco_from_the_written_urdf_is_the_grey_box(tmp_path, float64):
         wb.write_description(model, tmp_path / "two.xml", "mjcf")
 
 
+def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, float64):
+    """A URDF as a ROS package ships it (collision meshes named ``package://...``, not there): the grey box
+    is built from its inertials, the file written back keeps every mesh reference as written, and MuJoCo
+    from it (the meshes left out again, with the warning) is the model's rigid body."""
+    mesh = '<collision><geometry><mesh filename="package://two/meshes/{}.stl"/></geometry></collision>'
+    text = TWO_LINK_URDF.replace('<link name="l1">', '<link name="l1">' + mesh.format("l1"))
+    text = text.replace('<link name="l2">', '<link name="l2">' + mesh.format("l2"))
+    source = tmp_path / "two.urdf"
+    source.write_text(text)
+    with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found"):
+        model = _grey_box({"source": str(source), "flange": "tool0"}, dof=2, seed=2)
+    result = wb.write_description(model, tmp_path / "out" / "two_identified.urdf")
+    written = result.path.read_text()
+    assert written.count('<mesh filename="package://two/meshes/') == 2 and source.read_text() == text
+    with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found"):
+        arm = MujocoArm(str(result.path))
+    arm.model.dof_armature[:] = [json.loads(result.sidecar.read_text())["not_expressed"][0]["values"][n]
+                                 for n in ("j1", "j2")]
+    errors = _compare(model, arm, torch.zeros(1, 4))
+    assert max(errors.values()) < BOUND, errors
+
+
 def test_an_arm_model_written_back_is_its_inverse_less_friction(tmp_path, float64):
     """A classical fit with every link's parameters (perturbed, physically consistent), viscous, Coulomb
     and offset friction: MuJoCo from the written MJCF is its rigid body, and with the joints' damping its

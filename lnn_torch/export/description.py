@@ -59,7 +59,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..robots.description import PAYLOAD_BODY, TOOL_BODY, ArmDescription, payload_row
+from ..robots.description import PAYLOAD_BODY, TOOL_BODY, ArmDescription, drop_missing_meshes, payload_row
 
 FORMATS = ("mjcf", "urdf")
 SUFFIXES = {"mjcf": ".xml", "urdf": ".urdf"}
@@ -840,6 +840,7 @@ def _compile_file(path: Path):
     try:
         spec = mujoco.MjSpec.from_file(str(path))
         spec.compiler.fusestatic = False
+        drop_missing_meshes(spec, path)  # as the description was read (its meshes' geoms do not enter the check)
         return spec.compile()
     except ValueError as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else "cannot be compiled"

@@ -179,6 +179,12 @@ class ArmDescription:
             where = f" ({'; '.join(lines[1:])})" if len(lines) > 1 else ""
             raise InputError(f"robot description {path}: {lines[0] if lines else err}{where}") from None
         spec.compiler.fusestatic = False  # keep a URDF's fixed frames (its flange link) as bodies
+        left_out = drop_missing_meshes(spec, path)
+        if left_out and (str(path), *left_out) not in _WARNED:
+            _WARNED.add((str(path), *left_out))
+            warnings.warn(f"robot description {path}: {len(left_out)} mesh file(s) not found ({', '.join(left_out[:3])}"
+                          f"{', ...' if len(left_out) > 3 else ''}); their geoms are left out: the dynamics use the "
+                          "bodies' inertials as written, which do not depend on them", stacklevel=4)
         names = [b.name for b in spec.bodies]
         for name in self.remove:
             body = spec.body(name) if name in names else None
@@ -256,6 +262,57 @@ class ArmDescription:
             raise InputError(f"robot description {path}: name the flange (a body or site where payloads attach); "
                              f"the chain ends in {', '.join(b.name for b in leaves)}")
         return leaves[0]
+
+
+# ---------------------------------------------------------------------------- meshes it cannot find
+_WARNED: set[tuple] = set()  # (description file, its missing meshes) reported in this process
+
+
+def _asset_file(spec, file: str, folder: str) -> Path:
+    """Where MuJoCo looks for an asset ``file`` of ``spec`` (its compiler's ``strippath``; an absolute name
+    as it is; else ``folder`` (the compiler's meshdir) if absolute, else the model file's folder and it)."""
+    name = Path(Path(file).name if spec.strippath else file)
+    if name.is_absolute():
+        return name
+    base = Path(folder) if folder and Path(folder).is_absolute() else Path(spec.modelfiledir or ".") / (folder or "")
+    return base / name
+
+
+def drop_missing_meshes(spec, path) -> list[str]:
+    """Leave out of ``spec`` (a ``mujoco.MjSpec`` read from ``path``) the mesh assets whose files are not
+    there and the geoms that show them: a robot description from a ROS package names its meshes as
+    ``package://...``, which MuJoCo cannot open, and a URDF copied without its meshes has none, while the
+    dynamics need only the bodies' inertials. A moving body whose inertia MuJoCo would compute from such
+    a geom (no inertial written, or the compiler's ``inertiafromgeom="true"``) cannot be modelled without
+    it: ``InputError`` naming the body and the file. Returns the files left out (none: ``spec`` as read)."""
+    mujoco = _mujoco()
+    missing = {m.name: m.file for m in spec.meshes
+               if m.file and m.file not in spec.assets and not _asset_file(spec, m.file, spec.meshdir).is_file()}
+    if not missing:
+        return []
+    from_geoms = spec.compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
+    for geom in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH and g.meshname in missing]:
+        body = geom.parent
+        while not isinstance(body, mujoco.MjsBody):  # a geom in a frame
+            body = body.parent
+        if (from_geoms or not body.explicitinertial) and _moves(body):
+            why = "the compiler computes every inertia from geoms" if from_geoms else "it has no inertial written"
+            raise InputError(f"robot description {path}: body '{body.name}' takes its inertia from mesh "
+                             f"'{missing[geom.meshname]}', which is not there ({why}): give the mesh files (the "
+                             "compiler's meshdir) or write the body's inertial")
+        spec.delete(geom)
+    for mesh in [m for m in spec.meshes if m.name in missing]:
+        spec.delete(mesh)
+    return sorted(set(missing.values()))
+
+
+def _moves(body) -> bool:
+    """Whether ``body`` (an ``MjsBody``) or a body above it has a joint: its inertia enters the dynamics."""
+    while body is not None and body.name != "world":
+        if body.joints:
+            return True
+        body = body.parent
+    return False
 
 
 # ---------------------------------------------------------------------------- copies in checkpoints
