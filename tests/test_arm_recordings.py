@@ -114,6 +114,14 @@ def test_a_robot_arms_recording_names_its_joints_and_carries_its_description(tmp
     assert scene["param_names"] == ["payload_mass", "payload_x", "payload_y", "payload_z"]
     with pytest.raises(InputError, match="are not the joints of robot"):
         ImportSpec(coordinates=[f"q{j}" for j in range(7)], robot="franka_panda", coord_names=list("abcdefg"))
+    # columns named as the description's joints need no coordinates; input names without input columns are refused
+    named = {"time": t, **{f"joint{j + 1}": cols[f"q{j}"] for j in range(7)}, **{f"u{j}": cols[f"u{j}"] for j in range(7)}}
+    path = write_csv(tmp_path / "named.csv", named)
+    out = import_recordings([path], tmp_path / "named.h5", ImportSpec(inputs=[f"u{j}" for j in range(7)], robot=robot,
+                                                                     split=[1.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(read_dataset(out).read("q")[0], read_dataset(tmp_path / "arm.h5").read("q")[0])
+    with pytest.raises(InputError, match="input_names names 2 inputs, but no input columns are given"):
+        import_recordings([path], tmp_path / "bad.h5", ImportSpec(robot=robot, input_names=["a", "b"]))
 
 
 def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):

@@ -436,16 +436,34 @@ def test_the_real_franka_bag_imports_with_its_plain_config(tmp_path, capsys):
     assert (q >= limits[:, 0]).all() and (q <= limits[:, 1]).all()
 
 
-def test_the_real_ur10_bag_imports_as_a_measured_system(tmp_path, capsys):
+def test_the_real_ur10_bag_imports_with_its_description_and_as_a_measured_system(tmp_path, capsys):
+    """The UR10 bag with its shipped config: the description (configs/import/ur10.xml) names its joints as the
+    bag does, so no mapping is needed; the arm's regressor explains the torques, and the two halves' delay
+    estimates agree (about 13 ms, as the drives' smoothed currents would put them). Without the description
+    (joints mapped to q1..q6) it is a measured system, its delay estimated on the compact basis."""
     bag = _shared("ur10_exciting_trajectory.db3")
-    assert main(["import", str(bag), "--config", str(ROOT / "configs" / "import" / "ur10_bag.yaml"),
-                 "-o", str(tmp_path / "ur10.h5")]) == 0
+    config = ROOT / "configs" / "import" / "ur10_bag.yaml"
+    assert main(["import", str(bag), "--config", str(config), "-o", str(tmp_path / "ur10.h5")]) == 0
     out = capsys.readouterr().out
     assert "3441 messages, time from the messages' header stamps" in out and "repeated row" not in out
     f = read_dataset(tmp_path / "ur10.h5")
     prov = json.loads(f.attrs["provenance"])
-    assert f.scene["dof"] == 6 and f.scene["coord_names"] == [f"q{j}" for j in range(1, 7)]
+    assert f.scene["dof"] == 6 and f.scene["coord_names"][0] == "shoulder_pan_joint"
+    assert f.scene["config"]["description"]["source"].endswith("ur10.xml")
     assert f.dt == pytest.approx(0.008) and prov["sources"][0]["repeated_rows"]["count"] == 0
     assert prov["sources"][0]["joints"]["position"][0] == "shoulder_pan_joint"
-    assert "compact basis" in prov["torque_delay"]["method"] and abs(prov["torque_delay"]["delay_s"]) < 0.05
+    delay = prov["torque_delay"]
+    assert "arm's regressor" in delay["method"] and 0.005 < delay["delay_s"] < 0.025, delay
     assert {k: len(v) for k, v in f.splits.items()} == {"train": 1, "val": 1, "test": 1}
+    # without the description: a measured system
+    names = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
+             "wrist_3_joint")
+    plain = config.read_text().replace("robot: {source: ur10.xml, flange: flange}\n", "joints: {"
+                                       + ", ".join(f"{n}: q{i + 1}" for i, n in enumerate(names)) + "}\n")
+    assert plain != config.read_text()
+    (tmp_path / "plain.yaml").write_text(plain)
+    assert main(["import", str(bag), "--config", str(tmp_path / "plain.yaml"), "-o", str(tmp_path / "m.h5")]) == 0
+    f = read_dataset(tmp_path / "m.h5")
+    prov = json.loads(f.attrs["provenance"])
+    assert f.scene["coord_names"] == [f"q{j}" for j in range(1, 7)] and f.scene["config"].get("description") is None
+    assert "compact basis" in prov["torque_delay"]["method"] and abs(prov["torque_delay"]["delay_s"]) < 0.05

@@ -133,9 +133,9 @@ def spec_from_args(args):
                 raise InputError(f"--split-recordings takes train=..., val=..., test=...; got {item!r}")
             split[part] = [n for n in names.split(",") if n]
         fields["split"] = split
-    if "coordinates" not in fields and "joints" not in fields:
+    if "coordinates" not in fields and "joints" not in fields and fields.get("robot") is None:
         raise InputError("import: name the coordinate columns (--coordinates or the config's coordinates), or a ROS "
-                         "bag's joints (the config's joints)")
+                         "bag's joints (the config's joints), or give the robot whose joints they are named as")
     unknown = set(fields) - set(ImportSpec.__dataclass_fields__)
     if unknown:
         raise InputError(f"import config: unknown field(s) {', '.join(sorted(unknown))}")

@@ -56,7 +56,8 @@ class ImportSpec:
             ``D qd`` it acts on (default identity); ``coulomb_velocity``: its smoothing, rad/s.
         robot: a robot arm's description as the robot it is (``lnn_torch.robots.description``: a shipped
             name, an MJCF/URDF path, or ``{source, flange, remove, tool, armature, damping}``); the
-            coordinates are then its joints in its order (``coord_names`` its joint names).
+            coordinates are then its joints in its order (``coord_names`` its joint names); without
+            ``coordinates`` or ``joints``, the columns (or a bag's joints) named as its joints.
         parameters: known parameters per recording: ``{"names": [...], "units": [...], "kinds": [...],
             "values": {recording: [...] or a tool's name}, "tools": {name: [...]}}``; for a robot arm
             the names default to the payload at its flange, ``payload_mass, payload_x, payload_y,
@@ -149,8 +150,13 @@ class ImportSpec:
         self._bag_fields()
         if self.joints is not None:
             self._mapped_joints()
+        elif self.coordinates is None and self.robot is not None:  # the columns or bag joints named as the robot's
+            from ..robots.mujoco_arm import MujocoArm
+
+            self.coordinates = list(MujocoArm(self.robot).joint_names)
         if self.coordinates is None:
-            raise InputError("import: name the coordinate columns (coordinates), or a bag's joints (joints)")
+            raise InputError("import: name the coordinate columns (coordinates), or a bag's joints (joints), or "
+                             "give the robot whose joints they are named as")
         dof = len(self.coordinates)
         if dof == 0:
             raise InputError("import: name at least one coordinate column")
@@ -169,7 +175,8 @@ class ImportSpec:
         elif self.drive_gains is not None:
             raise InputError("import: drive_gains go with currents (motor current columns)")
         n_u = len(self.input_columns)
-        if self.input_names is not None and len(self.input_names) != n_u:
+        # (no inputs named: a bag's default to the coordinates' efforts, for_bags; a CSV's are refused on import)
+        if self.input_names is not None and n_u and len(self.input_names) != n_u:
             raise InputError(f"import: input_names needs {n_u} entries, got {len(self.input_names)}")
         if not (math.isfinite(self.window_context) and self.window_context >= 0):
             raise InputError(f"import: window_context must be >= 0 s, got {self.window_context}")

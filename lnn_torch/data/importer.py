@@ -111,6 +111,9 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
         spec = spec.for_bags()
     elif spec.joints is not None:
         raise InputError("import: joints maps a ROS bag's joint names; a CSV's columns are named in coordinates")
+    elif spec.input_names is not None and not spec.input_columns:
+        raise InputError(f"import: input_names names {len(spec.input_names)} inputs, but no input columns are given "
+                         "(inputs, or currents)")
     stems = [_name(f) for f in files]  # run.csv and run.csv.gz are both "run"
     if len(set(stems)) != len(stems):
         raise InputError(f"import: recording names (file names without .gz and {', '.join(EXTENSIONS)}, or "

@@ -57,6 +57,9 @@ COND_WARN = 1e3
 # the priors a consistent fit chooses among on validation data (consistent_fit; LogDet divergence per link,
 # in units of the mean squared torque error per sample, N^2 m^2)
 PRIORS = (1e-4, 1e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0, 3.0, 10.0)
+# where validation prefers the strongest or the weakest of the priors given, up to EXTEND more beyond it, each
+# EXTEND_STEP times stronger (weaker) than the last, while the validation error falls (consistent_fit)
+EXTEND, EXTEND_STEP = 4, 10 ** 0.5
 Z95 = 1.959963984540054  # the two-sided 95 % quantile of the normal distribution
 
 
@@ -363,8 +366,9 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
 
     ``prior`` a sequence (e.g. ``PRIORS``): each is fitted, the strongest first (each from where the
     previous ended), and the one whose model has the lowest torque error on ``validation`` ``(q, qd, qdd,
-    tau[, payload])`` (the mean over joints of each joint's RMS, N m) is kept; ``info["prior_selection"]``
-    lists every prior's validation error."""
+    tau[, payload])`` (the mean over joints of each joint's RMS, N m) is kept; where that is the strongest or
+    the weakest given, stronger (weaker) ones are tried beyond it while the validation error falls (``EXTEND``,
+    ``EXTEND_STEP``); ``info["prior_selection"]`` lists every prior's validation error."""
     import scipy.optimize
 
     drive = DriveModel.of(drive)
@@ -459,16 +463,32 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     if validation is not None:
         vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
         vparams = validation[4] if len(validation) > 4 else None
-    best, x, scores = None, theta0.numpy(), {}
+    best, x, scores, ends = None, theta0.numpy(), {}, {}
     for strength in priors:  # the strongest first; each starts where the previous ended
         sol = solve(strength, x)
-        x = sol.x
+        x = ends[strength] = sol.x
         candidate = model_of(x, strength, sol)
         if validation is None:
             best = candidate
             break
         scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
         if best is None or scores[strength] < scores[best[0].info["prior"]]:
+            best = candidate
+    if scores and len(priors) > 1 and best[0].info["prior"] in (priors[0], priors[-1]):
+        # the best at an end of those given: the validation error may fall further beyond it (a description
+        # as good as the manufacturer's table wants a stronger prior than the grid holds, a poor one a
+        # weaker): priors EXTEND_STEP apart beyond that end while the validation error falls, EXTEND at most
+        step = EXTEND_STEP if best[0].info["prior"] == priors[0] else 1 / EXTEND_STEP
+        strength, x = best[0].info["prior"], ends[best[0].info["prior"]]
+        for _ in range(EXTEND if strength > 0 else 0):
+            strength = float(f"{strength * step:.3g}")  # 31.6, 100, 316, ...
+            sol = solve(strength, x)
+            x = sol.x
+            candidate = model_of(x, strength, sol)
+            scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt()
+                                     .mean())
+            if not scores[strength] < scores[best[0].info["prior"]]:
+                break
             best = candidate
     model, values = best
     if scores:

@@ -81,7 +81,8 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         # the friction form: each form less one of its terms, at the chosen weighting and prior and the priors
         # next to it; a term of the configured drive model is dropped only when that lowers the validation
         # error by more than FORM_MARGIN
-        near = sorted({p for p in priors if fit.info["prior"] / 3.5 <= p <= 3.5 * fit.info["prior"]})
+        chosen = fit.info["prior"]  # beyond priors where validation extended them (classical_arm.EXTEND)
+        near = sorted({chosen} | {p for p in priors if chosen / 3.5 <= p <= 3.5 * chosen})
         full = _validation_error(fit)
         for drive in _sub_forms(forces.drive):
             other = next(f for f in fit_classical(system, train, drive=drive, methods=(fit.method,), stride=stride,
