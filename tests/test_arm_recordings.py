@@ -115,7 +115,8 @@ def test_a_robot_arms_recording_names_its_joints_and_carries_its_description(tmp
     with pytest.raises(InputError, match="are not the joints of robot"):
         ImportSpec(coordinates=[f"q{j}" for j in range(7)], robot="franka_panda", coord_names=list("abcdefg"))
     # columns named as the description's joints need no coordinates; input names without input columns are refused
-    named = {"time": t, **{f"joint{j + 1}": cols[f"q{j}"] for j in range(7)}, **{f"u{j}": cols[f"u{j}"] for j in range(7)}}
+    named = {"time": t, **{f"joint{j + 1}": cols[f"q{j}"] for j in range(7)},
+             **{f"u{j}": cols[f"u{j}"] for j in range(7)}}
     path = write_csv(tmp_path / "named.csv", named)
     out = import_recordings([path], tmp_path / "named.h5", ImportSpec(inputs=[f"u{j}" for j in range(7)], robot=robot,
                                                                      split=[1.0, 0.0, 0.0]))

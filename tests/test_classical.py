@@ -242,7 +242,7 @@ def test_a_prior_at_the_end_of_those_given_is_extended_while_validation_improves
     assert fit.info["prior"] > max(given) and beyond[0] == pytest.approx(0.316), scores
     assert min(scores, key=scores.get) == f"{fit.info['prior']:g}" and scores["0.316"] < scores["0.1"], scores
     assert len(beyond) <= classical.EXTEND and all(b / a == pytest.approx(classical.EXTEND_STEP, rel=0.01)
-                                                   for a, b in zip([0.1, *beyond], beyond))
+                                                   for a, b in zip([0.1, *beyond[:-1]], beyond, strict=True))
     # validation prefers a weak prior on noise-free data: no stronger one is tried
     fit = classical.consistent_fit(chain, *samples(arm, 80, 5), drive=DRIVE, prior=given, validation=samples(arm, 40, 6))
     assert max(float(k) for k in fit.info["prior_selection"]["validation_rms_mean"]) == max(given)
