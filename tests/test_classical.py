@@ -244,5 +244,6 @@ def test_a_prior_at_the_end_of_those_given_is_extended_while_validation_improves
     assert len(beyond) <= classical.EXTEND and all(b / a == pytest.approx(classical.EXTEND_STEP, rel=0.01)
                                                    for a, b in zip([0.1, *beyond[:-1]], beyond, strict=True))
     # validation prefers a weak prior on noise-free data: no stronger one is tried
-    fit = classical.consistent_fit(chain, *samples(arm, 80, 5), drive=DRIVE, prior=given, validation=samples(arm, 40, 6))
+    fit = classical.consistent_fit(chain, *samples(arm, 80, 5), drive=DRIVE, prior=given,
+                                   validation=samples(arm, 40, 6))
     assert max(float(k) for k in fit.info["prior_selection"]["validation_rms_mean"]) == max(given)
