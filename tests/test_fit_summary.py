@@ -35,3 +35,25 @@ def test_the_fit_summary_prints_the_per_coordinate_line(capsys):
     out = capsys.readouterr().out
     assert "validation: acc. rel. L2 error 1947.00 % pooled" in out
     assert "validation: acc. rel. L2 error per coordinate joint1 2 %, joint2 50 %, joint3 1.2e+03 %" in out
+
+
+def test_a_model_fitted_to_torques_alone_leads_with_its_torque_error(capsys):
+    """An arm identified on torques (acceleration_weight 0): the torque error comes first and the accelerations
+    (forward dynamics under the measured torques, never fitted) are named as such; a model fitted to
+    accelerations keeps its acceleration line first."""
+    names = ["joint1", "joint2", "joint3"]
+    values = {**metrics(names, [0.02, 0.5, 12.0]), "val/torque_rms": 0.25, "val/torque_nrmse": 0.15}
+    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=5, callbacks=[],
+                              checkpoint_callbacks=[], limit_val_batches=1.0,
+                              callback_metrics={k: torch.tensor(v) for k, v in values.items()})
+    out = {}
+    for weight in (0.0, 1.0):
+        module = SimpleNamespace(system=SimpleNamespace(coord_names=names), hparams={"acceleration_weight": weight})
+        FitSummary().on_fit_end(trainer, module)
+        out[weight] = [line.strip() for line in capsys.readouterr().out.splitlines() if "validation:" in line]
+    assert out[0.0][0] == ("validation: inverse-dynamics torque error 0.25 N m RMS (mean over the inputs), "
+                           "15.00 % normalised")
+    assert out[0.0][1].startswith("validation: acc. rel. L2 error (forward dynamics under the measured torques; not "
+                                  "fitted) 1947.00 % pooled")
+    assert out[1.0][0].startswith("validation: acc. rel. L2 error 1947.00 % pooled")
+    assert out[1.0][-1].startswith("validation: inverse-dynamics torque error")

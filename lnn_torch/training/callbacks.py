@@ -138,17 +138,27 @@ class FitSummary(L.Callback):
             lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
                          f"{selection['value']:.4g}): validation preferred it; the figures below are the last "
                          f"validation's, at step {trainer.global_step}")
+        torque = None
+        if "val/torque_rms" in m:
+            torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
+                      f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")
+        # a model fitted to torques alone (an arm's identification): its torque error first, and its accelerations
+        # (forward dynamics under the measured torques, which carry what no model of the state predicts) named so
+        torques_only = torque is not None and getattr(pl_module, "hparams", {}).get("acceleration_weight", 1.0) == 0
+        what = "acc. rel. L2 error" + (" (forward dynamics under the measured torques; not fitted)" if torques_only
+                                       else "")
+        if torques_only:
+            lines.append(torque)
         if "val/acc_rel_err" in m:
-            lines.append(f"  validation: acc. rel. L2 error {100 * m['val/acc_rel_err']:.2f} % pooled, "
+            lines.append(f"  validation: {what} {100 * m['val/acc_rel_err']:.2f} % pooled, "
                          f"{100 * m.get('val/acc_rel_err_traj_median', float('nan')):.2f} % per-trajectory median"
                          + (f"; {_divergence(pl_module, m['val/divergence_time'])}" if "val/divergence_time" in m
                             else ""))
         coordinates = per_coordinate(m, getattr(getattr(pl_module, "system", None), "coord_names", None))
         if coordinates is not None:
-            lines.append(f"  validation: acc. rel. L2 error {coordinates}")
-        if "val/torque_rms" in m:
-            lines.append(f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
-                         f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")
+            lines.append(f"  validation: {what} {coordinates}")
+        if torque is not None and not torques_only:
+            lines.append(torque)
         if not m and trainer.limit_val_batches != 0:
             epochs = trainer.check_val_every_n_epoch or 1
             every = epochs * max(trainer.num_training_batches, 1)
