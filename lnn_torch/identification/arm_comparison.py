@@ -45,13 +45,14 @@ def arm_chain(system):
 
 
 def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
-                  prior=None, val=None, chain=None) -> dict:
+                  prior=None, val=None, chain=None, extend: bool = True) -> dict:
     """The classical fits ``{label: ArmModel}`` of ``methods`` (of ``METHODS`` and ``WEIGHTED_CONSISTENT``) with
     the drive model ``drive`` on ``train``
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
     time in ``info["fit_seconds"]``. The physically consistent fit's prior: ``prior`` (a value), or chosen
     among ``prior`` (a sequence; None: ``classical_arm.PRIORS``) on the validation data ``val`` (as
-    ``train``) where given, else 0.01. ``chain``: the kinematic chain to fit (default the scene's
+    ``train``) where given, else 0.01, and beyond the sequence's ends where validation prefers an end (``extend``:
+    ``classical_arm.consistent_fit``). ``chain``: the kinematic chain to fit (default the scene's
     description's)."""
     from ..robots.regressor import payload_torque
     from . import classical_arm as classical
@@ -80,7 +81,8 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
                 # against the prior (noise-free data would otherwise weigh it 1e12 times and stall the solver)
                 weights = weighted.weights / np.sqrt(np.mean(np.square(weighted.weights)))
             fits[method] = classical.consistent_fit(chain, *X, drive=drive, weights=weights, prior=prior,
-                                                    validation=validation, start=fits.get("least squares"))
+                                                    validation=validation, start=fits.get("least squares"),
+                                                    extend=extend)
             fits[method].method = method
         else:
             fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))

@@ -359,7 +359,8 @@ def _variable_projection(residual, n: int, start=None, coulomb_velocity: float =
 
 
 def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None, prior=0.01,
-                   start: ArmModel | None = None, max_iterations: int = 300, validation=None) -> ArmModel:
+                   start: ArmModel | None = None, max_iterations: int = 300, validation=None,
+                   extend: bool = True) -> ArmModel:
     """A physically consistent model (module docstring): starts from the description's inertias (and,
     given ``start``, that fit's passive friction coefficients), minimises the mean (weighted) squared
     torque error plus ``prior`` times the LogDet divergence from the description per link.
@@ -368,7 +369,8 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     previous ended), and the one whose model has the lowest torque error on ``validation`` ``(q, qd, qdd,
     tau[, payload])`` (the mean over joints of each joint's RMS, N m) is kept; where that is the strongest or
     the weakest given, stronger (weaker) ones are tried beyond it while the validation error falls (``EXTEND``,
-    ``EXTEND_STEP``); ``info["prior_selection"]`` lists every prior's validation error."""
+    ``EXTEND_STEP``; not with ``extend`` False); ``info["prior_selection"]`` lists every prior's validation
+    error."""
     import scipy.optimize
 
     drive = DriveModel.of(drive)
@@ -474,14 +476,14 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
         if best is None or scores[strength] < scores[best[0].info["prior"]]:
             best = candidate
-    if scores and len(priors) > 1 and best[0].info["prior"] in (priors[0], priors[-1]):
+    if extend and scores and len(priors) > 1 and best[0].info["prior"] in (priors[0], priors[-1]):
         # the best at an end of those given: the validation error may fall further beyond it (a description
         # as good as the manufacturer's table wants a stronger prior than the grid holds, a poor one a
         # weaker): priors EXTEND_STEP apart beyond that end while the validation error falls, EXTEND at most
         step = EXTEND_STEP if best[0].info["prior"] == priors[0] else 1 / EXTEND_STEP
-        strength, x = best[0].info["prior"], ends[best[0].info["prior"]]
-        for _ in range(EXTEND if strength > 0 else 0):
-            strength = float(f"{strength * step:.3g}")  # 31.6, 100, 316, ...
+        end, x = best[0].info["prior"], ends[best[0].info["prior"]]
+        for k in range(1, EXTEND + 1 if end > 0 else 1):
+            strength = float(f"{end * step ** k:.3g}")  # from 10: 31.6, 100, 316, 1000
             sol = solve(strength, x)
             x = sol.x
             candidate = model_of(x, strength, sol)

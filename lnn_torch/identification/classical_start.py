@@ -86,7 +86,7 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         full = _validation_error(fit)
         for drive in _sub_forms(forces.drive):
             other = next(f for f in fit_classical(system, train, drive=drive, methods=(fit.method,), stride=stride,
-                                                  prior=near, val=val, chain=chain).values())
+                                                  prior=near, val=val, chain=chain, extend=False).values())
             forms[drive.name] = _validation_error(other)
             if forms[drive.name] < (1 - FORM_MARGIN) * full and forms[drive.name] < _validation_error(fit):
                 fit = other
