@@ -465,6 +465,9 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     if validation is not None:
         vq, vqd, vqdd, vtau = _check(*validation[:4], chain)
         vparams = validation[4] if len(validation) > 4 else None
+    def validation_error(model) -> float:  # the mean over joints of each joint's RMS, N m
+        return float((model.inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
+
     best, x, scores, ends = None, theta0.numpy(), {}, {}
     for strength in priors:  # the strongest first; each starts where the previous ended
         sol = solve(strength, x)
@@ -473,7 +476,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         if validation is None:
             best = candidate
             break
-        scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
+        scores[strength] = validation_error(candidate[0])
         if best is None or scores[strength] < scores[best[0].info["prior"]]:
             best = candidate
     if extend and scores and len(priors) > 1 and best[0].info["prior"] in (priors[0], priors[-1]):
@@ -487,8 +490,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
             sol = solve(strength, x)
             x = sol.x
             candidate = model_of(x, strength, sol)
-            scores[strength] = float((candidate[0].inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt()
-                                     .mean())
+            scores[strength] = validation_error(candidate[0])
             if not scores[strength] < scores[best[0].info["prior"]]:
                 break
             best = candidate
