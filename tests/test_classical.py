@@ -247,3 +247,17 @@ def test_a_prior_at_the_end_of_those_given_is_extended_while_validation_improves
     fit = classical.consistent_fit(chain, *samples(arm, 80, 5), drive=DRIVE, prior=given,
                                    validation=samples(arm, 40, 6))
     assert max(float(k) for k in fit.info["prior_selection"]["validation_rms_mean"]) == max(given)
+
+
+def test_identify_fits_the_classical_models_with_the_models_own_drive():
+    """The classical fits ``lnn-torch identify`` prints beside a model use its drive model: its forms and the
+    dataset's Coulomb smoothing (they used the default 0.02 rad/s whatever the dataset said, so a model
+    trained with 0.005 was judged against fits of another friction law)."""
+    from lnn_torch.commands.identify import classical_drive
+    from lnn_torch.training import LNNModule
+
+    config = {"dof": 2, "input_names": ["a", "b"], "coulomb_velocity": 0.005}
+    module = LNNModule(scene="measured", scene_config=config, model_options={"friction": "viscous+coulomb+offset"})
+    drive = classical_drive(module)
+    assert drive == module.model.forces.drive and drive.coulomb_velocity == 0.005
+    assert drive.forms == ("viscous", "coulomb", "offset")

@@ -36,6 +36,7 @@ import torch
 
 from ..errors import InputError
 from ..evaluation.report import markdown_table, number, pct, table_header, table_row
+from ..mechanics.friction import DriveModel
 
 
 @dataclass
@@ -231,7 +232,7 @@ def _identify_arm(module, args) -> int:
     if args.feedback and (dm.targets is None or not f.measured):
         raise InputError(f"--feedback needs recorded velocities and estimated targets: {path} is not a measured "
                          "recording or the model was not trained on estimated targets")
-    friction = module.hparams.get("model_options", {}).get("friction", "viscous+coulomb")
+    friction = classical_drive(module)
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
     tools = _tools_on_split(module, f, dm, args.split)
@@ -331,6 +332,16 @@ def _tools_markdown(tools: dict | None) -> str:
         lines += [f"Tool {name} ({tool['declared']}; {', '.join(tool['recordings'])}):", "",
                   markdown_table(["entry", "unit", "identified", "95 % interval", "at import"], rows), ""]
     return "\n".join(lines)
+
+
+def classical_drive(module) -> DriveModel:
+    """The drive model of the classical fits beside ``module``: the model's own (its forms, its Coulomb and
+    Stribeck smoothing: the dataset's), else its configured forms with the scene's smoothing."""
+    drive = getattr(getattr(module.model, "forces", None), "drive", None)
+    if drive is not None:
+        return drive
+    return DriveModel.of(module.hparams.get("model_options", {}).get("friction", "viscous+coulomb"),
+                         coulomb_velocity=float(getattr(module.system, "coulomb_velocity", None) or 0.02))
 
 
 def _model_start(module) -> str:

@@ -329,7 +329,7 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
                 from ..robots.regressor import payload_torque
 
                 offset = payload_torque(chain, q[rows], qd[rows], qdd[rows],
-                                        torch.as_tensor(np.broadcast_to(params, (len(rows), params.size)))).numpy()
+                                        torch.as_tensor(np.tile(params, (len(rows), 1)))).numpy()
         else:
             A = state_basis(q[rows], qd[rows], qdd[rows], angle_mask, coulomb_velocity, combinations)
         n_eq = tau.shape[1] if flat else 1  # rows of A per sample
