@@ -132,3 +132,46 @@ def test_without_the_classical_start_the_grey_box_starts_at_the_description(reco
     assert torch.equal(spatial.link_J(), before) and spatial.anchor_J() is None
     with pytest.raises(Exception, match="classical_start must be"):
         LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, classical_start="sometimes")
+
+
+def test_the_coulomb_smoothing_is_chosen_on_validation_and_travels_with_the_weights(tmp_path):
+    """Drives whose Coulomb friction turns over within 4 mrad/s, recorded with the configured 20 mrad/s: the
+    start takes the smoothing that validates best beyond chance (5 mrad/s of COULOMB_VELOCITIES), writes it
+    into the model, and a model built from the scene's 20 mrad/s that loads the weights (a checkpoint's
+    state, as ``lnn-torch test --ckpt_path`` loads it) has it too; the configured one, where the data have
+    it, is kept."""
+    from lnn_torch.identification.classical_start import COULOMB_VELOCITIES
+
+    level = np.array([2.0, 2.5, 1.5, 1.5, 0.8, 0.6, 0.4])
+    runs = {}
+    for true in (0.004, 0.02):
+        csv = record(tmp_path / f"arm{true}.csv", seconds=6.0, friction=lambda qd, v=true: level * np.tanh(qd / v))
+        spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                          velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                          coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                          coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
+                          split={"train": [f"arm{true}[0.1:3.5]"], "val": [f"arm{true}[3.5:5.9]"]})
+        dm = TrajectoryDataModule(path=str(import_recordings([csv], tmp_path / f"arm{true}.h5", spec)),
+                                  targets="finite_difference")
+        scene, config = dm.model_scene()
+        module = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                           acceleration_weight=0.0, eps=0.0)
+        module.model.double().fit_normalizer(dm.normalization_data())
+        report = start_from_classical(module.model, module.system, dm.trajectories("train"), dm.trajectories("val"))
+        runs[true] = (module, report, scene, config)
+    module, report, scene, config = runs[0.004]
+    errors = report["smoothing_selection"]
+    assert set(errors) == set(COULOMB_VELOCITIES) and min(errors, key=errors.get) == 0.005, errors
+    assert report["coulomb_velocity"] == 0.005 and module.model.forces.drive.coulomb_velocity == 0.005
+    rebuilt = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                        acceleration_weight=0.0, eps=0.0)
+    assert rebuilt.model.forces.coulomb_velocity == 0.02  # the scene's, until the weights come
+    rebuilt.load_state_dict(module.state_dict())
+    assert rebuilt.model.forces.drive.coulomb_velocity == 0.005 and rebuilt.model.forces.stick_velocity == 0.0125
+    older = {k: v for k, v in module.state_dict().items() if not k.endswith("coulomb_velocity_si")}
+    rebuilt = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                        acceleration_weight=0.0, eps=0.0)
+    rebuilt.load_state_dict(older)  # saved before the smoothing travelled: strict, and the scene's stands
+    assert rebuilt.model.forces.coulomb_velocity == 0.02
+    module, report, *_ = runs[0.02]
+    assert report["coulomb_velocity"] == 0.02 and module.model.forces.coulomb_velocity == 0.02, report

@@ -40,13 +40,14 @@ HOME = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 
 
 def record(path, seconds: float = 4.0, dt: float = 0.002, seed: int = 0, feedback=None, noise: float = 0.0,
-           robot=None, payload=None):
+           robot=None, payload=None, friction=None):
     """The arm (``ROBOT``, by MuJoCo) tracking a sum of sines about its home configuration by computed torque
     on its own dynamics: time, joint angles (rad), velocities (rad/s) and torques (N m) every ``dt``. With
     ``noise`` (rad/s) the recorded velocities hold white noise of that size, and with ``feedback`` (gains
     per joint, N m s/rad) the arm's controller answers it: the applied (and recorded) torque holds
     ``-feedback * noise`` (``lnn_torch.identification.velocity_feedback``). ``robot``: another
-    description (default ``ROBOT``); ``payload``: a load it carries at the flange (mass, centre of mass)."""
+    description (default ``ROBOT``); ``payload``: a load it carries at the flange (mass, centre of mass);
+    ``friction``: the drives' friction torque ``friction(qd)``, which the recorded torque overcomes too."""
     arm = MujocoArm(ROBOT if robot is None else robot)
     rng = np.random.default_rng(seed)
     amp, freq, phase = rng.uniform(0.2, 0.4, 7), rng.uniform(0.3, 0.8, 7), rng.uniform(0, 2 * np.pi, 7)
@@ -63,10 +64,11 @@ def record(path, seconds: float = 4.0, dt: float = 0.002, seed: int = 0, feedbac
         qdd = ref_dd + 100.0 * (ref - q) + 20.0 * (ref_d - qd)
         measured = rng.normal(0.0, noise, 7) if noise else np.zeros(7)
         tau = arm.inverse(q[None], qd[None], qdd[None], payload=load)[0].numpy() - gains * measured
+        recorded = tau if friction is None else tau + friction(qd)
         rows["time"].append(t)
         for j in range(7):
             rows[f"q{j + 1}"].append(q[j]), rows[f"dq{j + 1}"].append(qd[j] + measured[j])
-            rows[f"tau{j + 1}"].append(tau[j])
+            rows[f"tau{j + 1}"].append(recorded[j])
         arm.hold(tau, dt, 2)
         q, qd = arm.state()
     return write_csv(path, rows)

@@ -33,6 +33,14 @@ CONSISTENT = "physically consistent"
 # other by chance (the Franka bag's 3.5 s: dropping viscous friction lowered validation by 0.8 % and raised the
 # held-out error by 1.9 %; the real Panda's: 2.1 % lower on validation, the same held out)
 FORM_MARGIN = 0.02
+# the Coulomb smoothings (rad/s) the start chooses among with the configured one, by ordinary least squares on the
+# validation recordings (a tanh of v / v_c has no physical v_c: a drive's friction turns over within 1-100 mrad/s);
+# another than the configured is taken only where it validates better beyond chance: its squared torque errors
+# (each joint's in units of its mean square) lower than the configured one's by more than SMOOTHING_Z standard
+# errors of the mean over SMOOTHING_BLOCKS consecutive blocks of the validation points (errors are correlated in
+# time: blocks, not points, are the independent draws)
+COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+SMOOTHING_BLOCKS, SMOOTHING_Z = 10, 2.0
 
 
 def can_start(model) -> str | None:
@@ -51,9 +59,11 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     """Start ``model`` (a structured model with the learned spatial part and joint friction) at the
     physically consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th
     point), its prior chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and
-    with ``val`` its rows' weighting (``weighting_selection``), then its friction form (``_sub_forms``: the
-    form less one term, each at the chosen prior and its neighbours in ``priors``, kept where it validates
-    better by more than ``FORM_MARGIN``). Returns the report: the method (weighting), form and prior kept,
+    with ``val`` its Coulomb smoothing (``COULOMB_VELOCITIES``, ``smoothing_selection``; written into the
+    model: ``LearnedForces.set_coulomb_velocity``), its rows' weighting (``weighting_selection``), then its
+    friction form (``_sub_forms``: the form less one term, each at the chosen prior and its neighbours in
+    ``priors``, kept where it validates better by more than ``FORM_MARGIN``). Returns the report: the
+    method (weighting), form, prior and Coulomb smoothing kept,
     the chosen form's validation error per prior tried (``validation_rms_mean``), the whole prior search
     (``prior_search``), each form's and each weighting's validation error (``form_selection``,
     ``weighting_selection``), the fit's time."""
@@ -67,28 +77,31 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     spatial, forces = model.part("kinetic", "spatial"), model.forces
     chain = read_chain(load_description(spatial.description))
     began = time.perf_counter()
+    drive, smoothing = forces.drive, None
+    if val is not None and {"coulomb", "stribeck"} & set(drive.forms) and "sigmoid" not in drive.forms:
+        drive, smoothing = _coulomb_velocity(system, train, val, drive, stride, chain)
     # with validation data, the rows' weighting too: each joint's rows as they are, or divided by that joint's
     # ordinary residual spread (as weighted least squares), whichever validates better
     methods = ("least squares", "weighted least squares", CONSISTENT, WEIGHTED_CONSISTENT) if val is not None \
         else ("least squares", CONSISTENT)
-    fits = fit_classical(system, train, drive=forces.drive, methods=methods, stride=stride,
+    fits = fit_classical(system, train, drive=drive, methods=methods, stride=stride,
                          prior=priors if val is not None else 0.01, val=val, chain=chain)
     weightings = {f.method: f for f in fits.values() if f.method in (CONSISTENT, WEIGHTED_CONSISTENT)}
     fit = min(weightings.values(), key=_validation_error)
     search = fit.info.get("prior_selection")
-    forms = {forces.drive.name: _validation_error(fit)}
-    if val is not None and "sigmoid" not in forces.drive.forms:
+    forms = {drive.name: _validation_error(fit)}
+    if val is not None and "sigmoid" not in drive.forms:
         # the friction form: each form less one of its terms, at the chosen weighting and prior and the priors
         # next to it; a term of the configured drive model is dropped only when that lowers the validation
         # error by more than FORM_MARGIN
         chosen = fit.info["prior"]  # beyond priors where validation extended them (classical_arm.EXTEND)
         near = sorted({chosen} | {p for p in priors if chosen / 3.5 <= p <= 3.5 * chosen})
         full = _validation_error(fit)
-        for drive in _sub_forms(forces.drive):
-            other = next(f for f in fit_classical(system, train, drive=drive, methods=(fit.method,), stride=stride,
+        for sub in _sub_forms(drive):
+            other = next(f for f in fit_classical(system, train, drive=sub, methods=(fit.method,), stride=stride,
                                                   prior=near, val=val, chain=chain, extend=False).values())
-            forms[drive.name] = _validation_error(other)
-            if forms[drive.name] < (1 - FORM_MARGIN) * full and forms[drive.name] < _validation_error(fit):
+            forms[sub.name] = _validation_error(other)
+            if forms[sub.name] < (1 - FORM_MARGIN) * full and forms[sub.name] < _validation_error(fit):
                 fit = other
     n = chain.dof
     pi = torch.as_tensor(fit.pi, dtype=torch.float64)
@@ -102,6 +115,8 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             value = fit.friction_coefficients.get(name, torch.zeros(n, dtype=torch.float64))
             value = torch.as_tensor(value, dtype=torch.float64)
             coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
+    if drive.coulomb_velocity != forces.drive.coulomb_velocity:
+        forces.set_coulomb_velocity(drive.coulomb_velocity)
     forces.start_with(coefficients)
     selection = fit.info.get("prior_selection")
     return {"method": fit.method, "drive": forces.drive.name, "form": fit.drive.name, "prior": fit.info["prior"],
@@ -110,7 +125,39 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             "form_selection": forms if len(forms) > 1 else None,
             "weighting_selection": ({k: _validation_error(f) for k, f in weightings.items()} if len(weightings) > 1
                                     else None),
+            "coulomb_velocity": drive.coulomb_velocity, "smoothing_selection": smoothing,
             "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points")}
+
+
+def _coulomb_velocity(system, train, val, drive, stride: int, chain) -> tuple:
+    """The drive model with the Coulomb smoothing validation prefers (``COULOMB_VELOCITIES`` and the
+    configured one; ordinary least squares, its validation torque error; another than the configured only
+    where it is lower beyond chance: ``SMOOTHING_BLOCKS``, ``SMOOTHING_Z``), and each smoothing's validation
+    error ``{v: N m}`` (the mean over joints of each joint's RMS)."""
+    import dataclasses
+
+    from ..data.trajectories import points
+    from .arm_comparison import fit_classical
+
+    def stacked(data):
+        parts = [points(t, stride) for t in (data if isinstance(data, (list, tuple)) else [data])]
+        return [torch.cat(column) for column in zip(*parts, strict=True)]
+
+    q, qd, qdd, tau, params = stacked(val)
+    errors, squares = {}, {}
+    for v in sorted({drive.coulomb_velocity, *COULOMB_VELOCITIES}):
+        fit = next(iter(fit_classical(system, train, drive=dataclasses.replace(drive, coulomb_velocity=v),
+                                      methods=("least squares",), stride=stride, chain=chain).values()))
+        squares[v] = (fit.inverse(q, qd, qdd, params) - tau).double().pow(2)  # (points, joints)
+        errors[v] = float(squares[v].mean(0).sqrt().mean())
+    best = min(errors, key=errors.get)
+    configured = squares[drive.coulomb_velocity]
+    # each point's gain, its joints' squared errors in units of the configured fit's mean square per joint
+    gain = ((configured - squares[best]) / configured.mean(0).clamp_min(1e-300)).sum(-1)
+    blocks = torch.stack([b.mean() for b in gain.tensor_split(SMOOTHING_BLOCKS)])
+    if len(gain) < 2 * SMOOTHING_BLOCKS or not blocks.mean() > SMOOTHING_Z * blocks.std() / SMOOTHING_BLOCKS ** 0.5:
+        best = drive.coulomb_velocity
+    return dataclasses.replace(drive, coulomb_velocity=best), errors
 
 
 def _validation_error(fit) -> float:

@@ -110,9 +110,11 @@ class LearnedForces(nn.Module):
             self.num_joints = D.shape[0]
             self.identity_joints = identity_or_none(D.double()) is None
             self.register_buffer("joint_map", D, persistent=False)
-            self.coulomb_velocity = float(scene.coulomb_velocity)
-            self.stick_velocity = 2.5 * float(scene.coulomb_velocity)  # the stick window (joint+stiction)
-            self.drive = DriveModel.of(friction, coulomb_velocity=self.coulomb_velocity)
+            self.drive = DriveModel.of(friction, coulomb_velocity=float(scene.coulomb_velocity))
+            # the Coulomb smoothing (rad/s) travels with the weights: a classical start may choose another than
+            # the scene's (identification.classical_start), and a model built from the scene then loads it
+            self.register_buffer("coulomb_velocity_si", torch.tensor(self.drive.coulomb_velocity, dtype=torch.float64))
+            self._sync_coulomb_velocity()
             # (b, c) first, as always; then the further forms' coefficients per joint
             self.extra = tuple(item for form in self.drive.forms for item in _EXTRA.get(form, ()))
             n_raw = (2 + len(self.extra)) * self.num_joints
@@ -193,6 +195,32 @@ class LearnedForces(nn.Module):
             self.coefficient_net[-1].bias[:k].copy_(raw)
         else:
             self.coefficients_raw[:k].copy_(raw)
+
+    def _sync_coulomb_velocity(self) -> None:
+        v = float(f"{float(self.coulomb_velocity_si):.6g}")  # (a float32 copy of the buffer reads 0.00499999988)
+        self.coulomb_velocity = v
+        self.stick_velocity = 2.5 * v  # the stick window (joint+stiction)
+        self.drive = DriveModel.of(self.drive.forms, coulomb_velocity=v, stribeck_velocity=self.drive.stribeck_velocity)
+
+    @torch.no_grad()
+    def set_coulomb_velocity(self, value: float) -> None:
+        """Smooth Coulomb (and Stribeck) friction's sign over ``value`` rad/s from now on (the coefficients keep
+        their values; the sigmoid's, which depend on it, are refused)."""
+        if "sigmoid" in self.drive.forms:
+            raise ValueError("the sigmoid drive model's coefficients are in units of the Coulomb smoothing: it stays")
+        DriveModel.of(self.drive.forms, coulomb_velocity=float(value))  # checks it
+        self.coulomb_velocity_si.fill_(float(value))
+        self._sync_coulomb_velocity()
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys,
+                              error_msgs) -> None:
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys,
+                                      error_msgs)
+        key = prefix + "coulomb_velocity_si"
+        if self.friction and key in missing_keys:  # saved before it travelled: the scene's smoothing stands
+            missing_keys.remove(key)
+        elif self.friction and key in state_dict:
+            self._sync_coulomb_velocity()
 
     @torch.no_grad()
     def start_with(self, coefficients: dict) -> None:

@@ -255,8 +255,13 @@ class LNNModule(L.LightningModule):
         form = s.get("form", s["drive"])
         form = form if form == s["drive"] else f"{form}, the form validation chose among {s['drive']} and its terms"
         method = s.get("method", "physically consistent")
+        smoothing = s.get("smoothing_selection")
+        if smoothing:
+            configured = "" if s["coulomb_velocity"] != self.system.coulomb_velocity else ", as configured"
+            smoothing = (f"; Coulomb smoothing {s['coulomb_velocity']:g} rad/s, chosen on validation among "
+                         f"{', '.join(format(v, 'g') for v in smoothing)}{configured}")
         print(f"classical start: the {method} least-squares fit ({form}; prior {s['prior']:g}"
-              f"{chosen}; {s['fit_seconds']:.1f} s)")
+              f"{chosen}{smoothing or ''}; {s['fit_seconds']:.1f} s)")
 
     @property
     def selection_monitor(self) -> str | None:
