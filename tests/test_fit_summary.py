@@ -57,3 +57,23 @@ def test_a_model_fitted_to_torques_alone_leads_with_its_torque_error(capsys):
                                   "fitted) 1947.00 % pooled")
     assert out[1.0][0].startswith("validation: acc. rel. L2 error 1947.00 % pooled")
     assert out[1.0][-1].startswith("validation: inverse-dynamics torque error")
+
+
+def test_a_run_that_chose_its_state_by_another_scalar_says_whose_best_the_best_checkpoint_is(capsys):
+    """A grey box whose state validation chose by its torque error (``SelectOnValidation``) while the best
+    checkpoint is kept by the acceleration error: the summary says the last checkpoint holds the run's choice."""
+    checkpoint = SimpleNamespace(best_model_path="runs/x/checkpoints/epoch1-err6.2.ckpt", monitor="val/acc_rel_err")
+    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=500, callbacks=[],
+                              checkpoint_callbacks=[checkpoint], limit_val_batches=1.0,
+                              callback_metrics={"val/torque_rms": torch.tensor(0.25),
+                                                "val/torque_nrmse": torch.tensor(0.15)})
+    selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.2469}
+    module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, selection=selection)
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert ("best validation checkpoint by val/acc_rel_err (not the run's choice, which is in the last checkpoint): "
+            "runs/x/checkpoints/epoch1-err6.2.ckpt") in out
+    assert "the run ends with the state at step 0 (val/torque_rms 0.2469)" in out
+    module.selection = None
+    FitSummary().on_fit_end(trainer, module)
+    assert "best validation checkpoint: runs/x/checkpoints/epoch1-err6.2.ckpt" in capsys.readouterr().out

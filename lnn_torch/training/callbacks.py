@@ -131,9 +131,15 @@ class FitSummary(L.Callback):
         lines = [f"lnn-torch fit: {trainer.global_step} steps; TensorBoard run: {path(log_dir)}"]
         if last is not None:
             lines.append(f"  last checkpoint: {path(last)}")
-        if best:
-            lines.append(f"  best validation checkpoint: {path(best)}")
         selection = getattr(pl_module, "selection", None)
+        monitor = next((cb.monitor for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")),
+                       None)
+        if best and selection is not None and monitor != selection["monitor"]:
+            # the run's own choice is by another scalar: the last checkpoint holds it
+            lines.append(f"  best validation checkpoint by {monitor} (not the run's choice, which is in the last "
+                         f"checkpoint): {path(best)}")
+        elif best:
+            lines.append(f"  best validation checkpoint: {path(best)}")
         if selection is not None and selection["step"] != trainer.global_step:
             lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
                          f"{selection['value']:.4g}): validation preferred it; the figures below are the last "
