@@ -215,3 +215,24 @@ def test_a_tool_nothing_is_known_of_is_identified_within_two_percent_and_five_mm
     assert abs(params["box_0000"][0] / POINT[0] - 1) < 0.02
     assert np.abs(params["box_0000"][1:] - POINT[1:]).max() < 5e-3
     np.testing.assert_array_equal(params["bottle_0000"], BOTTLE)
+
+
+def test_an_identified_inertia_that_no_rigid_body_has_is_made_the_nearest_one():
+    """``payload.physical_inertia``: a rigid body's inertia about its centre of mass has non-negative
+    eigenvalues, each at most the sum of the others (its mass's second moment tr(I)/2 - I is positive
+    semidefinite); a row that breaks it (an identified inertia the recordings leave loose: MuJoCo refuses it
+    on write-back) gets the nearest one, mass and centre of mass kept; a rigid body's row is unchanged."""
+    from lnn_torch.identification.payload import physical_inertia
+
+    good = np.array([1.2, 0.01, -0.02, 0.05, 0.004, 0.005, 0.003, 0.0005, -0.0002, 0.0001])
+    row, lowest = physical_inertia(good)
+    np.testing.assert_array_equal(row, good)
+    assert lowest >= 0
+    bad = good.copy()
+    bad[4:10] = [0.001, 0.001, 0.005, 0.0, 0.0, -0.0006]  # Izz beyond Ixx + Iyy
+    row, lowest = physical_inertia(bad)
+    assert lowest < 0 and np.array_equal(row[:4], bad[:4])
+    I = np.array([[row[4], row[7], row[8]], [row[7], row[5], row[9]], [row[8], row[9], row[6]]])
+    eig = np.linalg.eigvalsh(I)
+    assert eig.min() >= -1e-15 and eig.max() <= eig.sum() - eig.max() + 1e-15
+    assert physical_inertia(row)[1] >= -1e-15  # already a rigid body's: unchanged the second time

@@ -12,7 +12,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -83,6 +84,7 @@ class ToolFit:
     residual_rms: list
     block: int
     arm: object = None  # the arm's least-squares model where identified jointly (``classical_arm.ArmModel``)
+    notes: list = field(default_factory=list)  # what was changed after the fit (an inertia made physical)
 
     def report(self) -> dict:
         out = {}
@@ -98,7 +100,26 @@ class ToolFit:
                                        "interval95": [value - Z95 * s, value + Z95 * s]}
             out[name] = {"declared": tool.describe(), "parameters": entries, "recordings": self.used[name]}
         return {"tools": out, "against": self.against, "condition_number": self.condition,
-                "residual_rms": self.residual_rms, "block_samples": self.block}
+                "residual_rms": self.residual_rms, "block_samples": self.block, "notes": list(self.notes)}
+
+
+def physical_inertia(row: np.ndarray) -> tuple[np.ndarray, float]:
+    """A tool's row ``(mass, cx, cy, cz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz)`` with its inertia about the centre of
+    mass made that of a rigid body: the second moment of its mass ``S = tr(I)/2 - I`` must be positive
+    semidefinite (the inertia's eigenvalues non-negative and each at most the sum of the others); its
+    negative eigenvalues are set to zero (the nearest such ``S``), mass and centre of mass kept. Returns the
+    row and the most negative eigenvalue of ``S`` before (kg m^2; >= 0: the row unchanged)."""
+    row = np.asarray(row, dtype=np.float64).copy()
+    xx, yy, zz, xy, xz, yz = row[4:10]
+    inertia = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    second = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    w, V = np.linalg.eigh(second)
+    if w.min() >= 0:
+        return row, float(w.min())
+    second = (V * np.clip(w, 0, None)) @ V.T
+    inertia = np.trace(second) * np.eye(3) - second
+    row[4:10] = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    return row, float(w.min())
 
 
 def _solve(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -265,6 +286,15 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
             values[name] = pending[name].row(theta[name]).numpy()
             std[name][tool.unknown] = std_all[k0: k0 + m].numpy()
             k0 += m
+    notes = []
+    for name in pending:  # an inertia the data leave loose can come out of no rigid body: made one, said so
+        if tools[name].width == 10 and any(k >= 4 for k in tools[name].unknown):
+            values[name], lowest = physical_inertia(values[name])
+            if lowest < 0:
+                notes.append(f"tool {name!r}: the identified inertia is not a rigid body's (its mass's second moment "
+                             f"has the eigenvalue {lowest:.3g} kg m^2): the nearest one is kept (the recordings "
+                             "hardly determine it; its intervals stand as fitted)")
+                warnings.warn(notes[-1], stacklevel=2)
     rms = r.reshape(-1, n).pow(2).mean(0).sqrt().tolist()
     arm_model = None
     if arm is None:  # the arm identified with the tools: a least-squares ArmModel (base parameters, friction)
@@ -282,4 +312,4 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     label = against or ("the arm, identified with them by least squares" if arm is None else "the given arm")
     return ToolFit(tools={n_: tools[n_] for n_ in tools}, values=values, std=std, against=label,
                    used={name: carried.get(name, []) for name in tools}, condition=condition, residual_rms=rms,
-                   block=int(block), arm=arm_model)
+                   block=int(block), arm=arm_model, notes=notes)
