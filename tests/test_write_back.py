@@ -180,11 +180,16 @@ def test_mujoco_from_the_written_urdf_is_the_grey_box(tmp_path, float64):
     assert result.format == "urdf" and result.unexpressed[0].startswith("armature")
     assert not [n for n in result.notes if "not a rigid body" in n]
     arm = MujocoArm(str(result.path))
+    # read back with the flange it was built with: the payload body written there is the payload's place
+    again = MujocoArm({"source": str(result.path), "flange": "tool0"})
+    assert again.model.body_parentid[again.payload_id] == arm.model.body_parentid[arm.payload_id]
     armature = json.loads(result.sidecar.read_text())["not_expressed"][0]["values"]
     q = _states(arm)[0]
     without = _rel(arm.mass_matrix(q), model.mass_matrix(q, torch.tensor([PAYLOAD]).expand(8, -1)))
     arm.model.dof_armature[:] = [armature[n] for n in ("j1", "j2")]
     errors = _compare(model, arm, torch.tensor(PAYLOAD)[None])
+    again.model.dof_armature[:] = arm.model.dof_armature
+    torch.testing.assert_close(again.mass_matrix(q), arm.mass_matrix(q), rtol=0, atol=0)
     print("urdf", errors, "without the armature", without)
     assert max(errors.values()) < BOUND, errors
     assert without > 1e-5  # the armature matters: listed, not dropped

@@ -194,8 +194,8 @@ class ArmDescription:
             spec.delete(body)
         names = [b.name for b in spec.bodies]
         flange = self._flange(spec, names, path)
-        if PAYLOAD_BODY in names and flange is None:
-            payload = spec.body(PAYLOAD_BODY)  # the shipped descriptions' own
+        if PAYLOAD_BODY in names and (flange is None or _hangs_at(spec.body(PAYLOAD_BODY), flange)):
+            payload = spec.body(PAYLOAD_BODY)  # the shipped descriptions' own, or one written back at this flange
         else:
             if PAYLOAD_BODY in names:
                 raise InputError(f"robot description {path} has a body '{PAYLOAD_BODY}' and a flange "
@@ -262,6 +262,19 @@ class ArmDescription:
             raise InputError(f"robot description {path}: name the flange (a body or site where payloads attach); "
                              f"the chain ends in {', '.join(b.name for b in leaves)}")
         return leaves[0]
+
+
+def _hangs_at(body, flange) -> bool:
+    """Whether ``body`` (an ``MjsBody``) hangs at ``flange`` ``(parent body, pos, quat)`` (pos None: the parent's
+    origin): a payload body ``lnn-torch export`` wrote there, which a description read back with the same
+    flange uses as its own."""
+    parent, pos, quat = flange
+    if body.parent is None or body.parent.name != parent.name:
+        return False
+    pos, quat = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) if pos is None else (pos, quat)
+    q = np.asarray(body.quat, dtype=np.float64) / np.linalg.norm(body.quat)
+    r = np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat)
+    return bool(np.allclose(body.pos, pos, rtol=0, atol=1e-9) and min(np.abs(q - r).max(), np.abs(q + r).max()) < 1e-9)
 
 
 # ---------------------------------------------------------------------------- meshes it cannot find
