@@ -175,3 +175,25 @@ def test_the_coulomb_smoothing_is_chosen_on_validation_and_travels_with_the_weig
     assert rebuilt.model.forces.coulomb_velocity == 0.02
     module, report, *_ = runs[0.02]
     assert report["coulomb_velocity"] == 0.02 and module.model.forces.coulomb_velocity == 0.02, report
+
+
+def test_the_classical_fits_standard_errors_are_cluster_robust_over_the_blocks_given(recording):
+    """``fit_classical(block=...)`` reaches the least-squares fits' covariance (``identify`` passes the filtered
+    residuals' correlation time, as the tools' at import): over blocks the standard errors are wider than
+    over single samples on data whose errors are correlated in time (the targets' finite differences)."""
+    from lnn_torch.identification.arm_comparison import fit_classical
+
+    _, path = recording
+    dm = TrajectoryDataModule(path=str(path), targets={"method": "butterworth", "cutoff": 10.0, "order": 4,
+                                                      "use_measured_velocity": True})
+    scene, config = dm.model_scene()
+    module = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
+                       acceleration_weight=0.0, eps=0.0)
+    std = {}
+    for block in (1, 25):
+        fit = next(iter(fit_classical(module.system, dm.trajectories("train"), methods=("least squares",),
+                                      block=block).values()))
+        u = fit.info["uncertainty"]
+        assert u["block_samples"] == block
+        std[block] = torch.as_tensor(u["std"])
+    assert float(torch.median(std[25] / std[1])) > 1.2, torch.median(std[25] / std[1])

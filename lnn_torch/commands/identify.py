@@ -247,7 +247,12 @@ def _identify_arm(module, args) -> int:
                 + _tools_markdown(tools))
     else:
         val = dm.trajectories("val") if "val" in dm.split_names() else None  # the consistent fit's prior's choice
-        fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val)
+        from ..data.import_tools import correlation_block
+
+        # standard errors over blocks of the filtered residuals' correlation time (as the tools' at import), in
+        # the points fitted (every 2nd)
+        block = 1 if dm.targets is None else -(-correlation_block(dm.targets, float(f.dt)) // 2)
+        fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val, stride=2, block=block)
         result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
         if args.feedback:
             predictors = {module.model.variant: model_torque(module.model),

@@ -45,7 +45,7 @@ def arm_chain(system):
 
 
 def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
-                  prior=None, val=None, chain=None, extend: bool = True) -> dict:
+                  prior=None, val=None, chain=None, extend: bool = True, block: int = 1) -> dict:
     """The classical fits ``{label: ArmModel}`` of ``methods`` (of ``METHODS`` and ``WEIGHTED_CONSISTENT``) with
     the drive model ``drive`` on ``train``
     (``Trajectories``, or a list of them fitted together; every ``stride``-th point), each with its fit
@@ -53,7 +53,8 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
     among ``prior`` (a sequence; None: ``classical_arm.PRIORS``) on the validation data ``val`` (as
     ``train``) where given, else 0.01, and beyond the sequence's ends where validation prefers an end (``extend``:
     ``classical_arm.consistent_fit``). ``chain``: the kinematic chain to fit (default the scene's
-    description's)."""
+    description's). ``block``: the least-squares fits' standard errors are cluster-robust over blocks of
+    this many of the points fitted (after ``stride``; the residuals' correlation time of filtered data)."""
     from ..robots.regressor import payload_torque
     from . import classical_arm as classical
 
@@ -85,7 +86,8 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
                                                     extend=extend)
             fits[method].method = method
         else:
-            fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"))
+            fits[method] = classical.least_squares(chain, *X, drive=drive, weighted=method.startswith("weighted"),
+                                                   block=block)
         fits[method].info["fit_seconds"] = time.perf_counter() - start
         fits[method].info["train_points"] = len(X[0])
         out[f"{method} + {name}"] = fits[method]
