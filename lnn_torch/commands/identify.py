@@ -360,7 +360,9 @@ def _model_start(module) -> str:
             + ("; the rows' weighting (as recorded, or per joint as weighted least squares) chosen on validation"
                if start.get("weighting_selection") else "")
             + (f"; friction {start['form']}, chosen on validation among {start['drive']} and its terms"
-               if start.get("form_selection") else "") + ")")
+               if start.get("form_selection") else "")
+            + (f"; Coulomb smoothing {start['coulomb_velocity']:g} rad/s, chosen on validation"
+               if start.get("smoothing_selection") else "") + ")")
     if selection is not None:
         kept = "the start itself" if selection["step"] == 0 else f"the state after {selection['step']} gradient steps"
         text += f"; validation kept {kept} ({selection['monitor']} {selection['value']:.4g})"
