@@ -229,6 +229,7 @@ def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, f
     result = wb.write_description(model, tmp_path / "out" / "two_identified.urdf")
     written = result.path.read_text()
     assert written.count('<mesh filename="package://two/meshes/') == 2 and source.read_text() == text
+    assert 'name="payload"' not in written  # no payload given: nothing added to the robot as described
     with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found"):
         arm = MujocoArm(str(result.path))
     arm.model.dof_armature[:] = [json.loads(result.sidecar.read_text())["not_expressed"][0]["values"][n]

@@ -14,12 +14,12 @@ what the model identified, and nothing else changed:
   model's ``c tanh(v / v_c)``; the smoothing is listed as not expressed;
 * the payload at the flange (``payload``: the one a model was conditioned on or identified, ``(mass, cx,
   cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz])``, flange frame, inertia about its centre of mass) as the body
-  ``payload``, and the description's ``tool`` as the body ``tool``.
+  ``payload`` (none without a payload), and the description's ``tool`` as the body ``tool``.
 
 The file written is the robot as the model saw it (``ArmDescription.compile``): the description's
 changes are applied too: the bodies it ``remove``-s are gone (with the actuators, sensors, contact
-exclusions and transmissions that name them), a ``payload`` body hangs at the flange (a URDF link and
-fixed joint), the ``tool`` is there. Use it as ``source`` alone (no ``remove``, ``tool`` or
+exclusions and transmissions that name them), a ``payload`` body hangs at the flange where a payload is
+written (a URDF link and fixed joint), the ``tool`` is there. Use it as ``source`` alone (no ``remove``, ``tool`` or
 ``flange``). Geometry, joints, limits, actuators, defaults, visuals and comments are kept as written:
 the file is edited as XML (``xml.etree``; MJCF and URDF alike), numbers written with every digit
 (``repr``), relative asset paths re-pointed where the file is written elsewhere. MuJoCo's own writer
@@ -653,12 +653,14 @@ def _write_mjcf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
     if payload is None:
         if parent_name not in bodies:
             raise InputError(f"write-back: {src} has no body '{parent_name}' for the flange (in an included file?)")
-        payload = _new_body(root, attrs, ident.payload)
-        _add(root, bodies[parent_name], payload)
-        held = (pos, quat)
+        holder, held = bodies[parent_name], (pos, quat)
+        if ident.payload is not None:  # no payload, no body: the robot as described, nothing added
+            payload = _new_body(root, attrs, ident.payload)
+            _add(root, holder, payload)
     else:
         if ident.payload is not None:
             _write_row(root, payload, ident.payload, "mjcf")
+        holder = _parents(root)[payload]
         held = (list(spec.body(PAYLOAD_BODY).pos), list(spec.body(PAYLOAD_BODY).quat))
     if desc.tool is not None:  # beside the payload, at its position and quaternion (ArmDescription.compile)
         if TOOL_BODY in bodies:
@@ -668,7 +670,7 @@ def _write_mjcf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
             tool_attrs["pos"] = _nums(held[0])
             if held[1] is not None and list(held[1]) != [1.0, 0.0, 0.0, 0.0]:
                 tool_attrs["quat"] = _nums(held[1])
-        _add(root, _parents(root)[payload], _new_body(root, tool_attrs, desc.tool))
+        _add(root, holder, _new_body(root, tool_attrs, desc.tool))
     # the identified inertials, the joints
     bodies = {b.get("name"): b for b in root.iter("body") if b.get("name")}
     for name, J in plan.items():
@@ -795,7 +797,7 @@ def _write_urdf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
             parent_name = holder.find("parent").get("link")
             at = holder.find("origin")
             origin = None if at is None else dict(at.attrib)
-    else:
+    elif ident.payload is not None:  # no payload, no link: the robot as described, nothing added
         add_link(PAYLOAD_BODY, parent_name, ident.payload, origin)
     if desc.tool is not None:
         if TOOL_BODY in links:
@@ -855,6 +857,10 @@ def _check_written(path: Path, ident: IdentifiedArm, fmt: str) -> float:
     from ..robots import kinematics as K
 
     model = _compile_file(path)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY) < 0:  # written without a payload: read
+        # as a model reads it, its payload body added at the flange (ArmDescription.compile)
+        flange = ident.description.flange
+        model = ArmDescription.of({"source": str(path), **({"flange": flange} if flange else {})}).compile()
     chain = K.read_chain(model)
     nominal = K.read_chain(ident.description.compile())
 
