@@ -216,3 +216,25 @@ def test_a_moving_body_whose_inertia_comes_from_a_missing_mesh_is_refused(tmp_pa
                                          r"2 mesh file\(s\) not found \(base.stl, l1.stl\)"):
         model = ArmDescription.of(str(path)).compile()
     assert model.ngeom == 0 and model.body_mass[2] == 2.0
+
+
+@pytest.mark.parametrize("payload, accepted", [('<body name="payload"/>', True),
+                                               ('<body name="payload" euler="0 90 0"/>', False),
+                                               ('<body name="payload"><joint name="loose"/></body>', False),
+                                               ('<body name="payload"><body name="more"/></body>', False)])
+def test_a_payload_body_at_the_named_flange_is_used_and_any_other_refused(tmp_path, payload, accepted):
+    """A description with a ``payload`` body (one ``lnn-torch export`` wrote) read with a named flange: used where
+    it is welded at that flange with nothing hanging from it, its orientation however written; else refused."""
+    text = f"""<mujoco><worldbody><body name="l1"><joint name="j1" axis="0 0 1"/>
+      <inertial pos="0 0 0.1" mass="1" diaginertia="0.01 0.01 0.01"/>
+      <body name="l2" pos="0 0 0.3"><joint name="j2" axis="1 0 0"/>
+        <inertial pos="0 0.1 0" mass="1" diaginertia="0.01 0.01 0.01"/>{payload}</body></body></worldbody></mujoco>"""
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    description = ArmDescription.of({"source": str(path), "flange": "l2"})
+    if accepted:
+        model = description.compile()
+        assert model.nbody == 4  # world, l1, l2 and the payload written there: none added
+    else:
+        with pytest.raises(InputError, match="has a body 'payload' and a flange 'l2'"):
+            description.compile()

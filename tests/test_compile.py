@@ -117,6 +117,15 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), changed, rtol=1e-10, atol=1e-10)
         assert len(programs.programs) == 3
         expected = changed
+        # the Coulomb smoothing changed (a classical start's choice, or weights loaded): another program, the
+        # eager value
+        for m in (model, compiled):
+            m.forces.set_coulomb_velocity(2.0)  # over the states' speeds: the friction moves
+        smoothed = model.acceleration(q, qd, params, tau)
+        assert (smoothed - expected).abs().max() > 1e-3
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), smoothed, rtol=1e-10, atol=1e-10)
+        assert len(programs.programs) == 4
+        expected = smoothed
         # a rollout's step under inputs: one program of its own, the eager rollout's result
         taus = tau[:, None].expand(-1, 3, -1)
         for a, b in zip(compiled.rollout(q, qd, params, 0.001, 3, tau=taus),
@@ -125,7 +134,7 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         assert len(compiled._compiled["_rollout_step"].compiled.programs) == 1
         compiled.float()
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-4, atol=1e-4)
-        assert len(programs.programs) == 4 and compiled._compile is True
+        assert len(programs.programs) == 5 and compiled._compile is True
 
 
 def test_compiled_dynamics_fall_back_once(monkeypatch, rng):

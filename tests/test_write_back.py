@@ -466,3 +466,31 @@ def test_the_export_command_writes_the_grey_box_back(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
     assert main(["export", ckpt, "--format", "urdf", "-o", str(tmp_path)]) == 2
     assert "write it back as mjcf" in capsys.readouterr().err
+
+
+SITE_MJCF = """<mujoco><worldbody><body name="l1"><joint name="j1" axis="0 0 1"/>
+  <inertial pos="0.02 0 0.1" mass="1.2" fullinertia="0.01 0.012 0.008 0.001 0 0"/>
+  <body name="l2" pos="0 0 0.3"><joint name="j2" axis="1 0 0"/>
+    <inertial pos="0 0.1 0.01" mass="0.9" diaginertia="0.01 0.011 0.009"/>
+    <site name="flange" pos="0.3 0 0.05" euler="0.4 0 0"/></body></body></worldbody></mujoco>
+"""
+
+
+@pytest.mark.parametrize("named", [True, False])
+def test_a_file_written_without_a_payload_keeps_its_flange(tmp_path, float64, named):
+    """No payload given: where the file read alone would put the payload elsewhere (a site flange), the massless
+    payload body is written there and reading it alone finds the flange; where the flange is the chain's last
+    body's origin, nothing is added."""
+    source = tmp_path / "arm.xml"
+    site = '<site name="flange" pos="0.3 0 0.05" euler="0.4 0 0"/>'
+    source.write_text(SITE_MJCF if named else SITE_MJCF.replace(site, ""))
+    description = {"source": str(source), "flange": "flange"} if named else str(source)
+    model = _grey_box(description, dof=2, seed=3)
+    result = wb.write_description(model, tmp_path / "out.xml")
+    assert ('name="payload"' in result.path.read_text()) is named
+    alone = MujocoArm(str(result.path))
+    q = torch.tensor([[0.3, -0.4], [1.0, 0.5]])
+    load = torch.tensor([[1.5, 0.02, -0.01, 0.04]])
+    reference = MujocoArm(description)
+    held = alone.gravity(q, load) - alone.gravity(q)  # the load's own torques: where it hangs
+    torch.testing.assert_close(held, reference.gravity(q, load) - reference.gravity(q), rtol=1e-12, atol=1e-12)

@@ -14,7 +14,8 @@ what the model identified, and nothing else changed:
   model's ``c tanh(v / v_c)``; the smoothing is listed as not expressed;
 * the payload at the flange (``payload``: the one a model was conditioned on or identified, ``(mass, cx,
   cy, cz[, Ixx, Iyy, Izz, Ixy, Ixz, Iyz])``, flange frame, inertia about its centre of mass) as the body
-  ``payload`` (none without a payload), and the description's ``tool`` as the body ``tool``.
+  ``payload`` (none without a payload where the file read alone finds the flange: the chain's last body),
+  and the description's ``tool`` as the body ``tool``.
 
 The file written is the robot as the model saw it (``ArmDescription.compile``): the description's
 changes are applied too: the bodies it ``remove``-s are gone (with the actuators, sensors, contact
@@ -616,6 +617,18 @@ def _flange(desc: ArmDescription, spec, path) -> tuple[str, list | None, list | 
     return body.name, pos, quat
 
 
+def _flange_is_leaf(desc: ArmDescription, spec, path, parent_name: str, pos) -> bool:
+    """Whether the written file, read alone (no flange named), puts the payload where ``desc`` does: at the
+    origin of the chain's one last body. Only then may a file without a payload go without a payload body
+    (a site flange, or a body other than the last, is recorded by the body written there)."""
+    if pos is not None:
+        return False
+    try:
+        return desc._leaf(spec, path).name == parent_name
+    except InputError:  # the chain ends in several bodies
+        return False
+
+
 def _new_body(root, attrs: dict, row) -> ET.Element:
     """A new body (not yet in the document) with an inertial: ``row``'s, or massless."""
     body = ET.Element("body", attrs)
@@ -654,7 +667,8 @@ def _write_mjcf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
         if parent_name not in bodies:
             raise InputError(f"write-back: {src} has no body '{parent_name}' for the flange (in an included file?)")
         holder, held = bodies[parent_name], (pos, quat)
-        if ident.payload is not None:  # no payload, no body: the robot as described, nothing added
+        if ident.payload is not None or not _flange_is_leaf(desc, spec, src, parent_name, pos):
+            # (no payload, and the file read alone finds the flange: no body; the robot as described)
             payload = _new_body(root, attrs, ident.payload)
             _add(root, holder, payload)
     else:
@@ -797,7 +811,8 @@ def _write_urdf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
             parent_name = holder.find("parent").get("link")
             at = holder.find("origin")
             origin = None if at is None else dict(at.attrib)
-    elif ident.payload is not None:  # no payload, no link: the robot as described, nothing added
+    elif ident.payload is not None or not _flange_is_leaf(desc, spec, src, parent_name, pos):
+        # (no payload, and the file read alone finds the flange: no link; the robot as described)
         add_link(PAYLOAD_BODY, parent_name, ident.payload, origin)
     if desc.tool is not None:
         if TOOL_BODY in links:

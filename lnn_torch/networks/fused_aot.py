@@ -155,10 +155,12 @@ def _layout(tensors) -> tuple:
 def _structure(model) -> tuple:
     """What of the model's structure tracing reads as Python values and a call can change: ``eps``, the
     parts' tuples (``residuals_off`` replaces them), the force residual (``residuals_off("force")`` drops it),
-    whether the normaliser takes the parameters exactly."""
+    the Coulomb smoothing (weights loaded, ``set_coulomb_velocity``), whether the normaliser takes the
+    parameters exactly."""
     forces = getattr(model, "forces", None)
     return (model.eps, id(model._kinetic_parts), id(model._potential_parts),
-            None if forces is None else id(forces.residual), model.normalizer.exact)
+            None if forces is None else id(forces.residual), getattr(forces, "coulomb_velocity", None),
+            model.normalizer.exact)
 
 
 class FusedPrograms:

@@ -194,7 +194,7 @@ class ArmDescription:
             spec.delete(body)
         names = [b.name for b in spec.bodies]
         flange = self._flange(spec, names, path)
-        if PAYLOAD_BODY in names and (flange is None or _hangs_at(spec.body(PAYLOAD_BODY), flange)):
+        if PAYLOAD_BODY in names and (flange is None or _hangs_at(spec, spec.body(PAYLOAD_BODY), flange)):
             payload = spec.body(PAYLOAD_BODY)  # the shipped descriptions' own, or one written back at this flange
         else:
             if PAYLOAD_BODY in names:
@@ -264,15 +264,18 @@ class ArmDescription:
         return leaves[0]
 
 
-def _hangs_at(body, flange) -> bool:
-    """Whether ``body`` (an ``MjsBody``) hangs at ``flange`` ``(parent body, pos, quat)`` (pos None: the parent's
-    origin): a payload body ``lnn-torch export`` wrote there, which a description read back with the same
-    flange uses as its own."""
+def _hangs_at(spec, body, flange) -> bool:
+    """Whether ``body`` (an ``MjsBody`` of ``spec``) is welded at ``flange`` ``(parent body, pos, quat)`` (pos
+    None: the parent's origin) with nothing hanging from it: a payload body ``lnn-torch export`` wrote there,
+    which a description read back with the same flange uses as its own."""
     parent, pos, quat = flange
-    if body.parent is None or body.parent.name != parent.name:
+    if body.parent is None or body.parent.name != parent.name or body.joints or body.bodies:
         return False
     pos, quat = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) if pos is None else (pos, quat)
-    q = np.asarray(body.quat, dtype=np.float64) / np.linalg.norm(body.quat)
+    own = body.quat
+    if body.alt.type != _mujoco().mjtOrientation.mjORIENTATION_QUAT:  # euler, axisangle, xyaxes or zaxis
+        own = spec.resolve_orientation(spec.compiler.degree, spec.compiler.eulerseq, body.alt)
+    q = np.asarray(own, dtype=np.float64) / np.linalg.norm(own)
     r = np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat)
     return bool(np.allclose(body.pos, pos, rtol=0, atol=1e-9) and min(np.abs(q - r).max(), np.abs(q + r).max()) < 1e-9)
 

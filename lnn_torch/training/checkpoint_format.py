@@ -20,9 +20,11 @@ DESCRIPTION_COPIES = "robot_descriptions"
 
 # The layout of what ``LNNModule`` saves (``stamp``): raised when a change makes older code unable to
 # read new checkpoints, so that such code refuses them in one line instead of failing inside.
-CHECKPOINT_FORMAT = 2
+CHECKPOINT_FORMAT = 3
 # format 2: the double pendulum's models read the relative angle too (``DoublePendulum(relative_angle=True)``);
 # a checkpoint of format 1 or unstamped was trained without it (``scene_config_of_old``)
+# format 3: models with joint friction save their Coulomb smoothing (``LearnedForces.coulomb_velocity_si``; a
+# classical start may choose another than the scene's); older weights load with the scene's
 
 # ---------------------------------------------------------------------------- old checkpoints
 # What ``LNNModule`` needs to load checkpoints saved by earlier versions with the weights they were
