@@ -52,6 +52,7 @@ import json
 import math
 import os
 import re
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -992,7 +993,9 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     temp = path.with_name(f".{path.stem}.writing{path.suffix}")
     temp.write_text(written)
     try:
-        rel = _check_written(temp, ident, fmt) if check else None
+        with warnings.catch_warnings():  # the source's missing meshes were reported when it was read
+            warnings.filterwarnings("ignore", message=r"robot description .* mesh file\(s\) not found")
+            rel = _check_written(temp, ident, fmt) if check else None
         os.replace(temp, path)
     finally:
         temp.unlink(missing_ok=True)

@@ -135,9 +135,7 @@ class FitSummary(L.Callback):
         monitor = next((cb.monitor for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")),
                        None)
         if best and selection is not None and monitor != selection["monitor"]:
-            # the run's own choice is by another scalar: the last checkpoint holds it
-            lines.append(f"  best validation checkpoint by {monitor} (not the run's choice, which is in the last "
-                         f"checkpoint): {path(best)}")
+            pass  # kept by another scalar than the run's own choice, which the last checkpoint holds: not offered
         elif best:
             lines.append(f"  best validation checkpoint: {path(best)}")
         if selection is not None and selection["step"] != trainer.global_step:
