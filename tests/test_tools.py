@@ -236,3 +236,17 @@ def test_an_identified_inertia_that_no_rigid_body_has_is_made_the_nearest_one():
     eig = np.linalg.eigvalsh(I)
     assert eig.min() >= -1e-15 and eig.max() <= eig.sum() - eig.max() + 1e-15
     assert physical_inertia(row)[1] >= -1e-15  # already a rigid body's: unchanged the second time
+
+
+def test_long_recordings_are_thinned_for_the_tool_fit(arm_logs, monkeypatch):
+    """More samples in all than ``import_tools.TOOL_ROWS``: the tool fit takes every k-th (said in the report),
+    and the centre of mass still comes within 2 mm (the targets are filtered far below the sampling rate)."""
+    from lnn_torch.data import import_tools, read_dataset
+
+    root, files = arm_logs
+    monkeypatch.setattr(import_tools, "TOOL_ROWS", 2000)
+    f = read_dataset(import_with(root, files, {"box": {"mass": POINT[0]}, "bottle": [*BOTTLE]}, "thinned"))
+    report = json.loads(f.attrs["provenance"])["tools"]
+    assert report["stride"] >= 3
+    params = dict(zip(json.loads(f.attrs["recordings"]), f.read("params"), strict=True))
+    assert np.abs(params["box_0000"][1:] - POINT[1:]).max() < 2e-3

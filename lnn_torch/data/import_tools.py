@@ -15,7 +15,8 @@ model conditions on them as on known ones (``lnn_torch.identification.payload.id
 
 Accelerations for the fit are estimated per entry with ``tool_targets`` (default: a 10 Hz fourth-order
 Butterworth of the measured velocities, as the shipped arm configurations train with); standard errors
-are cluster-robust over blocks of one cutoff period's half (the filtered residuals' correlation). The
+are cluster-robust over blocks of one cutoff period's half (the filtered residuals' correlation); more
+than ``TOOL_ROWS`` samples in all are thinned to every k-th (the report's ``stride``). The
 report (values, standard errors, 95 % intervals, the entries used, what they were identified against)
 is the file's provenance ``tools``.
 """
@@ -29,6 +30,10 @@ import numpy as np
 from ..errors import InputError
 
 TOOL_TARGETS = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
+# the samples the tool fit takes at most (about 1 GB of regressors for a 7-joint arm): longer recordings are
+# thinned to every k-th sample (the targets are filtered far below the sampling rate; the standard errors'
+# blocks shrink with them), so that a long log does not exhaust memory
+TOOL_ROWS = 60_000
 
 
 def correlation_block(targets: dict, dt: float) -> int:
@@ -41,6 +46,12 @@ def correlation_block(targets: dict, dt: float) -> int:
     return 1
 
 
+def windows_of(arrays, k: int):
+    """Entry ``k``'s window ``(start, end)`` in its recording's samples, or None (the whole recording)."""
+    windows = arrays.get("windows")
+    return None if windows is None else (int(windows[k][0]), int(windows[k][1]))
+
+
 def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries, splits, arrays, dt: float):
     """``(params (N, P), report)``: the entries' parameters with every unknown tool entry identified (module
     docstring), and what was identified how."""
@@ -51,6 +62,10 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
     chain = arm_chain(system)
     targets = derivatives.settings(spec.tool_targets or TOOL_TARGETS)
     block = correlation_block(targets, dt)
+    lengths = [int(arrays["lengths"][k]) if windows_of(arrays, k) is None else int(np.diff(windows_of(arrays, k))[0])
+               for k in range(len(entries))]
+    stride = max(1, math.ceil(sum(lengths) / TOOL_ROWS))
+    block = max(1, math.ceil(block / stride))
     drive = {"forms": "viscous+coulomb+offset" if spec.friction else "viscous",
              "coulomb_velocity": spec.coulomb_velocity}
     params = arrays["params"].copy()
@@ -63,7 +78,8 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
         qd_e, qdd_e = derivatives.estimate(q, dt, targets, qd)
         a, b = (0, L) if windows is None else (int(windows[k][0]), int(windows[k][1]))
         carried = tool_of.get(stems[i])
-        data.append((name, q[a:b], qd_e[a:b], qdd_e[a:b], tau[a:b], carried if carried else params[k]))
+        data.append((name, q[a:b:stride], qd_e[a:b:stride], qdd_e[a:b:stride], tau[a:b:stride],
+                     carried if carried else params[k]))
     split_of = {int(k): s for s, idx in splits.items() for k in idx}
     fitting = [k for k in range(len(entries)) if split_of.get(k) in ("train", "val")]
     pending = {t: tool for t, tool in tools.items() if tool.unknown}
@@ -115,7 +131,7 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
             if not np.isfinite(row).all():
                 raise InputError(f"import: tool {d[5]!r} could not be identified (non-finite values)")
             params[k] = row
-    report = {"targets": targets, "drive": drive, "fits": reports,
+    report = {"targets": targets, "drive": drive, "fits": reports, "stride": stride,
               "entries": {d[0]: d[5] for d in data if isinstance(d[5], str)}}
     return params, report
 
@@ -137,5 +153,7 @@ def tool_lines(report: dict) -> list[str]:
                 else:
                     parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
-                         f"{fit['against']}): " + ", ".join(parts) + " (95 %)")
+                         f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
+                         + (f"; every {report['stride']}th sample (long recordings)" if report.get("stride", 1) > 1
+                            else ""))
     return lines
