@@ -378,7 +378,7 @@ def test_a_known_torque_delay_is_recovered_without_a_description(tmp_path, capsy
     assert "compact basis" in report["method"] and abs(report["delay_s"] - 0.024) < 2e-3
     assert report["applied_s"] == 0.0 and report["units"] == "N m"
     assert f"torque delay, all recordings: {1e3 * report['delay_s']:+.2f} +- " in out
-    assert "not applied (torque_delay: auto applies it)" in out and "the halves agree" in out
+    assert "not applied (torque_delay: auto applies it; friction the model lacks" in out and "the halves agree" in out
     # a second recording 30 ms apart from the first: the halves disagree, auto refuses to apply a pooled delay
     delayed_arm_csv(tmp_path / "late.csv", 0.008, 0.054)
     spec = arm_spec(torque_delay="auto", torque_delay_range=0.08, split=[1.0, 0.0, 0.0])

@@ -435,6 +435,8 @@ def delay_lines(report: dict, mode: str, applied: float | None) -> list[str]:
             what = f"applied: {1e3 * applied:+.2f} ms" + (" (the estimate, torque_delay: auto)" if mode == "auto"
                                                            else " (torque_delay)")
         else:
-            what = "not applied" + (" (torque_delay: auto applies it)" if report["consistent"] else "")
+            what = "not applied" + (" (torque_delay: auto applies it; friction the model lacks, e.g. stiction, "
+                                    "shifts both halves alike: check it on held-out recordings first)"
+                                    if report["consistent"] else "")
         lines.append(f"torque delay, all recordings: {delay(report)}; {agree}; {what}")
     return lines
