@@ -46,12 +46,6 @@ def correlation_block(targets: dict, dt: float) -> int:
     return 1
 
 
-def windows_of(arrays, k: int):
-    """Entry ``k``'s window ``(start, end)`` in its recording's samples, or None (the whole recording)."""
-    windows = arrays.get("windows")
-    return None if windows is None else (int(windows[k][0]), int(windows[k][1]))
-
-
 def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries, splits, arrays, dt: float):
     """``(params (N, P), report)``: the entries' parameters with every unknown tool entry identified (module
     docstring), and what was identified how."""
@@ -62,21 +56,22 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
     chain = arm_chain(system)
     targets = derivatives.settings(spec.tool_targets or TOOL_TARGETS)
     block = correlation_block(targets, dt)
-    lengths = [int(arrays["lengths"][k]) if windows_of(arrays, k) is None else int(np.diff(windows_of(arrays, k))[0])
-               for k in range(len(entries))]
-    stride = max(1, math.ceil(sum(lengths) / TOOL_ROWS))
+    windows = arrays.get("windows")
+    # each entry's samples (start, end) in its recording: its window, else the whole recording
+    spans = ([(0, int(L)) for L in arrays["lengths"]] if windows is None
+             else [(int(a), int(b)) for a, b in windows])
+    stride = max(1, math.ceil(sum(b - a for a, b in spans) / TOOL_ROWS))
     block = max(1, math.ceil(block / stride))
     drive = {"forms": "viscous+coulomb+offset" if spec.friction else "viscous",
              "coulomb_velocity": spec.coulomb_velocity}
     params = arrays["params"].copy()
-    windows = arrays.get("windows")
     data = []
     for k, (i, _, _, name) in enumerate(entries):
         L = int(arrays["lengths"][k])
         q, tau = arrays["q"][k, :L], arrays["tau"][k, :L]
         qd = arrays["qd"][k, :L] if spec.velocities else None
         qd_e, qdd_e = derivatives.estimate(q, dt, targets, qd)
-        a, b = (0, L) if windows is None else (int(windows[k][0]), int(windows[k][1]))
+        a, b = spans[k]
         carried = tool_of.get(stems[i])
         data.append((name, q[a:b:stride], qd_e[a:b:stride], qdd_e[a:b:stride], tau[a:b:stride],
                      carried if carried else params[k]))
