@@ -125,19 +125,15 @@ class FitSummary(L.Callback):
             return
         m = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
         last = next((cb.path for cb in trainer.callbacks if isinstance(cb, LastCheckpoint) and cb.path), None)
-        best = next((cb.best_model_path for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")),
-                    None)
+        keeper = next((cb for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")), None)
         path = lambda p: os.path.normpath(p) if p else p  # noqa: E731
         lines = [f"lnn-torch fit: {trainer.global_step} steps; TensorBoard run: {path(log_dir)}"]
         if last is not None:
             lines.append(f"  last checkpoint: {path(last)}")
         selection = getattr(pl_module, "selection", None)
-        monitor = next((cb.monitor for cb in trainer.checkpoint_callbacks if getattr(cb, "best_model_path", "")),
-                       None)
-        if best and selection is not None and monitor != selection["monitor"]:
-            pass  # kept by another scalar than the run's own choice, which the last checkpoint holds: not offered
-        elif best:
-            lines.append(f"  best validation checkpoint: {path(best)}")
+        # a best checkpoint kept by another scalar than the run's own choice (which the last one holds): not offered
+        if keeper is not None and (selection is None or keeper.monitor == selection["monitor"]):
+            lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
         if selection is not None and selection["step"] != trainer.global_step:
             lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
                          f"{selection['value']:.4g}): validation preferred it; the figures below are the last "
