@@ -44,6 +44,13 @@ def arm_chain(system):
     return read_chain(load_description(system.config().get("description")))
 
 
+def stacked_points(data, stride: int = 1) -> list[torch.Tensor]:
+    """``q, qd, qdd, tau, params`` of ``data`` (``Trajectories``, or a list of them) at every ``stride``-th valid
+    point of each trajectory, stacked (``data.points``)."""
+    parts = [points(t, stride) for t in (data if isinstance(data, (list, tuple)) else [data])]
+    return [torch.cat(column) for column in zip(*parts, strict=True)]
+
+
 def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METHODS, stride: int = 2,
                   prior=None, val=None, chain=None, extend: bool = True, block: int = 1) -> dict:
     """The classical fits ``{label: ArmModel}`` of ``methods`` (of ``METHODS`` and ``WEIGHTED_CONSISTENT``) with
@@ -59,14 +66,9 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
     from . import classical_arm as classical
 
     chain = arm_chain(system) if chain is None else chain
-
-    def stacked(data, step):
-        parts = [points(t, step) for t in (data if isinstance(data, (list, tuple)) else [data])]
-        return [torch.cat(column) for column in zip(*parts, strict=True)]
-
-    q, qd, qdd, tau, params = stacked(train, stride)
+    q, qd, qdd, tau, params = stacked_points(train, stride)
     X = [q, qd, qdd, tau - payload_torque(chain, q, qd, qdd, params)]  # the arm's own torques: payloads are known
-    validation = None if val is None else stacked(val, stride)
+    validation = None if val is None else stacked_points(val, stride)
     if prior is None:
         prior = classical.PRIORS if validation is not None else 0.01
     name = classical.DriveModel.of(drive).name

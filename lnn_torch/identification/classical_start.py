@@ -136,14 +136,9 @@ def _coulomb_velocity(system, train, val, drive, stride: int, chain) -> tuple:
     error ``{v: N m}`` (the mean over joints of each joint's RMS)."""
     import dataclasses
 
-    from ..data.trajectories import points
-    from .arm_comparison import fit_classical
+    from .arm_comparison import fit_classical, stacked_points
 
-    def stacked(data):
-        parts = [points(t, stride) for t in (data if isinstance(data, (list, tuple)) else [data])]
-        return [torch.cat(column) for column in zip(*parts, strict=True)]
-
-    q, qd, qdd, tau, params = stacked(val)
+    q, qd, qdd, tau, params = stacked_points(val, stride)
     errors, squares = {}, {}
     for v in sorted({drive.coulomb_velocity, *COULOMB_VELOCITIES}):
         fit = next(iter(fit_classical(system, train, drive=dataclasses.replace(drive, coulomb_velocity=v),

@@ -239,10 +239,7 @@ class ArmDescription:
             raise InputError(f"robot description {path}: no body or site '{self.flange}' for the flange (bodies: "
                              f"{', '.join(n for n in names if n != 'world')}"
                              + (f"; sites: {', '.join(sites)})" if sites else ")"))
-        quat = list(site.quat)
-        if site.alt.type != _mujoco().mjtOrientation.mjORIENTATION_QUAT:  # euler, axisangle, xyaxes or zaxis
-            quat = list(spec.resolve_orientation(spec.compiler.degree, spec.compiler.eulerseq, site.alt))
-        return site.parent, list(site.pos), quat
+        return site.parent, list(site.pos), _quaternion(spec, site)
 
     @staticmethod
     def _leaf(spec, path):
@@ -264,6 +261,14 @@ class ArmDescription:
         return leaves[0]
 
 
+def _quaternion(spec, element) -> list[float]:
+    """The orientation of a body or site of ``spec`` as a quaternion, however it is written (MjSpec keeps an
+    ``euler``, ``axisangle``, ``xyaxes`` or ``zaxis`` in ``alt`` and ``quat`` at its default)."""
+    if element.alt.type == _mujoco().mjtOrientation.mjORIENTATION_QUAT:
+        return list(element.quat)
+    return list(spec.resolve_orientation(spec.compiler.degree, spec.compiler.eulerseq, element.alt))
+
+
 def _hangs_at(spec, body, flange) -> bool:
     """Whether ``body`` (an ``MjsBody`` of ``spec``) is welded at ``flange`` ``(parent body, pos, quat)`` (pos
     None: the parent's origin) with nothing hanging from it: a payload body ``lnn-torch export`` wrote there,
@@ -272,9 +277,7 @@ def _hangs_at(spec, body, flange) -> bool:
     if body.parent is None or body.parent.name != parent.name or body.joints or body.bodies:
         return False
     pos, quat = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) if pos is None else (pos, quat)
-    own = body.quat
-    if body.alt.type != _mujoco().mjtOrientation.mjORIENTATION_QUAT:  # euler, axisangle, xyaxes or zaxis
-        own = spec.resolve_orientation(spec.compiler.degree, spec.compiler.eulerseq, body.alt)
+    own = _quaternion(spec, body)
     q = np.asarray(own, dtype=np.float64) / np.linalg.norm(own)
     r = np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat)
     return bool(np.allclose(body.pos, pos, rtol=0, atol=1e-9) and min(np.abs(q - r).max(), np.abs(q + r).max()) < 1e-9)
