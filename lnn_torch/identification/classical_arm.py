@@ -468,11 +468,14 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
     def validation_error(model) -> float:  # the mean over joints of each joint's RMS, N m
         return float((model.inverse(vq, vqd, vqdd, vparams) - vtau).pow(2).mean(0).sqrt().mean())
 
+    def fitted(strength, start):  # the model at ``strength``, solved from ``start``; and where it ended
+        sol = solve(strength, start)
+        return model_of(sol.x, strength, sol), sol.x
+
     best, x, scores, ends = None, theta0.numpy(), {}, {}
     for strength in priors:  # the strongest first; each starts where the previous ended
-        sol = solve(strength, x)
-        x = ends[strength] = sol.x
-        candidate = model_of(x, strength, sol)
+        candidate, x = fitted(strength, x)
+        ends[strength] = x
         if validation is None:
             best = candidate
             break
@@ -487,9 +490,7 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         end, x = best[0].info["prior"], ends[best[0].info["prior"]]
         for k in range(1, EXTEND + 1 if end > 0 else 1):
             strength = float(f"{end * step ** k:.3g}")  # from 10: 31.6, 100, 316, 1000
-            sol = solve(strength, x)
-            x = sol.x
-            candidate = model_of(x, strength, sol)
+            candidate, x = fitted(strength, x)
             scores[strength] = validation_error(candidate[0])
             if not scores[strength] < scores[best[0].info["prior"]]:
                 break
