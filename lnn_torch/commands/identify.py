@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..data.import_tools import correlation_block
 from ..errors import InputError
 from ..evaluation.report import markdown_table, number, pct, table_header, table_row
 from ..mechanics.friction import DriveModel
@@ -247,8 +248,6 @@ def _identify_arm(module, args) -> int:
                 + _tools_markdown(tools))
     else:
         val = dm.trajectories("val") if "val" in dm.split_names() else None  # the consistent fit's prior's choice
-        from ..data.import_tools import correlation_block
-
         # standard errors over blocks of the filtered residuals' correlation time (as the tools' at import), in
         # the points fitted (every 2nd)
         block = 1 if dm.targets is None else -(-correlation_block(dm.targets, float(f.dt)) // 2)
@@ -279,7 +278,6 @@ def _tools_on_split(module, f, dm, split: str) -> dict | None:
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
     ``identification.payload.identify_tools``): the load a new recording carries. ``f``: the dataset file
     (``TrajectoryFile``). None where the file declares no such tool."""
-    from ..data.import_tools import correlation_block
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
     from ..robots.tools import Tool
