@@ -874,9 +874,8 @@ def _check_written(path: Path, ident: IdentifiedArm, fmt: str) -> float:
 
     model = _compile_file(path)
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY) < 0:  # written without a payload: read
-        # as a model reads it, its payload body added at the flange (ArmDescription.compile)
-        flange = ident.description.flange
-        model = ArmDescription.of({"source": str(path), **({"flange": flange} if flange else {})}).compile()
+        # as the file is to be used, as source alone (its payload body added at the chain's last body)
+        model = ArmDescription.of(str(path)).compile()
     chain = K.read_chain(model)
     nominal = K.read_chain(ident.description.compile())
 
