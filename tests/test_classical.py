@@ -52,6 +52,25 @@ def test_least_squares_with_friction_gives_the_torques_and_the_coefficients(arm,
     assert fit.report()["base_parameters"] < 84
 
 
+def test_saturating_friction_is_fitted_by_least_squares_and_never_puts_energy_in(arm):
+    """Friction that rises over v_d and levels off (``saturating``: d tanh(v / v_d)) beside the drive model's
+    terms: least squares gives the torques and its coefficients back exactly; with d >= 0 the law only takes
+    energy out (f(v) v >= 0 at any rate, offset aside); the drive model with other forms keeps its velocities."""
+    arm, chain = arm
+    drive = DriveModel.of(DRIVE + "+saturating", saturation_velocity=0.3)
+    coefficients = {**FRICTION, "d": torch.linspace(1.0, 0.2, 7, dtype=torch.float64)}
+    fit = classical.least_squares(chain, *samples(arm, 300, 0, drive, coefficients), drive=drive)
+    q, qd, qdd, tau = samples(arm, 50, 1, drive, coefficients)
+    assert (fit.inverse(q, qd, qdd) - tau).abs().max() <= 1e-7 * tau.abs().max()
+    np.testing.assert_allclose(fit.friction_coefficients["d"], coefficients["d"].numpy(), rtol=1e-6)
+    plain = classical.least_squares(chain, *samples(arm, 300, 0, drive, coefficients), drive=DRIVE)
+    assert (plain.inverse(q, qd, qdd) - tau).abs().max() > 1e-3 * tau.abs().max()  # without the term it cannot
+    v = torch.linspace(-3, 3, 601, dtype=torch.float64)[:, None].expand(-1, 7)
+    passive = drive.with_forms("viscous+coulomb+saturating")
+    assert passive.saturation_velocity == 0.3 and passive.passive
+    assert (passive.torque(v, coefficients) * v >= 0).all()
+
+
 @pytest.mark.slow
 def test_the_consistent_fit_explains_the_torques_with_a_physical_arm(arm):
     arm, chain = arm
@@ -261,3 +280,11 @@ def test_identify_fits_the_classical_models_with_the_models_own_drive():
     drive = classical_drive(module)
     assert drive == module.model.forces.drive and drive.coulomb_velocity == 0.005
     assert drive.forms == ("viscous", "coulomb", "offset")
+    # a term kept on evidence only is in the fits where the model's classical start kept it, and only there
+    module = LNNModule(scene="measured", scene_config=config,
+                       model_options={"friction": "viscous+coulomb+offset+saturating"})
+    assert classical_drive(module).forms == ("viscous", "coulomb", "offset", "saturating")  # no start: as configured
+    module.classical_start = {"form": "coulomb+offset"}
+    assert classical_drive(module).forms == ("viscous", "coulomb", "offset")
+    module.classical_start = {"form": "viscous+coulomb+offset+saturating"}
+    assert classical_drive(module).forms == ("viscous", "coulomb", "offset", "saturating")

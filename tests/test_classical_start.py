@@ -177,6 +177,60 @@ def test_the_coulomb_smoothing_is_chosen_on_validation_and_travels_with_the_weig
     assert report["coulomb_velocity"] == 0.02 and module.model.forces.coulomb_velocity == 0.02, report
 
 
+def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_velocity_travels(tmp_path):
+    """Drives whose friction rises over 0.2 rad/s beside the Coulomb step (gear drives, as the UR10 bag's), and
+    drives without it, fitted with ``viscous+coulomb+offset+saturating``: where the data have it, the start keeps
+    the saturating term (its form validates better than the form without it by more than FORM_MARGIN), at the
+    velocity of SATURATION_VELOCITIES that validates best, and the model's friction law then follows the drives'
+    over the recorded rates (the form without the term cannot); the velocity is written into the model and
+    a model built with the configured 0.1 rad/s that loads the weights has it; where the data lack it, the start
+    drops the term, its coefficient at its floor."""
+    from lnn_torch.identification.classical_start import FORM_MARGIN, SATURATION_VELOCITIES
+
+    options = {**OPTIONS, "friction": "viscous+coulomb+offset+saturating"}
+    level, rising = np.array([2.0, 2.5, 1.5, 1.5, 0.8, 0.6, 0.4]), np.array([3.0, 4.0, 2.0, 2.0, 1.0, 0.8, 0.5])
+    laws = {"gears": lambda qd: level * np.tanh(qd / 0.02) + rising * np.tanh(qd / 0.2),
+            "plain": lambda qd: level * np.tanh(qd / 0.02)}
+    runs = {}
+    for name, friction in laws.items():
+        csv = record(tmp_path / f"{name}.csv", seconds=6.0, friction=friction)
+        spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                          velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                          coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                          coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
+                          split={"train": [f"{name}[0.1:3.5]"], "val": [f"{name}[3.5:5.9]"]})
+        dm = TrajectoryDataModule(path=str(import_recordings([csv], tmp_path / f"{name}.h5", spec)),
+                                  targets="finite_difference")
+        scene, config = dm.model_scene()
+        module = LNNModule(scene=scene, scene_config=config, model_options=options, torque_weight=1.0,
+                           acceleration_weight=0.0, eps=0.0)
+        module.model.double().fit_normalizer(dm.normalization_data())
+        report = start_from_classical(module.model, module.system, dm.trajectories("train"), dm.trajectories("val"))
+        runs[name] = (module, report, scene, config, dm)
+    module, report, scene, config, dm = runs["gears"]
+    forms, errors = report["form_selection"], report["saturation_selection"]
+    assert report["form"] == "viscous+coulomb+offset+saturating", report
+    assert forms[report["form"]] < (1 - FORM_MARGIN) * forms["viscous+coulomb+offset"], forms
+    assert set(errors) == set(SATURATION_VELOCITIES) and report["saturation_velocity"] == min(errors, key=errors.get)
+    forces = module.model.forces
+    assert forces.drive.saturation_velocity == report["saturation_velocity"]
+    qd = points(dm.trajectories("val"), 2)[1].double()
+    truth = torch.as_tensor(laws["gears"](qd.numpy()))
+    law = forces.drive.torque(qd, forces.drive_coefficients(torch.zeros(1, 0, dtype=torch.float64)))
+    assert (law - truth).pow(2).mean().sqrt() < 0.1 * truth.pow(2).mean().sqrt()
+    for velocity in (report["saturation_velocity"], 0.2, 0.5):  # whatever validation chose: it travels
+        forces.set_saturation_velocity(velocity)
+        rebuilt = LNNModule(scene=scene, scene_config=config, model_options=options, torque_weight=1.0,
+                            acceleration_weight=0.0, eps=0.0)
+        assert rebuilt.model.forces.drive.saturation_velocity == 0.1  # the configured one, until the weights come
+        rebuilt.load_state_dict(module.state_dict())
+        assert rebuilt.model.forces.drive.saturation_velocity == velocity
+    module, report, *_ = runs["plain"]
+    assert report["form"] == "viscous+coulomb+offset", report
+    d = module.model.forces.drive_coefficients(torch.zeros(1, 0, dtype=torch.float64))["d"]
+    assert float(d.abs().max()) < 1e-5 * float(module.model.forces.units[1]) + 1e-12, d
+
+
 def test_the_classical_fits_standard_errors_are_cluster_robust_over_the_blocks_given(recording):
     """``fit_classical(block=...)`` reaches the least-squares fits' covariance (``identify`` passes the filtered
     residuals' correlation time, as the tools' at import): over blocks the standard errors are wider than

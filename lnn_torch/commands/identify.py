@@ -338,10 +338,17 @@ def _tools_markdown(tools: dict | None) -> str:
 
 
 def classical_drive(module) -> DriveModel:
-    """The drive model of the classical fits beside ``module``: the model's own (its forms, its Coulomb and
-    Stribeck smoothing: the dataset's), else its configured forms with the scene's smoothing."""
+    """The drive model of the classical fits beside ``module``: the model's own (its forms, its smoothing
+    velocities: the dataset's or those its classical start chose), less a term kept on evidence only
+    (``classical_start.ON_EVIDENCE``) that its classical start left out; else its configured forms with the
+    scene's smoothing."""
+    from ..identification.classical_start import ON_EVIDENCE
+
     drive = getattr(getattr(module.model, "forces", None), "drive", None)
     if drive is not None:
+        kept = (getattr(module, "classical_start", None) or {}).get("form")
+        if kept:
+            return drive.with_forms([f for f in drive.forms if f not in ON_EVIDENCE or f in kept.split("+")])
         return drive
     return DriveModel.of(module.hparams.get("model_options", {}).get("friction", "viscous+coulomb"),
                          coulomb_velocity=float(getattr(module.system, "coulomb_velocity", None) or 0.02))
@@ -360,7 +367,9 @@ def _model_start(module) -> str:
             + (f"; friction {start['form']}, chosen on validation among {start['drive']} and its terms"
                if start.get("form_selection") else "")
             + (f"; Coulomb smoothing {start['coulomb_velocity']:g} rad/s, chosen on validation"
-               if start.get("smoothing_selection") else "") + ")")
+               if start.get("smoothing_selection") else "")
+            + (f"; saturating friction over {start['saturation_velocity']:g} rad/s, chosen on validation"
+               if start.get("saturation_selection") and "saturating" in start.get("form", "") else "") + ")")
     if selection is not None:
         kept = "the start itself" if selection["step"] == 0 else f"the state after {selection['step']} gradient steps"
         text += f"; validation kept {kept} ({selection['monitor']} {selection['value']:.4g})"

@@ -243,6 +243,9 @@ def _drive_terms(drive, coef: dict, names, stiction: bool = False, stick_velocit
         out.append({"term": "Stribeck friction", "why": f"s tanh(v / v_c) exp(-(v / v_s)^2), v_s = "
                     f"{drive.stribeck_velocity:g} rad/s", "values": {"stribeck_velocity": drive.stribeck_velocity,
                                                                      "s": _per_joint(names, coef["s"])}})
+    if "saturating" in drive.forms:
+        out.append({"term": "saturating friction", "why": f"d tanh(v / v_d), v_d = {drive.saturation_velocity:g} rad/s",
+                    "values": {"saturation_velocity": drive.saturation_velocity, "d": _per_joint(names, coef["d"])}})
     if "sigmoid" in drive.forms:
         out.append({"term": "sigmoid friction", "why": "phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2 phi3)]",
                     "values": {k: _per_joint(names, coef[k]) for k in ("phi1", "phi2", "phi3")}})

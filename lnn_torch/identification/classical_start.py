@@ -4,25 +4,26 @@ are linear in the joint torques, so they are solved, not walked to.
 ``start_from_classical`` fits the physically consistent least-squares model (``classical_arm.consistent_fit``:
 every link's pseudo-inertia, the armature and the drive model's coefficients, with the prior towards the
 description chosen among ``classical_arm.PRIORS`` on the validation recordings, its rows' weighting too (each
-joint's rows as recorded, or divided by the joint's ordinary residual spread as weighted least squares) and
-its friction form: the drive model's terms, or all but one where that validates better by more than
-``FORM_MARGIN``) to the training recordings and writes it into a model with the learned spatial part
-(``networks.parts.spatial``): its links and armature exactly, its joint friction's coefficients, and the prior
-of the refinement that follows then pulls towards this start. Gradient steps refine it from there;
-``training.callbacks.SelectOnValidation`` keeps the state the validation recordings prefer, the start
-included, so the trained model is never worse than the classical fit on validation.
+joint's rows as recorded, or divided by the joint's ordinary residual spread as weighted least squares) and its
+friction form: the drive model's terms, or all but one where that validates better by more than ``FORM_MARGIN``,
+and a curve such as saturating friction only where validation asks for it) to the training recordings and writes
+it into a model with the learned spatial part (``networks.parts.spatial``): its links and armature exactly, its
+joint friction's coefficients, and the prior of the refinement that follows then pulls towards this start.
+Gradient steps refine it from there; ``training.callbacks.SelectOnValidation`` keeps the state the validation
+recordings prefer, the start included, so the trained model is never worse than the classical fit on validation.
 
     report = start_from_classical(model, system, train, val)   # Trajectories with torques, SI
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import torch
 
 from ..errors import InputError
-from ..mechanics.friction import COEFFICIENTS
+from ..mechanics.friction import COEFFICIENTS, FORMS
 from ..robots.regressor import pseudo_inertia_of
 from .arm_comparison import WEIGHTED_CONSISTENT
 from .classical_arm import PRIORS
@@ -40,6 +41,13 @@ FORM_MARGIN = 0.02
 # errors of the mean over SMOOTHING_BLOCKS consecutive blocks of the validation points (errors are correlated in
 # time: blocks, not points, are the independent draws)
 COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+# terms of the configured drive model that the start keeps only where validation asks for them (the form with the
+# term lower than the form without it by more than FORM_MARGIN), the other way round from the rest: a curve whose
+# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 22 %; the Pandas: 0.2
+# and 1.5 %, not kept)
+ON_EVIDENCE = ("stribeck", "saturating")
+# the velocities (rad/s) saturating friction may rise over, each a candidate form of its own (with the configured one)
+SATURATION_VELOCITIES = (0.05, 0.1, 0.2, 0.5)
 SMOOTHING_BLOCKS, SMOOTHING_Z = 10, 2.0
 
 
@@ -61,9 +69,12 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     point), its prior chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and
     with ``val`` its Coulomb smoothing (``COULOMB_VELOCITIES``, ``smoothing_selection``; written into the
     model: ``LearnedForces.set_coulomb_velocity``), its rows' weighting (``weighting_selection``), then its
-    friction form (``_sub_forms``: the form less one term, each at the chosen prior and its neighbours in
-    ``priors``, kept where it validates better by more than ``FORM_MARGIN``). Returns the report: the
-    method (weighting), form, prior and Coulomb smoothing kept,
+    friction form, each candidate at the chosen prior and its neighbours in ``priors``: the terms kept on
+    evidence only (``ON_EVIDENCE``; saturating friction at each of ``SATURATION_VELOCITIES``, their errors in
+    ``saturation_selection``) where a form with them validates better than the form without them by more
+    than ``FORM_MARGIN``, then each other term dropped where the form less that term (``_sub_forms``) validates
+    better by more than ``FORM_MARGIN``. Returns the report: the method (weighting), form, prior and Coulomb
+    smoothing kept,
     the chosen form's validation error per prior tried (``validation_rms_mean``), the whole prior search
     (``prior_search``), each form's and each weighting's validation error (``form_selection``,
     ``weighting_selection``), the fit's time."""
@@ -77,7 +88,14 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     spatial, forces = model.part("kinetic", "spatial"), model.forces
     chain = read_chain(load_description(spatial.description))
     began = time.perf_counter()
-    drive, smoothing = forces.drive, None
+    # the terms kept on evidence only (ON_EVIDENCE) are judged last: the smoothing, weighting and prior are the form's
+    # without them, so a model validation gives no such term starts where it would without them configured
+    configured = forces.drive
+    extra = [f for f in configured.forms if f in ON_EVIDENCE] if val is not None and "sigmoid" not in configured.forms \
+        else []
+    extra = extra if len(extra) < len(configured.forms) else []
+    drive = configured.with_forms([f for f in configured.forms if f not in extra])
+    smoothing = saturation = None
     if val is not None and {"coulomb", "stribeck"} & set(drive.forms) and "sigmoid" not in drive.forms:
         drive, smoothing = _coulomb_velocity(system, train, val, drive, stride, chain)
     # with validation data, the rows' weighting too: each joint's rows as they are, or divided by that joint's
@@ -91,24 +109,51 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     search = fit.info.get("prior_selection")
     forms = {drive.name: _validation_error(fit)}
     if val is not None and "sigmoid" not in drive.forms:
-        # the friction form: each form less one of its terms, at the chosen weighting and prior and the priors
-        # next to it; a term of the configured drive model is dropped only when that lowers the validation
-        # error by more than FORM_MARGIN
+        # the friction form, each candidate at the chosen weighting and prior and the priors next to it
         chosen = fit.info["prior"]  # beyond priors where validation extended them (classical_arm.EXTEND)
         near = sorted({chosen} | {p for p in priors if chosen / 3.5 <= p <= 3.5 * chosen})
-        full = _validation_error(fit)
-        for sub in _sub_forms(drive):
-            other = next(f for f in fit_classical(system, train, drive=sub, methods=(fit.method,), stride=stride,
-                                                  prior=near, val=val, chain=chain, extend=False).values())
-            forms[sub.name] = _validation_error(other)
-            if forms[sub.name] < (1 - FORM_MARGIN) * full and forms[sub.name] < _validation_error(fit):
+        fitted = {drive: fit}
+
+        def at(form):  # the fit of ``form`` (a DriveModel) at the priors near the chosen one
+            if form not in fitted:
+                fitted[form] = next(iter(fit_classical(system, train, drive=form, methods=(fit.method,), stride=stride,
+                                                       prior=near, val=val, chain=chain, extend=False).values()))
+            return fitted[form]
+
+        # the terms kept on evidence only: a form with them where it validates better than the form without them
+        # by more than FORM_MARGIN (the best such form; saturating friction at each of SATURATION_VELOCITIES)
+        plain = fit
+        candidates = {drive.with_forms(sorted({*drive.forms, e}, key=FORMS.index)) for e in extra}
+        candidates |= {configured.with_forms(configured.forms)} if len(extra) > 1 else set()
+        candidates = {dataclasses.replace(c, coulomb_velocity=drive.coulomb_velocity, saturation_velocity=v)
+                      for c in candidates
+                      for v in ({configured.saturation_velocity, *SATURATION_VELOCITIES} if "saturating" in c.forms
+                                else {configured.saturation_velocity})}
+        for form in sorted(candidates, key=lambda c: (c.name, c.saturation_velocity)):
+            other = at(form)
+            error = _validation_error(other)
+            if "saturating" in form.forms:
+                saturation = {**(saturation or {}), form.saturation_velocity: error}
+            if error < (1 - FORM_MARGIN) * _validation_error(plain) and error < _validation_error(fit):
                 fit = other
+        # the configured drive's other terms: the form less one of them, kept where it lowers the validation
+        # error by more than FORM_MARGIN
+        full = _validation_error(fit)
+        for sub in _sub_forms(fit.drive):
+            other = at(sub)
+            error = _validation_error(other)
+            if error < (1 - FORM_MARGIN) * full and error < _validation_error(fit):
+                fit = other
+        for form, other in fitted.items():  # each form's validation error (at its best velocity)
+            forms[form.name] = min(forms.get(form.name, float("inf")), _validation_error(other))
+    drive = fit.drive
     n = chain.dof
     pi = torch.as_tensor(fit.pi, dtype=torch.float64)
     spatial.start_at(pseudo_inertia_of(pi[: 10 * n].reshape(n, 10)), pi[10 * n: 11 * n])
     units = forces.units.double()
     # a passive coefficient the fit puts at zero starts just above it (where the softplus still moves it)
-    floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "phi1": 1e-6 * units[1]}
+    floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "d": 1e-6 * units[1],
+              "phi1": 1e-6 * units[1]}
     coefficients = {}
     for form in forces.drive.forms:  # a term the chosen form leaves out starts at zero (its floor)
         for name in COEFFICIENTS[form]:
@@ -117,6 +162,8 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
     if drive.coulomb_velocity != forces.drive.coulomb_velocity:
         forces.set_coulomb_velocity(drive.coulomb_velocity)
+    if "saturating" in configured.forms and drive.saturation_velocity != forces.drive.saturation_velocity:
+        forces.set_saturation_velocity(drive.saturation_velocity)
     forces.start_with(coefficients)
     selection = fit.info.get("prior_selection")
     return {"method": fit.method, "drive": forces.drive.name, "form": fit.drive.name, "prior": fit.info["prior"],
@@ -126,6 +173,8 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             "weighting_selection": ({k: _validation_error(f) for k, f in weightings.items()} if len(weightings) > 1
                                     else None),
             "coulomb_velocity": drive.coulomb_velocity, "smoothing_selection": smoothing,
+            **({"saturation_velocity": drive.saturation_velocity, "saturation_selection": saturation}
+               if "saturating" in configured.forms else {}),
             "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points")}
 
 
@@ -134,8 +183,6 @@ def _coulomb_velocity(system, train, val, drive, stride: int, chain) -> tuple:
     configured one; ordinary least squares, its validation torque error; another than the configured only
     where it is lower beyond chance: ``SMOOTHING_BLOCKS``, ``SMOOTHING_Z``), and each smoothing's validation
     error ``{v: N m}`` (the mean over joints of each joint's RMS)."""
-    import dataclasses
-
     from .arm_comparison import fit_classical, stacked_points
 
     q, qd, qdd, tau, params = stacked_points(val, stride)
@@ -163,10 +210,8 @@ def _validation_error(fit) -> float:
 
 
 def _sub_forms(drive) -> list:
-    """The drive model less one of its terms, each (the forms validation chooses among)."""
-    from ..mechanics.friction import DriveModel
-
+    """The drive model less one of its terms (but those kept on evidence only, ``ON_EVIDENCE``), each (the forms
+    validation chooses among)."""
     if len(drive.forms) < 2:
         return []
-    return [DriveModel.of({"forms": [f for f in drive.forms if f != gone], "coulomb_velocity": drive.coulomb_velocity,
-                           "stribeck_velocity": drive.stribeck_velocity}) for gone in drive.forms]
+    return [drive.with_forms([f for f in drive.forms if f != gone]) for gone in drive.forms if gone not in ON_EVIDENCE]

@@ -1,7 +1,7 @@
 """Drive models of a robot's joints: the friction a joint's motor works against, as a function of the
 joint's rate ``v`` (rad/s), one set of coefficients per joint, in SI (N m).
 
-    f(v) = b v + c tanh(v / v_c) + o + s tanh(v / v_c) exp(-(v / v_s)^2)
+    f(v) = b v + c tanh(v / v_c) + o + s tanh(v / v_c) exp(-(v / v_s)^2) + d tanh(v / v_d)
            + phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2 phi3)]
 
 Each term is a *form* a model may have (``DriveModel.forms``):
@@ -15,6 +15,9 @@ offset      ``o`` (N m): an asymmetry, a torque sensor's  **no**: a constant tor
             offset or a gravity-compensation error         put energy in (it is reported as such)
 stribeck    ``s`` (N m): breakaway above Coulomb, fading   yes for ``s >= 0`` (then ``c + s e^(...) >= 0``)
             over ``v_s``
+saturating  ``d`` (N m): friction that rises over ``v_d``    yes for ``d >= 0``
+            (0.1 rad/s) and levels off, between Coulomb's
+            step and viscous friction's line (gear drives)
 sigmoid     ``phi1`` (N m), ``phi2`` (s/rad), ``phi3``     yes for ``phi1, phi2 >= 0``: zero at rest and
             (rad/s): Gaz et al.'s form (Panda, 2019)       increasing, it opposes the motion; with ``phi3 != 0``
                                                            it is asymmetric
@@ -32,16 +35,17 @@ from dataclasses import dataclass
 
 import torch
 
-FORMS = ("viscous", "coulomb", "offset", "stribeck", "sigmoid")
-LINEAR = ("viscous", "coulomb", "offset", "stribeck")  # linear in their one coefficient
-PASSIVE = {"viscous": True, "coulomb": True, "offset": False, "stribeck": True, "sigmoid": True}
-COEFFICIENTS = {"viscous": ("b",), "coulomb": ("c",), "offset": ("o",), "stribeck": ("s",),
+FORMS = ("viscous", "coulomb", "offset", "stribeck", "saturating", "sigmoid")
+LINEAR = ("viscous", "coulomb", "offset", "stribeck", "saturating")  # linear in their one coefficient
+PASSIVE = {"viscous": True, "coulomb": True, "offset": False, "stribeck": True, "saturating": True, "sigmoid": True}
+COEFFICIENTS = {"viscous": ("b",), "coulomb": ("c",), "offset": ("o",), "stribeck": ("s",), "saturating": ("d",),
                 "sigmoid": ("phi1", "phi2", "phi3")}
 # the steepest slope a friction law's smoothed step may take, relative to the Coulomb smoothing velocity:
 # the sigmoid's phi2 <= SLOPE_LIMIT / v_c (2,500 s/rad at v_c = 0.02 rad/s; Gaz et al.'s Panda: 5-60 s/rad).
 # A step sharper than the data's velocity resolution is not identifiable, and its gradients are spikes
 SLOPE_LIMIT = 50.0
-UNITS = {"b": "N m s/rad", "c": "N m", "o": "N m", "s": "N m", "phi1": "N m", "phi2": "s/rad", "phi3": "rad/s"}
+UNITS = {"b": "N m s/rad", "c": "N m", "o": "N m", "s": "N m", "d": "N m", "phi1": "N m", "phi2": "s/rad",
+         "phi3": "rad/s"}
 
 
 # the smoothing of Coulomb friction's sign, ``shape(v / v_c)``: tanh for the learned models and the
@@ -78,11 +82,13 @@ class DriveModel:
         forms: a subset of ``FORMS`` (a ``+``-joined string is read too: ``"viscous+coulomb+offset"``).
         coulomb_velocity: ``v_c``, rad/s: the smoothing of Coulomb (and Stribeck) friction's sign.
         stribeck_velocity: ``v_s``, rad/s: how fast the breakaway fades.
+        saturation_velocity: ``v_d``, rad/s: over which saturating friction rises.
     """
 
     forms: tuple[str, ...] = ("viscous", "coulomb")
     coulomb_velocity: float = 0.02
     stribeck_velocity: float = 0.1
+    saturation_velocity: float = 0.1
 
     @classmethod
     def of(cls, value=None, **kw) -> DriveModel:
@@ -96,7 +102,7 @@ class DriveModel:
         if unknown or not forms or len(set(forms)) != len(forms):
             raise _error(f"drive model: forms must be distinct names among {', '.join(FORMS)}, got {list(forms)}")
         model = cls(tuple(f for f in FORMS if f in forms), **kw)
-        for key in ("coulomb_velocity", "stribeck_velocity"):
+        for key in ("coulomb_velocity", "stribeck_velocity", "saturation_velocity"):
             if not getattr(model, key) > 0:
                 raise _error(f"drive model: {key} must be positive, got {getattr(model, key)}")
         return model
@@ -104,6 +110,11 @@ class DriveModel:
     @property
     def name(self) -> str:
         return "+".join(self.forms)
+
+    def with_forms(self, forms) -> DriveModel:
+        """This drive model's smoothing velocities with other ``forms`` (as ``of`` reads them)."""
+        return DriveModel.of(forms, coulomb_velocity=self.coulomb_velocity, stribeck_velocity=self.stribeck_velocity,
+                             saturation_velocity=self.saturation_velocity)
 
     @property
     def passive(self) -> bool:
@@ -129,6 +140,8 @@ class DriveModel:
             return torch.ones_like(v)
         if form == "stribeck":
             return sign * torch.exp(-((v / self.stribeck_velocity) ** 2))
+        if form == "saturating":
+            return torch.tanh(v / self.saturation_velocity)
         if form == "sigmoid":
             return torch.sigmoid(phi2 * (v + phi3)) - torch.sigmoid(phi2 * phi3)
         raise _error(f"unknown friction form {form!r}")

@@ -17,12 +17,13 @@ conservative scene has no such module and no extra parameter.
   with ``(b, c)`` = softplus of a small network of the normalised parameters (the conditioning of
   the rest of the model), or free coefficients where the scene has no parameters. ``v`` is the
   scene's Coulomb smoothing velocity.
-* ``friction``: the drive model's forms (``lnn_torch.mechanics.friction``): ``viscous+coulomb`` (the default, as
-  above) or any of ``viscous``, ``coulomb``, ``offset`` (a constant torque per joint: an asymmetry or
-  a torque sensor's offset; *not* dissipative), ``stribeck`` (``s >= 0``, a breakaway above Coulomb
-  fading over ``v_s``) and ``sigmoid`` (Gaz et al.'s ``phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2
-  phi3)]``, ``phi1, phi2 >= 0``), e.g. ``viscous+coulomb+offset``; the coefficients beyond ``(b, c)``
-  come from the same network of the parameters (or are free constants without parameters).
+* ``friction``: the drive model's forms (``lnn_torch.mechanics.friction``): ``viscous+coulomb`` (the default,
+  as above) or any of ``viscous``, ``coulomb``, ``offset`` (a constant torque per joint: an asymmetry or a
+  torque sensor's offset; *not* dissipative), ``stribeck`` (``s >= 0``, a breakaway above Coulomb fading over
+  ``v_s``), ``saturating`` (``d >= 0``, friction rising over ``v_d`` and levelling off) and ``sigmoid`` (Gaz
+  et al.'s ``phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2 phi3)]``, ``phi1, phi2 >= 0``), e.g.
+  ``viscous+coulomb+offset``; the coefficients beyond ``(b, c)`` come from the same network of the parameters
+  (or are free constants without parameters).
 * ``dissipation="joint+stiction"`` adds static friction to the joint friction: a joint slower than
   the stick velocity ``v_s`` (2.5 times the scene's Coulomb smoothing velocity) is held at rest by
   up to its Coulomb level ``c`` (no parameter of its own), its kinetic friction fading in that
@@ -50,6 +51,7 @@ are in SI units (``unit`` buffers, set from the training data, scale the network
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -71,7 +73,7 @@ _INIT = math.log(math.expm1(0.1))  # softplus^-1(0.1): coefficients start at 0.1
 # the coefficients beyond (b, c), per joint, in the order of the drive model's forms: (name, raw start);
 # the sigmoid's phi2 = L tanh(softplus(raw) / L) / v_c (L = SLOPE_LIMIT: bounded) starts at 0.6 / v_c (30 s/rad at
 # v_c = 0.02 rad/s)
-_EXTRA = {"offset": (("o", 0.0),), "stribeck": (("s", _INIT),),
+_EXTRA = {"offset": (("o", 0.0),), "stribeck": (("s", _INIT),), "saturating": (("d", _INIT),),
           "sigmoid": (("phi1", _INIT), ("phi2", math.log(math.expm1(0.6))), ("phi3", 0.0))}
 
 
@@ -114,6 +116,9 @@ class LearnedForces(nn.Module):
             # the Coulomb smoothing (rad/s) travels with the weights: a classical start may choose another than
             # the scene's (identification.classical_start), and a model built from the scene then loads it
             self.register_buffer("coulomb_velocity_si", torch.tensor(self.drive.coulomb_velocity, dtype=torch.float64))
+            if "saturating" in self.drive.forms:  # so does saturating friction's velocity (chosen there too)
+                self.register_buffer("saturation_velocity_si",
+                                     torch.tensor(self.drive.saturation_velocity, dtype=torch.float64))
             self._sync_coulomb_velocity()
             # (b, c) first, as always; then the further forms' coefficients per joint
             self.extra = tuple(item for form in self.drive.forms for item in _EXTRA.get(form, ()))
@@ -200,7 +205,18 @@ class LearnedForces(nn.Module):
         v = float(f"{float(self.coulomb_velocity_si):.6g}")  # (a float32 copy of the buffer reads 0.00499999988)
         self.coulomb_velocity = v
         self.stick_velocity = 2.5 * v  # the stick window (joint+stiction)
-        self.drive = DriveModel.of(self.drive.forms, coulomb_velocity=v, stribeck_velocity=self.drive.stribeck_velocity)
+        saturation = getattr(self, "saturation_velocity_si", None)
+        saturation = self.drive.saturation_velocity if saturation is None else float(f"{float(saturation):.6g}")
+        self.drive = dataclasses.replace(self.drive, coulomb_velocity=v, saturation_velocity=saturation)
+
+    @torch.no_grad()
+    def set_saturation_velocity(self, value: float) -> None:
+        """Let saturating friction rise over ``value`` rad/s from now on (its coefficients keep their values)."""
+        if "saturating" not in self.drive.forms:
+            raise ValueError("the drive model has no saturating friction")
+        dataclasses.replace(self.drive, saturation_velocity=float(value)).with_forms(self.drive.forms)  # checks it
+        self.saturation_velocity_si.fill_(float(value))
+        self._sync_coulomb_velocity()
 
     @torch.no_grad()
     def set_coulomb_velocity(self, value: float) -> None:

@@ -155,11 +155,11 @@ def _layout(tensors) -> tuple:
 def _structure(model) -> tuple:
     """What of the model's structure tracing reads as Python values and a call can change: ``eps``, the
     parts' tuples (``residuals_off`` replaces them), the force residual (``residuals_off("force")`` drops it),
-    the Coulomb smoothing (weights loaded, ``set_coulomb_velocity``), whether the normaliser takes the
+    the drive model's smoothing velocities (weights loaded, ``set_coulomb_velocity``), whether the normaliser takes the
     parameters exactly."""
     forces = getattr(model, "forces", None)
     return (model.eps, id(model._kinetic_parts), id(model._potential_parts),
-            None if forces is None else id(forces.residual), getattr(forces, "coulomb_velocity", None),
+            None if forces is None else id(forces.residual), getattr(forces, "drive", None),
             model.normalizer.exact)
 
 

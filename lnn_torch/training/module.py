@@ -260,8 +260,12 @@ class LNNModule(L.LightningModule):
             configured = "" if s["coulomb_velocity"] != self.system.coulomb_velocity else ", as configured"
             smoothing = (f"; Coulomb smoothing {s['coulomb_velocity']:g} rad/s, chosen on validation among "
                          f"{', '.join(format(v, 'g') for v in smoothing)}{configured}")
+        saturation = s.get("saturation_selection") if "saturating" in s.get("form", "") else None
+        if saturation:
+            saturation = (f"; saturating friction over {s['saturation_velocity']:g} rad/s, chosen on validation among "
+                          f"{', '.join(format(v, 'g') for v in saturation)}")
         print(f"classical start: the {method} least-squares fit ({form}; prior {s['prior']:g}"
-              f"{chosen}{smoothing or ''}; {s['fit_seconds']:.1f} s)")
+              f"{chosen}{smoothing or ''}{saturation or ''}; {s['fit_seconds']:.1f} s)")
 
     @property
     def selection_monitor(self) -> str | None:
