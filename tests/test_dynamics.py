@@ -61,3 +61,30 @@ def test_spd_solve_equals_linalg_solve(dof):
     rhs = torch.randn(2, dof, dtype=torch.float64, requires_grad=True)
     sym = lambda m, r: spd_solve(0.5 * (m + m.mT), r)  # noqa: E731  (the solve reads the lower triangle)
     assert torch.autograd.gradcheck(sym, (M, rhs))
+
+
+@pytest.mark.parametrize("dof", [2, 6, 7])
+def test_unrolled_solves_give_lapacks_factor_and_solution_without_its_operators(dof):
+    """Within ``unrolled_solves`` (how programs are traced for export: ONNX has no Cholesky operator) the
+    factor and the solve of any size are elementwise operators, equal to LAPACK's in float64; a traced
+    program holds no Cholesky operator; outside, the factor is LAPACK's."""
+    from lnn_torch.mechanics.euler_lagrange import cholesky, spd_solve, unrolled_solves
+
+    gen = torch.Generator().manual_seed(dof)
+    A = torch.randn(16, dof, dof, generator=gen, dtype=torch.float64)
+    M, rhs = A @ A.mT + 0.1 * torch.eye(dof, dtype=torch.float64), torch.randn(16, dof, generator=gen,
+                                                                               dtype=torch.float64)
+    with unrolled_solves():
+        L, x = cholesky(M), spd_solve(M, rhs)
+        graph = torch.export.export(_Solve(), (M, rhs)).graph_module.code
+    torch.testing.assert_close(L, torch.linalg.cholesky(M), rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(x, torch.linalg.solve(M, rhs), rtol=1e-10, atol=1e-12)
+    assert "cholesky" not in graph and "sqrt" in graph
+    assert "cholesky" in torch.export.export(_Solve(), (M, rhs)).graph_module.code  # (LAPACK's outside)
+
+
+class _Solve(torch.nn.Module):
+    def forward(self, M, rhs):
+        from lnn_torch.mechanics.euler_lagrange import cholesky, spd_solve
+
+        return cholesky(M), spd_solve(M, rhs)

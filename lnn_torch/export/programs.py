@@ -69,6 +69,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError
+from ..mechanics.euler_lagrange import unrolled_solves
 from ..networks.capabilities import FORCES, INVERSE_DYNAMICS, MASS_MATRIX
 from ..perf import quiet_compilation
 
@@ -253,7 +254,7 @@ def export_program(fn: _Function, batch: int = 8) -> torch.export.ExportedProgra
     ``InputError`` naming the variant and the first line of torch's reason."""
     args = example_inputs(fn, batch)
     try:
-        with torch.no_grad():
+        with torch.no_grad(), unrolled_solves():  # Cholesky solves as elementwise operators (ONNX has none)
             fn(*args)
             return torch.export.export(fn, args, dynamic_shapes=dynamic_shapes(fn), strict=False)
     except Exception as err:  # noqa: BLE001 (torch.export raises many kinds)
@@ -313,6 +314,20 @@ def onnx_requirement() -> str | None:
             "pip install 'lnn-torch[export]' (or: pip install onnx onnxscript onnxruntime)")
 
 
+def _valid_onnx(onnx_program) -> bool:
+    """Whether ``onnx.checker`` accepts the program's graph. The exporter's optimiser (onnxscript 0.7) can drop the
+    bounds of a clamp of a clamped value, leaving Clip nodes that read values nothing produces (the models clamp
+    their normalised parameters where each network reads them): such a program is written unoptimised (ONNX
+    Runtime optimises a graph when it loads it)."""
+    import onnx
+
+    try:
+        onnx.checker.check_model(onnx_program.model_proto)
+    except onnx.checker.ValidationError:
+        return False
+    return True
+
+
 def to_onnx(program: torch.export.ExportedProgram, fn: _Function):
     """The exported program as an ``ONNXProgram`` (``torch.onnx.export(..., dynamo=True)``, opset
     ``ONNX_OPSET``; ``.save(path)`` writes it), its inputs named as ``fn``'s arguments and its output
@@ -331,9 +346,14 @@ def to_onnx(program: torch.export.ExportedProgram, fn: _Function):
             log.setLevel(logging.ERROR)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return torch.onnx.export(program, (), input_names=list(fn.arguments), output_names=[fn.result],
-                                     opset_version=ONNX_OPSET, dynamo=True, verbose=False,
-                                     custom_translation_table=_onnx_translations())
+            for optimize in (True, False):
+                onnx_program = torch.onnx.export(program, (), input_names=list(fn.arguments),
+                                                 output_names=[fn.result], opset_version=ONNX_OPSET, dynamo=True,
+                                                 verbose=False, custom_translation_table=_onnx_translations(),
+                                                 optimize=optimize)
+                if _valid_onnx(onnx_program):
+                    return onnx_program
+            raise ValueError("the ONNX graph the exporter wrote is not valid (onnx.checker)")
     except Exception as err:  # noqa: BLE001
         raise InputError(f"{fn.name} of variant '{fn.model.variant}' could not be converted to ONNX "
                          f"({_reason(err)})") from err

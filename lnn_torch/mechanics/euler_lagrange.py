@@ -16,6 +16,8 @@ Pure tensor functions: no networks, no Lightning.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from collections.abc import Callable
 
 import torch
@@ -146,23 +148,24 @@ def structured_acceleration(
 
 # Cholesky solves of SPD systems up to this size are unrolled over the matrix entries
 SMALL_SPD = 4
+_UNROLLED_UP_TO = contextvars.ContextVar("unrolled_up_to", default=SMALL_SPD)
 
 
-def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
-    """Solve ``M x = rhs`` for symmetric positive definite ``M (B, d, d)``, ``rhs (B, d)``, by Cholesky.
+@contextlib.contextmanager
+def unrolled_solves():
+    """Within it, ``spd_solve`` unrolls systems of any size: a traced program (``torch.export``) then holds
+    elementwise operators only, which every backend translates (ONNX has no Cholesky operator)."""
+    token = _UNROLLED_UP_TO.set(10**9)
+    try:
+        yield
+    finally:
+        _UNROLLED_UP_TO.reset(token)
 
-    For ``d <= SMALL_SPD`` the factorisation (``potrf``) and the two triangular solves (``potrs``)
-    are unrolled over the entries: the same algorithm as LAPACK's, as a few elementwise ops on
-    ``(B,)`` columns instead of one LAPACK call per matrix (cheaper for batches of small systems;
-    ``benchmarks/benchmark_dynamics.py`` times the whole solve). Larger systems use
-    ``torch.linalg.cholesky_ex`` and ``torch.cholesky_solve``. Only the lower triangle of ``M`` is
-    read. A matrix that is not positive definite gives NaN (never a silently wrong solution).
-    """
+
+def _unrolled_factor(M: torch.Tensor) -> tuple[list, list]:
+    """The Cholesky factor of ``M (..., d, d)`` entry by entry (``potrf``'s algorithm as elementwise operators):
+    ``L[i][j] (...)`` for ``j <= i`` and ``1 / L[j][j]``. NaN where ``M`` is not positive definite."""
     d = M.shape[-1]
-    if d > SMALL_SPD:
-        factor, info = torch.linalg.cholesky_ex(M)
-        x = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
-        return torch.where((info != 0)[..., None], torch.full_like(x, float("nan")), x)
     L = [[None] * d for _ in range(d)]
     inv = [None] * d  # 1 / L[j][j]
     for j in range(d):
@@ -176,6 +179,36 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
             for k in range(j):
                 s = torch.addcmul(s, L[i][k], L[j][k], value=-1)
             L[i][j] = s * inv[j]
+    return L, inv
+
+
+def cholesky(M: torch.Tensor) -> torch.Tensor:
+    """The lower-triangular Cholesky factor of ``M (..., d, d)`` (positive definite): ``torch.linalg.cholesky``,
+    or entry by entry within ``unrolled_solves`` (a traced program then needs no Cholesky operator)."""
+    if _UNROLLED_UP_TO.get() <= SMALL_SPD:  # outside unrolled_solves
+        return torch.linalg.cholesky(M)
+    d = M.shape[-1]
+    L, _ = _unrolled_factor(M)
+    zero = torch.zeros_like(M[..., 0, 0])
+    return torch.stack([torch.stack([L[i][j] if j <= i else zero for j in range(d)], -1) for i in range(d)], -2)
+
+
+def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
+    """Solve ``M x = rhs`` for symmetric positive definite ``M (B, d, d)``, ``rhs (B, d)``, by Cholesky.
+
+    For ``d <= SMALL_SPD`` the factorisation (``potrf``) and the two triangular solves (``potrs``)
+    are unrolled over the entries: the same algorithm as LAPACK's, as a few elementwise ops on
+    ``(B,)`` columns instead of one LAPACK call per matrix (cheaper for batches of small systems;
+    ``benchmarks/benchmark_dynamics.py`` times the whole solve). Larger systems use
+    ``torch.linalg.cholesky_ex`` and ``torch.cholesky_solve`` (but within ``unrolled_solves``). Only the lower
+    triangle of ``M`` is read. A matrix that is not positive definite gives NaN (never a silently wrong solution).
+    """
+    d = M.shape[-1]
+    if d > _UNROLLED_UP_TO.get():
+        factor, info = torch.linalg.cholesky_ex(M)
+        x = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+        return torch.where((info != 0)[..., None], torch.full_like(x, float("nan")), x)
+    L, inv = _unrolled_factor(M)
     y = []  # L y = rhs
     for i in range(d):
         s = rhs[..., i]

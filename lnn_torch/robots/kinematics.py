@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..mechanics.euler_lagrange import cholesky
 
 
 @dataclass
@@ -260,8 +261,9 @@ def _bracket(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def inertia_factor(J: torch.Tensor) -> torch.Tensor:
-    """``L (..., 6, 6)``, lower triangular with ``L L^T = G`` the spatial inertia of pseudo-inertias ``J``."""
-    return torch.linalg.cholesky(spatial_inertia(J))
+    """``L (..., 6, 6)``, lower triangular with ``L L^T = G`` the spatial inertia of pseudo-inertias ``J``
+    (``mechanics.euler_lagrange.cholesky``: entry by entry where a program is traced for export)."""
+    return cholesky(spatial_inertia(J))
 
 
 def factor(T: torch.Tensor, S: torch.Tensor, L: torch.Tensor, tangents: bool = True):
