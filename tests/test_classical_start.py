@@ -181,8 +181,9 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
     """Drives whose friction rises over 0.2 rad/s beside the Coulomb step (gear drives, as the UR10 bag's), and
     drives without it, fitted with ``viscous+coulomb+offset+saturating``: where the data have it, the start keeps
     the saturating term (its form validates better than the form without it by more than FORM_MARGIN), at the
-    velocity of SATURATION_VELOCITIES that validates best, and the model's friction law then follows the drives'
-    over the recorded rates (the form without the term cannot); the velocity is written into the model and
+    velocity and Coulomb smoothing that validate best together (the drives' own: 0.2 rad/s and 20 mrad/s), and
+    the model's friction law then follows the drives' over the recorded rates; the velocity is written into the
+    model and
     a model built with the configured 0.1 rad/s that loads the weights has it; where the data lack it, the start
     drops the term, its coefficient at its floor."""
     from lnn_torch.identification.classical_start import FORM_MARGIN, SATURATION_VELOCITIES
@@ -212,6 +213,7 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
     assert report["form"] == "viscous+coulomb+offset+saturating", report
     assert forms[report["form"]] < (1 - FORM_MARGIN) * forms["viscous+coulomb+offset"], forms
     assert set(errors) == set(SATURATION_VELOCITIES) and report["saturation_velocity"] == min(errors, key=errors.get)
+    assert (report["coulomb_velocity"], report["saturation_velocity"]) == (0.02, 0.2), (report, errors)
     forces = module.model.forces
     assert forces.drive.saturation_velocity == report["saturation_velocity"]
     qd = points(dm.trajectories("val"), 2)[1].double()

@@ -46,9 +46,13 @@ COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 # shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 22 %; the Pandas: 0.2
 # and 1.5 %, not kept)
 ON_EVIDENCE = ("stribeck", "saturating")
-# the velocities (rad/s) saturating friction may rise over, each a candidate form of its own (with the configured one)
-SATURATION_VELOCITIES = (0.05, 0.1, 0.2, 0.5)
+# the velocities (rad/s) saturating friction may rise over (with the configured one), chosen with the Coulomb
+# smoothing beside it (COULOMB_VELOCITIES): a wide Coulomb step imitates saturating friction, so the two are chosen
+# together, by ordinary least squares on validation
+SATURATION_VELOCITIES = (0.05, 0.1, 0.2, 0.5, 1.0)
 SMOOTHING_BLOCKS, SMOOTHING_Z = 10, 2.0
+# singular values of the rigid body's regressor below this fraction of the largest are left out (its null space)
+RANK_RTOL = 1e-8
 
 
 def can_start(model) -> str | None:
@@ -64,20 +68,19 @@ def can_start(model) -> str | None:
 
 
 def start_from_classical(model, system, train, val=None, *, priors=PRIORS, stride: int = 2) -> dict:
-    """Start ``model`` (a structured model with the learned spatial part and joint friction) at the
-    physically consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th
-    point), its prior chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and
-    with ``val`` its Coulomb smoothing (``COULOMB_VELOCITIES``, ``smoothing_selection``; written into the
-    model: ``LearnedForces.set_coulomb_velocity``), its rows' weighting (``weighting_selection``), then its
-    friction form, each candidate at the chosen prior and its neighbours in ``priors``: the terms kept on
-    evidence only (``ON_EVIDENCE``; saturating friction at each of ``SATURATION_VELOCITIES``, their errors in
-    ``saturation_selection``) where a form with them validates better than the form without them by more
-    than ``FORM_MARGIN``, then each other term dropped where the form less that term (``_sub_forms``) validates
-    better by more than ``FORM_MARGIN``. Returns the report: the method (weighting), form, prior and Coulomb
-    smoothing kept,
-    the chosen form's validation error per prior tried (``validation_rms_mean``), the whole prior search
-    (``prior_search``), each form's and each weighting's validation error (``form_selection``,
-    ``weighting_selection``), the fit's time."""
+    """Start ``model`` (a structured model with the learned spatial part and joint friction) at the physically
+    consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th point), its prior
+    chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and with ``val`` its
+    Coulomb smoothing (``COULOMB_VELOCITIES``, ``smoothing_selection``; written into the model:
+    ``LearnedForces.set_coulomb_velocity``), its rows' weighting (``weighting_selection``), then its friction
+    form, each candidate at the chosen prior and its neighbours in ``priors``: the terms kept on evidence only
+    (``ON_EVIDENCE``; saturating friction at the velocity and Coulomb smoothing chosen together by least squares
+    on validation, ``_saturation_velocities``, their errors in ``saturation_selection``) where a form with them
+    validates better than the form without them by more than ``FORM_MARGIN``, then each other term dropped where
+    the form less that term (``_sub_forms``) validates better by more than ``FORM_MARGIN``. Returns the report:
+    the method (weighting), form, prior and Coulomb smoothing kept, the chosen form's validation error per prior
+    tried (``validation_rms_mean``), the whole prior search (``prior_search``), each form's and each weighting's
+    validation error (``form_selection``, ``weighting_selection``), the fit's time."""
     from ..robots.kinematics import read_chain
     from ..robots.mujoco_arm import load_description
     from .arm_comparison import fit_classical
@@ -124,16 +127,17 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         # by more than FORM_MARGIN (the best such form; saturating friction at each of SATURATION_VELOCITIES)
         plain = fit
         candidates = {drive.with_forms(sorted({*drive.forms, e}, key=FORMS.index)) for e in extra}
-        candidates |= {configured.with_forms(configured.forms)} if len(extra) > 1 else set()
-        candidates = {dataclasses.replace(c, coulomb_velocity=drive.coulomb_velocity, saturation_velocity=v)
-                      for c in candidates
-                      for v in ({configured.saturation_velocity, *SATURATION_VELOCITIES} if "saturating" in c.forms
-                                else {configured.saturation_velocity})}
-        for form in sorted(candidates, key=lambda c: (c.name, c.saturation_velocity)):
+        candidates |= {drive.with_forms(configured.forms)} if len(extra) > 1 else set()
+        if "saturating" in extra:  # its velocity and the Coulomb smoothing beside it, chosen together
+            (coulomb_velocity, saturation_velocity), saturation = _saturation_velocities(
+                system, train, val, drive.with_forms(sorted({*drive.forms, "saturating"}, key=FORMS.index)),
+                configured, stride, chain)
+            candidates = {dataclasses.replace(c, coulomb_velocity=coulomb_velocity,
+                                              saturation_velocity=saturation_velocity)
+                          if "saturating" in c.forms else c for c in candidates}
+        for form in sorted(candidates, key=lambda c: c.name):
             other = at(form)
             error = _validation_error(other)
-            if "saturating" in form.forms:
-                saturation = {**(saturation or {}), form.saturation_velocity: error}
             if error < (1 - FORM_MARGIN) * _validation_error(plain) and error < _validation_error(fit):
                 fit = other
         # the configured drive's other terms: the form less one of them, kept where it lowers the validation
@@ -200,6 +204,45 @@ def _coulomb_velocity(system, train, val, drive, stride: int, chain) -> tuple:
     if len(gain) < 2 * SMOOTHING_BLOCKS or not blocks.mean() > SMOOTHING_Z * blocks.std() / SMOOTHING_BLOCKS ** 0.5:
         best = drive.coulomb_velocity
     return dataclasses.replace(drive, coulomb_velocity=best), errors
+
+
+def _saturation_velocities(system, train, val, drive, configured, stride: int, chain) -> tuple:
+    """``((v_c, v_d), errors)``: the Coulomb smoothing and the velocity of saturating friction of ``drive`` (a form
+    with it) whose ordinary least-squares fit of ``train`` has the lowest validation torque error (the mean over
+    joints of each joint's RMS) over the grid ``COULOMB_VELOCITIES`` x ``SATURATION_VELOCITIES`` (with
+    ``configured``'s), and each ``v_d``'s error at its best ``v_c`` ``{v_d: N m}``. The rigid body's columns are
+    solved once (their pseudo-inverse, truncated at ``RANK_RTOL`` of the largest singular value); each pair
+    changes only the friction columns beside them."""
+    from ..robots.regressor import payload_torque
+    from .arm_comparison import stacked_points
+    from .classical_arm import _friction_columns, _regressor
+
+    def design(data):
+        q, qd, qdd, tau, params = (x.double() for x in stacked_points(data, stride))
+        Y = _regressor(chain, q, qd, qdd, drive).reshape(-1, 12 * chain.dof)
+        return Y, qd, (tau - payload_torque(chain, q, qd, qdd, params)).reshape(-1), tau.shape
+
+    Y, qd, tau, _ = design(train)
+    Yv, qdv, tauv, shape = design(val)
+    U, S, Vh = torch.linalg.svd(Y, full_matrices=False)
+    keep = S > RANK_RTOL * S[0]
+    U, S, Vh = U[:, keep], S[keep], Vh[keep]
+    forms = [f for f in drive.linear_forms if f != "viscous"]
+    errors = {}
+    for vc in sorted({configured.coulomb_velocity, *COULOMB_VELOCITIES}):
+        for vd in sorted({configured.saturation_velocity, *SATURATION_VELOCITIES}):
+            at = dataclasses.replace(drive, coulomb_velocity=vc, saturation_velocity=vd)
+            F, Fv = (_friction_columns(x, at, forms).reshape(-1, len(forms) * chain.dof) for x in (qd, qdv))
+            # Frisch-Waugh: the friction coefficients from the parts of F and tau the rigid body leaves
+            beta = torch.linalg.lstsq(F - U @ (U.mT @ F), tau - U @ (U.mT @ tau)).solution
+            theta = Vh.mT @ ((U.mT @ (tau - F @ beta)) / S)
+            residual = (Yv @ theta + Fv @ beta - tauv).reshape(shape)
+            errors[(vc, vd)] = float(residual.pow(2).mean(0).sqrt().mean())
+    best = min(errors, key=errors.get)
+    per_velocity = {}
+    for (_, vd), error in errors.items():
+        per_velocity[vd] = min(per_velocity.get(vd, float("inf")), error)
+    return best, per_velocity
 
 
 def _validation_error(fit) -> float:
