@@ -54,9 +54,21 @@ def test_a_model_fitted_to_torques_alone_leads_with_its_torque_error(capsys):
     assert out[0.0][0] == ("validation: inverse-dynamics torque error 0.25 N m RMS (mean over the inputs), "
                            "15.00 % normalised")
     assert out[0.0][1].startswith("validation: acc. rel. L2 error (forward dynamics under the measured torques; not "
-                                  "fitted) 1947.00 % pooled")
+                                  "fitted: light links turn small torque errors into large accelerations) 1947.00 % "
+                                  "pooled")
     assert out[1.0][0].startswith("validation: acc. rel. L2 error 1947.00 % pooled")
     assert out[1.0][-1].startswith("validation: inverse-dynamics torque error")
+    # with a last checkpoint and the dataset, the torque-fitted model's summary says how to put least squares beside it
+    from lnn_torch.training.callbacks import LastCheckpoint
+
+    last = LastCheckpoint()
+    last.path = "runs/x/checkpoints/last.ckpt"
+    trainer.callbacks, trainer.datamodule = [last], SimpleNamespace(path="data/arm.h5")
+    for weight, hinted in ((0.0, True), (1.0, False)):
+        module = SimpleNamespace(system=SimpleNamespace(coord_names=names), hparams={"acceleration_weight": weight})
+        FitSummary().on_fit_end(trainer, module)
+        hint = "beside classical least squares: lnn-torch identify runs/x/checkpoints/last.ckpt data/arm.h5"
+        assert (hint in capsys.readouterr().out) == hinted
 
 
 def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_checkpoint(capsys):

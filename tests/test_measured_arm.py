@@ -200,11 +200,17 @@ def test_identify_finds_the_arms_feedback_on_its_measured_velocity(learned, tmp_
                       velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
                       coord_names=[f"joint{j}" for j in range(1, 8)], robot=rotors, friction=True,
                       label="synthetic_panda", split={"train": ["arm[0.2:3.0]"], "val": ["arm[3.0:3.5]"],
-                                                      "test": ["arm[3.5:3.9]"]})
+                                                      "test": ["arm[3.5:3.7]", "arm[3.7:3.9]"]})
     data = import_recordings([csv], tmp_path / "arm.h5", spec)
     assert main(["identify", ckpt, str(data), "--feedback", "-o", str(tmp_path / "id")]) == 0
     result = json.loads((tmp_path / "id" / "identification.json").read_text())
     rows = result["rows"]
+    # each recording of the split on its own too (the measure: every held-out log), in the report as well
+    per = result["per_recording"]
+    assert list(per) == ["arm[3.5:3.7]", "arm[3.7:3.9]"], list(per)
+    assert all(set(errors) == {k for k in rows if "velocity feedback" not in k} for errors in per.values())
+    assert per["arm[3.5:3.7]"] != per["arm[3.7:3.9]"] and "Per recording of the split" in \
+        (tmp_path / "id" / "report.md").read_text()
     # what the training window determines: the excitation and an interval per coefficient, in the report too
     u = result["uncertainty"]
     assert 0 < u["condition_number"] < float("inf") and len(u["interval95"]) == len(u["names"])

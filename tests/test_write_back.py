@@ -217,8 +217,9 @@ def test_mujoco_from_the_written_urdf_is_the_grey_box(tmp_path, float64):
 
 def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, float64):
     """A URDF as a ROS package ships it (collision meshes named ``package://...``, not there): the grey box
-    is built from its inertials, the file written back keeps every mesh reference as written, and MuJoCo
-    from it (the meshes left out again, with the warning) is the model's rigid body."""
+    is built from its inertials, the file written back keeps every mesh reference as written (its notes say so and
+    how to read it here), and MuJoCo from it (the meshes left out again, with the warning) is the model's rigid
+    body."""
     mesh = '<collision><geometry><mesh filename="package://two/meshes/{}.stl"/></geometry></collision>'
     text = TWO_LINK_URDF.replace('<link name="l1">', '<link name="l1">' + mesh.format("l1"))
     text = text.replace('<link name="l2">', '<link name="l2">' + mesh.format("l2"))
@@ -230,6 +231,7 @@ def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, f
     written = result.path.read_text()
     assert written.count('<mesh filename="package://two/meshes/') == 2 and source.read_text() == text
     assert 'name="payload"' not in written  # no payload given: nothing added to the robot as described
+    assert any("2 mesh file(s)" in n and "load_description" in n for n in result.notes), result.notes  # said so
     with pytest.warns(UserWarning, match=r"2 mesh file\(s\) not found"):
         arm = MujocoArm(str(result.path))
     arm.model.dof_armature[:] = [json.loads(result.sidecar.read_text())["not_expressed"][0]["values"][n]

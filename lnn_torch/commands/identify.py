@@ -218,6 +218,8 @@ def _identify_arm(module, args) -> int:
         fit_classical,
         markdown,
         model_torque,
+        per_recording,
+        per_recording_markdown,
         uncertainty_markdown,
     )
     from ..training.checkpoint_format import data_hparams
@@ -258,12 +260,20 @@ def _identify_arm(module, args) -> int:
                           **{label: classical_torque(fit) for label, fit in fits.items()}}
             result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
         ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
+        data = dm.trajectories(args.split)
+        recordings = json.loads(f.attrs.get("recordings", "[]"))
+        indices = data.index.tolist() if data.index is not None else list(range(len(data)))
+        names = [recordings[i] if i < len(recordings) else f"trajectory {i}" for i in map(int, indices)]
+        by_recording = per_recording(module.model, module.system, data, fits, names) if len(names) > 1 else None
         result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
+                  "per_recording": by_recording,
                   "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module), "tools": tools}
         text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
                 f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
                 f"{result['model_start']}\n\nJoint-torque RMS error (N m):\n\n{markdown(result)}\n\n"
-                "## What the training recordings determine "
+                + ("" if by_recording is None else "Per recording of the split, the mean joint-torque RMS error "
+                   f"(N m; the lowest in bold):\n\n{per_recording_markdown(by_recording)}\n\n")
+                + "## What the training recordings determine "
                 f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n"
                 + ("\n" + _tools_markdown(tools) if tools else ""))
     (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")

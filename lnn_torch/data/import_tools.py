@@ -149,6 +149,6 @@ def tool_lines(report: dict) -> list[str]:
                     parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
-                         + (f"; every {report['stride']}th sample (long recordings)" if report.get("stride", 1) > 1
+                         + (f"; every {report['stride']}-th sample (long recordings)" if report.get("stride", 1) > 1
                             else ""))
     return lines

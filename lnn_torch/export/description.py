@@ -61,7 +61,14 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..robots.description import PAYLOAD_BODY, TOOL_BODY, ArmDescription, drop_missing_meshes, payload_row
+from ..robots.description import (
+    PAYLOAD_BODY,
+    TOOL_BODY,
+    ArmDescription,
+    drop_missing_meshes,
+    missing_meshes,
+    payload_row,
+)
 
 FORMATS = ("mjcf", "urdf")
 SUFFIXES = {"mjcf": ".xml", "urdf": ".urdf"}
@@ -981,6 +988,12 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
         spec.delete(body)
     nominal = desc.compile()
     plan, notes = _plan(ident, nominal)
+    missing = sorted(set(missing_meshes(spec).values()))
+    if missing:
+        notes.append(f"{len(missing)} mesh file(s) the description names are not found here ({missing[0]}"
+                     f"{', ...' if len(missing) > 1 else ''}): written as named, so MuJoCo opens the file where they "
+                     "resolve (e.g. with the ROS package's meshes); here, read it with "
+                     "lnn_torch.robots.mujoco_arm.load_description, which leaves them out")
     unexpressed = list(ident.unexpressed)
     if fmt == "urdf" and np.any(ident.armature != 0):
         unexpressed.insert(0, {"term": "armature", "why": "rotor inertia per joint (kg m^2) has no URDF element; "

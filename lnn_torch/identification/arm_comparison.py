@@ -187,6 +187,24 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 
 
+def per_recording(model, system, data, fits: dict, names) -> dict:
+    """``{name: {label: mean joint-torque RMS (N m)}}``: ``compare_on_arm``'s means on each trajectory of ``data``
+    alone (``names``: one per trajectory, e.g. the dataset's recordings), the description as written included."""
+    return {name: {label: row["rms_mean"] for label, row in
+                   compare_on_arm(model, system, data._map(lambda x, j=j: x[j:j + 1]), fits)["rows"].items()}
+            for j, name in enumerate(names)}
+
+
+def per_recording_markdown(table: dict) -> str:
+    """The per-recording table: one row per recording, each model's mean joint-torque RMS, the lowest in bold."""
+    labels = list(next(iter(table.values())))
+    rows = []
+    for name, errors in table.items():
+        best = min(errors.values())
+        rows.append([name, *(f"**{errors[k]:.3f}**" if errors[k] == best else f"{errors[k]:.3f}" for k in labels)])
+    return markdown_table(["recording", *labels], rows)
+
+
 def model_torque(model):
     """``(q, qd, qdd, params) -> torque`` (float64, N m) of a model's inverse dynamics, without gradients
     (NaN where a model's accelerations are undefined: ``counting_failures``)."""

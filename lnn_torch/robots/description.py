@@ -297,6 +297,12 @@ def _asset_file(spec, file: str, folder: str) -> Path:
     return base / name
 
 
+def missing_meshes(spec) -> dict[str, str]:
+    """``{mesh name: file}`` of the mesh assets of ``spec`` (a ``mujoco.MjSpec``) whose files are not there."""
+    return {m.name: m.file for m in spec.meshes
+            if m.file and m.file not in spec.assets and not _asset_file(spec, m.file, spec.meshdir).is_file()}
+
+
 def drop_missing_meshes(spec, path) -> list[str]:
     """Leave out of ``spec`` (a ``mujoco.MjSpec`` read from ``path``) the mesh assets whose files are not
     there and the geoms that show them: a robot description from a ROS package names its meshes as
@@ -305,8 +311,7 @@ def drop_missing_meshes(spec, path) -> list[str]:
     a geom (no inertial written, or the compiler's ``inertiafromgeom="true"``) cannot be modelled without
     it: ``InputError`` naming the body and the file. Returns the files left out (none: ``spec`` as read)."""
     mujoco = _mujoco()
-    missing = {m.name: m.file for m in spec.meshes
-               if m.file and m.file not in spec.assets and not _asset_file(spec, m.file, spec.meshdir).is_file()}
+    missing = missing_meshes(spec)
     if not missing:
         return []
     from_geoms = spec.compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE

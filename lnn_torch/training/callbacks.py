@@ -145,8 +145,8 @@ class FitSummary(L.Callback):
         # a model fitted to torques alone (an arm's identification): its torque error first, and its accelerations
         # (forward dynamics under the measured torques, which carry what no model of the state predicts) named so
         torques_only = torque is not None and getattr(pl_module, "hparams", {}).get("acceleration_weight", 1.0) == 0
-        what = "acc. rel. L2 error" + (" (forward dynamics under the measured torques; not fitted)" if torques_only
-                                       else "")
+        what = "acc. rel. L2 error" + (" (forward dynamics under the measured torques; not fitted: light links turn "
+                                       "small torque errors into large accelerations)" if torques_only else "")
         if torques_only:
             lines.append(torque)
         if "val/acc_rel_err" in m:
@@ -167,6 +167,9 @@ class FitSummary(L.Callback):
         if last is not None:
             configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
             lines.append(f"  test it: lnn-torch test {configs} --ckpt_path {path(last)}")
+            data = getattr(getattr(trainer, "datamodule", None), "path", None)
+            if torques_only and data is not None:  # an arm's identification: beside least squares, per joint
+                lines.append(f"  beside classical least squares: lnn-torch identify {path(last)} {data}")
         print("\n".join(lines))
 
 
