@@ -12,6 +12,7 @@ on: the DataModule's ``targets``), SI units.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 
@@ -200,7 +201,7 @@ def per_recording_markdown(table: dict) -> str:
     labels = list(next(iter(table.values())))
     rows = []
     for name, errors in table.items():
-        best = min(errors.values())
+        best = min((e for e in errors.values() if math.isfinite(e)), default=None)
         rows.append([name, *(f"**{errors[k]:.3f}**" if errors[k] == best else f"{errors[k]:.3f}" for k in labels)])
     return markdown_table(["recording", *labels], rows)
 

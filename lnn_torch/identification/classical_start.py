@@ -43,8 +43,8 @@ FORM_MARGIN = 0.02
 COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 # terms of the configured drive model that the start keeps only where validation asks for them (the form with the
 # term lower than the form without it by more than FORM_MARGIN), the other way round from the rest: a curve whose
-# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 22 %; the Pandas: 0.2
-# and 1.5 %, not kept)
+# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 23 %; the real Panda's
+# 0.8 %, the Franka bag's not at all: not kept)
 ON_EVIDENCE = ("stribeck", "saturating")
 # the velocities (rad/s) saturating friction may rise over (with the configured one), chosen with the Coulomb
 # smoothing beside it (COULOMB_VELOCITIES): a wide Coulomb step imitates saturating friction, so the two are chosen
@@ -117,15 +117,15 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         near = sorted({chosen} | {p for p in priors if chosen / 3.5 <= p <= 3.5 * chosen})
         fitted = {drive: fit}
 
-        def at(form):  # the fit of ``form`` (a DriveModel) at the priors near the chosen one
-            if form not in fitted:
+        def at(form, search: bool = False):  # the fit of ``form`` (a DriveModel) at the priors near the chosen one
+            if form not in fitted:  # (``search``: the prior chosen anew, among every one)
                 fitted[form] = next(iter(fit_classical(system, train, drive=form, methods=(fit.method,), stride=stride,
-                                                       prior=near, val=val, chain=chain, extend=False).values()))
+                                                       prior=priors if search else near, val=val, chain=chain,
+                                                       extend=search).values()))
             return fitted[form]
 
         # the terms kept on evidence only: a form with them where it validates better than the form without them
-        # by more than FORM_MARGIN (the best such form; saturating friction at each of SATURATION_VELOCITIES)
-        plain = fit
+        # by more than FORM_MARGIN (saturating friction at the velocities _saturation_velocities chooses)
         candidates = {drive.with_forms(sorted({*drive.forms, e}, key=FORMS.index)) for e in extra}
         candidates |= {drive.with_forms(configured.forms)} if len(extra) > 1 else set()
         if "saturating" in extra:  # its velocity and the Coulomb smoothing beside it, chosen together
@@ -135,11 +135,12 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             candidates = {dataclasses.replace(c, coulomb_velocity=coulomb_velocity,
                                               saturation_velocity=saturation_velocity)
                           if "saturating" in c.forms else c for c in candidates}
-        for form in sorted(candidates, key=lambda c: c.name):
-            other = at(form)
-            error = _validation_error(other)
-            if error < (1 - FORM_MARGIN) * _validation_error(plain) and error < _validation_error(fit):
-                fit = other
+        # one such term, then two: each level's best kept where it beats the best with fewer by more than FORM_MARGIN
+        for level in sorted({len(c.forms) - len(drive.forms) for c in candidates}):
+            best = min((at(c, search=True) for c in candidates if len(c.forms) - len(drive.forms) == level),
+                       key=_validation_error)  # (search: a curve the plain form lacks can move the prior a long way)
+            if _validation_error(best) < (1 - FORM_MARGIN) * _validation_error(fit):
+                fit = best
         # the configured drive's other terms: the form less one of them, kept where it lowers the validation
         # error by more than FORM_MARGIN
         full = _validation_error(fit)
@@ -229,7 +230,10 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
     U, S, Vh = U[:, keep], S[keep], Vh[keep]
     forms = [f for f in drive.linear_forms if f != "viscous"]
     errors = {}
-    for vc in sorted({configured.coulomb_velocity, *COULOMB_VELOCITIES}):
+    # the Coulomb smoothing only where a form reads it (else the drive's stands)
+    smoothings = {configured.coulomb_velocity, *COULOMB_VELOCITIES} if {"coulomb", "stribeck"} & set(drive.forms) \
+        else {drive.coulomb_velocity}
+    for vc in sorted(smoothings):
         for vd in sorted({configured.saturation_velocity, *SATURATION_VELOCITIES}):
             at = dataclasses.replace(drive, coulomb_velocity=vc, saturation_velocity=vd)
             F, Fv = (_friction_columns(x, at, forms).reshape(-1, len(forms) * chain.dof) for x in (qd, qdv))

@@ -17,7 +17,6 @@ Pure tensor functions: no networks, no Lightning.
 from __future__ import annotations
 
 import contextlib
-import contextvars
 from collections.abc import Callable
 
 import torch
@@ -148,18 +147,21 @@ def structured_acceleration(
 
 # Cholesky solves of SPD systems up to this size are unrolled over the matrix entries
 SMALL_SPD = 4
-_UNROLLED_UP_TO = contextvars.ContextVar("unrolled_up_to", default=SMALL_SPD)
+# the largest system ``spd_solve`` unrolls now (``unrolled_solves`` raises it): a plain value, not a ContextVar, which
+# torch.compile would not trace (each solve a graph break)
+_UNROLLED = {"up_to": SMALL_SPD}
 
 
 @contextlib.contextmanager
 def unrolled_solves():
-    """Within it, ``spd_solve`` unrolls systems of any size: a traced program (``torch.export``) then holds
-    elementwise operators only, which every backend translates (ONNX has no Cholesky operator)."""
-    token = _UNROLLED_UP_TO.set(10**9)
+    """Within it, ``spd_solve`` and ``cholesky`` unroll systems of any size: a traced program (``torch.export``)
+    then holds elementwise operators only, which every backend translates (ONNX has no Cholesky operator)."""
+    before = _UNROLLED["up_to"]
+    _UNROLLED["up_to"] = 10**9
     try:
         yield
     finally:
-        _UNROLLED_UP_TO.reset(token)
+        _UNROLLED["up_to"] = before
 
 
 def _unrolled_factor(M: torch.Tensor) -> tuple[list, list]:
@@ -185,7 +187,7 @@ def _unrolled_factor(M: torch.Tensor) -> tuple[list, list]:
 def cholesky(M: torch.Tensor) -> torch.Tensor:
     """The lower-triangular Cholesky factor of ``M (..., d, d)`` (positive definite): ``torch.linalg.cholesky``,
     or entry by entry within ``unrolled_solves`` (a traced program then needs no Cholesky operator)."""
-    if _UNROLLED_UP_TO.get() <= SMALL_SPD:  # outside unrolled_solves
+    if _UNROLLED["up_to"] <= SMALL_SPD:  # outside unrolled_solves
         return torch.linalg.cholesky(M)
     d = M.shape[-1]
     L, _ = _unrolled_factor(M)
@@ -204,7 +206,7 @@ def spd_solve(M: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
     triangle of ``M`` is read. A matrix that is not positive definite gives NaN (never a silently wrong solution).
     """
     d = M.shape[-1]
-    if d > _UNROLLED_UP_TO.get():
+    if d > _UNROLLED["up_to"]:
         factor, info = torch.linalg.cholesky_ex(M)
         x = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
         return torch.where((info != 0)[..., None], torch.full_like(x, float("nan")), x)

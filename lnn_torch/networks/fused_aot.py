@@ -17,7 +17,8 @@ or buffers changed after compiling are so read on the next call without recompil
 others of another shape, stride or dtype take another program. A program's signature is what its graph
 depends on: the arguments' structure, their tensors' shapes and dtypes, their other values (a step size, a
 method name) and the model's structure that tracing reads as Python values (``_structure``: ``eps``, the
-parts' tuples and the force residual, which ``residuals_off`` replaces, the normaliser's ``exact``). Other
+parts' tuples and the force residual, which ``residuals_off`` replaces, the drive model with its smoothing
+velocities, the normaliser's ``exact``). Other
 Python settings changed after compiling are not seen: ``compile_dynamics(True)`` again builds afresh.
 Other calls (a gradient recorded, the networks part by part) go through ``perf.compile_fn``.
 

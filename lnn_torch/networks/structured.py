@@ -93,7 +93,7 @@ class StructuredLagrangian(DynamicsModel):
         learn_input_matrix, dissipation: the generalised forces of a scene with inputs or friction
             (``lnn_torch.networks.forces``; ignored for a conservative scene, which builds none).
         friction: the drive model's friction forms per joint (``lnn_torch.mechanics.friction``): ``viscous+coulomb``
-            (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, sigmoid.
+            (default), or any ``+``-joined subset of viscous, coulomb, offset, stribeck, saturating, sigmoid.
         residual_force: None (default: none) or the options of a force residual ``Q_r`` (``true`` or ``{}``:
             the defaults): ``hidden`` widths ([32, 32]), ``weight`` of its L2 penalty (1e-3), ``activation``
             (tanh), ``film_hidden`` (16), ``harmonics`` (1: sin/cos of the angles; K: of k times them, k <=
