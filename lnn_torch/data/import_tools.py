@@ -147,8 +147,11 @@ def tool_lines(report: dict) -> list[str]:
                     parts.append(f"{key} {scale * p['value']:.4g} +- {scale * half:.2g} {unit}")
                 else:
                     parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
+            point = len(tool["parameters"]) == 4  # mass and centre of mass: the payloads' four values
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
                          + (f"; every {report['stride']}-th sample (long recordings)" if report.get("stride", 1) > 1
-                            else ""))
+                            else "")
+                         + ("; a point mass: a tool's own inertia, which four values leave out, shifts its centre of "
+                            "mass (give the payloads ten values to identify it)" if point else ""))
     return lines
