@@ -53,9 +53,10 @@ def test_least_squares_with_friction_gives_the_torques_and_the_coefficients(arm,
 
 
 def test_saturating_friction_is_fitted_by_least_squares_and_never_puts_energy_in(arm):
-    """Friction that rises over v_d and levels off (``saturating``: d tanh(v / v_d)) beside the drive model's
-    terms: least squares gives the torques and its coefficients back exactly; with d >= 0 the law only takes
-    energy out (f(v) v >= 0 at any rate, offset aside); the drive model with other forms keeps its velocities."""
+    """Friction whose Coulomb level moves by d over v_d (``saturating``: d tanh(v / v_d)) beside the drive model's
+    terms: least squares gives the torques and its coefficients back exactly; for d >= -k c the law only takes
+    energy out (f(v) v >= 0 at any rate, offset aside), below it not; the drive model with other forms keeps its
+    velocities."""
     arm, chain = arm
     drive = DriveModel.of(DRIVE + "+saturating", saturation_velocity=0.3)
     coefficients = {**FRICTION, "d": torch.linspace(1.0, 0.2, 7, dtype=torch.float64)}
@@ -65,10 +66,18 @@ def test_saturating_friction_is_fitted_by_least_squares_and_never_puts_energy_in
     np.testing.assert_allclose(fit.friction_coefficients["d"], coefficients["d"].numpy(), rtol=1e-6)
     plain = classical.least_squares(chain, *samples(arm, 300, 0, drive, coefficients), drive=DRIVE)
     assert (plain.inverse(q, qd, qdd) - tau).abs().max() > 1e-3 * tau.abs().max()  # without the term it cannot
-    v = torch.linspace(-3, 3, 601, dtype=torch.float64)[:, None].expand(-1, 7)
+    v = torch.linspace(-3, 3, 6001, dtype=torch.float64)[:, None].expand(-1, 7)
     passive = drive.with_forms("viscous+coulomb+saturating")
     assert passive.saturation_velocity == 0.3 and passive.passive
     assert (passive.torque(v, coefficients) * v >= 0).all()
+    # falling too (a breakaway): down to d = -k c, k = min(1, v_d / v_c), the law still takes energy out; below, not
+    for v_d in (0.005, 0.3):
+        law = DriveModel.of("coulomb+saturating", coulomb_velocity=0.02, saturation_velocity=v_d)
+        k = law.saturation_floor()
+        assert k == min(1.0, v_d / 0.02)
+        floor = {"c": coefficients["c"], "d": -k * coefficients["c"]}
+        assert (law.torque(v, floor) * v >= -1e-15).all()
+        assert (law.torque(v, {"c": coefficients["c"], "d": -1.2 * k * coefficients["c"]}) * v < 0).any()
 
 
 @pytest.mark.slow

@@ -445,3 +445,28 @@ def test_stiff_friction_slopes_are_bounded_and_training_through_them_keeps_finit
         assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
         optimizer.step()
     assert all(torch.isfinite(p).all() for p in model.parameters())
+
+
+def test_learned_saturating_friction_starts_where_told_and_never_injects_energy(rng):
+    """A learned drive with saturating friction (``d``, the Coulomb level's move over ``v_d``): started at a
+    falling level (``d < 0``, down to its floor ``-k c``) it returns those coefficients, and at any weights of its
+    coefficient network (raw values from -8 to 8) the joint friction only takes energy out."""
+    system = get_system("actuated_double_pendulum")
+    model = build_model("film_lnn", system, friction="viscous+coulomb+saturating").double()
+    q, qd, params, _ = fitted(model, system, rng, 256)
+    forces, n = model.forces, model.forces.num_joints
+    c = torch.tensor([0.3, 0.2], dtype=torch.float64)[:n]
+    k = forces.drive.saturation_floor()
+    start = {"b": torch.full((n,), 0.05, dtype=torch.float64), "c": c, "d": -0.999 * k * c}
+    forces.start_with(start)
+    p_n = model.normalizer.params(params)
+    got = forces.drive_coefficients(p_n)
+    for name, value in start.items():
+        torch.testing.assert_close(got[name], value.expand_as(got[name]), rtol=1e-9, atol=1e-12)
+    with torch.no_grad():
+        for _ in range(5):
+            forces.coefficient_net[-1].bias.uniform_(-8.0, 8.0)
+            forces.coefficient_net[-1].weight.normal_(0.0, 1.0)
+            rates = qd * torch.where(torch.rand_like(qd) < 0.5, 0.01, 3.0)
+            power = (rates * forces.friction_torque(rates, p_n)).sum(-1)
+            assert (power >= -1e-12).all()

@@ -403,6 +403,8 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         values = {}
         for i, name in enumerate(names):
             values[name] = coef[i] if name in ("o", "phi3") else coef[i] ** 2  # passive ones non-negative
+        if "d" in values and "c" in values:  # saturating friction: passive down to -k c
+            values["d"] = values["d"] - drive.saturation_floor() * values["c"]
         return J, armature, values
 
     def loss(theta, strength):
@@ -427,6 +429,8 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
             value = np.nan_to_num(np.asarray(start.friction_coefficients[name], dtype=np.float64))
         elif name == "phi2":
             value = np.full(n, 30.0)
+        if name == "d" and start is not None and "c" in start.friction_coefficients:
+            value = value + drive.saturation_floor() * np.nan_to_num(np.asarray(start.friction_coefficients["c"]))
         if name not in ("o", "phi3"):
             value = np.sqrt(np.clip(value, 1e-8, None))
         coef0.append(torch.as_tensor(value))

@@ -164,7 +164,11 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         for name in COEFFICIENTS[form]:
             value = fit.friction_coefficients.get(name, torch.zeros(n, dtype=torch.float64))
             value = torch.as_tensor(value, dtype=torch.float64)
+            if name == "d":  # saturating friction's floor is -k c (DriveModel.saturation_floor)
+                value = value + drive.saturation_floor() * coefficients.get("c", 0.0)
             coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
+            if name == "d":
+                coefficients[name] = coefficients[name] - drive.saturation_floor() * coefficients.get("c", 0.0)
     if drive.coulomb_velocity != forces.drive.coulomb_velocity:
         forces.set_coulomb_velocity(drive.coulomb_velocity)
     if "saturating" in configured.forms and drive.saturation_velocity != forces.drive.saturation_velocity:

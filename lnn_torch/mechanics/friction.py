@@ -15,9 +15,10 @@ offset      ``o`` (N m): an asymmetry, a torque sensor's  **no**: a constant tor
             offset or a gravity-compensation error         put energy in (it is reported as such)
 stribeck    ``s`` (N m): breakaway above Coulomb, fading   yes for ``s >= 0`` (then ``c + s e^(...) >= 0``)
             over ``v_s``
-saturating  ``d`` (N m): friction that rises over ``v_d``    yes for ``d >= 0``
-            (0.1 rad/s) and levels off, between Coulomb's
-            step and viscous friction's line (gear drives)
+saturating  ``d`` (N m): the Coulomb level moves from ``c``   yes for ``d >= -k c``, ``k = min(1, v_d / v_c)``
+            to ``c + d`` over ``v_d`` (0.1 rad/s): rising  (``saturation_floor``): the law then stays
+            (gear drives) or, for ``d < 0``, falling      above ``(c + d) tanh(v / v_d)`` (with ``c``'s
+            (a breakaway, as Stribeck's)                  own sign: ``c >= 0``)
 sigmoid     ``phi1`` (N m), ``phi2`` (s/rad), ``phi3``     yes for ``phi1, phi2 >= 0``: zero at rest and
             (rad/s): Gaz et al.'s form (Panda, 2019)       increasing, it opposes the motion; with ``phi3 != 0``
                                                            it is asymmetric
@@ -82,7 +83,7 @@ class DriveModel:
         forms: a subset of ``FORMS`` (a ``+``-joined string is read too: ``"viscous+coulomb+offset"``).
         coulomb_velocity: ``v_c``, rad/s: the smoothing of Coulomb (and Stribeck) friction's sign.
         stribeck_velocity: ``v_s``, rad/s: how fast the breakaway fades.
-        saturation_velocity: ``v_d``, rad/s: over which saturating friction rises.
+        saturation_velocity: ``v_d``, rad/s: over which saturating friction moves the Coulomb level.
     """
 
     forms: tuple[str, ...] = ("viscous", "coulomb")
@@ -110,6 +111,12 @@ class DriveModel:
     @property
     def name(self) -> str:
         return "+".join(self.forms)
+
+    def saturation_floor(self) -> float:
+        """``k``: saturating friction's ``d`` is passive down to ``-k c`` (``c`` the Coulomb level; ``k = min(1,
+        v_d / v_c)``, 0 without Coulomb friction): ``c tanh(v / v_c) + d tanh(v / v_d)`` then keeps the sign of
+        ``v`` (``x tanh(v / x)`` grows with ``x``)."""
+        return min(1.0, self.saturation_velocity / self.coulomb_velocity) if "coulomb" in self.forms else 0.0
 
     def with_forms(self, forms) -> DriveModel:
         """This drive model's smoothing velocities with other ``forms`` (as ``of`` reads them)."""

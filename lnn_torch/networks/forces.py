@@ -20,7 +20,7 @@ conservative scene has no such module and no extra parameter.
 * ``friction``: the drive model's forms (``lnn_torch.mechanics.friction``): ``viscous+coulomb`` (the default,
   as above) or any of ``viscous``, ``coulomb``, ``offset`` (a constant torque per joint: an asymmetry or a
   torque sensor's offset; *not* dissipative), ``stribeck`` (``s >= 0``, a breakaway above Coulomb fading over
-  ``v_s``), ``saturating`` (``d >= 0``, friction rising over ``v_d`` and levelling off) and ``sigmoid`` (Gaz
+  ``v_s``), ``saturating`` (``d >= -k c``, the Coulomb level moving to ``c + d`` over ``v_d``) and ``sigmoid`` (Gaz
   et al.'s ``phi1 [sigmoid(phi2 (v + phi3)) - sigmoid(phi2 phi3)]``, ``phi1, phi2 >= 0``), e.g.
   ``viscous+coulomb+offset``; the coefficients beyond ``(b, c)`` come from the same network of the parameters
   (or are free constants without parameters).
@@ -264,6 +264,9 @@ class LearnedForces(nn.Module):
                 raw = value / self.coulomb_velocity
             elif name == "o":
                 raw = value / units[1]
+            elif name == "d":  # d = softplus(raw) unit - k c: with the Coulomb level set here (else zero)
+                c = torch.as_tensor(coefficients.get("c", 0.0)).double() if "coulomb" in self.drive.forms else 0.0
+                raw = softplus_inverse((value + self.drive.saturation_floor() * c) / units[1])
             else:
                 raw = softplus_inverse(value / units[1])
             rows[2 + k] = raw
@@ -303,6 +306,8 @@ class LearnedForces(nn.Module):
                 out[name] = r * self.coulomb_velocity
             elif name == "o":
                 out[name] = r * torque
+            elif name == "d":  # passive down to -k c (DriveModel.saturation_floor)
+                out[name] = F.softplus(r) * torque - self.drive.saturation_floor() * c
             else:  # s, phi1: non-negative torques
                 out[name] = F.softplus(r) * torque
         return out
