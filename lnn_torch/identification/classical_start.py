@@ -43,7 +43,7 @@ FORM_MARGIN = 0.02
 COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 # terms of the configured drive model that the start keeps only where validation asks for them (the form with the
 # term lower than the form without it by more than FORM_MARGIN), the other way round from the rest: a curve whose
-# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 23 %; the real Panda's
+# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 27 %; the real Panda's
 # 0.8 %, the Franka bag's not at all: not kept)
 ON_EVIDENCE = ("stribeck", "saturating")
 # the velocities (rad/s) saturating friction may rise over (with the configured one), chosen with the Coulomb
