@@ -134,6 +134,26 @@ def test_without_the_classical_start_the_grey_box_starts_at_the_description(reco
         LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, classical_start="sometimes")
 
 
+def started(root, name: str, friction, options) -> tuple:
+    """``(module, report, scene, config, datamodule)``: a 6 s recording of the arm whose drives have the
+    friction torque ``friction(qd)`` (training 0.1-3.5 s, validation 3.5-5.9 s; the configured smoothing 20
+    mrad/s), a model with ``options`` and its classical start."""
+    csv = record(root / f"{name}.csv", seconds=6.0, friction=friction)
+    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                      velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                      coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                      coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
+                      split={"train": [f"{name}[0.1:3.5]"], "val": [f"{name}[3.5:5.9]"]})
+    dm = TrajectoryDataModule(path=str(import_recordings([csv], root / f"{name}.h5", spec)),
+                              targets="finite_difference")
+    scene, config = dm.model_scene()
+    module = LNNModule(scene=scene, scene_config=config, model_options=options, torque_weight=1.0,
+                       acceleration_weight=0.0, eps=0.0)
+    module.model.double().fit_normalizer(dm.normalization_data())
+    report = start_from_classical(module.model, module.system, dm.trajectories("train"), dm.trajectories("val"))
+    return module, report, scene, config, dm
+
+
 def test_the_coulomb_smoothing_is_chosen_on_validation_and_travels_with_the_weights(tmp_path):
     """Drives whose Coulomb friction turns over within 4 mrad/s, recorded with the configured 20 mrad/s: the
     start takes the smoothing that validates best beyond chance (5 mrad/s of COULOMB_VELOCITIES), writes it
@@ -143,22 +163,8 @@ def test_the_coulomb_smoothing_is_chosen_on_validation_and_travels_with_the_weig
     from lnn_torch.identification.classical_start import COULOMB_VELOCITIES
 
     level = np.array([2.0, 2.5, 1.5, 1.5, 0.8, 0.6, 0.4])
-    runs = {}
-    for true in (0.004, 0.02):
-        csv = record(tmp_path / f"arm{true}.csv", seconds=6.0, friction=lambda qd, v=true: level * np.tanh(qd / v))
-        spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
-                          velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
-                          coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
-                          coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
-                          split={"train": [f"arm{true}[0.1:3.5]"], "val": [f"arm{true}[3.5:5.9]"]})
-        dm = TrajectoryDataModule(path=str(import_recordings([csv], tmp_path / f"arm{true}.h5", spec)),
-                                  targets="finite_difference")
-        scene, config = dm.model_scene()
-        module = LNNModule(scene=scene, scene_config=config, model_options=OPTIONS, torque_weight=1.0,
-                           acceleration_weight=0.0, eps=0.0)
-        module.model.double().fit_normalizer(dm.normalization_data())
-        report = start_from_classical(module.model, module.system, dm.trajectories("train"), dm.trajectories("val"))
-        runs[true] = (module, report, scene, config)
+    runs = {true: started(tmp_path, f"arm{true}", lambda qd, v=true: level * np.tanh(qd / v), OPTIONS)[:4]
+            for true in (0.004, 0.02)}
     module, report, scene, config = runs[0.004]
     errors = report["smoothing_selection"]
     assert set(errors) == set(COULOMB_VELOCITIES) and min(errors, key=errors.get) == 0.005, errors
@@ -192,22 +198,7 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
     level, rising = np.array([2.0, 2.5, 1.5, 1.5, 0.8, 0.6, 0.4]), np.array([3.0, 4.0, 2.0, 2.0, 1.0, 0.8, 0.5])
     laws = {"gears": lambda qd: level * np.tanh(qd / 0.02) + rising * np.tanh(qd / 0.2),
             "plain": lambda qd: level * np.tanh(qd / 0.02)}
-    runs = {}
-    for name, friction in laws.items():
-        csv = record(tmp_path / f"{name}.csv", seconds=6.0, friction=friction)
-        spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
-                          velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
-                          coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
-                          coulomb_velocity=0.02, label="synthetic_panda", torque_delay="off",
-                          split={"train": [f"{name}[0.1:3.5]"], "val": [f"{name}[3.5:5.9]"]})
-        dm = TrajectoryDataModule(path=str(import_recordings([csv], tmp_path / f"{name}.h5", spec)),
-                                  targets="finite_difference")
-        scene, config = dm.model_scene()
-        module = LNNModule(scene=scene, scene_config=config, model_options=options, torque_weight=1.0,
-                           acceleration_weight=0.0, eps=0.0)
-        module.model.double().fit_normalizer(dm.normalization_data())
-        report = start_from_classical(module.model, module.system, dm.trajectories("train"), dm.trajectories("val"))
-        runs[name] = (module, report, scene, config, dm)
+    runs = {name: started(tmp_path, name, friction, options) for name, friction in laws.items()}
     module, report, scene, config, dm = runs["gears"]
     forms, errors = report["form_selection"], report["saturation_selection"]
     assert report["form"] == "viscous+coulomb+offset+saturating", report
