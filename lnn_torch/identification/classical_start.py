@@ -73,11 +73,12 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and with ``val`` its
     Coulomb smoothing (``COULOMB_VELOCITIES``, ``smoothing_selection``; written into the model:
     ``LearnedForces.set_coulomb_velocity``), its rows' weighting (``weighting_selection``), then its friction
-    form, each candidate at the chosen prior and its neighbours in ``priors``: the terms kept on evidence only
-    (``ON_EVIDENCE``; saturating friction at the velocity and Coulomb smoothing chosen together by least squares
-    on validation, ``_saturation_velocities``, their errors in ``saturation_selection``) where a form with them
-    validates better than the form without them by more than ``FORM_MARGIN``, then each other term dropped where
-    the form less that term (``_sub_forms``) validates better by more than ``FORM_MARGIN``. Returns the report:
+    form: the terms kept on evidence only (``ON_EVIDENCE``; saturating friction at the velocity and Coulomb
+    smoothing chosen together by least squares on validation, ``_saturation_velocities``, their errors in
+    ``saturation_selection``; each such form's prior chosen anew) where a form with them validates better than the
+    form without them by more than ``FORM_MARGIN``, then each other term dropped where the form less that term
+    (``_sub_forms``, at the chosen prior and its neighbours in ``priors``) validates better by more than
+    ``FORM_MARGIN``. Returns the report:
     the method (weighting), form, prior and Coulomb smoothing kept, the chosen form's validation error per prior
     tried (``validation_rms_mean``), the whole prior search (``prior_search``), each form's and each weighting's
     validation error (``form_selection``, ``weighting_selection``), the fit's time."""
@@ -112,9 +113,9 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     search = fit.info.get("prior_selection")
     forms = {drive.name: _validation_error(fit)}
     if val is not None and "sigmoid" not in drive.forms:
-        # the friction form, each candidate at the chosen weighting and prior and the priors next to it
+        # the friction form, each candidate with the chosen weighting
         chosen = fit.info["prior"]  # beyond priors where validation extended them (classical_arm.EXTEND)
-        near = sorted({chosen} | {p for p in priors if chosen / 3.5 <= p <= 3.5 * chosen})
+        near = _near(chosen, priors)
         fitted = {drive: fit}
 
         def at(form, search: bool = False):  # the fit of ``form`` (a DriveModel) at the priors near the chosen one
@@ -141,8 +142,9 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
                        key=_validation_error)  # (search: a curve the plain form lacks can move the prior a long way)
             if _validation_error(best) < (1 - FORM_MARGIN) * _validation_error(fit):
                 fit = best
-        # the configured drive's other terms: the form less one of them, kept where it lowers the validation
-        # error by more than FORM_MARGIN
+        # the configured drive's other terms: the form less one of them (at the priors near the one now chosen),
+        # kept where it lowers the validation error by more than FORM_MARGIN
+        near = _near(fit.info["prior"], priors)
         full = _validation_error(fit)
         for sub in _sub_forms(fit.drive):
             other = at(sub)
@@ -251,6 +253,11 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
     for (_, vd), error in errors.items():
         per_velocity[vd] = min(per_velocity.get(vd, float("inf")), error)
     return best, per_velocity
+
+
+def _near(prior: float, priors) -> list[float]:
+    """``prior`` and those of ``priors`` within a factor 3.5 of it (the neighbours a candidate form is fitted at)."""
+    return sorted({prior} | {p for p in priors if prior / 3.5 <= p <= 3.5 * prior})
 
 
 def _validation_error(fit) -> float:
