@@ -248,7 +248,12 @@ class LNNModule(L.LightningModule):
                 raise InputError(f"classical_start: {reason}")
             return
         val = dm.trajectories("val") if "val" in dm.split_names() else None
-        self.classical_start = start_from_classical(self.model, self.system, dm.trajectories("train"), val)
+        train = dm.trajectories("train")
+        points = int(train.lengths.sum()) if train.lengths is not None else len(train) * train.num_points
+        print(f"classical start: least squares on {points} training samples"
+              + (", its settings chosen on the validation split" if val is not None else "")
+              + " (seconds to minutes for long recordings) ...", flush=True)
+        self.classical_start = start_from_classical(self.model, self.system, train, val)
         s = self.classical_start
         scores = s["validation_rms_mean"]
         chosen = "" if scores is None else f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there)"
