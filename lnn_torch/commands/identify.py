@@ -254,13 +254,13 @@ def _identify_arm(module, args) -> int:
         # the points fitted (every 2nd)
         block = 1 if dm.targets is None else -(-correlation_block(dm.targets, float(f.dt)) // 2)
         fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val, stride=2, block=block)
-        result = compare_on_arm(module.model, module.system, dm.trajectories(args.split), fits)
+        data = dm.trajectories(args.split)
+        result = compare_on_arm(module.model, module.system, data, fits)
         if args.feedback:
             predictors = {module.model.variant: model_torque(module.model),
                           **{label: classical_torque(fit) for label, fit in fits.items()}}
             result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
         ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
-        data = dm.trajectories(args.split)
         recordings = json.loads(f.attrs.get("recordings", "[]"))
         indices = data.index.tolist() if data.index is not None else list(range(len(data)))
         names = [recordings[i] if i < len(recordings) else f"trajectory {i}" for i in map(int, indices)]

@@ -23,7 +23,7 @@ import time
 import torch
 
 from ..errors import InputError
-from ..mechanics.friction import COEFFICIENTS, FORMS
+from ..mechanics.friction import COEFFICIENTS
 from ..robots.regressor import pseudo_inertia_of
 from .arm_comparison import WEIGHTED_CONSISTENT
 from .classical_arm import PRIORS
@@ -127,11 +127,11 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
 
         # the terms kept on evidence only: a form with them where it validates better than the form without them
         # by more than FORM_MARGIN (saturating friction at the velocities _saturation_velocities chooses)
-        candidates = {drive.with_forms(sorted({*drive.forms, e}, key=FORMS.index)) for e in extra}
+        candidates = {drive.with_forms([*drive.forms, e]) for e in extra}  # (with_forms orders them)
         candidates |= {drive.with_forms(configured.forms)} if len(extra) > 1 else set()
         if "saturating" in extra:  # its velocity and the Coulomb smoothing beside it, chosen together
             (coulomb_velocity, saturation_velocity), saturation = _saturation_velocities(
-                system, train, val, drive.with_forms(sorted({*drive.forms, "saturating"}, key=FORMS.index)),
+                system, train, val, drive.with_forms([*drive.forms, "saturating"]),
                 configured, stride, chain)
             candidates = {dataclasses.replace(c, coulomb_velocity=coulomb_velocity,
                                               saturation_velocity=saturation_velocity)
@@ -157,8 +157,13 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     n = chain.dof
     pi = torch.as_tensor(fit.pi, dtype=torch.float64)
     spatial.start_at(pseudo_inertia_of(pi[: 10 * n].reshape(n, 10)), pi[10 * n: 11 * n])
+    if drive.coulomb_velocity != forces.drive.coulomb_velocity:
+        forces.set_coulomb_velocity(drive.coulomb_velocity)
+    if "saturating" in configured.forms and drive.saturation_velocity != forces.drive.saturation_velocity:
+        forces.set_saturation_velocity(drive.saturation_velocity)
     units = forces.units.double()
-    # a passive coefficient the fit puts at zero starts just above it (where the softplus still moves it)
+    # a passive coefficient the fit puts at zero starts just above it (where the softplus still moves it);
+    # saturating friction's d just above its own floor, -k c (DriveModel.saturation_floor)
     floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "d": 1e-6 * units[1],
               "phi1": 1e-6 * units[1]}
     coefficients = {}
@@ -166,15 +171,10 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
         for name in COEFFICIENTS[form]:
             value = fit.friction_coefficients.get(name, torch.zeros(n, dtype=torch.float64))
             value = torch.as_tensor(value, dtype=torch.float64)
-            if name == "d":  # saturating friction's floor is -k c (DriveModel.saturation_floor)
-                value = value + drive.saturation_floor() * coefficients.get("c", 0.0)
-            coefficients[name] = value.clamp_min(floors[name]) if name in floors else value
+            floor = floors.get(name)
             if name == "d":
-                coefficients[name] = coefficients[name] - drive.saturation_floor() * coefficients.get("c", 0.0)
-    if drive.coulomb_velocity != forces.drive.coulomb_velocity:
-        forces.set_coulomb_velocity(drive.coulomb_velocity)
-    if "saturating" in configured.forms and drive.saturation_velocity != forces.drive.saturation_velocity:
-        forces.set_saturation_velocity(drive.saturation_velocity)
+                floor = floor - forces.drive.saturation_floor() * coefficients.get("c", 0.0)
+            coefficients[name] = value if floor is None else value.clamp_min(floor)
     forces.start_with(coefficients)
     selection = fit.info.get("prior_selection")
     return {"method": fit.method, "drive": forces.drive.name, "form": fit.drive.name, "prior": fit.info["prior"],

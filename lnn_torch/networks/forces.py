@@ -119,7 +119,7 @@ class LearnedForces(nn.Module):
             if "saturating" in self.drive.forms:  # so does saturating friction's velocity (chosen there too)
                 self.register_buffer("saturation_velocity_si",
                                      torch.tensor(self.drive.saturation_velocity, dtype=torch.float64))
-            self._sync_coulomb_velocity()
+            self._sync_velocities()
             # (b, c) first, as always; then the further forms' coefficients per joint
             self.extra = tuple(item for form in self.drive.forms for item in _EXTRA.get(form, ()))
             n_raw = (2 + len(self.extra)) * self.num_joints
@@ -201,7 +201,7 @@ class LearnedForces(nn.Module):
         else:
             self.coefficients_raw[:k].copy_(raw)
 
-    def _sync_coulomb_velocity(self) -> None:
+    def _sync_velocities(self) -> None:
         v = float(f"{float(self.coulomb_velocity_si):.6g}")  # (a float32 copy of the buffer reads 0.00499999988)
         self.coulomb_velocity = v
         self.stick_velocity = 2.5 * v  # the stick window (joint+stiction)
@@ -216,7 +216,7 @@ class LearnedForces(nn.Module):
             raise ValueError("the drive model has no saturating friction")
         dataclasses.replace(self.drive, saturation_velocity=float(value)).with_forms(self.drive.forms)  # checks it
         self.saturation_velocity_si.fill_(float(value))
-        self._sync_coulomb_velocity()
+        self._sync_velocities()
 
     @torch.no_grad()
     def set_coulomb_velocity(self, value: float) -> None:
@@ -226,7 +226,7 @@ class LearnedForces(nn.Module):
             raise ValueError("the sigmoid drive model's coefficients are in units of the Coulomb smoothing: it stays")
         DriveModel.of(self.drive.forms, coulomb_velocity=float(value))  # checks it
         self.coulomb_velocity_si.fill_(float(value))
-        self._sync_coulomb_velocity()
+        self._sync_velocities()
 
     def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys,
                               error_msgs) -> None:
@@ -236,7 +236,7 @@ class LearnedForces(nn.Module):
         if self.friction and key in missing_keys:  # saved before it travelled: the scene's smoothing stands
             missing_keys.remove(key)
         elif self.friction and key in state_dict:
-            self._sync_coulomb_velocity()
+            self._sync_velocities()
 
     @torch.no_grad()
     def start_with(self, coefficients: dict) -> None:
