@@ -38,9 +38,21 @@ def test_gaps_are_resampled_and_reported_and_only_a_gap_too_long_is_refused(tmp_
     assert "2 gaps over twice the median interval (largest 9 ms, 14 ms in all) interpolated across" in line
     assert read_dataset(out).num_points == 4000  # the whole span on the 1 ms grid
     t2 = np.delete(t, np.r_[3000:3030])  # a 31 ms gap: more than 25 median intervals
-    with pytest.raises(InputError, match=r"a gap of 0.031 s .* exceeds max_gap 0.025 s: too long to interpolate"):
-        import_recordings([write_csv(tmp_path / "long.csv", signals(t2))], tmp_path / "long.h5",
-                          spec(split=[1.0, 0.0, 0.0]))
+    long = write_csv(tmp_path / "long.csv", signals(t2))
+    with pytest.raises(InputError, match=r"a gap of 0.031 s .* exceeds max_gap 0.025 s: too long to interpolate "
+                                         r"across; split the recording there with windows, e.g. long\[0:3.011\] and "
+                                         r"long\[3.042:\]"):
+        import_recordings([long], tmp_path / "long.h5", spec(split=[1.0, 0.0, 0.0]))
+    windows = {"train": ["long[0:2.5]"], "val": ["long[2.5:3.5]"], "test": ["long[3.5:]"]}
+    with pytest.raises(InputError, match=r"the window 'long\[2.5:3.5\]' crosses it: end it by 3.011 s or start it "
+                                         r"from 3.042 s"):
+        import_recordings([long], tmp_path / "long.h5", spec(split=windows))
+    # windows clear of the gap import; the filters' context beside a window stops at the gap (as at a recording's end)
+    windows = {"train": ["long[0:2.0]"], "val": ["long[2.0:2.9]"], "test": ["long[3.1:]"]}
+    out = import_recordings([long], tmp_path / "long.h5", spec(split=windows))
+    entries = {e["name"]: e for e in json.loads(read_dataset(out).attrs["provenance"])["entries"]}
+    assert entries["long[2.0:2.9]"]["to_s"] == pytest.approx(3.011)
+    assert entries["long[3.1:]"]["from_s"] == pytest.approx(3.042)
 
 
 def test_time_windows_are_entries_cut_after_the_filters_saw_the_recording_around_them(tmp_path):

@@ -48,11 +48,13 @@ def motion(n: int = 400, dt: float = 0.005, seed: int = 0) -> dict:
 
 
 def write_bag(path: Path, kind: str, data: dict, names=BAG_JOINTS, topic="/joint_states", header=True,
-              order=None, received=None) -> Path:
+              order=None, received=None, blank=()) -> Path:
     """The messages of ``data`` written by rosbags' own writer: ``kind`` sqlite3 or mcap (the storage file
     alone, no metadata.yaml beside it), folder (a rosbag2 folder with metadata.yaml), ros1 (a .bag). Each
     message lists the joints ``names`` (columns of ``data``) in the order ``order(k)`` (default as given);
-    ``header``: False writes zero header stamps; ``received``: the receive times (default the stamps)."""
+    ``header``: False writes zero header stamps (or the messages whose numbers, from 0, it lists: a driver
+    without its clock); ``received``: the receive times (default the stamps); ``blank``: messages written with
+    an empty velocity array (a driver that had none that cycle)."""
     ros1 = kind == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     JointState, Header, Time = (store.types[f] for f in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
@@ -64,11 +66,12 @@ def write_bag(path: Path, kind: str, data: dict, names=BAG_JOINTS, topic="/joint
         conn = w.add_connection(topic, JointState.__msgtype__, typestore=store)
         for k, ns in enumerate(data["ns"]):
             idx = list(order(k)) if order else list(range(len(names)))
-            stamp = Time(sec=int(ns // 10**9), nanosec=int(ns % 10**9)) if header else Time(sec=0, nanosec=0)
+            zero = not header if isinstance(header, bool) else k in header
+            stamp = Time(sec=0, nanosec=0) if zero else Time(sec=int(ns // 10**9), nanosec=int(ns % 10**9))
             head = Header(seq=k, stamp=stamp, frame_id="") if ros1 else Header(stamp=stamp, frame_id="")
             msg = JointState(header=head, name=[names[i] for i in idx],
                              position=np.ascontiguousarray(data["pos"][k, idx]),
-                             velocity=np.ascontiguousarray(data["vel"][k, idx]),
+                             velocity=np.ascontiguousarray(data["vel"][k, idx]) if k not in blank else np.zeros(0),
                              effort=np.ascontiguousarray(data["eff"][k, idx]) if data["eff"] is not None
                              else np.zeros(0))
             raw = store.serialize_ros1(msg, JointState.__msgtype__) if ros1 else store.serialize_cdr(
@@ -186,20 +189,24 @@ def test_repeated_rows_are_dropped_and_counted_and_rows_at_rest_kept(tmp_path, c
     assert main(["import", str(bag), "-o", str(tmp_path / "bag.h5"), "--config", str(
         _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=SPLIT))]) == 0
     out = capsys.readouterr().out
-    assert "run.db3: 6 repeated rows (identical to the previous one while the joints move: stale; messages 51, " \
-           "121, 122, 201, 262, ...) dropped" in out, out
+    assert "run.db3: 6 repeated rows (5 identical to the previous one while the joints move (stale), 1 exact " \
+           "duplicate (the time stamp too); messages 51, 121, 122, 201, 262, ...) dropped" in out, out
     _, _, prov = dataset(tmp_path / "bag.h5")
-    assert prov["sources"][0]["repeated_rows"] == {"count": 6, "dropped": True, "first": [51, 121, 122, 201, 262]}
+    assert prov["sources"][0]["repeated_rows"] == {"count": 6, "dropped": True, "first": [51, 121, 122, 201, 262],
+                                                   "duplicates": 1}
     assert prov["sources"][0]["rows"] == 401 - 6
     (tmp_path / "clean").mkdir()
     clean = write_csv(tmp_path / "clean" / "run.csv", {k: np.delete(v, stale, axis=0) for k, v in data.items()})
     assert_same_dataset(tmp_path / "bag.h5", import_recordings([clean], tmp_path / "clean.h5", csv_spec()))
     csv = write_csv(tmp_path / "run.csv", with_stale)
-    with pytest.raises(InputError, match=r"run.csv: line 263: time repeats"):  # a CSV keeps them: as before
-        import_recordings([csv], tmp_path / "kept.h5", csv_spec())
+    with pytest.raises(InputError, match=r"run.csv: line 263: time repeats") as err:  # a CSV keeps them: as before,
+        import_recordings([csv], tmp_path / "kept.h5", csv_spec())  # and the refusal says how to leave them out
+    assert str(err.value).endswith("(1 row repeat the one before in every value, the time too: repeated_rows: drop, "
+                                   "or --repeated-rows drop, leaves them out)")
     csv = write_csv(csv, {k: np.delete(v, dup + 1, axis=0) for k, v in with_stale.items()})
     kept = dataset(import_recordings([csv], tmp_path / "kept.h5", csv_spec()))[2]
-    assert kept["sources"][0]["repeated_rows"] == {"count": 5, "dropped": False, "first": [52, 122, 123, 202, 335]}
+    assert kept["sources"][0]["repeated_rows"] == {"count": 5, "dropped": False, "first": [52, 122, 123, 202, 335],
+                                                   "duplicates": 0}
     assert_same_dataset(import_recordings([csv], tmp_path / "drop.h5", csv_spec(repeated_rows="drop")),
                         tmp_path / "clean.h5")
 
@@ -212,10 +219,78 @@ def test_stamps_that_go_backwards_or_repeat_with_other_values_are_refused(tmp_pa
         import_recordings([bag], tmp_path / "a.h5", bag_spec())
     assert "\n" not in str(err.value)
     data = motion()
-    data["ns"][[150, 151]] = data["ns"][[151, 150]]  # the header stamps go back (received in order)
-    bag = write_bag(tmp_path / "b", "ros1", data, received=np.sort(data["ns"]))
-    with pytest.raises(InputError, match=r"b.bag: message 152: time decreases"):
+    data["ns"][200:] -= 10**9  # the driver's clock jumps back by a second (received in order)
+    bag = write_bag(tmp_path / "b", "ros1", data, received=np.arange(len(data["ns"])) * 5_000_000 + EPOCH)
+    with pytest.raises(InputError, match=r"b.bag: message 201: time decreases"):
         import_recordings([bag], tmp_path / "b.h5", bag_spec())
+
+
+def test_messages_reordered_on_the_way_are_sorted_by_their_stamps_and_reported(tmp_path, capsys):
+    """Three messages received a few cycles late (their header stamps in order of the motion): the import
+    sorts them by their stamps, says so, and gives the dataset of the data in order; read by the receive
+    times (``stamps: receive``) it keeps the order received and notes the stamps that run backwards."""
+    data = motion()
+    arrival = np.arange(len(data["ns"]))
+    for k, late in ((100, 3), (230, 2), (301, 1)):  # message k arrives after the `late` ones that follow it
+        arrival[k:k + late + 1] = np.r_[arrival[k + 1:k + late + 1], arrival[k]]
+    shuffled = {key: v[arrival] for key, v in data.items()}
+    bag = write_bag(tmp_path / "run", "mcap", shuffled, received=np.sort(data["ns"]))
+    config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=SPLIT)
+    assert main(["import", str(bag), "--config", str(config), "-o", str(tmp_path / "bag.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "run.mcap: 3 messages arrived out of order (up to " in out and "sorted by their stamps" in out, out
+    assert_same_dataset(tmp_path / "bag.h5", import_recordings([write_csv(tmp_path / "run.csv", data)],
+                                                               tmp_path / "csv.h5", csv_spec()))
+    _, _, prov = dataset(import_recordings([bag], tmp_path / "receive.h5", bag_spec(stamps="receive")))
+    assert prov["sources"][0]["notes"] == ["the header stamps of 3 messages run backwards: the receive times are used, "
+                                           "as stamps: receive asks (stamps: header sorts them where the disorder is "
+                                           "local)"]
+
+
+def test_messages_without_the_arms_joints_or_a_field_or_a_stamp_are_left_out_and_reported(tmp_path, capsys):
+    """On the topic: a gripper driver's messages (its finger alone: another publisher), messages with an empty
+    velocity array and, at the start, messages with zero header stamps (a driver before its clock was set).
+    Each kind is left out, counted in the provenance and the printout, and the rest imports as the data
+    without those messages; a bag where no message holds every field read is refused in one line."""
+    data = motion()
+    names = [*BAG_JOINTS, "finger"]
+    data4 = {k: (np.concatenate([v, np.full((len(v), 1), 0.04)], 1) if k != "ns" else v) for k, v in data.items()}
+    gripper, blank, unset = [40, 41, 190], [77, 300], [0, 1]
+    bag = write_bag(tmp_path / "run", "sqlite3", data4, names=names, header=unset, blank=blank,
+                    order=lambda k: [3] if k in gripper else [0, 1, 2, 3])
+    config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), ignore_joints=["finger"],
+                     split={"train": ["run[0:1.2]"], "val": ["run[1.2:1.6]"], "test": ["run[1.6:]"]})
+    assert main(["import", str(bag), "--config", str(config), "-o", str(tmp_path / "bag.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "run.db3: 3 messages of another publisher (none of the joints read; theirs: finger) left out (messages " \
+           "41, 42, 191)" in out, out
+    assert "run.db3: 2 messages with no velocity values left out (messages 78, 301)" in out, out
+    assert "run.db3: 2 messages with a zero header stamp (a driver that published before its clock was set) left " \
+           "out (messages 1, 2)" in out, out
+    _, _, prov = dataset(tmp_path / "bag.h5")
+    src = prov["sources"][0]
+    assert src["messages"] == 400 - 7 and src["rows"] == 400 - 7
+    assert src["skipped"]["other publisher"] == {"count": 3, "first": [41, 42, 191], "joints": ["finger"]}
+    kept = np.setdiff1d(np.arange(400), gripper + blank + unset)
+    csv = write_csv(tmp_path / "run.csv", {k: v[kept] for k, v in data.items()})
+    # the CSV's time counts from its first row, the bag's from its first message kept: the same rows
+    assert_same_dataset(tmp_path / "bag.h5", import_recordings([csv], tmp_path / "csv.h5", csv_spec()))
+    # no message with a velocity: refused, naming the field and the way out
+    (tmp_path / "v").mkdir()
+    none = write_bag(tmp_path / "v" / "run", "mcap", data, blank=range(400))
+    err = _refused(tmp_path, capsys, none)
+    assert "run.mcap: no message on /joint_states holds every field read: message 1 holds 0 velocity values for its " \
+           "joints (leave it out of streams)" in err, err
+    # imported without them (--streams), a fit whose targets ask for measured velocities says it has none
+    assert main(["import", str(none), "--streams", "position", "effort", "-o", str(tmp_path / "novel.h5"), "--config",
+                 str(_config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=SPLIT))]) == 0
+    from lnn_torch.training import TrajectoryDataModule
+
+    capsys.readouterr()
+    TrajectoryDataModule(path=str(tmp_path / "novel.h5"), targets={"method": "butterworth", "cutoff": 10.0,
+                                                                     "use_measured_velocity": True}).setup("fit")
+    assert "novel.h5 has no measured velocities: the targets differentiate the positions (twice) instead" in \
+        capsys.readouterr().out
 
 
 def test_zero_header_stamps_fall_back_to_the_receive_times_and_say_so(tmp_path):
@@ -266,8 +341,8 @@ def test_a_missing_topic_an_unmapped_joint_or_the_missing_extra_is_one_line(tmp_
     # effort asked for but not recorded
     (tmp_path / "e").mkdir()
     empty = write_bag(tmp_path / "e" / "run", "mcap", {**data, "eff": None})
-    assert "message 1 on /joint_states holds 0 effort values for 3 joints (empty: leave it out of streams)" in \
-        _refused(tmp_path, capsys, empty)
+    assert "no message on /joint_states holds every field read: message 1 holds 0 effort values for its joints " \
+           "(leave it out of streams)" in _refused(tmp_path, capsys, empty)
     config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=[1.0, 0.0, 0.0],
                      streams=["position", "velocity"])
     assert main(["import", str(empty), "--config", str(config), "-o", str(tmp_path / "e.h5")]) == 0

@@ -79,12 +79,20 @@ def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_ch
                               checkpoint_callbacks=[checkpoint], limit_val_batches=1.0,
                               callback_metrics={"val/torque_rms": torch.tensor(0.25),
                                                 "val/torque_nrmse": torch.tensor(0.15)})
-    selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.2469}
+    selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.2469, "history": [[0, 0.2469], [500, 0.25]]}
     module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, selection=selection)
     FitSummary().on_fit_end(trainer, module)
     out = capsys.readouterr().out
     assert "best validation checkpoint" not in out  # kept by another scalar: easy to take for the run's choice
-    assert "the run ends with the state at step 0 (val/torque_rms 0.2469)" in out
+    assert "the run ends with the state at step 0 (val/torque_rms 0.2469): validation preferred it" in out
+    # a run too short for a validation after the start: the start is kept, and the summary does not call it a choice
+    trainer.callback_metrics, trainer.num_training_batches, trainer.check_val_every_n_epoch = {}, 100, 5
+    module.selection = {**selection, "history": [[0, 0.2469]]}
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "the run ends with the state at step 0 (val/torque_rms 0.2469): the only state validation judged" in out
+    assert "validation preferred" not in out and "validation: none ran in training (every 5 epochs, 500 steps" in out
+    trainer.callback_metrics = {"val/torque_rms": torch.tensor(0.25), "val/torque_nrmse": torch.tensor(0.15)}
     module.selection = None
     FitSummary().on_fit_end(trainer, module)
     assert "best validation checkpoint: runs/x/checkpoints/epoch1-err6.2.ckpt" in capsys.readouterr().out

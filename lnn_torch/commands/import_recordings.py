@@ -65,12 +65,19 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-friction", action="store_true", help="models learn no joint friction")
     ap.add_argument("--coulomb-velocity", type=float, default=None, help="Coulomb friction smoothing, rad/s")
     ap.add_argument("--dt", type=float, default=None, help="resampling interval, s")
-    ap.add_argument("--max-gap", type=float, default=None, help="longest accepted interval between time stamps, s")
+    ap.add_argument("--max-gap", type=float, default=None,
+                    help="longest interval between time stamps interpolated across, s (a window may not cross a "
+                    "longer gap)")
     ap.add_argument("--split", type=float, nargs=3, default=None, metavar=("TRAIN", "VAL", "TEST"))
     ap.add_argument("--split-recordings", nargs="+", default=None, metavar="PART=NAME,NAME",
                     help="e.g. train=run1,run2 val=run3 test=run4 (names: file names without .gz, .csv)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--topic", default=None, help="a ROS bag's topic of sensor_msgs/JointState (default /joint_states)")
+    ap.add_argument("--stamps", choices=("auto", "header", "receive"), default=None,
+                    help="a ROS bag's time: the messages' header stamps, the bag's receive times, or auto (default: "
+                    "the header stamps unless every one is zero)")
+    ap.add_argument("--streams", nargs="+", choices=("position", "velocity", "effort"), default=None,
+                    help="the JointState fields a ROS bag's import reads (default all three)")
     ap.add_argument("--torque-delay", default=None, metavar="S|auto|off",
                     help="the inputs' delay behind the positions: estimated and reported by default; 'auto' applies "
                     "the estimate, a number (s) applies that delay, 'off' skips the estimate")
@@ -119,7 +126,8 @@ def spec_from_args(args):
              "decimal": args.decimal, "conventions": args.conventions,
              "angle_combinations": args.angle_combination, "coulomb_velocity": args.coulomb_velocity, "dt": args.dt,
              "max_gap": args.max_gap, "seed": args.seed, "label": args.label, "topic": args.topic,
-             "torque_delay": args.torque_delay, "repeated_rows": args.repeated_rows}
+             "torque_delay": args.torque_delay, "repeated_rows": args.repeated_rows, "stamps": args.stamps,
+             "streams": args.streams}
     fields.update({k: v for k, v in flags.items() if v is not None})
     if args.no_friction:
         fields["friction"] = False
@@ -165,14 +173,30 @@ def source_lines(provenance: dict) -> list[str]:
             ignored = f"; ignored joints {', '.join(src['ignored_joints'])}" if src.get("ignored_joints") else ""
             lines.append(f"{src['file']}: {src['format']}, topic {src['topic']} ({src['type']}), {src['messages']} "
                          f"messages, time from {src['time']}{ignored}")
+            for what, left in (src.get("skipped") or {}).items():
+                count, first = left["count"], ", ".join(str(x) for x in left["first"])
+                first += ", ..." if count > len(left["first"]) else ""
+                kind = {"other publisher": f"of another publisher (none of the joints read; theirs: "
+                                           f"{', '.join(left.get('joints', []))})",
+                        "zero header stamp": "with a zero header stamp (a driver that published before its clock "
+                                             "was set)"}.get(what, f"with no {what[len('empty '):]} values")
+                lines.append(f"{src['file']}: {count} message{'s' if count > 1 else ''} {kind} left out "
+                             f"(message{'s' if count > 1 else ''} {first})")
+            lines.extend(f"{src['file']}: {note}" for note in src.get("notes", []))
         rep = src.get("repeated_rows") or {}
         if rep.get("count"):
             at = ("message" if src.get("format") else "line") + ("s" if rep["count"] > 1 else "")
             first = ", ".join(str(x) for x in rep["first"]) + (", ..." if rep["count"] > len(rep["first"]) else "")
             what = "dropped" if rep["dropped"] else "kept (repeated_rows: drop drops them)"
             rows = f"{rep['count']} repeated row{'s' if rep['count'] > 1 else ''}"
-            lines.append(f"{src['file']}: {rows} (identical to the previous one while the joints move: stale; {at} "
-                         f"{first}) {what}")
+            dup = rep.get("duplicates", 0)
+            kinds = "identical to the previous one while the joints move: stale"
+            if dup == rep["count"]:
+                kinds = "exact duplicates of the previous one, the time stamp too"
+            elif dup:
+                kinds = (f"{rep['count'] - dup} identical to the previous one while the joints move (stale), {dup} "
+                         f"exact duplicate{'s' if dup > 1 else ''} (the time stamp too)")
+            lines.append(f"{src['file']}: {rows} ({kinds}; {at} {first}) {what}")
     return lines
 
 

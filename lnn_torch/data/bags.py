@@ -9,16 +9,21 @@ folder with its ``metadata.yaml``) and ROS 1 (``.bag``), read by the ``rosbags``
 the bag's receive time where every header stamp is zero; ``stamps``), then the positions, velocities and
 efforts of the named joints in the model's order (``coordinates``, ``velocities``, ``inputs``: joints of
 the bag; or ``joints``, a mapping of the bag's names to the model's). A joint the mapping needs that a
-message lacks, a joint of the bag neither mapped nor in ``ignore_joints``, an empty or short array and a
-NaN are refused in one line naming the message (counted from 1 along the topic). The recording's name is
-the file's without ``.db3``, ``.mcap`` or ``.bag`` (a folder's: its name).
+message lacks, a joint of the bag neither mapped nor in ``ignore_joints``, a short array and a NaN are
+refused in one line naming the message (counted from 1 along the topic). Left out, counted and reported
+(``info["skipped"]``): messages with none of the joints read (another publisher on the topic, e.g. a gripper's
+driver), messages with an empty array of a field read (where no message has that field, the import is refused:
+leave it out of ``streams``), and messages with a zero header stamp among wall-clock ones (a driver that
+published before its clock was set). Messages received a few cycles late (their stamps behind the latest
+before them by at most ``MAX_REORDER_INTERVALS`` median intervals) are sorted by their stamps, and said so.
+The recording's name is the file's without ``.db3``, ``.mcap`` or ``.bag`` (a folder's: its name).
 
 Repeated rows (``repeated_rows``): a row identical to the previous one in every imported value while the
 joints move (a publisher that sent its last state again) is dropped in a bag by default and counted; in a
 CSV it is counted and kept unless ``repeated_rows: drop``. A row at rest (every measured velocity exactly
 zero; without velocities, the next row's positions equal) is a legitimate sample and kept; an exact
-duplicate (the time stamp repeated too) is dropped whenever rows are dropped. Stamps that go backwards, or
-repeat with other values, are refused as in a CSV.
+duplicate (the time stamp repeated too) is dropped whenever rows are dropped. Stamps that go further back than a
+few cycles (a clock that jumped), or repeat with other values, are refused as in a CSV.
 
 The torque delay (``torque_delay``): the shift ``d`` of the input columns that best explains them by the
 state, ``tau(t + d) = f(q(t), qd(t), qdd(t))``: positive where the torques are stamped late (a sensor or
@@ -120,15 +125,22 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
     wanted = list(dict.fromkeys(j for _, j in fields))
     ignored = set(spec.ignore_joints or [])
     topic = "/" + spec.topic.lstrip("/")
-    index: dict[tuple, np.ndarray] = {}
-    rows, header, received = [], [], []
+    index: dict[tuple, np.ndarray | None] = {}
+    rows, header, received, numbers = [], [], [], []
+    # messages left out, each with its message numbers: another publisher's (none of the joints read), and
+    # those with an empty array of a field read (a driver that had no velocity or effort that cycle)
+    others: dict[tuple, list[int]] = {}
+    empty: dict[str, list[int]] = {}
 
-    def columns(names: tuple, k: int) -> np.ndarray:
-        """The message's array index of each field's joint; refusals name the joints and message."""
+    def columns(names: tuple, k: int) -> np.ndarray | None:
+        """The message's array index of each field's joint (None: none of the joints read, another publisher's
+        message); refusals name the joints and message."""
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
             raise InputError(f"{path}: message {k} on {topic} names {_plural(twice, 'joint', 'joints')} twice")
         missing = [j for j in wanted if j not in names]
+        if len(missing) == len(wanted):
+            return None
         if missing:
             raise InputError(f"{path}: message {k} on {topic} has no {_plural(missing, 'joint', 'joints')} (its "
                              f"joints: {', '.join(names)}): map the bag's names in joints")
@@ -153,27 +165,46 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
                 names = tuple(msg.name)
                 if names not in index:
                     index[names] = columns(names, k)
-                arrays = {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in kinds}
-                for f in kinds:
-                    if len(arrays[f]) != len(names):
-                        empty = " (empty: leave it out of streams)" if f != "position" and not len(arrays[f]) else ""
-                        raise InputError(f"{path}: message {k} on {topic} holds {len(arrays[f])} {f} values for "
-                                         f"{len(names)} joints{empty}")
                 at = index[names]
+                if at is None:
+                    others.setdefault(names, []).append(k)
+                    continue
+                arrays = {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in kinds}
+                short = [f for f in kinds if len(arrays[f]) != len(names)]
+                if any(len(arrays[f]) for f in short):
+                    f = next(f for f in short if len(arrays[f]))
+                    raise InputError(f"{path}: message {k} on {topic} holds {len(arrays[f])} {f} values for "
+                                     f"{len(names)} joints")
+                if short:
+                    for f in short:
+                        empty.setdefault(f, []).append(k)
+                    continue
                 rows.append([arrays[f][i] for (f, _), i in zip(fields, at, strict=True)])
                 header.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
                 received.append(int(stamp))
+                numbers.append(k)
     except InputError:
         raise
     except Exception as err:  # the library's reader errors, a damaged database or MCAP file, ...
         raise InputError(f"{path}: cannot read it as a ROS bag ({type(err).__name__}: {err})") from None
+    if not rows and others:
+        names = next(iter(others))
+        raise InputError(f"{path}: no message on {topic} has the joints {', '.join(wanted)} (its messages' joints: "
+                         f"{', '.join(names)}): map the bag's names in joints")
+    if not rows and empty:  # no message with every field read: the recording has not got one
+        f, ks = next(iter(empty.items()))
+        advice = "leave it out of streams" if f != "position" else "the positions are needed"
+        raise InputError(f"{path}: no message on {topic} holds every field read: message {ks[0]} holds 0 {f} values "
+                         f"for its joints ({advice})")
     if len(rows) < 2:
         raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic}: fewer than two")
     values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields))
+    numbers = np.asarray(numbers, dtype=np.int64)
     bad = np.argwhere(~np.isfinite(values))
     if bad.size:
-        k, c = bad[0]
-        raise InputError(f"{path}: message {k + 1} on {topic}: NaN or Inf in the {fields[c][0]} of {fields[c][1]}")
+        r, c = bad[0]
+        raise InputError(f"{path}: message {numbers[r]} on {topic}: NaN or Inf in the {fields[c][0]} of "
+                         f"{fields[c][1]}")
     header_ns, received_ns = np.asarray(header, dtype=np.int64), np.asarray(received, dtype=np.int64)
     source = spec.stamps
     if source == "auto":
@@ -181,18 +212,72 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
     elif source == "header" and not header_ns.any():
         raise InputError(f"{path}: every header stamp on {topic} is zero: set stamps to receive (the bag's receive "
                          "times) or auto")
+    skipped = {"other publisher": {"count": sum(map(len, others.values())),
+                                   "first": sorted(k for ks in others.values() for k in ks)[:5],
+                                   "joints": sorted({n for names in others for n in names})}} if others else {}
+    for f, ks in empty.items():
+        skipped[f"empty {f}"] = {"count": len(ks), "first": ks[:5]}
+    notes = []
+    zero = header_ns == 0
+    if source == "header" and zero.any() and header_ns.max() >= UNSET_BEFORE_NS:
+        # zero stamps among wall-clock ones: a driver that published before its clock was set (a bag whose stamps
+        # count from zero, e.g. simulated time, keeps its first message)
+        skipped["zero header stamp"] = {"count": int(zero.sum()), "first": numbers[zero][:5].tolist()}
+        values, header_ns, received_ns, numbers = values[~zero], header_ns[~zero], received_ns[~zero], numbers[~zero]
+        if len(values) < 2:
+            raise InputError(f"{path}: fewer than two messages on {topic} with a header stamp: set stamps to receive")
     ns = header_ns if source == "header" else received_ns
+    order, reordered = _local_order(ns)
+    if reordered:
+        values, ns, numbers = values[order], ns[order], numbers[order]
+        header_ns = header_ns[order]
+        notes.append(reordered)
+    if source == "receive" and header_ns.all() and (np.diff(header_ns) < 0).any():
+        notes.append(f"the header stamps of {int((np.diff(header_ns) < 0).sum())} messages run backwards: the receive "
+                     "times are used, as stamps: receive asks (stamps: header sorts them where the disorder is local)")
     t = (ns - ns[0]) / 1e9  # integer nanoseconds from the first: no rounding of epoch times
-    info = {"format": form, "topic": topic, "type": conns[0].msgtype, "messages": len(rows),
+    info = {"format": form, "topic": topic, "type": conns[0].msgtype, "messages": len(values),
             "time": ("the messages' header stamps" if source == "header" else
                      "the bag's receive times" + (" (every header stamp is zero)" if spec.stamps == "auto" else "")),
             "first_stamp_ns": int(ns[0]),
             "joints": {"position": list(spec.coordinates), "velocity": list(spec.velocities or []),
                        "effort": list(spec.input_columns)},
-            "ignored_joints": sorted({n for names in index for n in names if n in ignored})}
+            "ignored_joints": sorted({n for names, at in index.items() if at is not None
+                                      for n in names if n in ignored})}
+    if skipped:
+        info["skipped"] = skipped
+    if notes:
+        info["notes"] = notes
     if spec.joints:
         info["mapping"] = dict(spec.joints)
-    return np.concatenate([t[:, None], values], 1), np.arange(1, len(rows) + 1, dtype=np.int64), info
+    return np.concatenate([t[:, None], values], 1), numbers, info
+
+
+# a header stamp of zero is unset (left out) in a bag whose other stamps are wall-clock times, from 2001 on (1e9 s)
+UNSET_BEFORE_NS = 10**18
+# the largest step back in time a bag's messages may take and be sorted by their stamps (median intervals): messages
+# reordered on the way (a network, a busy recorder) arrive a few cycles late; a clock that jumps back is refused
+MAX_REORDER_INTERVALS = 10
+
+
+def _local_order(ns: np.ndarray) -> tuple[np.ndarray | None, str | None]:
+    """``(order, note)``: where a few stamps run backwards by at most ``MAX_REORDER_INTERVALS`` median intervals,
+    the (stable) order that sorts them and a line saying so; else ``(None, None)`` (the time check that follows
+    refuses what is left)."""
+    steps = np.diff(ns)
+    back = steps < 0
+    if not back.any():
+        return None, None
+    ahead = steps[steps > 0]
+    if not ahead.size:
+        return None, None
+    high = np.maximum.accumulate(ns)
+    lag = (high[:-1] - ns[1:])[back]  # how far each late message lies behind the latest stamp before it
+    order = np.argsort(ns, kind="stable")
+    if lag.max() > MAX_REORDER_INTERVALS * np.median(ahead):
+        return None, None
+    return order, (f"{int(back.sum())} message{'s' if back.sum() > 1 else ''} arrived out of order (up to "
+                   f"{lag.max() / 1e6:.3g} ms behind the stamp before): sorted by their stamps")
 
 
 # ---------------------------------------------------------------------------------------- repeated rows

@@ -71,7 +71,8 @@ class ImportSpec:
         dt: resampling interval, s (default: the median interval of the first recording, rounded to 0.1
             ms; refused, asking for ``dt``, where the recordings' median intervals differ by over 2 % and
             round to different intervals).
-        max_gap: the longest interval between two time stamps accepted, s (default 25 x the median).
+        max_gap: the longest interval between two time stamps interpolated across, s (default 25 x the
+            median): a window of the split (or a whole recording) may not cross a longer gap.
         split: ``{"train": [...], "val": [...], "test": [...]}`` of recording names (file names without
             ``.gz`` and ``.csv``/``.tsv``/``.txt``/``.dat``) or time windows ``"name[start:end]"``
             (seconds from the recording's first sample, not values of its time column; an end may be

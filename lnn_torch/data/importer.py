@@ -12,11 +12,12 @@ linearly interpolated at ``t_0 + k dt`` from the first time stamp to the last (`
 the median sampling interval, rounded to 0.1 ms; recordings whose median intervals differ by more
 than 2 % and round to different intervals need ``dt`` set). Irregular stamps and gaps are repaired
 this way and reported (``resampling_report``: the intervals, the gaps above twice the median, the
-largest); only a gap longer than ``max_gap`` (default 25 median intervals) is refused, with the number
-and size of such gaps. Units are converted to SI (time stamps in ``time_units`` to s; degrees to radians for angle
-coordinates and their velocities; lengths in ``length_units`` to m for the other coordinates and
-their velocities; motor currents times known drive gains to N m). Recordings keep their own lengths:
-the file pads them with NaN and records ``lengths``.
+largest); a gap longer than ``max_gap`` (default 25 median intervals) is refused where a window in use
+crosses it (a whole recording, or a time window of the split), naming the times a window must end by or start
+from; beside a window the filters' context stops at such a gap. Units are converted to SI (time stamps in
+``time_units`` to s; degrees to radians for angle coordinates and their velocities; lengths in
+``length_units`` to m for the other coordinates and their velocities; motor currents times known drive
+gains to N m). Recordings keep their own lengths: the file pads them with NaN and records ``lengths``.
 
 The split is by recording (named by the user, or seeded fractions) or by time window inside a
 recording (``"run[0.5:10.5]"``: its samples 0.5 s <= t - t_0 < 10.5 s, seconds from the recording's
@@ -134,6 +135,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
         resampled = [resample(raw, dt) for raw in records]
     entries, splits = split_entries(stems, spec.split, spec.seed, [len(r) * dt for r in resampled])
     pieces, windows = _pieces(entries, resampled, records, stems, dt, int(round(spec.window_context / dt)))
+    pieces, windows = _gaps_in_use(files, timing, records, entries, pieces, windows, dt)
     arrays = _arrays(system, spec, resampled, pieces, windows, param_table, dt)
     tools = spec.tools(stems)
     tools_report = None
@@ -171,11 +173,19 @@ def _read(files: list[Path], spec: ImportSpec, dof: int) -> tuple[list, list, li
     for f in files:
         raw, lines, info = read_table(f, spec)
         repeated = repeated_rows(raw, dof, bool(spec.velocities))
+        duplicates = repeated & np.r_[False, raw[1:, 0] == raw[:-1, 0]]  # the time stamp repeated too
         info["repeated_rows"] = {"count": int(repeated.sum()), "dropped": drop,
-                                 "first": [int(x) for x in lines[repeated][:5]]}
+                                 "first": [int(x) for x in lines[repeated][:5]], "duplicates": int(duplicates.sum())}
         if drop and repeated.any():
             raw, lines = raw[~repeated], lines[~repeated]
-        timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines, bool(info.get("format"))))
+        try:
+            timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines, bool(info.get("format"))))
+        except InputError as err:
+            if not duplicates.any() or drop:
+                raise
+            n = int(duplicates.sum())
+            raise InputError(f"{err} ({n} row{'s' if n > 1 else ''} repeat the one before in every value, the time "
+                             "too: repeated_rows: drop, or --repeated-rows drop, leaves them out)") from None
         records.append(raw)
         lines_of.append(lines)
         infos.append(info)
@@ -210,13 +220,44 @@ def _delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, 
 
 
 def _checked_time(path: Path, t: np.ndarray, max_gap, lines: np.ndarray, bag: bool) -> dict:
-    """``resampling.checked_time``; a bag's refusals name its message (its ``lines``) rather than a line."""
+    """``resampling.checked_time``, the gaps beyond ``max_gap`` listed (``_gaps_in_use`` refuses those the dataset's
+    windows use); a bag's refusals name its message (its ``lines``) rather than a line."""
     try:
-        return checked_time(path, t, max_gap, lines)
+        timing = checked_time(path, t, max_gap, lines)
     except InputError as err:
         if not bag:
             raise
         raise InputError(str(err).replace(f"{path}: line ", f"{path}: message ", 1)) from None
+    timing["bag"] = bag
+    return timing
+
+
+def _gaps_in_use(files, timing, records, entries, pieces, windows, dt: float) -> tuple[list, list]:
+    """The entries' spans and windows (``_pieces``) clear of the gaps beyond ``max_gap``: a gap a window crosses is
+    refused, naming the window and the times it must end by or start from; the filters' context beside a window
+    ends at a gap (as at a recording's end); a gap no span reaches is interpolated across like any other (no data
+    in use comes from it)."""
+    out_pieces, out_windows = [], []
+    for (i, start, end, name), (_, lo, hi), (wa, wb) in zip(entries, pieces, windows, strict=True):
+        t0 = float(records[i][0, 0])
+        a, b = lo + wa, lo + wb  # the window, in samples of the recording
+        for before, after, line in timing[i].get("long_gaps", []):
+            if t0 + a * dt < after and t0 + (b - 1) * dt > before:
+                at = "message" if timing[i].get("bag") else "line"
+                where = (f"split the recording there with windows, e.g. {name}[0:{before - t0:.4g}] and "
+                         f"{name}[{after - t0:.4g}:]" if start is None and end is None else
+                         f"the window {name!r} crosses it: end it by {before - t0:.4g} s or start it from "
+                         f"{after - t0:.4g} s")
+                raise InputError(f"{files[i]}: {at} {line}: a gap of {after - before:.4g} s after t = {before:.6g} s "
+                                 f"exceeds max_gap {timing[i]['max_gap_s']:.4g} s: too long to interpolate across; "
+                                 f"{where} (s from the recording's first sample), or raise max_gap")
+            if t0 + (b - 1) * dt <= before:  # the gap after the window: the context stops at it
+                hi = min(hi, int(np.floor((before - t0) / dt + 1e-9)) + 1)
+            else:  # before the window
+                lo = max(lo, int(np.ceil((after - t0) / dt - 1e-9)))
+        out_pieces.append((i, lo, hi))
+        out_windows.append((a - lo, b - lo))
+    return out_pieces, out_windows
 
 
 def _torque_delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, dt: float) -> dict:

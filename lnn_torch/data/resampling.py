@@ -13,11 +13,12 @@ MAX_GAP_INTERVALS = 25  # the default max_gap, in median sampling intervals
 
 
 def checked_time(path: Path, t: np.ndarray, max_gap: float | None, lines: np.ndarray | None = None) -> dict:
-    """Raise for a time that does not increase or gaps beyond ``max_gap`` (default ``MAX_GAP_INTERVALS``
-    median intervals; the count and the largest named), naming the line of the file (``lines``: each
-    sample's; default: the header on line 1, one sample a line); else the recording's timing: samples,
-    duration, median, smallest and largest interval, and the gaps above twice the median (count,
-    largest, their total), which resampling interpolates across."""
+    """Raise for a time that does not increase, naming the line of the file (``lines``: each sample's; default:
+    the header on line 1, one sample a line); else the recording's timing: samples, duration, median, smallest
+    and largest interval, the gaps above twice the median (count, largest, their total), which resampling
+    interpolates across, and those beyond ``max_gap`` (default ``MAX_GAP_INTERVALS`` median intervals;
+    ``long_gaps``: ``[t before, t after, line]`` each), which the data in use must not cross (the importer's
+    ``_gaps_in_use``)."""
     if lines is None:
         lines = np.arange(len(t)) + 2
     steps = np.diff(t)
@@ -28,18 +29,12 @@ def checked_time(path: Path, t: np.ndarray, max_gap: float | None, lines: np.nda
         raise InputError(f"{path}: line {lines[i + 1]}: time {what} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
     median = float(np.median(steps))
     limit = max_gap if max_gap is not None else MAX_GAP_INTERVALS * median
-    gaps = np.nonzero(steps > limit)[0]
-    if gaps.size:
-        i = int(gaps[0])
-        more = f" ({gaps.size} such gaps, the largest {steps.max():.4g} s)" if gaps.size > 1 else ""
-        raise InputError(f"{path}: line {lines[i + 1]}: a gap of {steps[i]:.4g} s after t = {t[i]:.6g} s exceeds "
-                         f"max_gap {limit:.4g} s{more}: too long to interpolate across (split the recording there, or "
-                         "raise max_gap)")
     long = steps[steps > 2 * median]
     return {"samples": len(t), "duration_s": float(t[-1] - t[0]), "median_interval_s": median,
             "min_interval_s": float(steps.min()), "max_interval_s": float(steps.max()),
             "gaps": int(long.size), "largest_gap_s": float(long.max()) if long.size else 0.0,
-            "gap_seconds": float(long.sum()), "max_gap_s": float(limit)}
+            "gap_seconds": float(long.sum()), "max_gap_s": float(limit),
+            "long_gaps": [[float(t[i]), float(t[i + 1]), int(lines[i + 1])] for i in np.nonzero(steps > limit)[0]]}
 
 
 def resampling_report(provenance: dict) -> list[str]:
@@ -49,8 +44,9 @@ def resampling_report(provenance: dict) -> list[str]:
         timing = src.get("timing")
         if not timing:
             continue
-        gaps = (f"{timing['gaps']} gaps over twice the median interval (largest {1e3 * timing['largest_gap_s']:.3g} "
-                f"ms, {1e3 * timing['gap_seconds']:.3g} ms in all) interpolated across" if timing["gaps"]
+        gaps = (f"{timing['gaps']} gap{'s' if timing['gaps'] > 1 else ''} over twice the median interval (largest "
+                f"{1e3 * timing['largest_gap_s']:.3g} ms, {1e3 * timing['gap_seconds']:.3g} ms in all) interpolated "
+                "across" if timing["gaps"]
                 else "no gaps")
         lines.append(f"{src['file']}: {timing['samples']} samples over {timing['duration_s']:.4g} s, intervals "
                      f"{1e3 * timing['min_interval_s']:.3g}-{1e3 * timing['max_interval_s']:.3g} ms (median "

@@ -135,9 +135,12 @@ class FitSummary(L.Callback):
         if keeper is not None and (selection is None or keeper.monitor == selection["monitor"]):
             lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
         if selection is not None and selection["step"] != trainer.global_step:
+            judged = len(selection.get("history", ())) > 1
+            why = ("validation preferred it" if judged else "the only state validation judged (none ran after the "
+                   "start: the steps since are not kept)")
             lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
-                         f"{selection['value']:.4g}): validation preferred it; the figures below are the last "
-                         f"validation's, at step {trainer.global_step}")
+                         f"{selection['value']:.4g}): {why}" + (f"; the figures below are the last validation's, at "
+                                                                f"step {trainer.global_step}" if judged else ""))
         torque = None
         if "val/torque_rms" in m:
             torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
@@ -162,7 +165,7 @@ class FitSummary(L.Callback):
         if not m and trainer.limit_val_batches != 0:
             epochs = trainer.check_val_every_n_epoch or 1
             every = epochs * max(trainer.num_training_batches, 1)
-            lines.append(f"  validation: none ran (every {epochs} epochs, {every} steps; "
+            lines.append(f"  validation: none ran in training (every {epochs} epochs, {every} steps; "
                          f"set --trainer.check_val_every_n_epoch lower for a shorter run)")
         if last is not None:
             configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
