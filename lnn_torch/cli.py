@@ -55,6 +55,7 @@ def lightning_main(argv: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    console = argv is None  # the console script (a Python caller keeps Python's own warnings)
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "--version":
         from ._version import __version__
@@ -74,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     from .perf import configure_cpu
 
     configure_cpu()
+    if console:
+        _plain_warnings(command)
     try:
         if command in LIGHTNING_COMMANDS:
             return lightning_main(argv)
@@ -84,6 +87,22 @@ def main(argv: list[str] | None = None) -> int:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"lnn-torch {command}: error: {message}", file=sys.stderr)
         return 2
+
+
+def _plain_warnings(command: str) -> None:
+    """The package's own warnings printed as one line for a user, ``lnn-torch COMMAND: warning: ...`` (not the
+    library's file, line and source); other packages' as Python prints them."""
+    import warnings
+
+    package = str(Path(__file__).resolve().parent)
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not str(filename).startswith(package):
+            return shown(message, category, filename, lineno, file, line)
+        print(f"lnn-torch {command}: warning: {message}", file=sys.stderr if file is None else file)
+
+    warnings.showwarning = show
 
 
 if __name__ == "__main__":

@@ -100,7 +100,8 @@ def test_a_run_whose_steps_only_hurt_validation_ends_with_the_classical_start(re
                          "--trainer.enable_progress_bar", "false", "--data.targets", "finite_difference",
                          "--model.val_rollout_seconds", "0.1", cwd=root)
     assert out.returncode == 0, out.stderr[-3000:]
-    announced = r"classical start: least squares on \d+ training samples, its settings chosen on the validation split"
+    announced = (r"classical start: least squares on every 2nd sample of \d+ training samples, its settings chosen "
+                 r"on the validation split")
     assert re.search(announced + r" .*\.\.\.\nclassical start: the (weighted )?physically consistent least-squares fit",
                      out.stdout)
     assert "selected on validation: the state at step 0 of 20" in out.stdout, out.stdout[-2000:]

@@ -72,7 +72,10 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert last["global_step"] == 3
     # the end-of-fit summary: where the run and the checkpoint are, and the validation error
     assert "TensorBoard run: lightning_logs/version_0" in out.stdout and "last.ckpt" in out.stdout
-    assert f"test it: lnn-torch test -c {ROOT / 'configs' / 'quickstart.yaml'} --ckpt_path" in out.stdout
+    # ... and a test command that reads the same data (the command line's --data options beside the config)
+    assert f"test it: lnn-torch test -c {ROOT / 'configs' / 'quickstart.yaml'} --data.path={dataset} " \
+           "--data.spec.num_trajectories=20 --data.spec.duration=2.0 --data.spec.seed=5 --data.steps_per_epoch=3 " \
+           "--ckpt_path" in out.stdout, out.stdout[-800:]
     assert re.search(r"validation rollouts within 0\.1 rad \(or m\) of the data: median (≥ [\d.]+ s \(never "
                      r"exceeded\)|[\d.]+ s)", out.stdout), out.stdout[-600:]
     assert re.search(r"validation: acc\. rel\. L2 error [0-9.]+ % pooled, [0-9.]+ % per-trajectory median", out.stdout)

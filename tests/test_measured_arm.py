@@ -265,3 +265,51 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
     body = mujoco.mj_name2id(written, mujoco.mjtObj.mjOBJ_BODY, "payload")
     assert abs(written.body_mass[body] - row[0]) < 1e-9
     np.testing.assert_allclose(written.body_ipos[body], row[1:4], atol=1e-9)
+
+
+def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_against_it(tmp_path, capsys):
+    """A new loaded log, split in time so that the classical fits have a training window, and a grey box that
+    conditions on the payload (the description's, untrained): the import identifies the load against the
+    description as written (every window carries it), ``identify`` against the model; the model's row is its
+    error with the load identified against it, the classical rows use the dataset's."""
+    from lnn_torch.data.importer import ImportSpec, import_recordings
+    from lnn_torch.identification.arm_comparison import model_torque, points
+    from lnn_torch.training import LNNModule
+    from lnn_torch.training.datamodule import TrajectoryDataModule
+
+    from .helpers import save_checkpoint
+
+    load = [1.2, 0.03, -0.02, 0.07]
+    csv = record(tmp_path / "new.csv", seconds=4.0, seed=5, payload=load, friction=None)
+    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                      velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                      coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                      label="synthetic_panda", parameters={"values": {"new": "load"}, "tools": {"load": {}}},
+                      split={"train": ["new[0:2.0]"], "val": [], "test": ["new[2.5:]"]})
+    data = import_recordings([csv], tmp_path / "new.h5", spec)
+    targets = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
+    dm = TrajectoryDataModule(path=str(data), targets=targets)
+    scene, config = dm.model_scene()
+    module = LNNModule(scene=scene, scene_config=config, torque_weight=1.0, acceleration_weight=0.0, eps=0.0,
+                       model_options={"kinetic": {"spatial": {"prior": 1.0e-4}}, "potential": {"spatial": {}},
+                                      "friction": "viscous+coulomb+offset"})
+    module.model.fit_normalizer(dm.normalization_data())
+    ckpt = save_checkpoint(module, tmp_path / "grey.ckpt")
+    raw = torch.load(ckpt, weights_only=False)
+    raw["datamodule_hyper_parameters"] = {"path": str(data), "targets": targets}
+    torch.save(raw, ckpt)
+    assert main(["identify", ckpt, str(data), "-o", str(tmp_path / "id")]) == 0
+    printed = capsys.readouterr().out
+    assert "the model carries the loads the import left unknown as identified against it" in printed
+    result = json.loads((tmp_path / "id" / "identification.json").read_text())
+    tool = result["tools"]["tools"]["load"]["parameters"]
+    own = torch.tensor([[tool[k]["value"] for k in ("mass", "x", "y", "z")]], dtype=torch.float64)
+    model = load_model(ckpt).model.double()
+    q, qd, qdd, tau, params = points(dm.trajectories("test"))
+
+    def mean_rms(p):
+        return float((model_torque(model)(q, qd, qdd, p) - tau).pow(2).mean(0).sqrt().mean())
+
+    mine, dataset = mean_rms(own.expand(len(q), -1)), mean_rms(params)
+    got = result["rows"]["film_lnn"]["rms_mean"]  # (identify runs the model in its own float32)
+    assert abs(got - mine) < 1e-4 * mine and abs(got - dataset) > 1e-3 * dataset, (got, mine, dataset)

@@ -27,6 +27,7 @@ coordinate, optionally velocities and inputs; lines starting with ``#`` are comm
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -238,7 +239,7 @@ def _identify_arm(module, args) -> int:
     friction = classical_drive(module)
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
-    tools = _tools_on_split(module, f, dm, args.split)
+    tools, loads = _tools_on_split(module, f, dm, args.split)
     width, trains = f.read("params").shape[-1], len(f.splits.get("train", ())) > 0
     if not trains or width != module.system.num_params:
         # a new recording alone (no training split), or payloads the model does not condition on: its tools
@@ -255,7 +256,12 @@ def _identify_arm(module, args) -> int:
         block = 1 if dm.targets is None else -(-correlation_block(dm.targets, float(f.dt)) // 2)
         fits = fit_classical(module.system, dm.trajectories("train"), drive=friction, val=val, stride=2, block=block)
         data = dm.trajectories(args.split)
-        result = compare_on_arm(module.model, module.system, data, fits)
+        # a load the import left unknown: the model carries it as identified against the model itself (the
+        # import's estimate is against the classical arm, or the description where every recording carries it)
+        own = data if loads is None else dataclasses.replace(data, params=loads)
+        result = compare_on_arm(module.model, module.system, own, {}, descriptions={})
+        rest = compare_on_arm(None, module.system, data, fits)
+        result = {**rest, "rows": {**result["rows"], **rest["rows"]}}
         if args.feedback:
             predictors = {module.model.variant: model_torque(module.model),
                           **{label: classical_torque(fit) for label, fit in fits.items()}}
@@ -264,13 +270,20 @@ def _identify_arm(module, args) -> int:
         recordings = json.loads(f.attrs.get("recordings", "[]"))
         indices = data.index.tolist() if data.index is not None else list(range(len(data)))
         names = [recordings[i] if i < len(recordings) else f"trajectory {i}" for i in map(int, indices)]
-        by_recording = per_recording(module.model, module.system, data, fits, names) if len(names) > 1 else None
+        by_recording = None
+        if len(names) > 1:
+            mine = per_recording(module.model, module.system, own, {}, names, descriptions={})
+            theirs = per_recording(None, module.system, data, fits, names)
+            by_recording = {name: {**mine[name], **theirs[name]} for name in names}
         result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
                   "per_recording": by_recording,
                   "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module), "tools": tools}
         text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
                 f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
-                f"{result['model_start']}\n\nJoint-torque RMS error (N m):\n\n{markdown(result)}\n\n"
+                f"{result['model_start']}\n\nJoint-torque RMS error (N m"
+                + ("; the model carries the loads the import left unknown as identified against it, in the last "
+                   "section, the classical fits the dataset's" if loads is not None else "")
+                + f"):\n\n{markdown(result)}\n\n"
                 + ("" if by_recording is None else "Per recording of the split, the mean joint-torque RMS error "
                    f"(N m; the lowest in bold):\n\n{per_recording_markdown(by_recording)}\n\n")
                 + "## What the training recordings determine "
@@ -287,14 +300,15 @@ def _tools_on_split(module, f, dm, split: str) -> dict | None:
     """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
     ``identification.payload.identify_tools``): the load a new recording carries. ``f``: the dataset file
-    (``TrajectoryFile``). None where the file declares no such tool."""
+    (``TrajectoryFile``). Returns the report and the split's parameters with those loads in place of the import's
+    (``(B, P)``, one row per entry); ``(None, None)`` where the file declares no such tool."""
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
     from ..robots.tools import Tool
 
     provenance = json.loads(f.attrs["provenance"])
     if not provenance.get("tools") or split not in f.splits:
-        return None
+        return None, None
     width = f.read("params").shape[-1]
     declared = {name: Tool.declared(name, value, width)
                 for name, value in (provenance["settings"].get("parameters") or {}).get("tools", {}).items()}
@@ -307,7 +321,7 @@ def _tools_on_split(module, f, dm, split: str) -> dict | None:
     def arm(q, qd, qdd):
         return torque(q, qd, qdd, q.new_zeros(q.shape[0], P))
 
-    rows, imported = [], {}
+    rows, imported, entries = [], {}, {}
     for j, k in enumerate(f.splits[split]):
         name, tool = names[int(k)], carried.get(names[int(k)])
         if tool is None or not declared[tool].unknown:
@@ -315,8 +329,9 @@ def _tools_on_split(module, f, dm, split: str) -> dict | None:
         n = data.num_points if data.lengths is None else int(data.lengths[j])
         rows.append((name, *(getattr(data, a)[j, :n].double() for a in ("q", "qd", "qdd", "tau")), tool))
         imported[tool] = data.params[j].double().tolist()
+        entries[j] = tool
     if not rows:
-        return None
+        return None, None
     used = {t: declared[t] for t in imported}
     block = correlation_block(dm.targets, float(data.dt)) if dm.targets is not None else 1
     fit = identify_tools(arm_chain(module.system), rows, used, arm=arm, block=block,
@@ -324,7 +339,10 @@ def _tools_on_split(module, f, dm, split: str) -> dict | None:
     report = fit.report()
     for tool, values in imported.items():
         report["tools"][tool]["at_import"] = values
-    return report
+    params = data.params.clone()
+    for j, tool in entries.items():  # each entry's load as identified against the model
+        params[j] = torch.as_tensor(np.asarray(fit.values[tool], dtype=np.float64), dtype=params.dtype)
+    return report, params
 
 
 def _tools_markdown(tools: dict | None) -> str:

@@ -150,8 +150,15 @@ def tool_lines(report: dict) -> list[str]:
             point = len(tool["parameters"]) == 4  # mass and centre of mass: the payloads' four values
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
-                         + (f"; every {report['stride']}-th sample (long recordings)" if report.get("stride", 1) > 1
-                            else "")
+                         + (f"; every {_ordinal(report['stride'])} sample (long recordings)"
+                            if report.get("stride", 1) > 1 else "")
                          + ("; a point mass: a tool's own inertia, which four values leave out, shifts its centre of "
-                            "mass (give the payloads ten values to identify it)" if point else ""))
+                            "mass (to identify it, name ten payload values in the import config, parameters: names: "
+                            "[mass, cx, cy, cz, ixx, iyy, izz, ixy, ixz, iyz])" if point else ""))
     return lines
+
+
+def _ordinal(k: int) -> str:
+    """``2`` -> ``2nd``, ``11`` -> ``11th``, ``23`` -> ``23rd``."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"

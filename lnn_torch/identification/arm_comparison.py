@@ -188,11 +188,13 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 
 
-def per_recording(model, system, data, fits: dict, names) -> dict:
+def per_recording(model, system, data, fits: dict, names, descriptions: dict | None = None) -> dict:
     """``{name: {label: mean joint-torque RMS (N m)}}``: ``compare_on_arm``'s means on each trajectory of ``data``
-    alone (``names``: one per trajectory, e.g. the dataset's recordings), the description as written included."""
+    alone (``names``: one per trajectory, e.g. the dataset's recordings), the description as written included
+    (``descriptions`` as ``compare_on_arm``'s)."""
     return {name: {label: row["rms_mean"] for label, row in
-                   compare_on_arm(model, system, data._map(lambda x, j=j: x[j:j + 1]), fits)["rows"].items()}
+                   compare_on_arm(model, system, data._map(lambda x, j=j: x[j:j + 1]), fits,
+                                  descriptions)["rows"].items()}
             for j, name in enumerate(names)}
 
 

@@ -51,6 +51,8 @@ ON_EVIDENCE = ("stribeck", "saturating")
 # together, by ordinary least squares on validation
 SATURATION_VELOCITIES = (0.05, 0.1, 0.2, 0.5, 1.0)
 SMOOTHING_BLOCKS, SMOOTHING_Z = 10, 2.0
+# the start fits every STRIDE-th sample of each recording (filtered targets change little from one sample to the next)
+STRIDE = 2
 # singular values of the rigid body's regressor below this fraction of the largest are left out (its null space)
 RANK_RTOL = 1e-8
 
@@ -67,7 +69,7 @@ def can_start(model) -> str | None:
     return None
 
 
-def start_from_classical(model, system, train, val=None, *, priors=PRIORS, stride: int = 2) -> dict:
+def start_from_classical(model, system, train, val=None, *, priors=PRIORS, stride: int = STRIDE) -> dict:
     """Start ``model`` (a structured model with the learned spatial part and joint friction) at the physically
     consistent fit of ``train`` (``Trajectories`` with torques, or a list; every ``stride``-th point), its prior
     chosen on ``val`` (None: 0.01) among ``priors`` with the drive model's own form, and with ``val`` its

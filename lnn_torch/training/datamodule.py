@@ -299,8 +299,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         return self._sources[key]
 
     def split_names(self) -> list[str]:
-        """The splits the dataset file holds (``train``, ``val``, ``test``...)."""
-        return list(self._open().splits)
+        """The splits the dataset file holds with at least one entry (``train``, ``val``, ``test``...)."""
+        return [name for name, entries in self._open().splits.items() if len(entries)]
 
     def recorded_velocities(self, split: str = "val") -> torch.Tensor:
         """The velocities of a split as recorded (float64 ``(N, T, dof)``, NaN after each trajectory's

@@ -14,6 +14,8 @@ from .module import LNNModule
 
 
 class LNNCLI(LightningCLI):
+    args_given: list[str] | None = None  # the command line run_cli was given (None: sys.argv[1:])
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data", "model.scene", apply_on="instantiate", compute_fn=lambda dm: dm.model_scene()[0])
         parser.link_arguments("data", "model.scene_config", apply_on="instantiate",
@@ -37,12 +39,14 @@ class LNNCLI(LightningCLI):
             init["save_dir"] = str(root)
 
     def before_fit(self) -> None:
-        """The fit's closing summary names the config files it was given (its ``test`` command)."""
+        """The fit's closing summary names the config files it was given and the data options the command line
+        set beside them (``--data.path``, ...: its ``test`` command reads the same data)."""
         config = self.config[self.subcommand] if self.subcommand else self.config
         paths = [str(getattr(p, "relative", p)) for p in (config.get("config") or [])]
         for cb in self.trainer.callbacks:
             if type(cb).__name__ == "FitSummary":
                 cb.config_paths = paths
+                cb.data_options = data_options(sys.argv[1:] if self.args_given is None else self.args_given)
 
 
 TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
@@ -114,10 +118,30 @@ def quiet_third_parties() -> None:
     logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
 
 
+def data_options(argv: list[str]) -> list[str]:
+    """The ``--data.*`` options of a command line, each as one ``--data.NAME=VALUE`` (quoted for a shell where
+    needed)."""
+    import shlex
+
+    out = []
+    for i, arg in enumerate(argv):
+        if not arg.startswith("--data."):
+            continue
+        if "=" in arg:
+            name, value = arg.split("=", 1)
+        elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            name, value = arg, argv[i + 1]
+        else:
+            continue
+        out.append(f"{name}={shlex.quote(value)}")
+    return out
+
+
 def run_cli(argv: list[str]) -> LNNCLI:
     quiet_third_parties()
     # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
     args = None if argv == sys.argv[1:] else argv
+    LNNCLI.args_given = args
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
                   save_config_kwargs={"overwrite": True}, seed_everything_default=0)
 
