@@ -55,6 +55,27 @@ def test_gaps_are_resampled_and_reported_and_only_a_gap_too_long_is_refused(tmp_
     assert entries["long[3.1:]"]["from_s"] == pytest.approx(3.042)
 
 
+def test_a_gap_in_epoch_seconds_gives_windows_that_hold_and_advice_that_imports(tmp_path):
+    """Time stamps in seconds since 1970 (their rounding about 2e-7 s): windows that end or start at a gap's edge
+    hold only recorded samples (no NaN, no empty slice), and the windows the refusal suggests import."""
+    t = 1_700_000_000.123 + 0.001 * np.arange(5000)
+    t = np.delete(t, np.r_[2022:2061])  # a gap of 40 ms after sample 2021
+    path = write_csv(tmp_path / "run.csv", signals(t - t[0]) | {"time": t})
+    with pytest.raises(InputError, match=r"split the recording there with windows, e.g. run\[0:(?P<a>[\d.]+)\] and "
+                                         r"run\[(?P<b>[\d.]+):\]") as err:
+        import_recordings([path], tmp_path / "x.h5", spec(split=[1.0, 0.0, 0.0]))
+    import re
+
+    a, b = re.search(r"run\[0:([\d.]+)\] and run\[([\d.]+):\]", str(err.value)).groups()
+    for windows in ({"train": [f"run[0:{a}]"], "val": [], "test": [f"run[{b}:]"]},
+                    {"train": ["run[0:2.021]"], "val": [], "test": ["run[2.061:]"]}):
+        out = import_recordings([path], tmp_path / "x.h5", spec(split=windows), overwrite=True)
+        f = read_dataset(out)
+        w, lengths, q = np.asarray(f.read("windows")), np.asarray(f.read("lengths")), np.asarray(f.read("q"))
+        for (lo, hi), n, qj in zip(w, lengths, q, strict=True):
+            assert 0 <= lo < hi <= n and np.isfinite(qj[lo:hi]).all(), (windows, lo, hi, n)
+
+
 def test_time_windows_are_entries_cut_after_the_filters_saw_the_recording_around_them(tmp_path):
     """A recording split into windows: its samples are the whole recording's at the same times, and its
     derivative estimates equal those of the whole recording there to the filter's edge effect beyond

@@ -201,8 +201,8 @@ def test_repeated_rows_are_dropped_and_counted_and_rows_at_rest_kept(tmp_path, c
     csv = write_csv(tmp_path / "run.csv", with_stale)
     with pytest.raises(InputError, match=r"run.csv: line 263: time repeats") as err:  # a CSV keeps them: as before,
         import_recordings([csv], tmp_path / "kept.h5", csv_spec())  # and the refusal says how to leave them out
-    assert str(err.value).endswith("(1 row repeat the one before in every value, the time too: repeated_rows: drop, "
-                                   "or --repeated-rows drop, leaves them out)")
+    assert str(err.value).endswith("(an exact duplicate of the row before: repeated_rows: drop, or --repeated-rows "
+                                   "drop, leaves it out)")
     csv = write_csv(csv, {k: np.delete(v, dup + 1, axis=0) for k, v in with_stale.items()})
     kept = dataset(import_recordings([csv], tmp_path / "kept.h5", csv_spec()))[2]
     assert kept["sources"][0]["repeated_rows"] == {"count": 5, "dropped": False, "first": [52, 122, 123, 202, 335],
@@ -242,9 +242,9 @@ def test_messages_reordered_on_the_way_are_sorted_by_their_stamps_and_reported(t
     assert_same_dataset(tmp_path / "bag.h5", import_recordings([write_csv(tmp_path / "run.csv", data)],
                                                                tmp_path / "csv.h5", csv_spec()))
     _, _, prov = dataset(import_recordings([bag], tmp_path / "receive.h5", bag_spec(stamps="receive")))
-    assert prov["sources"][0]["notes"] == ["the header stamps of 3 messages run backwards: the receive times are used, "
-                                           "as stamps: receive asks (stamps: header sorts them where the disorder is "
-                                           "local)"]
+    assert prov["sources"][0]["notes"] == ["the header stamps step back 3 times: the receive times are used, as "
+                                           "stamps: receive asks (stamps: header sorts messages a few cycles late by "
+                                           "their stamps)"]
 
 
 def test_messages_without_the_arms_joints_or_a_field_or_a_stamp_are_left_out_and_reported(tmp_path, capsys):
@@ -279,8 +279,8 @@ def test_messages_without_the_arms_joints_or_a_field_or_a_stamp_are_left_out_and
     (tmp_path / "v").mkdir()
     none = write_bag(tmp_path / "v" / "run", "mcap", data, blank=range(400))
     err = _refused(tmp_path, capsys, none)
-    assert "run.mcap: no message on /joint_states holds every field read: message 1 holds 0 velocity values for its " \
-           "joints (leave it out of streams)" in err, err
+    assert "run.mcap: 0 messages on /joint_states hold every field read: message 1 holds 0 velocity values for its " \
+           "joints, as do 399 more (leave it out of streams)" in err, err
     # imported without them (--streams), a fit whose targets ask for measured velocities says it has none
     assert main(["import", str(none), "--streams", "position", "effort", "-o", str(tmp_path / "novel.h5"), "--config",
                  str(_config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=SPLIT))]) == 0
@@ -341,8 +341,8 @@ def test_a_missing_topic_an_unmapped_joint_or_the_missing_extra_is_one_line(tmp_
     # effort asked for but not recorded
     (tmp_path / "e").mkdir()
     empty = write_bag(tmp_path / "e" / "run", "mcap", {**data, "eff": None})
-    assert "no message on /joint_states holds every field read: message 1 holds 0 effort values for its joints " \
-           "(leave it out of streams)" in _refused(tmp_path, capsys, empty)
+    assert "0 messages on /joint_states hold every field read: message 1 holds 0 effort values for its joints, as " \
+           "do 59 more (leave it out of streams)" in _refused(tmp_path, capsys, empty)
     config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=[1.0, 0.0, 0.0],
                      streams=["position", "velocity"])
     assert main(["import", str(empty), "--config", str(config), "-o", str(tmp_path / "e.h5")]) == 0

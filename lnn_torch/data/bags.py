@@ -187,24 +187,23 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
         raise
     except Exception as err:  # the library's reader errors, a damaged database or MCAP file, ...
         raise InputError(f"{path}: cannot read it as a ROS bag ({type(err).__name__}: {err})") from None
+    left = f" ({sum(map(len, empty.values()))} with an empty array left out)" if empty else ""
+    if len(rows) < 2 and empty:  # (almost) no message with every field read: the recording has not got one
+        f, ks = next(iter(empty.items()))
+        advice = "leave it out of streams" if f != "position" else "the positions are needed"
+        verb = "holds" if len(rows) == 1 else "hold"
+        raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic} {verb} every field "
+                         f"read: message {ks[0]} holds 0 {f} values for its joints, as do {len(ks) - 1} more "
+                         f"({advice})")
     if not rows and others:
         names = next(iter(others))
         raise InputError(f"{path}: no message on {topic} has the joints {', '.join(wanted)} (its messages' joints: "
-                         f"{', '.join(names)}): map the bag's names in joints")
-    if not rows and empty:  # no message with every field read: the recording has not got one
-        f, ks = next(iter(empty.items()))
-        advice = "leave it out of streams" if f != "position" else "the positions are needed"
-        raise InputError(f"{path}: no message on {topic} holds every field read: message {ks[0]} holds 0 {f} values "
-                         f"for its joints ({advice})")
+                         f"{', '.join(names) or 'none'}): map the bag's names in joints")
     if len(rows) < 2:
-        raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic}: fewer than two")
+        raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic}: fewer than "
+                         f"two{left}")
     values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields))
     numbers = np.asarray(numbers, dtype=np.int64)
-    bad = np.argwhere(~np.isfinite(values))
-    if bad.size:
-        r, c = bad[0]
-        raise InputError(f"{path}: message {numbers[r]} on {topic}: NaN or Inf in the {fields[c][0]} of "
-                         f"{fields[c][1]}")
     header_ns, received_ns = np.asarray(header, dtype=np.int64), np.asarray(received, dtype=np.int64)
     source = spec.stamps
     if source == "auto":
@@ -226,15 +225,21 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
         values, header_ns, received_ns, numbers = values[~zero], header_ns[~zero], received_ns[~zero], numbers[~zero]
         if len(values) < 2:
             raise InputError(f"{path}: fewer than two messages on {topic} with a header stamp: set stamps to receive")
+    bad = np.argwhere(~np.isfinite(values))  # (a message left out for its stamp is not read)
+    if bad.size:
+        r, c = bad[0]
+        raise InputError(f"{path}: message {numbers[r]} on {topic}: NaN or Inf in the {fields[c][0]} of "
+                         f"{fields[c][1]}")
     ns = header_ns if source == "header" else received_ns
     order, reordered = _local_order(ns)
     if reordered:
         values, ns, numbers = values[order], ns[order], numbers[order]
-        header_ns = header_ns[order]
+        header_ns, received_ns = header_ns[order], received_ns[order]
         notes.append(reordered)
-    if source == "receive" and header_ns.all() and (np.diff(header_ns) < 0).any():
-        notes.append(f"the header stamps of {int((np.diff(header_ns) < 0).sum())} messages run backwards: the receive "
-                     "times are used, as stamps: receive asks (stamps: header sorts them where the disorder is local)")
+    back = int((np.diff(header_ns) < 0).sum())
+    if source == "receive" and header_ns.all() and back:
+        notes.append(f"the header stamps step back {back} time{'s' if back > 1 else ''}: the receive times are used, "
+                     "as stamps: receive asks (stamps: header sorts messages a few cycles late by their stamps)")
     t = (ns - ns[0]) / 1e9  # integer nanoseconds from the first: no rounding of epoch times
     info = {"format": form, "topic": topic, "type": conns[0].msgtype, "messages": len(values),
             "time": ("the messages' header stamps" if source == "header" else
@@ -261,23 +266,22 @@ MAX_REORDER_INTERVALS = 10
 
 
 def _local_order(ns: np.ndarray) -> tuple[np.ndarray | None, str | None]:
-    """``(order, note)``: where a few stamps run backwards by at most ``MAX_REORDER_INTERVALS`` median intervals,
-    the (stable) order that sorts them and a line saying so; else ``(None, None)`` (the time check that follows
-    refuses what is left)."""
+    """``(order, note)``: where a few messages' stamps lie behind the latest before them by at most
+    ``MAX_REORDER_INTERVALS`` median intervals, the (stable) order that sorts them and a line saying so; else
+    ``(None, None)`` (the time check that follows refuses what is left)."""
     steps = np.diff(ns)
-    back = steps < 0
-    if not back.any():
-        return None, None
     ahead = steps[steps > 0]
-    if not ahead.size:
+    if not (steps < 0).any() or not ahead.size:
         return None, None
     high = np.maximum.accumulate(ns)
-    lag = (high[:-1] - ns[1:])[back]  # how far each late message lies behind the latest stamp before it
-    order = np.argsort(ns, kind="stable")
+    late = ns[1:] < high[:-1]  # behind the latest stamp before them
+    lag = (high[:-1] - ns[1:])[late]
     if lag.max() > MAX_REORDER_INTERVALS * np.median(ahead):
         return None, None
-    return order, (f"{int(back.sum())} message{'s' if back.sum() > 1 else ''} arrived out of order (up to "
-                   f"{lag.max() / 1e6:.3g} ms behind the stamp before): sorted by their stamps")
+    n = int(late.sum())
+    return np.argsort(ns, kind="stable"), (f"{n} message{'s' if n > 1 else ''} arrived out of order (up to "
+                                           f"{lag.max() / 1e6:.3g} ms behind the latest stamp before): sorted by "
+                                           "their stamps")
 
 
 # ---------------------------------------------------------------------------------------- repeated rows

@@ -150,7 +150,7 @@ def tool_lines(report: dict) -> list[str]:
             point = len(tool["parameters"]) == 4  # mass and centre of mass: the payloads' four values
             lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
-                         + (f"; every {_ordinal(report['stride'])} sample (long recordings)"
+                         + (f"; every {ordinal(report['stride'])} sample (long recordings)"
                             if report.get("stride", 1) > 1 else "")
                          + ("; a point mass: a tool's own inertia, which four values leave out, shifts its centre of "
                             "mass (to identify it, name ten payload values in the import config, parameters: names: "
@@ -158,7 +158,7 @@ def tool_lines(report: dict) -> list[str]:
     return lines
 
 
-def _ordinal(k: int) -> str:
+def ordinal(k: int) -> str:
     """``2`` -> ``2nd``, ``11`` -> ``11th``, ``23`` -> ``23rd``."""
     suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
     return f"{k}{suffix}"

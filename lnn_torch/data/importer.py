@@ -125,7 +125,9 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     records, lines_of, timing, infos = _read(files, spec, system.dof)
     dt = _interval(files, timing, spec.dt)
     resampled = [resample(raw, dt) for raw in records]
-    delay, applied = _delay(system, spec, stems, resampled, param_table, decl, dt)
+    # the delay's fit reads each recording's longest stretch clear of gaps beyond max_gap (no interpolated stretch)
+    clear = [_longest_clear(r, tm, float(raw[0, 0]), dt) for r, tm, raw in zip(resampled, timing, records, strict=True)]
+    delay, applied = _delay(system, spec, stems, clear, param_table, decl, dt)
     if applied:  # the inputs shifted on the recorded stamps, then every column resampled again
         for i, f in enumerate(files):
             records[i], lines_of[i] = shift_inputs(records[i], lines_of[i], system.num_inputs, applied)
@@ -181,11 +183,15 @@ def _read(files: list[Path], spec: ImportSpec, dof: int) -> tuple[list, list, li
         try:
             timing.append(_checked_time(f, raw[:, 0], spec.max_gap, lines, bool(info.get("format"))))
         except InputError as err:
-            if not duplicates.any() or drop:
+            back = np.nonzero(np.diff(raw[:, 0]) <= 0)[0]  # the row refused: an exact duplicate of the one before?
+            if drop or not back.size or not duplicates[back[0] + 1]:
                 raise
             n = int(duplicates.sum())
-            raise InputError(f"{err} ({n} row{'s' if n > 1 else ''} repeat the one before in every value, the time "
-                             "too: repeated_rows: drop, or --repeated-rows drop, leaves them out)") from None
+            what = "message" if info.get("format") else "row"
+            raise InputError(f"{err} (an exact duplicate of the {what} before, as are {n - 1} more: repeated_rows: "
+                             "drop, or --repeated-rows drop, leaves them out)" if n > 1 else
+                             f"{err} (an exact duplicate of the {what} before: repeated_rows: drop, or "
+                             "--repeated-rows drop, leaves it out)") from None
         records.append(raw)
         lines_of.append(lines)
         infos.append(info)
@@ -239,25 +245,52 @@ def _gaps_in_use(files, timing, records, entries, pieces, windows, dt: float) ->
     in use comes from it)."""
     out_pieces, out_windows = [], []
     for (i, start, end, name), (_, lo, hi), (wa, wb) in zip(entries, pieces, windows, strict=True):
-        t0 = float(records[i][0, 0])
         a, b = lo + wa, lo + wb  # the window, in samples of the recording
-        for before, after, line in timing[i].get("long_gaps", []):
-            if t0 + a * dt < after and t0 + (b - 1) * dt > before:
+        for first, last, before, after, line in gap_samples(timing[i], float(records[i][0, 0]), dt):
+            if a < last and b - 1 > first:  # a sample of the window inside the gap
                 at = "message" if timing[i].get("bag") else "line"
-                where = (f"split the recording there with windows, e.g. {name}[0:{before - t0:.4g}] and "
-                         f"{name}[{after - t0:.4g}:]" if start is None and end is None else
-                         f"the window {name!r} crosses it: end it by {before - t0:.4g} s or start it from "
-                         f"{after - t0:.4g} s")
-                raise InputError(f"{files[i]}: {at} {line}: a gap of {after - before:.4g} s after t = {before:.6g} s "
-                                 f"exceeds max_gap {timing[i]['max_gap_s']:.4g} s: too long to interpolate across; "
-                                 f"{where} (s from the recording's first sample), or raise max_gap")
-            if t0 + (b - 1) * dt <= before:  # the gap after the window: the context stops at it
-                hi = min(hi, int(np.floor((before - t0) / dt + 1e-9)) + 1)
+                end_by, start_from = _seconds(first * dt, dt), _seconds(last * dt, dt)
+                where = (f"split the recording there with windows, e.g. {name}[0:{end_by}] and {name}[{start_from}:]"
+                         if start is None and end is None else
+                         f"the window {name!r} crosses it: end it by {end_by} s or start it from {start_from} s")
+                raise InputError(f"{files[i]}: {at} {line}: a gap of {after - before:.4g} s after t = "
+                                 f"{before:.6g} s exceeds max_gap {timing[i]['max_gap_s']:.4g} s: too long to "
+                                 f"interpolate across; {where} (s from the recording's first sample), or raise max_gap")
+            if b - 1 <= first:  # the gap after the window: the context stops at it
+                hi = min(hi, first + 1)
             else:  # before the window
-                lo = max(lo, int(np.ceil((after - t0) / dt - 1e-9)))
+                lo = max(lo, last)
         out_pieces.append((i, lo, hi))
         out_windows.append((a - lo, b - lo))
     return out_pieces, out_windows
+
+
+def gap_samples(timing: dict, t0: float, dt: float) -> list[tuple[int, int, float, float, int]]:
+    """The recording's gaps beyond ``max_gap`` (``timing["long_gaps"]``) on its resampled grid ``t0 + k dt``:
+    ``(first, last, t before, t after, line)`` each, ``first`` the last sample at or before the gap's start and ``last``
+    the first at or after its end (the samples between are interpolated). A thousandth of a sample of slack:
+    epoch time stamps carry rounding of that order."""
+    out = []
+    for before, after, line in timing.get("long_gaps", []):
+        first = int(np.floor((before - t0) / dt + 1e-3))
+        last = int(np.ceil((after - t0) / dt - 1e-3))
+        out.append((first, last, before, after, line))
+    return out
+
+
+def _longest_clear(resampled: np.ndarray, timing: dict, t0: float, dt: float) -> np.ndarray:
+    """The longest stretch of a resampled recording that crosses no gap beyond ``max_gap`` (the whole recording
+    where it has none)."""
+    cuts = [(0, 0)] + [(first + 1, last) for first, last, *_ in gap_samples(timing, t0, dt)] + [(len(resampled),) * 2]
+    spans = [(cuts[k][1], cuts[k + 1][0]) for k in range(len(cuts) - 1)]
+    lo, hi = max(spans, key=lambda s: s[1] - s[0])
+    return resampled[lo:hi]
+
+
+def _seconds(x: float, dt: float) -> str:
+    """``x`` s on a grid of ``dt`` s, written with the decimals that grid needs (a window bound that holds)."""
+    decimals = max(0, int(np.ceil(-np.log10(dt) - 1e-9))) + 1
+    return f"{x:.{decimals}f}".rstrip("0").rstrip(".")
 
 
 def _torque_delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, dt: float) -> dict:

@@ -365,7 +365,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         if not targets or not targets.get("use_measured_velocity"):
             return None
         with f.open() as h:
-            if "qdd" in h or "qd" not in h or np.isfinite(h["qd"][0]).any():
+            if "qdd" in h or ("qd" in h and np.isfinite(h["qd"][:]).any()):
                 return None
         return (f"note: {f.path} has no measured velocities: the targets differentiate the positions (twice) "
                 f"instead ({derivatives.describe({**targets, 'use_measured_velocity': False})})")

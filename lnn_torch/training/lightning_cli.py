@@ -119,13 +119,13 @@ def quiet_third_parties() -> None:
 
 
 def data_options(argv: list[str]) -> list[str]:
-    """The ``--data.*`` options of a command line, each as one ``--data.NAME=VALUE`` (quoted for a shell where
-    needed)."""
+    """The ``--data`` and ``--data.*`` options of a command line (a data config file, single settings), each as one
+    ``--data[.NAME]=VALUE`` (quoted for a shell where needed)."""
     import shlex
 
     out = []
     for i, arg in enumerate(argv):
-        if not arg.startswith("--data."):
+        if not (arg.startswith("--data.") or arg == "--data" or arg.startswith("--data=")):
             continue
         if "=" in arg:
             name, value = arg.split("=", 1)

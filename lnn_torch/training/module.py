@@ -233,6 +233,7 @@ class LNNModule(L.LightningModule):
 
     def _start_from_classical(self, dm) -> None:
         """``classical_start`` (the class docstring): the fit written into the model, reported in a line."""
+        from ..data.import_tools import ordinal
         from ..identification.classical_start import STRIDE, can_start, start_from_classical
 
         wanted = self.hparams.get("classical_start", "auto")
@@ -250,7 +251,7 @@ class LNNModule(L.LightningModule):
         val = dm.trajectories("val") if "val" in dm.split_names() else None
         train = dm.trajectories("train")
         points = int(train.lengths.sum()) if train.lengths is not None else len(train) * train.num_points
-        every = "every sample" if STRIDE == 1 else f"every {STRIDE}{'nd' if STRIDE == 2 else 'th'} sample"
+        every = "every sample" if STRIDE == 1 else f"every {ordinal(STRIDE)} sample"
         print(f"classical start: least squares on {every} of {points} training samples"
               + (", its settings chosen on the validation split" if val is not None else "")
               + " (seconds to minutes for long recordings) ...", flush=True)
