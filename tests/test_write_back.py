@@ -211,8 +211,16 @@ def test_mujoco_from_the_written_urdf_is_the_grey_box(tmp_path, float64):
                                   if j.find("origin") is not None]
     assert joint_origins(written) == joint_origins(original)
     assert result.path.read_text().startswith('<?xml version="1.0"?>\n<!-- a two-link arm -->\n<robot name="two">')
-    with pytest.raises(InputError, match="is URDF; write it back as urdf"):
-        wb.write_description(model, tmp_path / "two.xml", "mjcf")
+    # as MJCF: MuJoCo's own conversion of the URDF write-back with the armature set, the model's rigid body as it is
+    mjcf = wb.write_description(model, tmp_path / "out" / "two_identified.xml", "mjcf", payload=PAYLOAD)
+    assert mjcf.format == "mjcf" and not [u for u in mjcf.unexpressed if u.startswith("armature")]
+    converted = MujocoArm(str(mjcf.path))
+    errors = _compare(model, converted, torch.tensor(PAYLOAD)[None])
+    print("urdf as mjcf", errors)
+    assert max(errors.values()) < BOUND, errors
+    assert json.loads(mjcf.sidecar.read_text())["format"] == "mjcf"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["two_identified.urdf", "two_identified.urdf.json",
+                                                                    "two_identified.xml", "two_identified.xml.json"]
 
 
 def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, float64):

@@ -30,8 +30,9 @@ inertias, joint armature, damping and friction loss (and ``--payload``, the load
 ``--tool DATA NAME``, a tool as an import identified it), nothing else changed; MuJoCo loaded from it
 has the model's rigid-body dynamics. What the format cannot express
 (Coulomb smoothing, friction offset, Stribeck, a learned residual, URDF's armature) is printed and
-kept in ``OUT.json`` beside it (``lnn_torch.export.description``). ``-o`` names the file (``.xml``,
-``.urdf``) or a folder:
+kept in ``OUT.json`` beside it (``lnn_torch.export.description``). A URDF-described arm written as ``mjcf``
+is its URDF write-back converted by MuJoCo, with the armature. ``-o`` names the file (``.xml``, ``.urdf``) or a
+folder:
 
     lnn-torch export lightning_logs/version_0/checkpoints/last.ckpt --format mjcf -o panda_identified.xml
 """

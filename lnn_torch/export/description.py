@@ -41,6 +41,11 @@ gains or matrix, and, in URDF, the armature. The written file is compiled by MuJ
 and must give the identified chain (its geometry unchanged, every link's ``J`` to 1e-9, armature,
 damping and friction loss): else ``InputError`` and nothing is written.
 
+A URDF-described arm written as MJCF (``format="mjcf"``) is its URDF write-back converted by MuJoCo's own URDF
+importer (``_urdf_as_mjcf``): static bodies kept, the armature set, every body frame, inertial and joint value
+rewritten in full from the compiled model (``MjSpec.to_xml`` writes six digits), mesh files not found here left
+out (noted), then checked as above.
+
 Sources: an ``LNNModule`` or network whose kinetic part is ``spatial`` (the grey box; its kinetic
 ``eps`` on the diagonal is folded into the armature, exact), or a classical ``ArmModel`` with full
 parameters (``pi``; give its ``description``).
@@ -861,6 +866,91 @@ def _write_urdf(ident: IdentifiedArm, plan: dict, text: str, src: Path, out: Pat
     return root
 
 
+def _urdf_as_mjcf(source, path: Path, ident: IdentifiedArm, *, payload, description, overwrite: bool,
+                  check: bool) -> WriteBack:
+    """The write-back of a URDF-described arm as MJCF: the URDF write-back (beside ``path``, removed after), read by
+    MuJoCo's URDF importer (static bodies kept, the mesh files not found here left out), each joint's armature set
+    (URDF has no element for it), saved as MJCF and checked as any write-back is."""
+    import mujoco
+
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (--overwrite replaces it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    urdf = path.with_name(f".{path.stem}.writing.urdf")
+    temp = path.with_name(f".{path.stem}.writing.xml")
+    try:
+        back = write_description(source, urdf, "urdf", payload=payload, description=description, check=check)
+        spec = mujoco.MjSpec.from_file(str(urdf))
+        spec.compiler.fusestatic = False
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            dropped = drop_missing_meshes(spec, urdf)
+        for name, value in zip(ident.joint_names, ident.armature, strict=True):
+            spec.joint(name).armature = float(value)
+        try:
+            model = spec.compile()
+            root = ET.fromstring(spec.to_xml())
+        except ValueError as err:
+            raise InputError(f"write-back as mjcf: MuJoCo cannot convert the URDF write-back ({err})") from None
+        _exact_frames(root, model)
+        head = ET.Comment(f" {ident.what}: identified by lnn_torch from {ident.description.path.name} (URDF), "
+                          f"converted to MJCF by MuJoCo {mujoco.__version__}; what MJCF cannot express: "
+                          f"{path.name}.json ")
+        root.insert(0, head)
+        ET.indent(root)
+        temp.write_text(ET.tostring(root, encoding="unicode") + "\n")
+        rel = _check_written(temp, ident, "mjcf") if check else None
+        os.replace(temp, path)
+        record = json.loads(back.sidecar.read_text())
+        unexpressed = [u for u in record["not_expressed"] if u["term"] != "armature"]
+        notes = [n for n in back.notes if "the description names are not found here" not in n]  # (URDF's own)
+        notes.append("converted from the URDF write-back by MuJoCo's URDF importer: bodies, joints and inertials as "
+                     "MuJoCo reads the URDF, each joint's armature set")
+        if dropped:
+            more = ", ..." if len(dropped) > 1 else ""
+            notes.append(f"{len(dropped)} mesh file(s) not found here ({dropped[0]}{more}): their geoms are left out "
+                         "of the MJCF (the dynamics do not depend on them)")
+        record.update({"written": path.name, "format": "mjcf", "not_expressed": unexpressed, "notes": notes,
+                       "check": None if rel is None else {"largest_relative_difference": rel, "bound": CHECK_RTOL}})
+        sidecar = path.with_name(path.name + ".json")
+        sidecar.write_text(json.dumps(record, indent=1) + "\n")
+        return WriteBack(path, sidecar, "mjcf", [_line(u) for u in unexpressed], notes, back.values)
+    finally:
+        for leftover in (urdf, urdf.with_name(urdf.name + ".json"), temp):
+            leftover.unlink(missing_ok=True)
+
+
+def _exact_frames(root, model) -> None:
+    """Every body's frame, inertial and joint of the MJCF ``root`` (MuJoCo's ``to_xml``, which writes six digits)
+    written in full from the compiled ``model`` it was saved from."""
+    import mujoco
+
+    for body in root.iter("body"):
+        b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body.get("name", ""))
+        if b < 0:
+            continue
+        for key in ("euler", "axisangle", "xyaxes", "zaxis"):
+            body.attrib.pop(key, None)
+        body.set("pos", _nums(model.body_pos[b]))
+        body.set("quat", _nums(model.body_quat[b]))
+        inertial = body.find("inertial")
+        if inertial is not None:
+            inertial.attrib.pop("fullinertia", None)
+            inertial.set("pos", _nums(model.body_ipos[b]))
+            inertial.set("quat", _nums(model.body_iquat[b]))
+            inertial.set("mass", _num(model.body_mass[b]))
+            inertial.set("diaginertia", _nums(model.body_inertia[b]))
+        for joint in body.findall("joint"):
+            j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint.get("name", ""))
+            if j >= 0:
+                d = int(model.jnt_dofadr[j])
+                joint.set("pos", _nums(model.jnt_pos[j]))
+                joint.set("axis", _nums(model.jnt_axis[j]))
+                for key, values in (("armature", model.dof_armature), ("damping", model.dof_damping),
+                                    ("frictionloss", model.dof_frictionloss)):
+                    joint.set(key, _num(values[d]))
+
+
 # ---------------------------------------------------------------------------- the check
 def _compile_file(path: Path):
     import mujoco
@@ -973,6 +1063,9 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     src = desc.path
     text = src.read_text()
     kind = "urdf" if _parse(text).tag == "robot" else "mjcf"
+    if kind == "urdf" and fmt == "mjcf":  # through the URDF write-back, converted by MuJoCo (armature added)
+        return _urdf_as_mjcf(source, path, ident, payload=payload, description=description, overwrite=overwrite,
+                             check=check)
     if kind != fmt:
         raise InputError(f"write-back as {fmt}: the robot description {src.name} is {kind.upper()}; write it back as "
                          f"{kind} (--format {kind})")
