@@ -192,3 +192,28 @@ def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
     torch.testing.assert_close(again.forces.input_gains(), k)
     with pytest.raises(ValueError, match="learn_input_matrix must be"):
         build_model("film_lnn", system, learn_input_matrix="diagonal")
+
+
+def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its_own(tmp_path, capsys):
+    """Validation windows of the training recording (one trajectory split in time) cannot judge a force of the
+    state: the model's force residual stays zero and frozen, and a line says why; validation recordings of their
+    own leave it to be learned."""
+    from lnn_torch.training import LNNModule, TrajectoryDataModule
+
+    t = np.arange(0, 4, 0.002)
+    one = write_csv(tmp_path / "one.csv", signals(t))
+    two = write_csv(tmp_path / "two.csv", signals(t, phase=0.5))
+    windows = import_recordings([one], tmp_path / "w.h5", spec(split={"train": ["one[0:3]"], "val": ["one[3:]"],
+                                                                      "test": []}))
+    own = import_recordings([one, two], tmp_path / "r.h5", spec(split={"train": ["one"], "val": ["two"], "test": []}))
+    for path, shared in ((windows, ["one"]), (own, [])):
+        dm = TrajectoryDataModule(path=str(path))
+        assert dm.shared_recordings() == shared
+        scene, config = dm.model_scene()
+        module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}})
+        module._judge_residual(dm)
+        trainable = {p.requires_grad for p in module.model.forces.residual.parameters()}
+        assert trainable == ({False} if shared else {True})
+        printed = capsys.readouterr().out
+        assert ("force residual: left out (zero): the validation windows come from the training recordings (one)"
+                in printed) == bool(shared), printed

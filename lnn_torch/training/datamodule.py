@@ -298,6 +298,17 @@ class TrajectoryDataModule(L.LightningDataModule):
             self._sources[key] = _Source(f, f.splits[split], self.hparams.in_memory, dtype, self.targets, smooth)
         return self._sources[key]
 
+    def shared_recordings(self, first: str = "train", second: str = "val") -> list[str]:
+        """The recordings that both splits take time windows of (an import's ``provenance`` entries); none where
+        the splits hold whole recordings (or a generated dataset's trajectories) of their own."""
+        f = self._open()
+        provenance = json.loads(f.attrs.get("provenance", "{}") or "{}")
+        entries = provenance.get("entries") or []
+        if not entries or first not in f.splits or second not in f.splits:
+            return []
+        of = lambda split: {entries[int(i)]["recording"] for i in f.splits[split] if int(i) < len(entries)}  # noqa: E731
+        return sorted(of(first) & of(second))
+
     def split_names(self) -> list[str]:
         """The splits the dataset file holds with at least one entry (``train``, ``val``, ``test``...)."""
         return [name for name, entries in self._open().splits.items() if len(entries)]
