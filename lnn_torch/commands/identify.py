@@ -296,7 +296,7 @@ def _identify_arm(module, args) -> int:
     return 0
 
 
-def _tools_on_split(module, f, dm, split: str) -> dict | None:
+def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tensor | None]:
     """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
     ``identification.payload.identify_tools``): the load a new recording carries. ``f``: the dataset file
