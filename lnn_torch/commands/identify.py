@@ -27,7 +27,6 @@ coordinate, optionally velocities and inputs; lines starting with ``#`` are comm
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -258,10 +257,7 @@ def _identify_arm(module, args) -> int:
         data = dm.trajectories(args.split)
         # a load the import left unknown: the model carries it as identified against the model itself (the
         # import's estimate is against the classical arm, or the description where every recording carries it)
-        own = data if loads is None else dataclasses.replace(data, params=loads)
-        result = compare_on_arm(module.model, module.system, own, {}, descriptions={})
-        rest = compare_on_arm(None, module.system, data, fits)
-        result = {**rest, "rows": {**result["rows"], **rest["rows"]}}
+        result = compare_on_arm(module.model, module.system, data, fits, model_params=loads)
         if args.feedback:
             predictors = {module.model.variant: model_torque(module.model),
                           **{label: classical_torque(fit) for label, fit in fits.items()}}
@@ -270,11 +266,8 @@ def _identify_arm(module, args) -> int:
         recordings = json.loads(f.attrs.get("recordings", "[]"))
         indices = data.index.tolist() if data.index is not None else list(range(len(data)))
         names = [recordings[i] if i < len(recordings) else f"trajectory {i}" for i in map(int, indices)]
-        by_recording = None
-        if len(names) > 1:
-            mine = per_recording(module.model, module.system, own, {}, names, descriptions={})
-            theirs = per_recording(None, module.system, data, fits, names)
-            by_recording = {name: {**mine[name], **theirs[name]} for name in names}
+        by_recording = (per_recording(module.model, module.system, data, fits, names, model_params=loads)
+                        if len(names) > 1 else None)
         result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, **result,
                   "per_recording": by_recording,
                   "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module), "tools": tools}

@@ -164,6 +164,11 @@ def slow_sampling_note(provenance: dict) -> str | None:
             "or ns, set time_units (--time-units)")
 
 
+def _listed(first: list, count: int) -> str:
+    """The first message or line numbers of ``count``, ``...`` where there are more."""
+    return ", ".join(str(x) for x in first) + (", ..." if count > len(first) else "")
+
+
 def source_lines(provenance: dict) -> list[str]:
     """One line per bag read (format, topic, messages, the time's source) and per recording with repeated
     rows (how many, dropped or kept)."""
@@ -174,8 +179,7 @@ def source_lines(provenance: dict) -> list[str]:
             lines.append(f"{src['file']}: {src['format']}, topic {src['topic']} ({src['type']}), {src['messages']} "
                          f"messages, time from {src['time']}{ignored}")
             for what, left in (src.get("skipped") or {}).items():
-                count, first = left["count"], ", ".join(str(x) for x in left["first"])
-                first += ", ..." if count > len(left["first"]) else ""
+                count, first = left["count"], _listed(left["first"], left["count"])
                 kind = {"other publisher": f"of another publisher (none of the joints read; theirs: "
                                            f"{', '.join(left.get('joints', []))})",
                         "zero header stamp": "with a zero header stamp (a driver that published before its clock "
@@ -186,7 +190,7 @@ def source_lines(provenance: dict) -> list[str]:
         rep = src.get("repeated_rows") or {}
         if rep.get("count"):
             at = ("message" if src.get("format") else "line") + ("s" if rep["count"] > 1 else "")
-            first = ", ".join(str(x) for x in rep["first"]) + (", ..." if rep["count"] > len(rep["first"]) else "")
+            first = _listed(rep["first"], rep["count"])
             what = "dropped" if rep["dropped"] else "kept (repeated_rows: drop drops them)"
             rows = f"{rep['count']} repeated row{'s' if rep['count'] > 1 else ''}"
             dup = rep.get("duplicates", 0)

@@ -137,7 +137,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
         resampled = [resample(raw, dt) for raw in records]
     entries, splits = split_entries(stems, spec.split, spec.seed, [len(r) * dt for r in resampled])
     pieces, windows = _pieces(entries, resampled, records, stems, dt, int(round(spec.window_context / dt)))
-    pieces, windows = _gaps_in_use(files, timing, records, entries, pieces, windows, dt)
+    pieces, windows = _gaps_in_use(files, timing, records, entries, pieces, windows, dt, bags)
     arrays = _arrays(system, spec, resampled, pieces, windows, param_table, dt)
     tools = spec.tools(stems)
     tools_report = None
@@ -229,16 +229,14 @@ def _checked_time(path: Path, t: np.ndarray, max_gap, lines: np.ndarray, bag: bo
     """``resampling.checked_time``, the gaps beyond ``max_gap`` listed (``_gaps_in_use`` refuses those the dataset's
     windows use); a bag's refusals name its message (its ``lines``) rather than a line."""
     try:
-        timing = checked_time(path, t, max_gap, lines)
+        return checked_time(path, t, max_gap, lines)
     except InputError as err:
         if not bag:
             raise
         raise InputError(str(err).replace(f"{path}: line ", f"{path}: message ", 1)) from None
-    timing["bag"] = bag
-    return timing
 
 
-def _gaps_in_use(files, timing, records, entries, pieces, windows, dt: float) -> tuple[list, list]:
+def _gaps_in_use(files, timing, records, entries, pieces, windows, dt: float, bags) -> tuple[list, list]:
     """The entries' spans and windows (``_pieces``) clear of the gaps beyond ``max_gap``: a gap a window crosses is
     refused, naming the window and the times it must end by or start from; the filters' context beside a window
     ends at a gap (as at a recording's end); a gap no span reaches is interpolated across like any other (no data
@@ -248,7 +246,7 @@ def _gaps_in_use(files, timing, records, entries, pieces, windows, dt: float) ->
         a, b = lo + wa, lo + wb  # the window, in samples of the recording
         for first, last, before, after, line in gap_samples(timing[i], float(records[i][0, 0]), dt):
             if a < last and b - 1 > first:  # a sample of the window inside the gap
-                at = "message" if timing[i].get("bag") else "line"
+                at = "message" if bags[i] else "line"
                 end_by, start_from = _seconds(first * dt, dt), _seconds(last * dt, dt)
                 where = (f"split the recording there with windows, e.g. {name}[0:{end_by}] and {name}[{start_from}:]"
                          if start is None and end is None else

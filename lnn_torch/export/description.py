@@ -879,7 +879,8 @@ def _urdf_as_mjcf(source, path: Path, ident: IdentifiedArm, *, payload, descript
     urdf = path.with_name(f".{path.stem}.writing.urdf")
     temp = path.with_name(f".{path.stem}.writing.xml")
     try:
-        back = write_description(source, urdf, "urdf", payload=payload, description=description, check=check)
+        # (the converted file is the one checked, below)
+        back = write_description(source, urdf, "urdf", payload=payload, description=description, check=False)
         spec = mujoco.MjSpec.from_file(str(urdf))
         spec.compiler.fusestatic = False
         with warnings.catch_warnings():

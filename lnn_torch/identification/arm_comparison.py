@@ -155,25 +155,27 @@ def model_forward(model):
 
 
 def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = None,
-                   open_loop_limit: float | None = None) -> dict:
+                   open_loop_limit: float | None = None, model_params: torch.Tensor | None = None) -> dict:
     """Torque errors (``torque_errors``) on ``data`` of ``model`` (its inverse dynamics; None: left out),
     of the classical ``fits`` (``fit_classical``) and of ``descriptions`` (``{label: ArmModel}``; default:
     the scene's description as written); with ``open_loop_limit`` (s) each row's ``open_loop`` times
-    too (``open_loop``: driven by the measured torques, censored at that limit)."""
+    too (``open_loop``: driven by the measured torques, censored at that limit). ``model_params``: the model's
+    own parameters per trajectory ``(B, P)`` in place of ``data``'s (loads identified against it)."""
     names = list(system.coord_names)
     q, qd, qdd, tau, params = points(data)
     rows = {}
 
-    def with_open_loop(row, forward):
+    def with_open_loop(row, forward, data=data):
         if open_loop_limit is not None:
             row["open_loop"] = open_loop(forward, data, limit=open_loop_limit)
         return row
 
     if model is not None:
-        pred = model_torque(model)(q, qd, qdd, params)
+        own = data if model_params is None else replace(data, params=model_params)
+        pred = model_torque(model)(q, qd, qdd, params if model_params is None else points(own)[4])
         with torch.no_grad(), counting_failures(model):
             rows[getattr(model, "variant", "model")] = with_open_loop(torque_errors(pred, tau, names),
-                                                                      model_forward(model))
+                                                                      model_forward(model), own)
     for label, fit in fits.items():
         rows[label] = with_open_loop({**torque_errors(fit.inverse(q, qd, qdd, params), tau, names),
                                       "fit_seconds": fit.info.get("fit_seconds")},
@@ -188,13 +190,13 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
             "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 
 
-def per_recording(model, system, data, fits: dict, names, descriptions: dict | None = None) -> dict:
+def per_recording(model, system, data, fits: dict, names, model_params: torch.Tensor | None = None) -> dict:
     """``{name: {label: mean joint-torque RMS (N m)}}``: ``compare_on_arm``'s means on each trajectory of ``data``
     alone (``names``: one per trajectory, e.g. the dataset's recordings), the description as written included
-    (``descriptions`` as ``compare_on_arm``'s)."""
+    (``model_params`` as ``compare_on_arm``'s)."""
     return {name: {label: row["rms_mean"] for label, row in
                    compare_on_arm(model, system, data._map(lambda x, j=j: x[j:j + 1]), fits,
-                                  descriptions)["rows"].items()}
+                                  model_params=None if model_params is None else model_params[j:j + 1])["rows"].items()}
             for j, name in enumerate(names)}
 
 

@@ -362,22 +362,21 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
                                           self.hparams.chunks_per_batch, self.hparams.steps_per_epoch,
                                           self.hparams.seed)
-            note = self._velocity_note(f)
+            note = self._velocity_note(f, self.source("train"))
             if note:
                 print(note)
         for split in ("val", "test"):
             if len(f.splits[split]) == 0 and stage in (("test",) if split == "test" else ("validate", "fit")):
                 raise ValueError(f"{self.path} has an empty '{split}' split")
 
-    def _velocity_note(self, f) -> str | None:
-        """A line where the targets are to take measured velocities (``use_measured_velocity``) and the file
-        has none (a recording imported without them): the positions are differentiated instead."""
+    def _velocity_note(self, f, train: _Source) -> str | None:
+        """A line where the targets are to take measured velocities (``use_measured_velocity``) and the training
+        recordings (``train``, read with them) have none: the positions are differentiated instead."""
         targets = self.targets
         if not targets or not targets.get("use_measured_velocity"):
             return None
-        with f.open() as h:
-            if "qdd" in h or ("qd" in h and np.isfinite(h["qd"][:]).any()):
-                return None
+        if train.recorded_qd is not None and torch.isfinite(train.recorded_qd).any():
+            return None
         return (f"note: {f.path} has no measured velocities: the targets differentiate the positions (twice) "
                 f"instead ({derivatives.describe({**targets, 'use_measured_velocity': False})})")
 

@@ -14,7 +14,10 @@ from .module import LNNModule
 
 
 class LNNCLI(LightningCLI):
-    args_given: list[str] | None = None  # the command line run_cli was given (None: sys.argv[1:])
+    def parse_arguments(self, parser, args) -> None:
+        """LightningCLI's parse, the command line kept (``before_fit`` reads its ``--data`` options)."""
+        self.argv = list(sys.argv[1:] if args is None else args) if not isinstance(args, dict) else []
+        super().parse_arguments(parser, args)
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data", "model.scene", apply_on="instantiate", compute_fn=lambda dm: dm.model_scene()[0])
@@ -46,7 +49,7 @@ class LNNCLI(LightningCLI):
         for cb in self.trainer.callbacks:
             if type(cb).__name__ == "FitSummary":
                 cb.config_paths = paths
-                cb.data_options = data_options(sys.argv[1:] if self.args_given is None else self.args_given)
+                cb.data_options = data_options(self.argv)
 
 
 TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
@@ -141,7 +144,6 @@ def run_cli(argv: list[str]) -> LNNCLI:
     quiet_third_parties()
     # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
     args = None if argv == sys.argv[1:] else argv
-    LNNCLI.args_given = args
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
                   save_config_kwargs={"overwrite": True}, seed_everything_default=0)
 
