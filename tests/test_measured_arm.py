@@ -271,9 +271,10 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     """A new loaded log, split in time so that the classical fits have a training window, and a grey box that
     conditions on the payload (the description's, untrained): the import identifies the load against the
     description as written (every window carries it), ``identify`` against the model; the model's row is its
-    error with the load identified against it, the classical rows use the dataset's."""
+    error with the load identified against it, the classical rows use the dataset's; so is its row with the
+    robot's velocity feedback (``--feedback``)."""
     from lnn_torch.data.importer import ImportSpec, import_recordings
-    from lnn_torch.identification.arm_comparison import model_torque, points
+    from lnn_torch.identification.arm_comparison import feedback_rows, model_torque, points
     from lnn_torch.training import LNNModule
     from lnn_torch.training.datamodule import TrajectoryDataModule
 
@@ -285,7 +286,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
                       velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
                       coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
                       label="synthetic_panda", parameters={"values": {"new": "load"}, "tools": {"load": {}}},
-                      split={"train": ["new[0:2.0]"], "val": [], "test": ["new[2.5:]"]})
+                      split={"train": ["new[0:2.0]"], "val": ["new[2.0:2.5]"], "test": ["new[2.5:]"]})
     data = import_recordings([csv], tmp_path / "new.h5", spec)
     targets = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
     dm = TrajectoryDataModule(path=str(data), targets=targets)
@@ -298,7 +299,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     raw = torch.load(ckpt, weights_only=False)
     raw["datamodule_hyper_parameters"] = {"path": str(data), "targets": targets}
     torch.save(raw, ckpt)
-    assert main(["identify", ckpt, str(data), "-o", str(tmp_path / "id")]) == 0
+    assert main(["identify", ckpt, str(data), "--feedback", "-o", str(tmp_path / "id")]) == 0
     printed = capsys.readouterr().out
     assert "the model carries the loads the import left unknown as identified against it" in printed
     result = json.loads((tmp_path / "id" / "identification.json").read_text())
@@ -312,4 +313,9 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
 
     mine, dataset = mean_rms(own.expand(len(q), -1)), mean_rms(params)
     got = result["rows"]["film_lnn"]["rms_mean"]  # (identify runs the model in its own float32)
+    assert abs(got - mine) < 1e-4 * mine and abs(got - dataset) > 1e-3 * dataset, (got, mine, dataset)
+    names = result["joints"]
+    mine, dataset = (feedback_rows(dm, {"m": model_torque(model)}, names, split_params=loads)["m + velocity feedback"]
+                     ["rms_mean"] for loads in ({"m": own}, None))
+    got = result["rows"]["film_lnn + velocity feedback"]["rms_mean"]
     assert abs(got - mine) < 1e-4 * mine and abs(got - dataset) > 1e-3 * dataset, (got, mine, dataset)

@@ -261,7 +261,9 @@ def _identify_arm(module, args) -> int:
         if args.feedback:
             predictors = {module.model.variant: model_torque(module.model),
                           **{label: classical_torque(fit) for label, fit in fits.items()}}
-            result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split))
+            result["rows"].update(feedback_rows(dm, predictors, result["joints"], args.split,
+                                                split_params=None if loads is None else
+                                                {module.model.variant: loads}))
         ordinary = next(fit for fit in fits.values() if fit.method == "least squares")
         recordings = json.loads(f.attrs.get("recordings", "[]"))
         indices = data.index.tolist() if data.index is not None else list(range(len(data)))

@@ -235,23 +235,28 @@ def feedback_band(datamodule, split: str) -> torch.Tensor:
     return velocity_feedback.band(points(recorded)[1], points(data)[1])
 
 
-def feedback_rows(datamodule, predictors: dict, names, split: str = "test") -> dict:
+def feedback_rows(datamodule, predictors: dict, names, split: str = "test", split_params: dict | None = None) -> dict:
     """Rows ``LABEL + velocity feedback`` (``torque_errors`` on ``split``, with ``val_rms_mean`` and the
     ``feedback`` gains): each predictor ``(q, qd, qdd, params) -> torque`` (``model_torque``,
     ``classical_torque``) with the robot's feedback on its measured velocity
     (``lnn_torch.identification.velocity_feedback``)
     fitted on its training-split error and kept where the validation split prefers it (so a row's
     ``val_rms_mean`` is on the split that chose its gains). No open loop: the feedback is not a force of
-    the state. Needs estimated targets and recorded velocities."""
+    the state. Needs estimated targets and recorded velocities. ``split_params``: ``{label: (B, P)}``, the
+    parameters per trajectory of ``split`` that predictor runs with there in place of the dataset's (a model's
+    loads identified against it, as ``compare_on_arm``'s ``model_params``)."""
     from . import velocity_feedback
 
     # the recorded torques (never smoothed: the band the gains are fitted to is above the smoothing)
-    splits = {s: points(datamodule.trajectories(s, smooth_inputs=False))
-              for s in dict.fromkeys(("train", "val", split))}
+    data = {s: datamodule.trajectories(s, smooth_inputs=False) for s in dict.fromkeys(("train", "val", split))}
+    splits = {s: points(d) for s, d in data.items()}
     bands = {s: feedback_band(datamodule, s) for s in splits}
     rows = {}
     for label, torque in predictors.items():
-        error = {s: tau - torque(q, qd, qdd, p) for s, (q, qd, qdd, tau, p) in splits.items()}
+        own = (split_params or {}).get(label)
+        error = {s: tau - torque(q, qd, qdd, p if own is None or s != split else
+                                 points(replace(data[s], params=own))[4])
+                 for s, (q, qd, qdd, tau, p) in splits.items()}
         fb = velocity_feedback.fit(error["train"], bands["train"], error["val"], bands["val"])
         tau = splits[split][3]
         row = torque_errors(tau - error[split] + fb.torque(bands[split]), tau, names)
