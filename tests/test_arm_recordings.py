@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 import torch
 
+from lnn_torch import load_model
 from lnn_torch.data import read_dataset
 from lnn_torch.data.importer import ImportSpec, import_recordings
 from lnn_torch.data.resampling import resampling_report
 from lnn_torch.errors import InputError
 from lnn_torch.training.datamodule import TrajectoryDataModule
 
+from .helpers import quiet_trainer
 from .test_recordings import write_csv
 
 TARGETS = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": False}
@@ -196,8 +198,9 @@ def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
 
 def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its_own(tmp_path, capsys):
     """Validation windows of the training recording (one trajectory split in time) cannot judge a force of the
-    state: the model's force residual stays zero and frozen, and a line says why; validation recordings of their
-    own leave it to be learned."""
+    state: the model is built without its force residual (and saved so), and a line says why; validation
+    recordings of their own leave it to be learned, for ``residual_min_steps`` steps; ``learn_residual`` true or
+    false overrides the judging."""
     from lnn_torch.training import LNNModule, TrajectoryDataModule
 
     t = np.arange(0, 4, 0.002)
@@ -212,8 +215,31 @@ def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its
         scene, config = dm.model_scene()
         module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}})
         module._judge_residual(dm)
-        trainable = {p.requires_grad for p in module.model.forces.residual.parameters()}
-        assert trainable == ({False} if shared else {True})
+        assert (module.model.forces.residual is None) == bool(shared)
+        assert ("residual_force" in module.hparams["model_options"]) != bool(shared)
         printed = capsys.readouterr().out
-        assert ("force residual: left out (zero): the validation windows come from the training recordings (one)"
+        assert ("force residual: left out: the validation windows come from the training recordings (one)"
                 in printed) == bool(shared), printed
+        # a run: residual_min_steps where the residual is learned, the trainer's steps where it is left out; the
+        # checkpoint loads as the model trained (with or without its residual)
+        dm = TrajectoryDataModule(path=str(path), chunk_len=4, chunks_per_batch=4, steps_per_epoch=2,
+                                  targets={"method": "butterworth", "cutoff": 10.0})
+        module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}},
+                           val_rollouts=1, val_rollout_seconds=0.1, figure_every_n_epochs=0, compile=False,
+                           residual_min_steps=4)
+        trainer = quiet_trainer(tmp_path, max_epochs=-1, max_steps=2, logger=False, enable_checkpointing=False)
+        trainer.fit(module, datamodule=dm)
+        assert trainer.global_step == (2 if shared else 4)
+        assert ("4 steps (model.residual_min_steps) instead of 2" in capsys.readouterr().out) != bool(shared)
+        trainer.save_checkpoint(tmp_path / "r.ckpt")
+        assert (load_model(str(tmp_path / "r.ckpt")).model.forces.residual is None) == bool(shared)
+    for wanted, path, kept in ((True, windows, True), (False, own, False)):  # learn_residual overrides the judging
+        module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}},
+                           learn_residual=wanted)
+        module._judge_residual(TrajectoryDataModule(path=str(path)))
+        assert (module.model.forces.residual is not None) == kept
+    assert "force residual: left out: model.learn_residual is false" in capsys.readouterr().out
+    with pytest.raises(InputError, match="residual_min_steps must be a positive number"):
+        LNNModule(scene=scene, scene_config=config, residual_min_steps=0)
+    with pytest.raises(InputError, match="learn_residual must be true, false or auto"):
+        LNNModule(scene=scene, scene_config=config, learn_residual="yes")

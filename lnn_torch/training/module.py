@@ -84,6 +84,14 @@ class LNNModule(L.LightningModule):
             validation. ``"auto"`` (default): for every such model on a fresh run; True: required (an
             error where the model or data cannot); False: the description is the start, the last
             state the end.
+        learn_residual: whether a fresh run learns the force residual its ``model_options`` ask for
+            (``residual_force``): ``"auto"`` (default) only where validation can judge it, i.e. where the
+            validation split holds recordings of its own (on windows of the training recordings a force of
+            the state fits the one trajectory on both sides of the split); True: always; False: never. A
+            residual not learned is left out of the model and its checkpoint, and the fit says why.
+        residual_min_steps: the fewest training steps of a run whose force residual is learned: a residual
+            beside a classical start needs more steps than the start's refinement alone (``trainer.max_steps``,
+            which a run without a residual keeps, as one that plans more steps); None: ``trainer.max_steps``.
     """
 
     def __init__(self, scene: str = "double_pendulum", scene_config: dict | None = None, variant: str = "film_lnn",
@@ -97,7 +105,8 @@ class LNNModule(L.LightningModule):
                  val_rollouts: int = 4, val_rollout_seconds: float = 5.0, test_rollouts: int = -1,
                  val_threshold: float = 0.1, figure_every_n_epochs: int = 1, compile: bool | str = "auto",
                  init_from: str | None = None, train_only: str | None = None,
-                 classical_start: bool | str = "auto") -> None:
+                 classical_start: bool | str = "auto", learn_residual: bool | str = "auto",
+                 residual_min_steps: int | None = None) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.system = get_system(scene, **(scene_config or {}))
@@ -119,6 +128,12 @@ class LNNModule(L.LightningModule):
         self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
         if classical_start not in (True, False, "auto"):
             raise InputError(f"classical_start must be true, false or auto, got {classical_start!r}")
+        if learn_residual not in (True, False, "auto"):
+            raise InputError(f"learn_residual must be true, false or auto, got {learn_residual!r}")
+        if residual_min_steps is not None and (isinstance(residual_min_steps, bool)
+                                               or not isinstance(residual_min_steps, int) or residual_min_steps < 1):
+            raise InputError(f"residual_min_steps must be a positive number of steps or null, "
+                             f"got {residual_min_steps!r}")
         # the classical fit the run started from (classical_start) and the state validation chose
         # (callbacks.SelectOnValidation); both travel in the checkpoint
         self.classical_start = self.selection = None
@@ -233,20 +248,36 @@ class LNNModule(L.LightningModule):
         self.data_dt = dm.dt if hasattr(dm, "dt") else self.data_dt
 
     def _judge_residual(self, dm) -> None:
-        """A force residual is learned only where validation can judge it: where the validation windows come from
-        the training recordings (one exciting trajectory split in time), a force of the state fits that trajectory
-        on both sides of the split (the UR10 bag: validation took a local residual, the held-out error rose 22 %),
-        so it stays zero, frozen, and a line says so. Not with ``init_from`` (a residual trained on purpose)."""
-        residual = getattr(getattr(self.model, "forces", None), "residual", None)
-        if residual is None or self.hparams.get("init_from") or not hasattr(dm, "shared_recordings"):
+        """``learn_residual`` (the class docstring): with ``"auto"`` a force residual is learned only where
+        validation can judge it. Where the validation windows come from the training recordings (one exciting
+        trajectory split in time), a force of the state fits that trajectory on both sides of the split (the UR10
+        bag: validation took a local residual, the held-out error rose 22 %), so the model is built without it
+        (its checkpoint as a model without ``residual_force``), and a line says so. Not with ``init_from`` (a
+        residual trained on purpose). A residual that is learned trains at least ``residual_min_steps`` steps."""
+        forces = getattr(self.model, "forces", None)
+        if getattr(forces, "residual", None) is None or self.hparams.get("init_from"):
             return
-        shared = dm.shared_recordings("train", "val")
-        if not shared:
+        wanted = self.hparams.get("learn_residual", "auto")
+        shared = dm.shared_recordings("train", "val") if hasattr(dm, "shared_recordings") else []
+        if wanted is False or (wanted == "auto" and shared):
+            forces.residual = None
+            self.hparams["model_options"] = {k: v for k, v in self.hparams["model_options"].items()
+                                             if k != "residual_force"}
+            why = ("model.learn_residual is false" if wanted is False else
+                   f"the validation windows come from the training recordings ({', '.join(shared)}), where "
+                   "validation cannot tell a force of the state from one of the trajectory (validate on recordings "
+                   "of their own to learn it, or set model.learn_residual true)")
+            print(f"force residual: left out: {why}", flush=True)
             return
-        residual.requires_grad_(False)
-        print(f"force residual: left out (zero): the validation windows come from the training recordings "
-              f"({', '.join(shared)}), where validation cannot tell a force of the state from one of the trajectory "
-              "(validate on recordings of their own to learn it)", flush=True)
+        steps = self.hparams.get("residual_min_steps")
+        planned = self.trainer.max_steps if self._trainer is not None else None
+        if steps is not None and planned is not None and planned != -1 and steps > planned:
+            self.trainer.fit_loop.epoch_loop.max_steps = int(steps)
+            why = "model.learn_residual is true" if wanted is True and shared else \
+                "the validation recordings are recordings of their own" if "val" in dm.split_names() else \
+                "no validation split"
+            print(f"force residual: learned ({why}): {steps} steps (model.residual_min_steps) instead of {planned}",
+                  flush=True)
 
     def _start_from_classical(self, dm) -> None:
         """``classical_start`` (the class docstring): the fit written into the model, reported in a line."""
