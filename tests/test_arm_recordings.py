@@ -199,8 +199,8 @@ def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
 def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its_own(tmp_path, capsys):
     """Validation windows of the training recording (one trajectory split in time) cannot judge a force of the
     state: the model is built without its force residual (and saved so), and a line says why; validation
-    recordings of their own leave it to be learned, for ``residual_min_steps`` steps; ``learn_residual`` true or
-    false overrides the judging."""
+    recordings of their own leave it to be learned, for ``residual_min_steps`` steps; without a validation split
+    it is left out too; ``learn_residual`` true or false overrides the judging."""
     from lnn_torch.training import LNNModule, TrajectoryDataModule
 
     t = np.arange(0, 4, 0.002)
@@ -233,6 +233,12 @@ def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its
         assert ("4 steps (model.residual_min_steps) instead of 2" in capsys.readouterr().out) != bool(shared)
         trainer.save_checkpoint(tmp_path / "r.ckpt")
         assert (load_model(str(tmp_path / "r.ckpt")).model.forces.residual is None) == bool(shared)
+    unjudged = import_recordings([one, two], tmp_path / "n.h5", spec(split={"train": ["one"], "val": [],
+                                                                            "test": ["two"]}))
+    module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}})
+    module._judge_residual(TrajectoryDataModule(path=str(unjudged)))  # no validation split: nothing judges it
+    assert module.model.forces.residual is None
+    assert "force residual: left out: the data have no validation split" in capsys.readouterr().out
     for wanted, path, kept in ((True, windows, True), (False, own, False)):  # learn_residual overrides the judging
         module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}},
                            learn_residual=wanted)

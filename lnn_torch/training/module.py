@@ -85,9 +85,9 @@ class LNNModule(L.LightningModule):
             error where the model or data cannot); False: the description is the start, the last
             state the end.
         learn_residual: whether a fresh run learns the force residual its ``model_options`` ask for
-            (``residual_force``): ``"auto"`` (default) only where validation can judge it, i.e. where the
-            validation split holds recordings of its own (on windows of the training recordings a force of
-            the state fits the one trajectory on both sides of the split); True: always; False: never. A
+            (``residual_force``): ``"auto"`` (default) only where validation can judge it, i.e. where there
+            is a validation split and it holds recordings of its own (on windows of the training recordings a
+            force of the state fits the one trajectory on both sides of the split); True: always; False: never. A
             residual not learned is left out of the model and its checkpoint, and the fit says why.
         residual_min_steps: the fewest training steps of a run whose force residual is learned: a residual
             beside a classical start needs more steps than the start's refinement alone (``trainer.max_steps``,
@@ -259,11 +259,14 @@ class LNNModule(L.LightningModule):
             return
         wanted = self.hparams.get("learn_residual", "auto")
         shared = dm.shared_recordings("train", "val") if hasattr(dm, "shared_recordings") else []
-        if wanted is False or (wanted == "auto" and shared):
+        judged = not hasattr(dm, "split_names") or "val" in dm.split_names()
+        if wanted is False or (wanted == "auto" and (shared or not judged)):
             forces.residual = None
             self.hparams["model_options"] = {k: v for k, v in self.hparams["model_options"].items()
                                              if k != "residual_force"}
             why = ("model.learn_residual is false" if wanted is False else
+                   "the data have no validation split to judge it (validate on recordings of their own to learn "
+                   "it, or set model.learn_residual true)" if not judged else
                    f"the validation windows come from the training recordings ({', '.join(shared)}), where "
                    "validation cannot tell a force of the state from one of the trajectory (validate on recordings "
                    "of their own to learn it, or set model.learn_residual true)")
@@ -273,9 +276,8 @@ class LNNModule(L.LightningModule):
         planned = self.trainer.max_steps if self._trainer is not None else None
         if steps is not None and planned is not None and planned != -1 and steps > planned:
             self.trainer.fit_loop.epoch_loop.max_steps = int(steps)
-            why = "model.learn_residual is true" if wanted is True and shared else \
-                "the validation recordings are recordings of their own" if "val" in dm.split_names() else \
-                "no validation split"
+            why = "model.learn_residual is true" if wanted is True and (shared or not judged) else \
+                "the validation recordings are recordings of their own"
             print(f"force residual: learned ({why}): {steps} steps (model.residual_min_steps) instead of {planned}",
                   flush=True)
 
