@@ -268,11 +268,15 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
 
 
 def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_against_it(tmp_path, capsys):
-    """A new loaded log, split in time so that the classical fits have a training window, and a grey box that
-    conditions on the payload (the description's, untrained): the import identifies the load against the
-    description as written (every window carries it), ``identify`` against the model; the model's row is its
-    error with the load identified against it, the classical rows use the dataset's; so is its row with the
-    robot's velocity feedback (``--feedback``)."""
+    """A new loaded log held out beside an unloaded one split in time (the classical fits' training and
+    validation windows), and a grey box that conditions on the payload (the description's, untrained): the
+    import identifies the new load against the classical arm, ``identify`` against the model, from the held-out
+    log (no other carries it); the model's row is its error with the load identified against it, the classical
+    rows use the dataset's; so is its row with the robot's velocity feedback (``--feedback``). A load the
+    training recordings carry is identified from those, never from the recordings judged: the same whichever
+    split is judged."""
+    from lnn_torch.commands.identify import _tools_on_split
+    from lnn_torch.data import read_dataset
     from lnn_torch.data.importer import ImportSpec, import_recordings
     from lnn_torch.identification.arm_comparison import feedback_rows, model_torque, points
     from lnn_torch.training import LNNModule
@@ -282,12 +286,13 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
 
     load = [1.2, 0.03, -0.02, 0.07]
     csv = record(tmp_path / "new.csv", seconds=4.0, seed=5, payload=load, friction=None)
+    base = record(tmp_path / "base.csv", seconds=4.0, seed=6, friction=None)
     spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
                       velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
                       coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
                       label="synthetic_panda", parameters={"values": {"new": "load"}, "tools": {"load": {}}},
-                      split={"train": ["new[0:2.0]"], "val": ["new[2.0:2.5]"], "test": ["new[2.5:]"]})
-    data = import_recordings([csv], tmp_path / "new.h5", spec)
+                      split={"train": ["base[0:3.0]"], "val": ["base[3.0:]"], "test": ["new"]})
+    data = import_recordings([csv, base], tmp_path / "new.h5", spec)
     targets = {"method": "butterworth", "cutoff": 10.0, "order": 4, "use_measured_velocity": True}
     dm = TrajectoryDataModule(path=str(data), targets=targets)
     scene, config = dm.model_scene()
@@ -303,6 +308,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     printed = capsys.readouterr().out
     assert "the model carries the loads the import left unknown as identified against it" in printed
     result = json.loads((tmp_path / "id" / "identification.json").read_text())
+    assert result["tools"]["tools"]["load"]["from"] == "this split's recordings"
     tool = result["tools"]["tools"]["load"]["parameters"]
     own = torch.tensor([[tool[k]["value"] for k in ("mass", "x", "y", "z")]], dtype=torch.float64)
     model = load_model(ckpt).model.double()
@@ -319,3 +325,11 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
                      ["rms_mean"] for loads in ({"m": own}, None))
     got = result["rows"]["film_lnn + velocity feedback"]["rms_mean"]
     assert abs(got - mine) < 1e-4 * mine and abs(got - dataset) > 1e-3 * dataset, (got, mine, dataset)
+    # the loaded log split in time: the load from its training and validation windows, whichever split is judged
+    spec.split = {"train": ["new[0:2.0]"], "val": ["new[2.0:2.5]"], "test": ["new[2.5:]"]}
+    windows = import_recordings([csv], tmp_path / "windows.h5", spec)
+    dm = TrajectoryDataModule(path=str(windows), targets=targets)
+    loads = {split: _tools_on_split(load_model(ckpt), read_dataset(windows), dm, split) for split in ("val", "test")}
+    assert {report["tools"]["load"]["from"] for report, _ in loads.values()} == {"the training and validation "
+                                                                                  "recordings"}
+    torch.testing.assert_close(loads["val"][1][0], loads["test"][1][0], rtol=0, atol=0)

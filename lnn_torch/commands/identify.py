@@ -294,9 +294,11 @@ def _identify_arm(module, args) -> int:
 def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tensor | None]:
     """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
-    ``identification.payload.identify_tools``): the load a new recording carries. ``f``: the dataset file
-    (``TrajectoryFile``). Returns the report and the split's parameters with those loads in place of the import's
-    (``(B, P)``, one row per entry); ``(None, None)`` where the file declares no such tool."""
+    ``identification.payload.identify_tools``): a tool the training or validation recordings carry from those
+    recordings (as the import did, and never from the recordings judged), a tool only the split carries (a new
+    recording's load) from the split's own. ``f``: the dataset file (``TrajectoryFile``). Returns the report and
+    the split's parameters with those loads in place of the import's (``(B, P)``, one row per entry);
+    ``(None, None)`` where the split carries no such tool."""
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
     from ..robots.tools import Tool
@@ -309,24 +311,34 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
                 for name, value in (provenance["settings"].get("parameters") or {}).get("tools", {}).items()}
     names = json.loads(f.attrs["recordings"])
     carried = provenance["tools"]["entries"]
-    data = dm.trajectories(split)
     torque = model_torque(module.model)
     P = module.system.num_params
 
     def arm(q, qd, qdd):
         return torque(q, qd, qdd, q.new_zeros(q.shape[0], P))
 
-    rows, imported, entries = [], {}, {}
-    for j, k in enumerate(f.splits[split]):
-        name, tool = names[int(k)], carried.get(names[int(k)])
-        if tool is None or not declared[tool].unknown:
-            continue
-        n = data.num_points if data.lengths is None else int(data.lengths[j])
-        rows.append((name, *(getattr(data, a)[j, :n].double() for a in ("q", "qd", "qdd", "tau")), tool))
-        imported[tool] = data.params[j].double().tolist()
-        entries[j] = tool
-    if not rows:
+    def entries(s):  # (index in the split, recording, tool) of the split's entries carrying an unknown tool
+        return [(j, names[int(k)], carried.get(names[int(k)])) for j, k in enumerate(f.splits.get(s, []))
+                if carried.get(names[int(k)]) is not None and declared[carried[names[int(k)]]].unknown]
+
+    judged = entries(split)
+    if not judged:
         return None, None
+    fitting = {s: entries(s) for s in ("train", "val") if s in f.splits}
+    seen = {tool for rows in fitting.values() for _, _, tool in rows}
+    sources = {tool: ("the training and validation recordings" if tool in seen else "this split's recordings")
+               for _, _, tool in judged}
+    rows, cache = [], {}
+    # a seen tool's training and validation entries, a new tool's entries of the split
+    for s, listed, of_seen in (*((s, listed, True) for s, listed in fitting.items()), (split, judged, False)):
+        for j, name, tool in listed:
+            if tool not in sources or (tool in seen) != of_seen:
+                continue
+            data = cache.setdefault(s, dm.trajectories(s))
+            n = data.num_points if data.lengths is None else int(data.lengths[j])
+            rows.append((name, *(getattr(data, a)[j, :n].double() for a in ("q", "qd", "qdd", "tau")), tool))
+    data = cache.setdefault(split, dm.trajectories(split))
+    imported = {tool: data.params[j].double().tolist() for j, _, tool in judged}
     used = {t: declared[t] for t in imported}
     block = correlation_block(dm.targets, float(data.dt)) if dm.targets is not None else 1
     fit = identify_tools(arm_chain(module.system), rows, used, arm=arm, block=block,
@@ -334,8 +346,9 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
     report = fit.report()
     for tool, values in imported.items():
         report["tools"][tool]["at_import"] = values
+        report["tools"][tool]["from"] = sources[tool]
     params = data.params.clone()
-    for j, tool in entries.items():  # each entry's load as identified against the model
+    for j, _, tool in judged:  # each entry's load as identified against the model
         params[j] = torch.as_tensor(np.asarray(fit.values[tool], dtype=np.float64), dtype=params.dtype)
     return report, params
 
@@ -344,8 +357,10 @@ def _tools_markdown(tools: dict | None) -> str:
     """The tools identified against the model, a row per entry: value, 95 % interval, the import's value."""
     if not tools:
         return ""
-    lines = [f"## Loads identified against the model on this split\n\nAgainst {tools['against']}; intervals "
-             f"cluster-robust over {tools['block_samples']}-sample blocks, taking the model's arm as exact.\n"]
+    lines = [f"## Loads identified against the model\n\nAgainst {tools['against']}; a tool the training or "
+             "validation recordings carry from those, a tool only this split carries from its own recordings; "
+             f"intervals cluster-robust over {tools['block_samples']}-sample blocks, taking the model's arm as "
+             "exact.\n"]
     for name, tool in tools["tools"].items():
         rows = []
         for k, (key, p) in enumerate(tool["parameters"].items()):
@@ -355,7 +370,8 @@ def _tools_markdown(tools: dict | None) -> str:
                 rows.append([key, p["unit"], f"{p['value']:.5g}", f"[{lo:.5g}, {hi:.5g}]", f"{at_import:.5g}"])
             else:
                 rows.append([key, p["unit"], f"{p['value']:.5g}", "known", f"{at_import:.5g}"])
-        lines += [f"Tool {name} ({tool['declared']}; {', '.join(tool['recordings'])}):", "",
+        lines += [f"Tool {name} ({tool['declared']}; from {tool.get('from', 'this split')}: "
+                  f"{', '.join(tool['recordings'])}):", "",
                   markdown_table(["entry", "unit", "identified", "95 % interval", "at import"], rows), ""]
     return "\n".join(lines)
 
