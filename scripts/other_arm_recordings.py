@@ -7,7 +7,7 @@ ripples with the joint angle).
 
 Ten recordings (``r01``..``r10``, 13-18 s each) of a five-harmonic exciting trajectory about a working
 pose, logged as a UR controller's RTDE client writes them: epoch time stamps at about 500 Hz with jitter, 0.3 %
-of the samples dropped and one 24 ms gap (in ``r05``), encoder-quantised joint angles and joint torques with 1.5 %
+of the samples dropped and one 26 ms gap (in ``r05``), encoder-quantised joint angles and joint torques with 1.5 %
 noise, no velocities. ``r03``, ``r06`` and ``r09`` carry a 1.2 kg tool whose centre of mass and inertia nobody
 measured: ``import.yaml`` declares its mass alone. The split is by recording: training ``r01``-``r05``,
 validation ``r06``-``r07``, held out ``r08``-``r10``.
@@ -20,7 +20,7 @@ validation ``r06``-``r07``, held out ``r08``-``r10``.
 Writes ``description.urdf`` (what the lab has; its meshes, ``package://``, are not there), the CSV files,
 ``import.yaml`` and, for judging only, ``truth/`` (the real arm's URDF and each recording's exact signals). With
 ``--floor DATASET`` instead: the truth's own joint-torque RMS error on the dataset's held-out recordings at the
-states a model sees there (the configuration's 10 Hz Butterworth targets), the floor no model can pass.
+states a model sees there (the configuration's 10 Hz Butterworth targets): what the noise and the filter leave.
 """
 
 from __future__ import annotations
@@ -206,7 +206,7 @@ def write(out: Path, clean: bool, seed: int) -> list[Path]:
         t[0] = 0.0
         keep = rng.random(n) > 0.003
         if name == "r05":
-            keep[3000:3012] = False  # a 24 ms gap
+            keep[3000:3012] = False  # 12 samples: a 26 ms interval
         t = np.sort(t[keep])
         q, qd, qdd = motion(rng, t)
         tau = rigid_torque(arms[name in LOADED], q, qd, qdd) + friction(q, qd, clean)
