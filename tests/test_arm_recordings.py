@@ -197,6 +197,19 @@ def test_drive_gains_known_only_nominally_are_learned_one_per_input(tmp_path):
 
 
 def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its_own(tmp_path, capsys):
+    def fit_briefly(path, max_epochs=-1, max_steps=2, ckpt_path=None, **options):  # 2 steps a epoch
+        from lnn_torch.training import LNNModule, TrajectoryDataModule
+
+        dm = TrajectoryDataModule(path=str(path), chunk_len=4, chunks_per_batch=4, steps_per_epoch=2,
+                                  targets={"method": "butterworth", "cutoff": 10.0})
+        module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}},
+                           val_rollouts=1, val_rollout_seconds=0.1, figure_every_n_epochs=0, compile=False,
+                           **options)
+        trainer = quiet_trainer(tmp_path, max_epochs=max_epochs, max_steps=max_steps, logger=False,
+                                enable_checkpointing=False)
+        trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path)
+        return trainer
+
     """Validation windows of the training recording (one trajectory split in time) cannot judge a force of the
     state: the model is built without its force residual (and saved so), and a line says why; validation
     recordings of their own leave it to be learned, for ``residual_min_steps`` steps; without a validation split
@@ -220,19 +233,22 @@ def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its
         printed = capsys.readouterr().out
         assert ("force residual: left out: the validation windows come from the training recordings (one)"
                 in printed) == bool(shared), printed
-        # a run: residual_min_steps where the residual is learned, the trainer's steps where it is left out; the
-        # checkpoint loads as the model trained (with or without its residual)
-        dm = TrajectoryDataModule(path=str(path), chunk_len=4, chunks_per_batch=4, steps_per_epoch=2,
-                                  targets={"method": "butterworth", "cutoff": 10.0})
-        module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}},
-                           val_rollouts=1, val_rollout_seconds=0.1, figure_every_n_epochs=0, compile=False,
-                           residual_min_steps=4)
-        trainer = quiet_trainer(tmp_path, max_epochs=-1, max_steps=2, logger=False, enable_checkpointing=False)
-        trainer.fit(module, datamodule=dm)
+        # a run: residual_min_steps where the residual is learned (past an epoch limit too), the trainer's steps
+        # where it is left out; the checkpoint loads as the model trained (with or without its residual)
+        trainer = fit_briefly(path, max_epochs=1, max_steps=-1, residual_min_steps=4)
         assert trainer.global_step == (2 if shared else 4)
         assert ("4 steps (model.residual_min_steps) instead of 2" in capsys.readouterr().out) != bool(shared)
-        trainer.save_checkpoint(tmp_path / "r.ckpt")
-        assert (load_model(str(tmp_path / "r.ckpt")).model.forces.residual is None) == bool(shared)
+        trainer.save_checkpoint(tmp_path / f"{path.stem}.ckpt")
+        assert (load_model(str(tmp_path / f"{path.stem}.ckpt")).model.forces.residual is None) == bool(shared)
+    # init_from: a residual added beside a checkpoint without one is judged as any; learn_residual false drops one
+    for path, start, options, dropped in ((windows, "w", {}, True), (own, "r", {"learn_residual": False}, True),
+                                          (windows, "r", {}, False)):
+        trainer = fit_briefly(path, init_from=str(tmp_path / f"{start}.ckpt"), **options)
+        assert (trainer.lightning_module.model.forces.residual is None) == dropped, (path, start, options)
+    # a resumed run whose set-up judged the residual otherwise takes the checkpoint's (and its raised steps)
+    trainer = fit_briefly(own, ckpt_path=str(tmp_path / "r.ckpt"), learn_residual=False, max_steps=2)
+    assert trainer.lightning_module.model.forces.residual is not None and trainer.max_steps == 4
+    capsys.readouterr()
     unjudged = import_recordings([one, two], tmp_path / "n.h5", spec(split={"train": ["one"], "val": [],
                                                                             "test": ["two"]}))
     module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}})

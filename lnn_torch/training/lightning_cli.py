@@ -43,8 +43,11 @@ class LNNCLI(LightningCLI):
 
     def before_fit(self) -> None:
         """The fit's closing summary names the config files it was given and the data options the command line
-        set beside them (``--data.path``, ...: its ``test`` command reads the same data)."""
+        set beside them (``--data.path``, ...: its ``test`` command reads the same data); a resumed fit's model
+        knows it is one (``LNNModule.resuming``)."""
         config = self.config[self.subcommand] if self.subcommand else self.config
+        if config.get("ckpt_path") and hasattr(self.model, "resuming"):  # no classical start nor residual judging
+            self.model.resuming = True
         paths = [str(getattr(p, "relative", p)) for p in (config.get("config") or [])]
         for cb in self.trainer.callbacks:
             if type(cb).__name__ == "FitSummary":

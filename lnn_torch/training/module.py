@@ -8,6 +8,7 @@ validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import lightning as L
@@ -125,6 +126,9 @@ class LNNModule(L.LightningModule):
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))  # callbacks.SkipNonFiniteSteps
         self.training_pass = TrainingPass(self.training_terms, compile)  # compiled where it pays
         self._last_batch = self.evaluation = None  # the step's batch; the last validation's result (its figures)
+        # a resumed run (set by the CLI before ``fit`` with ``--ckpt_path``): no classical start nor residual
+        # judging, the checkpoint's state stands; the step limit a learned residual raised (``_at_least``)
+        self.resuming, self._raised_steps = False, None
         self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
         if classical_start not in (True, False, "auto"):
             raise InputError(f"classical_start must be true, false or auto, got {classical_start!r}")
@@ -157,22 +161,47 @@ class LNNModule(L.LightningModule):
             checkpoint["classical_start"] = {**self.classical_start, "anchor_J": spatial.anchor_J()}
         if self.selection is not None:
             checkpoint["selection"] = self.selection
+        if self._raised_steps is not None:
+            checkpoint["raised_max_steps"] = self._raised_steps
         ckpt.stamp(checkpoint)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """A checkpoint of an earlier format is built as it was trained: the variant's old default widths
-        where it recorded none, the scene's features of then (``checkpoint_format.scene_config_of_old``)."""
-        old = ckpt.old_default_widths(self.hparams)
+        where it recorded none, the scene's features of then (``checkpoint_format.scene_config_of_old``); a
+        resumed run takes the checkpoint's force residual (or its absence) and the step limit a learned residual
+        raised."""
+        theirs = checkpoint.get("hyper_parameters") or self.hparams  # (a resumed run: the module is this run's)
+        old = ckpt.old_default_widths(theirs)
+        widths = old if old is not None else theirs.get("hidden_dims")
+        if widths is not None and list(widths) == list(getattr(self.model, "hidden_dims", widths)):
+            widths = None  # built so already
         scene_config = ckpt.scene_config_of_old(checkpoint, self.hparams)
         if scene_config is not None:
             self.hparams.scene_config = scene_config
             self.system = get_system(self.hparams.scene, **scene_config)
-        if old is not None:
-            self.hparams.hidden_dims = list(old)
-            self._model_options = {**self._model_options, "hidden_dims": old}
-        if old is not None or scene_config is not None:
+        rebuild = widths is not None or scene_config is not None
+        if widths is not None:
+            self.hparams.hidden_dims = list(widths)
+            self._model_options = {**self._model_options, "hidden_dims": list(widths)}
+        # a resumed run whose setup judged the force residual otherwise than the checkpoint's run: the checkpoint's
+        stored = checkpoint.get("hyper_parameters", {}).get("model_options") or {}
+        residual = any(k.startswith(ckpt.RESIDUAL) for k in checkpoint.get("state_dict", {}))
+        if residual != (getattr(getattr(self.model, "forces", None), "residual", None) is not None) \
+                and residual == ("residual_force" in stored):
+            options = {k: v for k, v in (self.hparams.get("model_options") or {}).items() if k != "residual_force"}
+            self.hparams["model_options"] = {**options, **({"residual_force": stored["residual_force"]}
+                                                           if residual else {})}
+            self._model_options = {**{k: v for k, v in self._model_options.items() if k != "residual_force"},
+                                   **({"residual_force": stored["residual_force"]} if residual else {})}
+            rebuild = True
+        if rebuild:
             self.model = build_model(self.hparams.variant, self.system, **self._model_options)
             freeze_all_but(self.model, self.hparams.get("train_only"), self.hparams.get("init_from"))
+        if checkpoint.get("raised_max_steps") and self._trainer is not None:  # a resumed run with a learned residual
+            self._raised_steps = int(checkpoint["raised_max_steps"])
+            loop = self.trainer.fit_loop.epoch_loop
+            if loop.max_steps != -1 and loop.max_steps < self._raised_steps:
+                loop.max_steps = self._raised_steps
         start = checkpoint.get("classical_start")
         if start is not None:  # the refinement's prior pulls towards the start (a resumed run goes on so)
             self.classical_start = {k: v for k, v in start.items() if k != "anchor_J"}
@@ -234,34 +263,44 @@ class LNNModule(L.LightningModule):
         if scene is not None and (scene["name"] != self.system.name or scene["dof"] != self.system.dof):
             raise ValueError(f"the model is for scene '{self.system.name}' but the data hold '{scene['name']}' "
                              "(set model.scene, or let the CLI link it)")
+        # a resumed run loads its own state after this (the CLI says so beforehand: ``resuming``), and
+        # ``on_load_checkpoint`` gives the model the checkpoint's residual and steps
+        fresh = stage == "fit" and not self.resuming
         if not bool(self.normalizer_fitted) and self.hparams.get("init_from"):
-            if ckpt.load_start_weights(self, self.hparams.init_from):  # resuming loads its own state after this
+            added = ckpt.load_start_weights(self, self.hparams.init_from)
+            if added:
                 self.model.fit_residual(dm.normalization_data())  # a new residual: its units from this data
+            if fresh:
+                self._judge_residual(dm, trained=not added)
         if not bool(self.normalizer_fitted):
             if dm is None or not hasattr(dm, "normalization_data"):
                 raise RuntimeError("the normaliser is not fitted and no TrajectoryDataModule provides data")
             self.model.fit_normalizer(dm.normalization_data())
             self.normalizer_fitted.fill_(True)
-            if stage == "fit" and not getattr(self.trainer, "ckpt_path", None):  # a fresh run, not a resumed one
+            if fresh:
                 self._start_from_classical(dm)
                 self._judge_residual(dm)
         self.data_dt = dm.dt if hasattr(dm, "dt") else self.data_dt
 
-    def _judge_residual(self, dm) -> None:
+    def _judge_residual(self, dm, trained: bool = False) -> None:
         """``learn_residual`` (the class docstring): with ``"auto"`` a force residual is learned only where
         validation can judge it. Where the validation windows come from the training recordings (one exciting
         trajectory split in time), a force of the state fits that trajectory on both sides of the split (the UR10
         bag: validation took a local residual, the held-out error rose 22 %), so the model is built without it
-        (its checkpoint as a model without ``residual_force``), and a line says so. Not with ``init_from`` (a
-        residual trained on purpose). A residual that is learned trains at least ``residual_min_steps`` steps."""
+        (its checkpoint as a model without ``residual_force``), and a line says so; so too without a validation
+        split. ``"auto"`` keeps a residual ``init_from`` brought (``trained``: judged when it was trained) or one
+        trained alone on purpose (``train_only: residual_force``). A residual that is learned trains at least
+        ``residual_min_steps`` steps (``_at_least``)."""
         forces = getattr(self.model, "forces", None)
-        if getattr(forces, "residual", None) is None or self.hparams.get("init_from"):
+        if getattr(forces, "residual", None) is None:
             return
         wanted = self.hparams.get("learn_residual", "auto")
         shared = dm.shared_recordings("train", "val") if hasattr(dm, "shared_recordings") else []
         judged = not hasattr(dm, "split_names") or "val" in dm.split_names()
-        if wanted is False or (wanted == "auto" and (shared or not judged)):
+        chosen = wanted is True or trained or self.hparams.get("train_only") == "residual_force"
+        if wanted is False or (not chosen and (shared or not judged)):
             forces.residual = None
+            self._model_options = {k: v for k, v in self._model_options.items() if k != "residual_force"}
             self.hparams["model_options"] = {k: v for k, v in self.hparams["model_options"].items()
                                              if k != "residual_force"}
             why = ("model.learn_residual is false" if wanted is False else
@@ -272,14 +311,31 @@ class LNNModule(L.LightningModule):
                    "of their own to learn it, or set model.learn_residual true)")
             print(f"force residual: left out: {why}", flush=True)
             return
-        steps = self.hparams.get("residual_min_steps")
-        planned = self.trainer.max_steps if self._trainer is not None else None
-        if steps is not None and planned is not None and planned != -1 and steps > planned:
-            self.trainer.fit_loop.epoch_loop.max_steps = int(steps)
-            why = "model.learn_residual is true" if wanted is True and (shared or not judged) else \
-                "the validation recordings are recordings of their own"
-            print(f"force residual: learned ({why}): {steps} steps (model.residual_min_steps) instead of {planned}",
-                  flush=True)
+        unjudged = bool(shared) or not judged
+        why = ("model.learn_residual is true" if wanted is True and unjudged else "init_from brought it" if trained
+               else "trained alone (train_only)" if unjudged
+               else "the validation recordings are recordings of their own")
+        self._at_least(self.hparams.get("residual_min_steps"), f"force residual: learned ({why})", dm)
+
+    def _at_least(self, steps: int | None, what: str, dm=None) -> None:
+        """Raise the trainer's step limit (and an epoch limit that would end the run first) to ``steps``, saying so
+        with ``what``; nothing where the run plans that many already or trains without a step limit."""
+        if steps is None or self._trainer is None:
+            return
+        loop = self.trainer.fit_loop
+        per_epoch = (getattr(dm, "hparams", None) or {}).get("steps_per_epoch")  # a TrajectoryDataModule's
+        planned = loop.epoch_loop.max_steps if loop.epoch_loop.max_steps != -1 else float("inf")
+        if loop.max_epochs not in (None, -1) and per_epoch:
+            planned = min(planned, loop.max_epochs * per_epoch)
+        if not math.isfinite(planned) or steps <= planned:
+            return
+        loop.epoch_loop.max_steps = int(steps)
+        if loop.max_epochs not in (None, -1) and per_epoch and loop.max_epochs * per_epoch < steps:
+            loop.max_epochs = -(-int(steps) // int(per_epoch))
+        self._raised_steps = int(steps)
+        timer = any(type(cb).__name__ == "Timer" for cb in self.trainer.callbacks)
+        print(f"{what}: {steps} steps (model.residual_min_steps) instead of {int(planned)}"
+              + (" (a max_time may end it first)" if timer else ""), flush=True)
 
     def _start_from_classical(self, dm) -> None:
         """``classical_start`` (the class docstring): the fit written into the model, reported in a line."""
