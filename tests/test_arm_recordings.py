@@ -55,6 +55,8 @@ def test_gaps_are_resampled_and_reported_and_only_a_gap_too_long_is_refused(tmp_
     entries = {e["name"]: e for e in json.loads(read_dataset(out).attrs["provenance"])["entries"]}
     assert entries["long[2.0:2.9]"]["to_s"] == pytest.approx(3.011)
     assert entries["long[3.1:]"]["from_s"] == pytest.approx(3.042)
+    (line,) = resampling_report(json.loads(read_dataset(out).attrs["provenance"]))
+    assert "interpolated across, but for 1 beyond max_gap (25 ms), which no window in use crosses" in line
 
 
 def test_a_gap_in_epoch_seconds_gives_windows_that_hold_and_advice_that_imports(tmp_path):

@@ -44,9 +44,11 @@ def resampling_report(provenance: dict) -> list[str]:
         timing = src.get("timing")
         if not timing:
             continue
+        long = timing.get("long_gaps") or []
         gaps = (f"{timing['gaps']} gap{'s' if timing['gaps'] > 1 else ''} over twice the median interval (largest "
                 f"{1e3 * timing['largest_gap_s']:.3g} ms, {1e3 * timing['gap_seconds']:.3g} ms in all) interpolated "
-                "across" if timing["gaps"]
+                "across" + (f", but for {len(long)} beyond max_gap ({1e3 * timing['max_gap_s']:.3g} ms), which no "
+                            "window in use crosses" if long else "") if timing["gaps"]
                 else "no gaps")
         lines.append(f"{src['file']}: {timing['samples']} samples over {timing['duration_s']:.4g} s, intervals "
                      f"{1e3 * timing['min_interval_s']:.3g}-{1e3 * timing['max_interval_s']:.3g} ms (median "
