@@ -247,3 +247,43 @@ def test_the_classical_fits_standard_errors_are_cluster_robust_over_the_blocks_g
         assert u["block_samples"] == block
         std[block] = torch.as_tensor(u["std"])
     assert float(torch.median(std[25] / std[1])) > 1.2, torch.median(std[25] / std[1])
+
+
+def test_selection_takes_no_state_worse_than_the_start_on_a_validation_recording(capsys):
+    """``SelectOnValidation``: a state better over all validation recordings but worse than the start on one of
+    them is left out (and said so); a state better pooled and no worse on any is taken."""
+    from types import SimpleNamespace
+
+    from lnn_torch.training.callbacks import SelectOnValidation
+
+    class Module:  # the module's face the callback reads: a state, each validation recording's error
+        selection_monitor = "val/torque_rms"
+
+        def __init__(self):
+            self.weight, self.each, self.selection = torch.zeros(1), [1.0, 1.0], None
+
+        def state_dict(self):
+            return {"weight": self.weight}
+
+        def load_state_dict(self, state):
+            self.weight = state["weight"].clone()
+
+        def validation_per_recording(self):
+            return list(self.each)
+
+        def validation_value(self, monitor):
+            return sum(self.each) / len(self.each)
+
+    module, select = Module(), SelectOnValidation()
+    trainer = SimpleNamespace(global_step=0, sanity_checking=False, callback_metrics={}, is_global_zero=True,
+                              callbacks=[])
+    select.on_train_start(trainer, module)
+    for step, each in ((10, [0.5, 1.1]), (20, [0.9, 0.95]), (30, [0.4, 1.01])):  # pooled 0.8, 0.925, 0.705
+        module.weight, module.each, trainer.global_step = torch.full((1,), float(step)), each, step
+        trainer.callback_metrics = {"val/torque_rms": torch.tensor(sum(each) / 2)}
+        select.on_validation_end(trainer, module)
+    select.on_train_end(trainer, module)
+    assert module.selection["step"] == 20 and float(module.weight) == 20.0
+    assert module.selection["left_out"] == [10, 30]
+    assert "left out, better over all but worse than the start on a validation recording: steps 10, 30" in \
+        capsys.readouterr().out

@@ -152,9 +152,11 @@ def tool_lines(report: dict) -> list[str]:
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
                          + (f"; every {ordinal(report['stride'])} sample (long recordings)"
                             if report.get("stride", 1) > 1 else "")
-                         + ("; a point mass: a tool's own inertia, which four values leave out, shifts its centre of "
-                            "mass (to identify it, name ten payload values in the import config, parameters: names: "
-                            "[mass, cx, cy, cz, ixx, iyy, izz, ixy, ixz, iyz])" if point else ""))
+                         + "; the intervals hold the torque noise, not what the fit leaves out: "
+                         + ("a point tool's own inertia (to identify it, name ten payload values in the import "
+                            "config, parameters: names: [mass, cx, cy, cz, ixx, iyy, izz, ixy, ixz, iyz]) and "
+                            if point else "")
+                         + "friction the drive model lacks (e.g. growing with the load) shift the values by more")
     return lines
 
 

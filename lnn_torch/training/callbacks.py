@@ -329,17 +329,21 @@ class SelectOnValidation(L.Callback):
     (evaluated when training starts: a model started from a classical fit keeps it unless a refined
     state does better on validation, so it is never worse there). Active where the module names a
     ``selection_monitor`` (a logged validation scalar, lower is better, e.g. ``val/torque_rms``, and
-    ``validation_value(monitor)`` evaluates it outside the validation loop). States between the last
-    validation and the end are not kept (nothing judged them). At the end the module holds the chosen
+    ``validation_value(monitor)`` evaluates it outside the validation loop). Where the module also gives
+    each validation entry's error (``validation_per_recording``), a state is taken only where it is no
+    worse than the start on any of them: a state better pooled but worse on one recording (a residual that
+    helps the logs without a tool and costs the one with it) is left out, and said so. States between the
+    last validation and the end are not kept (nothing judged them). At the end the module holds the chosen
     state, its ``selection`` says which, and ``last.ckpt`` is written again with it."""
 
     def __init__(self) -> None:
-        self.best = self.state = self.step = None
+        self.best = self.state = self.step = self.start = None
         self.history: list[tuple[int, float]] = []
+        self.left_out: list[int] = []
 
     def on_train_start(self, trainer, pl_module) -> None:
-        self.best = self.state = self.step = None
-        self.history = []
+        self.best = self.state = self.step = self.start = None
+        self.history, self.left_out = [], []
         monitor = getattr(pl_module, "selection_monitor", None)
         if monitor:
             self._offer(pl_module.validation_value(monitor), trainer.global_step, pl_module)
@@ -352,9 +356,18 @@ class SelectOnValidation(L.Callback):
 
     def _offer(self, value: float, step: int, module) -> None:
         self.history.append((int(step), float(value)))
-        if math.isfinite(value) and (self.best is None or value < self.best):
-            self.best, self.step = float(value), int(step)
-            self.state = {k: v.detach().clone() for k, v in module.state_dict().items()}
+        each = module.validation_per_recording() if hasattr(module, "validation_per_recording") else None
+        if self.start is None:  # the first state offered: the start, which every later one is held to
+            self.start = each
+        worse = each is not None and self.start is not None and any(
+            e > s for e, s in zip(each, self.start, strict=True))
+        if not math.isfinite(value) or (self.best is not None and value >= self.best):
+            return
+        if worse:
+            self.left_out.append(int(step))
+            return
+        self.best, self.step = float(value), int(step)
+        self.state = {k: v.detach().clone() for k, v in module.state_dict().items()}
 
     def on_train_end(self, trainer, pl_module) -> None:
         monitor = getattr(pl_module, "selection_monitor", None)
@@ -362,11 +375,14 @@ class SelectOnValidation(L.Callback):
             return
         pl_module.load_state_dict(self.state)
         pl_module.selection = {"monitor": monitor, "step": self.step, "value": self.best,
-                               "history": [list(h) for h in self.history]}
+                               "history": [list(h) for h in self.history], "left_out": list(self.left_out)}
         if trainer.is_global_zero:
             start = self.history[0][1]
             print(f"selected on validation: the state at step {self.step} of {trainer.global_step} ({monitor} "
-                  f"{self.best:.4g}; at the start {start:.4g})")
+                  f"{self.best:.4g}; at the start {start:.4g})"
+                  + (f"; left out, better over all but worse than the start on a validation recording: step"
+                     f"{'s' if len(self.left_out) > 1 else ''} {', '.join(map(str, self.left_out))}"
+                     if self.left_out else ""))
         for cb in trainer.callbacks:
             if isinstance(cb, LastCheckpoint) and cb.path:
                 trainer.save_checkpoint(cb.path)

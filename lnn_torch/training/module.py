@@ -400,6 +400,22 @@ class LNNModule(L.LightningModule):
                                 accel_stride=int(dm.hparams.eval_stride))
         return float(section_logs(result)[key])
 
+    def validation_per_recording(self) -> list[float]:
+        """Each validation entry's mean joint-torque RMS error (N m; every ``eval_stride``-th point) of the current
+        state, as ``identify`` reports each recording: what ``callbacks.SelectOnValidation`` holds every state to
+        against the start, entry by entry."""
+        dm = self.trainer.datamodule
+        data, stride = dm.trajectories("val"), int(dm.hparams.eval_stride)
+        out = []
+        with torch.no_grad():
+            for j in range(len(data)):
+                n = data.num_points if data.lengths is None else int(data.lengths[j])
+                q, qd, qdd, tau = (getattr(data, k)[j, :n:stride].to(self.device) for k in ("q", "qd", "qdd", "tau"))
+                params = data.params[j].to(self.device).expand(len(q), -1)
+                pred = self.model.inverse(q, qd, qdd, params).to(tau.dtype)
+                out.append(float((pred - tau).pow(2).mean(0).sqrt().mean()))
+        return out
+
     def configure_callbacks(self):
         return [SkipNonFiniteSteps(), DivergenceWatch(), HParamsSummary(), EvaluationFigures(), SelectOnValidation()]
 
