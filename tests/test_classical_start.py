@@ -287,3 +287,14 @@ def test_selection_takes_no_state_worse_than_the_start_on_a_validation_recording
     assert module.selection["left_out"] == [10, 30]
     assert "left out, better over all but worse than the start on a validation recording: steps 10, 30" in \
         capsys.readouterr().out
+    # a resumed run goes on judging against the first run's start and best (its callback state travels)
+    resumed = SelectOnValidation()
+    resumed.load_state_dict(select.state_dict())
+    module.each = [0.2, 1.0]  # the resumed state, better than the first start everywhere: no new start
+    resumed.on_train_start(trainer, module)
+    for step, each in ((40, [0.3, 1.05]), (50, [0.85, 0.9])):
+        module.weight, module.each, trainer.global_step = torch.full((1,), float(step)), each, step
+        trainer.callback_metrics = {"val/torque_rms": torch.tensor(sum(each) / 2)}
+        resumed.on_validation_end(trainer, module)
+    resumed.on_train_end(trainer, module)
+    assert module.selection["step"] == 50 and module.selection["left_out"] == [10, 30, 40]

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -299,6 +300,7 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
     recording's load) from the split's own. ``f``: the dataset file (``TrajectoryFile``). Returns the report and
     the split's parameters with those loads in place of the import's (``(B, P)``, one row per entry);
     ``(None, None)`` where the split carries no such tool."""
+    from ..data.import_tools import TOOL_ROWS
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
     from ..robots.tools import Tool
@@ -326,21 +328,26 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
         return None, None
     fitting = {s: entries(s) for s in ("train", "val") if s in f.splits}
     seen = {tool for rows in fitting.values() for _, _, tool in rows}
-    sources = {tool: ("the training and validation recordings" if tool in seen else "this split's recordings")
-               for _, _, tool in judged}
-    rows, cache = [], {}
+    words = {"train": "training", "val": "validation"}
+    sources = {tool: (" and ".join(words[s] for s, rows in fitting.items() if any(t == tool for *_, t in rows))
+                      + " recordings" + (" (the judged split among them)" if split in fitting else "")
+                      if tool in seen else "this split's recordings") for _, _, tool in judged}
+    picked, cache = [], {}
     # a seen tool's training and validation entries, a new tool's entries of the split
     for s, listed, of_seen in (*((s, listed, True) for s, listed in fitting.items()), (split, judged, False)):
         for j, name, tool in listed:
-            if tool not in sources or (tool in seen) != of_seen:
-                continue
-            data = cache.setdefault(s, dm.trajectories(s))
-            n = data.num_points if data.lengths is None else int(data.lengths[j])
-            rows.append((name, *(getattr(data, a)[j, :n].double() for a in ("q", "qd", "qdd", "tau")), tool))
+            if tool in sources and (tool in seen) == of_seen:
+                data = cache.setdefault(s, dm.trajectories(s))
+                picked.append((data, j, name, tool, data.num_points if data.lengths is None else int(data.lengths[j])))
+    # long recordings thinned to at most TOOL_ROWS samples in all, as the import's tool fit
+    stride = max(1, math.ceil(sum(n for *_, n in picked) / TOOL_ROWS))
+    rows = [(name, *(getattr(data, a)[j, :n:stride].double() for a in ("q", "qd", "qdd", "tau")), tool)
+            for data, j, name, tool, n in picked]
     data = cache.setdefault(split, dm.trajectories(split))
     imported = {tool: data.params[j].double().tolist() for j, _, tool in judged}
     used = {t: declared[t] for t in imported}
     block = correlation_block(dm.targets, float(data.dt)) if dm.targets is not None else 1
+    block = max(1, math.ceil(block / stride))
     fit = identify_tools(arm_chain(module.system), rows, used, arm=arm, block=block,
                          against=f"the model's arm ({module.model.variant}, without payload)")
     report = fit.report()
@@ -358,7 +365,8 @@ def _tools_markdown(tools: dict | None) -> str:
     if not tools:
         return ""
     lines = [f"## Loads identified against the model\n\nAgainst {tools['against']}; a tool the training or "
-             "validation recordings carry from those, a tool only this split carries from its own recordings; "
+             "validation recordings carry from those (every few samples where they are long), a tool only this "
+             "split carries from its own recordings; "
              f"intervals cluster-robust over {tools['block_samples']}-sample blocks, taking the model's arm as "
              "exact.\n"]
     for name, tool in tools["tools"].items():

@@ -340,8 +340,27 @@ class SelectOnValidation(L.Callback):
         self.best = self.state = self.step = self.start = None
         self.history: list[tuple[int, float]] = []
         self.left_out: list[int] = []
+        self.restored = False
+
+    def state_dict(self) -> dict:
+        """What a resumed run needs to go on judging as the first did: the start's errors, the best state so far
+        (its weights too), the history."""
+        if self.best is None:
+            return {}
+        return {"best": self.best, "step": self.step, "start": self.start, "history": list(self.history),
+                "left_out": list(self.left_out), "state": self.state}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        if state_dict:
+            self.best, self.step, self.start = state_dict["best"], state_dict["step"], state_dict["start"]
+            self.history = [tuple(h) for h in state_dict["history"]]
+            self.left_out, self.state = list(state_dict["left_out"]), state_dict["state"]
+            self.restored = True
 
     def on_train_start(self, trainer, pl_module) -> None:
+        if self.restored:  # a resumed run: the start and the best so far are the first run's
+            self.restored = False
+            return
         self.best = self.state = self.step = self.start = None
         self.history, self.left_out = [], []
         monitor = getattr(pl_module, "selection_monitor", None)
@@ -356,13 +375,13 @@ class SelectOnValidation(L.Callback):
 
     def _offer(self, value: float, step: int, module) -> None:
         self.history.append((int(step), float(value)))
-        each = module.validation_per_recording() if hasattr(module, "validation_per_recording") else None
-        if self.start is None:  # the first state offered: the start, which every later one is held to
-            self.start = each
-        worse = each is not None and self.start is not None and any(
-            e > s for e, s in zip(each, self.start, strict=True))
         if not math.isfinite(value) or (self.best is not None and value >= self.best):
             return
+        each = module.validation_per_recording() if hasattr(module, "validation_per_recording") else None
+        if self.best is None:  # the first state offered: the start, which every later one is held to
+            self.start = each
+        worse = each is not None and self.start is not None and any(
+            not e <= s for e, s in zip(each, self.start, strict=True) if math.isfinite(s))  # (a NaN e: worse)
         if worse:
             self.left_out.append(int(step))
             return

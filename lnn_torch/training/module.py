@@ -8,7 +8,6 @@ validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import lightning as L
@@ -126,8 +125,9 @@ class LNNModule(L.LightningModule):
         self.register_buffer("skipped_steps", torch.tensor(0, dtype=torch.long))  # callbacks.SkipNonFiniteSteps
         self.training_pass = TrainingPass(self.training_terms, compile)  # compiled where it pays
         self._last_batch = self.evaluation = None  # the step's batch; the last validation's result (its figures)
-        # a resumed run (set by the CLI before ``fit`` with ``--ckpt_path``): no classical start nor residual
-        # judging, the checkpoint's state stands; the step limit a learned residual raised (``_at_least``)
+        # a resumed run (set by the CLI before ``fit`` with ``--ckpt_path``; ``trainer.fit(module, ckpt_path=...)``
+        # from Python: set it first): no classical start nor residual judging, the checkpoint's state stands (where
+        # unset, both run and the checkpoint overrides them); the step limit a learned residual raised (``_at_least``)
         self.resuming, self._raised_steps = False, None
         self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
         if classical_start not in (True, False, "auto"):
@@ -198,10 +198,8 @@ class LNNModule(L.LightningModule):
             self.model = build_model(self.hparams.variant, self.system, **self._model_options)
             freeze_all_but(self.model, self.hparams.get("train_only"), self.hparams.get("init_from"))
         if checkpoint.get("raised_max_steps") and self._trainer is not None:  # a resumed run with a learned residual
-            self._raised_steps = int(checkpoint["raised_max_steps"])
-            loop = self.trainer.fit_loop.epoch_loop
-            if loop.max_steps != -1 and loop.max_steps < self._raised_steps:
-                loop.max_steps = self._raised_steps
+            self._at_least(int(checkpoint["raised_max_steps"]), "a resumed run with its force residual",
+                           getattr(self.trainer, "datamodule", None))
         start = checkpoint.get("classical_start")
         if start is not None:  # the refinement's prior pulls towards the start (a resumed run goes on so)
             self.classical_start = {k: v for k, v in start.items() if k != "anchor_J"}
@@ -327,7 +325,7 @@ class LNNModule(L.LightningModule):
         planned = loop.epoch_loop.max_steps if loop.epoch_loop.max_steps != -1 else float("inf")
         if loop.max_epochs not in (None, -1) and per_epoch:
             planned = min(planned, loop.max_epochs * per_epoch)
-        if not math.isfinite(planned) or steps <= planned:
+        if steps <= planned:  # (a run without a step limit trains as long as it is let)
             return
         loop.epoch_loop.max_steps = int(steps)
         if loop.max_epochs not in (None, -1) and per_epoch and loop.max_epochs * per_epoch < steps:
