@@ -332,13 +332,13 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
     sources = {tool: (" and ".join(words[s] for s, rows in fitting.items() if any(t == tool for *_, t in rows))
                       + " recordings" + (" (the judged split among them)" if split in fitting else "")
                       if tool in seen else "this split's recordings") for _, _, tool in judged}
-    picked, cache = [], {}
     # a seen tool's training and validation entries, a new tool's entries of the split
-    for s, listed, of_seen in (*((s, listed, True) for s, listed in fitting.items()), (split, judged, False)):
-        for j, name, tool in listed:
-            if tool in sources and (tool in seen) == of_seen:
-                data = cache.setdefault(s, dm.trajectories(s))
-                picked.append((data, j, name, tool, data.num_points if data.lengths is None else int(data.lengths[j])))
+    use = [(s, e) for s, listed in fitting.items() for e in listed if e[2] in sources]
+    use += [(split, e) for e in judged if e[2] not in seen]
+    picked, cache = [], {}
+    for s, (j, name, tool) in use:
+        data = cache.setdefault(s, dm.trajectories(s))
+        picked.append((data, j, name, tool, data.num_points if data.lengths is None else int(data.lengths[j])))
     # long recordings thinned to at most TOOL_ROWS samples in all, as the import's tool fit
     stride = max(1, math.ceil(sum(n for *_, n in picked) / TOOL_ROWS))
     rows = [(name, *(getattr(data, a)[j, :n:stride].double() for a in ("q", "qd", "qdd", "tau")), tool)

@@ -188,11 +188,7 @@ class LNNModule(L.LightningModule):
         residual = any(k.startswith(ckpt.RESIDUAL) for k in checkpoint.get("state_dict", {}))
         if residual != (getattr(getattr(self.model, "forces", None), "residual", None) is not None) \
                 and residual == ("residual_force" in stored):
-            options = {k: v for k, v in (self.hparams.get("model_options") or {}).items() if k != "residual_force"}
-            self.hparams["model_options"] = {**options, **({"residual_force": stored["residual_force"]}
-                                                           if residual else {})}
-            self._model_options = {**{k: v for k, v in self._model_options.items() if k != "residual_force"},
-                                   **({"residual_force": stored["residual_force"]} if residual else {})}
+            self._set_residual_option(stored["residual_force"] if residual else None)
             rebuild = True
         if rebuild:
             self.model = build_model(self.hparams.variant, self.system, **self._model_options)
@@ -280,6 +276,16 @@ class LNNModule(L.LightningModule):
                 self._judge_residual(dm)
         self.data_dt = dm.dt if hasattr(dm, "dt") else self.data_dt
 
+    def _set_residual_option(self, options) -> None:
+        """The model options (the module's and its saved hyper-parameters) with ``residual_force: options``, or
+        without a force residual (None)."""
+        def set_in(held: dict) -> dict:
+            others = {k: v for k, v in held.items() if k != "residual_force"}
+            return others if options is None else {**others, "residual_force": options}
+
+        self._model_options = set_in(self._model_options)
+        self.hparams["model_options"] = set_in(self.hparams.get("model_options") or {})
+
     def _judge_residual(self, dm, trained: bool = False) -> None:
         """``learn_residual`` (the class docstring): with ``"auto"`` a force residual is learned only where
         validation can judge it. Where the validation windows come from the training recordings (one exciting
@@ -298,9 +304,7 @@ class LNNModule(L.LightningModule):
         chosen = wanted is True or trained or self.hparams.get("train_only") == "residual_force"
         if wanted is False or (not chosen and (shared or not judged)):
             forces.residual = None
-            self._model_options = {k: v for k, v in self._model_options.items() if k != "residual_force"}
-            self.hparams["model_options"] = {k: v for k, v in self.hparams["model_options"].items()
-                                             if k != "residual_force"}
+            self._set_residual_option(None)
             why = ("model.learn_residual is false" if wanted is False else
                    "the data have no validation split to judge it (validate on recordings of their own to learn "
                    "it, or set model.learn_residual true)" if not judged else
@@ -402,16 +406,15 @@ class LNNModule(L.LightningModule):
         """Each validation entry's mean joint-torque RMS error (N m; every ``eval_stride``-th point) of the current
         state, as ``identify`` reports each recording: what ``callbacks.SelectOnValidation`` holds every state to
         against the start, entry by entry."""
+        from ..data import points
+        from ..identification.arm_comparison import model_torque, torque_errors
+
         dm = self.trainer.datamodule
-        data, stride = dm.trajectories("val"), int(dm.hparams.eval_stride)
+        data, stride, torque = dm.trajectories("val"), int(dm.hparams.eval_stride), model_torque(self.model)
         out = []
-        with torch.no_grad():
-            for j in range(len(data)):
-                n = data.num_points if data.lengths is None else int(data.lengths[j])
-                q, qd, qdd, tau = (getattr(data, k)[j, :n:stride].to(self.device) for k in ("q", "qd", "qdd", "tau"))
-                params = data.params[j].to(self.device).expand(len(q), -1)
-                pred = self.model.inverse(q, qd, qdd, params).to(tau.dtype)
-                out.append(float((pred - tau).pow(2).mean(0).sqrt().mean()))
+        for j in range(len(data)):
+            q, qd, qdd, tau, params = (x.to(self.device) for x in points(data._map(lambda x, j=j: x[j:j + 1]), stride))
+            out.append(torque_errors(torque(q, qd, qdd, params), tau, range(tau.shape[1]))["rms_mean"])
         return out
 
     def configure_callbacks(self):
