@@ -298,3 +298,23 @@ def test_selection_takes_no_state_worse_than_the_start_on_a_validation_recording
         resumed.on_validation_end(trainer, module)
     resumed.on_train_end(trainer, module)
     assert module.selection["step"] == 50 and module.selection["left_out"] == [10, 30, 40]
+
+
+def test_a_choice_is_taken_only_where_it_validates_better_beyond_chance():
+    """``classical_start._beyond_chance`` (the Coulomb smoothing's test): a gain that holds over the validation
+    window's blocks passes, the same mean gain from one burst or from noise does not, and nor does a window too
+    short to form the blocks."""
+    from lnn_torch.identification.classical_start import CHANCE_BLOCKS, _beyond_chance
+
+    rng = np.random.default_rng(0)
+    default = torch.as_tensor(rng.uniform(0.5, 1.5, (400, 3)))
+    assert _beyond_chance(default, 0.97 * default)  # 3 % lower everywhere
+    assert not _beyond_chance(default, default)
+    assert not _beyond_chance(default, 1.03 * default)  # worse
+    burst = default.clone()
+    burst[:20] *= 0.4  # the same 3 % mean gain, all of it in one block
+    assert not _beyond_chance(default, burst)
+    noisy = default * torch.as_tensor(rng.normal(1.0, 0.5, (400, 3)))  # lower or higher at random
+    assert not _beyond_chance(default, noisy)
+    short = default[: 2 * CHANCE_BLOCKS - 1]
+    assert not _beyond_chance(short, 0.5 * short)
