@@ -221,10 +221,27 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
         assert rebuilt.model.forces.drive.saturation_velocity == 0.1  # the configured one, until the weights come
         rebuilt.load_state_dict(module.state_dict())
         assert rebuilt.model.forces.drive.saturation_velocity == velocity
-    module, report, *_ = runs["plain"]
+    module, report, scene, config, dm = runs["plain"]
     assert report["form"] == "viscous+coulomb+offset", report
-    d = module.model.forces.drive_coefficients(torch.zeros(1, 0, dtype=torch.float64))["d"]
-    assert float(d.abs().max()) < 1e-5 * float(module.model.forces.units[1]) + 1e-12, d
+    forces = module.model.forces
+    d = forces.drive_coefficients(torch.zeros(1, 0, dtype=torch.float64))["d"]
+    assert float(d.abs().max()) < 1e-5 * float(forces.units[1]) + 1e-12, d
+    # the term left out stays out: the model's drive is the chosen form, and whatever gradient steps did to the
+    # term's coefficient, it adds no torque (and so gets no gradient); a model built with the configured form
+    # that loads the weights is the chosen form too
+    assert forces.drive.forms == ("viscous", "coulomb", "offset") and report["drive"] == options["friction"]
+    q, qd, qdd, tau, params = (x.double() for x in points(dm.trajectories("val"), 4))
+    before = module.model.inverse(q, qd, qdd, params).detach()
+    with torch.no_grad():
+        forces.coefficients_raw[-7:] += 5.0  # saturating friction's d, the last block
+    assert torch.equal(module.model.inverse(q, qd, qdd, params).detach(), before)
+    rebuilt = LNNModule(scene=scene, scene_config=config, model_options=options, torque_weight=1.0,
+                        acceleration_weight=0.0, eps=0.0)
+    assert rebuilt.model.forces.drive.forms == ("viscous", "coulomb", "offset", "saturating")
+    rebuilt.load_state_dict(module.state_dict())
+    assert rebuilt.model.forces.drive.forms == ("viscous", "coulomb", "offset")
+    # where the start keeps every configured term, so does the model
+    assert runs["gears"][0].model.forces.drive.forms == ("viscous", "coulomb", "offset", "saturating")
 
 
 def test_the_classical_fits_standard_errors_are_cluster_robust_over_the_blocks_given(recording):

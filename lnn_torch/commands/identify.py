@@ -385,14 +385,17 @@ def _tools_markdown(tools: dict | None) -> str:
 
 
 def classical_drive(module) -> DriveModel:
-    """The drive model of the classical fits beside ``module``: the model's own (its forms, its smoothing
-    velocities: the dataset's or those its classical start chose), less a term kept on evidence only
-    (``classical_start.ON_EVIDENCE``) that its classical start left out; else its configured forms with the
-    scene's smoothing."""
+    """The drive model of the classical fits beside ``module``: the model's configured forms with its smoothing
+    velocities (the dataset's or those its classical start chose), less a term kept on evidence only
+    (``classical_start.ON_EVIDENCE``) that its classical start left out (the other terms it left out stay: least
+    squares as users fit it, with the drive's usual terms); else its configured forms with the scene's
+    smoothing."""
     from ..identification.classical_start import ON_EVIDENCE
 
-    drive = getattr(getattr(module.model, "forces", None), "drive", None)
+    forces = getattr(module.model, "forces", None)
+    drive = getattr(forces, "drive", None)
     if drive is not None:
+        drive = drive.with_forms(getattr(forces, "configured_forms", drive.forms))
         kept = (getattr(module, "classical_start", None) or {}).get("form")
         if kept:
             return drive.with_forms([f for f in drive.forms if f not in ON_EVIDENCE or f in kept.split("+")])

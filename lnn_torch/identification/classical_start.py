@@ -8,7 +8,8 @@ joint's rows as recorded, or divided by the joint's ordinary residual spread as 
 friction form: the drive model's terms, or all but one where that validates better by more than ``FORM_MARGIN``,
 and a curve such as saturating friction only where validation asks for it) to the training recordings and writes
 it into a model with the learned spatial part (``networks.parts.spatial``): its links and armature exactly, its
-joint friction's coefficients, and the prior of the refinement that follows then pulls towards this start.
+joint friction's coefficients and form (``LearnedForces.keep_forms``: the terms the chosen form leaves out stay
+out), and the prior of the refinement that follows then pulls towards this start.
 Gradient steps refine it from there; ``training.callbacks.SelectOnValidation`` keeps the state the validation
 recordings prefer, the start included, so the trained model is never worse than the classical fit on validation.
 
@@ -173,7 +174,7 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     floors = {"b": 1e-6 * units[0], "c": 1e-6 * units[1], "s": 1e-6 * units[1], "d": 1e-6 * units[1],
               "phi1": 1e-6 * units[1]}
     coefficients = {}
-    for form in forces.drive.forms:  # a term the chosen form leaves out starts at zero (its floor)
+    for form in forces.drive.forms:  # a term the chosen form leaves out at zero (its floor), then kept out
         for name in COEFFICIENTS[form]:
             value = fit.friction_coefficients.get(name, torch.zeros(n, dtype=torch.float64))
             value = torch.as_tensor(value, dtype=torch.float64)
@@ -182,8 +183,13 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
                 floor = floor - forces.drive.saturation_floor() * coefficients.get("c", 0.0)
             coefficients[name] = value if floor is None else value.clamp_min(floor)
     forces.start_with(coefficients)
+    configured_name = forces.drive.name
+    # the model is the chosen form from now on: a term left out adds no torque, and gradient steps cannot bring
+    # it back (a new-user trial's refinement grew a saturating term the start had left out, which the fit's report
+    # and the exported description did not show)
+    forces.keep_forms(fit.drive.forms)
     selection = fit.info.get("prior_selection")
-    return {"method": fit.method, "drive": forces.drive.name, "form": fit.drive.name, "prior": fit.info["prior"],
+    return {"method": fit.method, "drive": configured_name, "form": fit.drive.name, "prior": fit.info["prior"],
             "validation_rms_mean": None if selection is None else selection["validation_rms_mean"],
             "prior_search": None if search is None else search["validation_rms_mean"],
             "form_selection": forms if len(forms) > 1 else None,

@@ -120,6 +120,10 @@ class LearnedForces(nn.Module):
                 self.register_buffer("saturation_velocity_si",
                                      torch.tensor(self.drive.saturation_velocity, dtype=torch.float64))
             self._sync_velocities()
+            # the forms the drive model keeps of those configured (all, until a classical start leaves one out:
+            # ``keep_forms``); they travel with the weights, the coefficients' layout stays the configured one's
+            self.configured_forms = self.drive.forms
+            self.register_buffer("forms_kept", torch.ones(len(self.configured_forms), dtype=torch.bool))
             # (b, c) first, as always; then the further forms' coefficients per joint
             self.extra = tuple(item for form in self.drive.forms for item in _EXTRA.get(form, ()))
             n_raw = (2 + len(self.extra)) * self.num_joints
@@ -228,6 +232,22 @@ class LearnedForces(nn.Module):
         self.coulomb_velocity_si.fill_(float(value))
         self._sync_velocities()
 
+    @torch.no_grad()
+    def keep_forms(self, forms) -> None:
+        """Keep only ``forms`` (a subset of the configured drive model's, in any order) from now on: the terms
+        left out add no torque and their coefficients no longer move (a classical start's chosen form, so that
+        the trained model, its report and its export are that form)."""
+        forms = set(DriveModel.of(forms).forms) if isinstance(forms, str) else set(forms)
+        unknown = forms - set(self.configured_forms)
+        if unknown or not forms:
+            raise ValueError(f"forms to keep must be some of {'+'.join(self.configured_forms)}, got {sorted(forms)}")
+        self.forms_kept.copy_(torch.tensor([f in forms for f in self.configured_forms]))
+        self._sync_forms()
+
+    def _sync_forms(self) -> None:
+        kept = [f for f, k in zip(self.configured_forms, self.forms_kept.tolist(), strict=True) if k]
+        self.drive = self.drive.with_forms(kept)
+
     def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys,
                               error_msgs) -> None:
         super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys,
@@ -237,6 +257,11 @@ class LearnedForces(nn.Module):
             missing_keys.remove(key)
         elif self.friction and key in state_dict:
             self._sync_velocities()
+        key = prefix + "forms_kept"
+        if self.friction and key in missing_keys:  # saved before the forms travelled: every configured one
+            missing_keys.remove(key)
+        elif self.friction and key in state_dict:
+            self._sync_forms()
 
     @torch.no_grad()
     def start_with(self, coefficients: dict) -> None:
