@@ -9,6 +9,7 @@ One thread: the recording, import and fit about 15 s; the AOTInductor test sever
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import shutil
 
@@ -252,6 +253,18 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
     assert abs(got[0] / load[0] - 1) < 0.02 and np.abs(np.subtract(got[1:], load[1:])).max() < 5e-3, got
     assert tool["recordings"] == ["new"] and "the model's arm" in result["tools"]["against"]
     assert "no training split" in result["comparison"] and "Loads identified against the model" in printed
+    assert "rows" not in result  # a model of the bare arm cannot carry the load: no error of its own
+    # a new log without a load, imported alone: no classical comparison, the model's own error all the same
+    alone = dataclasses.replace(spec, parameters=None, split={"train": [], "val": [], "test": ["bare"]})
+    bare = import_recordings([record(tmp_path / "bare.csv", seconds=1.0, seed=6)], tmp_path / "bare.h5", alone)
+    assert main(["identify", ckpt, str(bare), "-o", str(tmp_path / "bare")]) == 0
+    printed = capsys.readouterr().out
+    result = json.loads((tmp_path / "bare" / "identification.json").read_text())
+    (model_row, description_row) = result["rows"].values()
+    assert list(result["rows"])[1] == "description as written" and "Joint-torque RMS error on the split" in printed
+    assert "no training split" in result["comparison"]
+    # (the recording is the description's own arm: both explain it to a few per cent of its torques)
+    assert max(model_row["rms_mean"], description_row["rms_mean"]) < 0.05 * np.mean(list(result["torque_std"].values()))
     # and the identified arm handed back with that tool as its payload body (the import's identification)
     import mujoco
 

@@ -13,7 +13,9 @@ find) is identified the way robotics labs do it instead: classical least squares
 parameters with the model's drive model (ordinary, weighted, physically consistent;
 ``lnn_torch.identification.arm_comparison``), fitted on the dataset's training split, beside the model, as the
 held-out joint-torque error per joint in N m on ``--split`` (default test); ``--feedback`` adds each
-with the robot's feedback on its measured velocity (``lnn_torch.identification.velocity_feedback``).
+with the robot's feedback on its measured velocity (``lnn_torch.identification.velocity_feedback``). A dataset
+without a training split (a new log imported alone) gets the model's own error there, beside its description,
+and the loads it carries identified against the model.
 
     lnn-torch identify runs/real_panda/.../last.ckpt data/real_panda.h5 --feedback
 
@@ -247,8 +249,22 @@ def _identify_arm(module, args) -> int:
                f"its recordings carry {width} payload parameters, the model conditions on {module.system.num_params}")
         result = {"checkpoint": args.checkpoint, "recording": str(path), "split": args.split, "tools": tools,
                   "comparison": f"left out: {why}", "model_start": _model_start(module)}
-        text = (f"# {module.model.variant} on {path} ({args.split} split)\n\nNo classical comparison: {why}.\n\n"
-                + _tools_markdown(tools))
+        text = f"# {module.model.variant} on {path} ({args.split} split)\n\nNo classical comparison: {why}.\n\n"
+        P = module.system.num_params
+        unloaded = width == 0 and P > 0 and all(n.startswith("payload_") for n in module.system.param_names)
+        if args.split in dm.split_names() and (width == P or unloaded):
+            # the model's own error on the split (beside its description), with the loads it identified; a
+            # recording without payload columns carries none (a payload of zero mass)
+            data = dm.trajectories(args.split)
+            params = loads if loads is not None or not unloaded else torch.zeros(len(data), P,
+                                                                                 dtype=data.params.dtype)
+            own = compare_on_arm(module.model, module.system, data, {}, model_params=params)
+            result.update(own)
+            text += (f"Joint-torque RMS error on the split ({own['test_points']} points; N m"
+                     + ("; the model carries the loads the import left unknown as identified against it, in the "
+                        "last section" if loads is not None else "; no payload columns: no load" if unloaded else "")
+                     + f"):\n\n{markdown(own)}\n\n")
+        text += _tools_markdown(tools)
     else:
         val = dm.trajectories("val") if "val" in dm.split_names() else None  # the consistent fit's prior's choice
         # standard errors over blocks of the filtered residuals' correlation time (as the tools' at import), in
