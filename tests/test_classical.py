@@ -224,6 +224,19 @@ def test_the_excitation_check_warns_and_the_undetermined_parameters_are_named(ar
     assert u["condition_number"] < classical.COND_WARN
     # the first link turns about the vertical: its inertia about other axes moves no torque
     assert "joint1.Ixx" in u["undetermined"] and "joint1.Izz" not in u["undetermined"]
+    # no motion of the arm moves those: no recording can determine them (the report says so)
+    assert set(u["never_moving"]) == set(u["undetermined"]) and "joint1.Ixx" in u["never_moving"]
+    from lnn_torch.identification.arm_comparison import uncertainty_markdown
+
+    assert "no motion of this arm moves any of them" in uncertainty_markdown(u)
+    # a recording where the last joint never turns: its link's inertia about its axis moves no torque there, but
+    # a motion would move it
+    q, qd, qdd, tau = samples(arm, 300, 0)
+    still = [torch.cat([x[:, :-1], torch.zeros_like(x[:, -1:])], 1) for x in (qd, qdd)]
+    u = classical.least_squares(chain, q, *still, tau, drive=DRIVE).info["uncertainty"]
+    lacking = [k for k in u["undetermined"] if k not in set(u["never_moving"])]
+    assert lacking and all(k.startswith(chain.joint_names[-1]) for k in lacking), lacking
+    assert f"motions these recordings lack would move {', '.join(lacking)}" in uncertainty_markdown(u)
     assert len(u["names"]) == len(u["value"]) == len(u["std"])
     q, qd, qdd, tau = samples(arm, 300, 0)
     slow = 1e-3  # barely moving: the inertial columns hardly differ from noise-level motion

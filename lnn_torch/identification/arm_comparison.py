@@ -276,6 +276,21 @@ def markdown(result: dict) -> str:
     return markdown_table(header, rows)
 
 
+def _never_moving(uncertainty: dict) -> str:
+    """The clause naming which undetermined parameters no motion of the arm moves (more excitation cannot
+    determine them) and which only these recordings leave out (older reports: nothing)."""
+    never = uncertainty.get("never_moving")
+    if never is None or not uncertainty["undetermined"]:
+        return ""
+    others = [k for k in uncertainty["undetermined"] if k not in set(never)]
+    if not others:
+        return " (no motion of this arm moves any of them: no recording can determine them)"
+    if not never:
+        return " (motions these recordings lack would move them)"
+    return (f" ({len(never)} of them no motion of this arm moves, no recording can determine them; motions these "
+            f"recordings lack would move {', '.join(others)})")
+
+
 def uncertainty_markdown(uncertainty: dict, worst: int = 8) -> str:
     """What the recordings determine (``classical_arm.least_squares``' ``info["uncertainty"]``): the
     excitation, how many coefficients are determined to 10 % (relative standard error), the least
@@ -292,5 +307,6 @@ def uncertainty_markdown(uncertainty: dict, worst: int = 8) -> str:
              "determined:", "", markdown_table(["coefficient", "value", "std", "95 % interval"], rows), "",
              f"Determined only in combination with others: {len(uncertainty['in_combination'])} parameters; not at "
              f"all (they move no torque on these recordings, the description's values stand): "
-             f"{', '.join(uncertainty['undetermined']) or 'none'}."]
+             f"{', '.join(uncertainty['undetermined']) or 'none'}"
+             + _never_moving(uncertainty) + "."]
     return "\n".join(lines)

@@ -32,6 +32,7 @@ Shapes: ``q, qd, qdd, tau (N, n)``, float64.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -292,12 +293,19 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
     names = parameter_names(chain)
     friction_names = linear_friction_names(chain, extra)
     friction_names += [f"{chain.joint_names[j]}.phi1" for j in range(n)] if phi is not None else []
-    moving = np.flatnonzero(Y.reshape(N * n, -1).abs().amax(0).numpy() > 0)
+    moving = set(np.flatnonzero(Y.reshape(N * n, -1).abs().amax(0).numpy() > 0).tolist())
+    # of those these recordings do not move, the ones no motion of this arm moves (e.g. the first link's inertia
+    # about axes other than its joint's): seeded random states over the whole circle of every joint
+    rng = torch.Generator().manual_seed(0)
+    Q = (torch.rand(64, n, generator=rng, dtype=torch.float64) * 2 - 1) * math.pi
+    anywhere = _regressor(chain, Q, *(torch.randn(64, n, generator=rng, dtype=torch.float64) for _ in range(2)), drive)
+    possible = set(np.flatnonzero(anywhere.reshape(64 * n, -1).abs().amax(0).numpy() > 0).tolist())
     uncertainty = {"condition_number": condition, "block_samples": int(block),
                    "names": _base_names(base, names) + friction_names, "value": x.tolist(), "std": std.tolist(),
                    "interval95": torch.stack([x - Z95 * std, x + Z95 * std], -1).tolist(),
-                   "in_combination": [names[j] for j in base["dependent"] if j in set(moving.tolist())],
-                   "undetermined": [names[j] for j in range(len(names)) if j not in set(moving.tolist())]}
+                   "in_combination": [names[j] for j in base["dependent"] if j in moving],
+                   "undetermined": [names[j] for j in range(len(names)) if j not in moving],
+                   "never_moving": [names[j] for j in range(len(names)) if j not in possible]}
     model = ArmModel(chain, drive, "weighted least squares" if weighted else "least squares", friction,
                      base=base, beta=beta.numpy(), weights=weights)
     model.info["uncertainty"] = uncertainty
