@@ -148,7 +148,8 @@ def tool_lines(report: dict) -> list[str]:
                 else:
                     parts.append(f"{key} {scale * p['value']:.4g} {unit} (known)")
             point = len(tool["parameters"]) == 4  # mass and centre of mass: the payloads' four values
-            lines.append(f"tool {name} ({tool['declared']}; {len(tool['recordings'])} entries; against "
+            count = len(tool["recordings"])
+            lines.append(f"tool {name} ({tool['declared']}; {count} entr{'y' if count == 1 else 'ies'}; against "
                          f"{fit['against']}): " + ", ".join(parts) + " (95 %)"
                          + (f"; every {ordinal(report['stride'])} sample (long recordings)"
                             if report.get("stride", 1) > 1 else "")

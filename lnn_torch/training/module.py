@@ -366,7 +366,8 @@ class LNNModule(L.LightningModule):
         self.classical_start = start_from_classical(self.model, self.system, train, val)
         s = self.classical_start
         scores = s["validation_rms_mean"]
-        chosen = "" if scores is None else f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there)"
+        chosen = "" if scores is None else (f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there, "
+                                            f"on {every})")
         form = s.get("form", s["drive"])
         form = form if form == s["drive"] else f"{form}, the form validation chose among {s['drive']} and its terms"
         method = s.get("method", "physically consistent")
