@@ -108,6 +108,9 @@ def test_a_run_whose_steps_only_hurt_validation_ends_with_the_classical_start(re
     (ckpt,) = root.glob("lightning_logs/version_*/checkpoints/last.ckpt")
     saved = torch.load(ckpt, map_location="cpu", weights_only=False)
     assert saved["selection"]["step"] == 0 and len(saved["selection"]["history"]) == 3
+    # the best checkpoint beside it is the best on what the selection judges (the torques), not on accelerations
+    best = [p.name for p in ckpt.parent.glob("epoch*.ckpt")]
+    assert best and all("-torque_rms" in name for name in best), best
     history = dict(saved["selection"]["history"])
     assert history[0] < min(history[10], history[20])
     module = load_model(str(ckpt))

@@ -324,6 +324,18 @@ def _log_figures(loggers, result: dict, step: int) -> None:
         plt.close(fig)
 
 
+def best_checkpoint_on(trainer, monitor: str) -> None:
+    """The CLI's best-checkpoint callback (on the acceleration error) keeps the best state on ``monitor`` instead
+    (what ``SelectOnValidation`` judges: a model trained on torques alone has no acceleration error worth a file
+    name); a resumed run's module calls it before the callbacks' state is loaded, which is keyed by it."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    for cb in trainer.checkpoint_callbacks:
+        if type(cb) is ModelCheckpoint and cb.monitor == "val/acc_rel_err" and cb.mode == "min":
+            cb.monitor = monitor
+            cb.filename = f"epoch{{epoch}}-{monitor.rpartition('/')[2]}{{{monitor}:.4f}}"
+
+
 class SelectOnValidation(L.Callback):
     """Ends the training with the state the validation prefers, the state before the first step included
     (evaluated when training starts: a model started from a classical fit keeps it unless a refined
@@ -356,6 +368,11 @@ class SelectOnValidation(L.Callback):
             self.history = [tuple(h) for h in state_dict["history"]]
             self.left_out, self.state = list(state_dict["left_out"]), state_dict["state"]
             self.restored = True
+
+    def on_fit_start(self, trainer, pl_module) -> None:
+        monitor = getattr(pl_module, "selection_monitor", None)
+        if monitor:
+            best_checkpoint_on(trainer, monitor)
 
     def on_train_start(self, trainer, pl_module) -> None:
         if self.restored:  # a resumed run: the start and the best so far are the first run's

@@ -29,6 +29,7 @@ from .callbacks import (
     HParamsSummary,
     SelectOnValidation,
     SkipNonFiniteSteps,
+    best_checkpoint_on,
     writes_logs,
 )
 from .losses import acceleration_batch_loss, trajectory_batch_loss
@@ -201,6 +202,8 @@ class LNNModule(L.LightningModule):
             self.classical_start = {k: v for k, v in start.items() if k != "anchor_J"}
             self.model.part("kinetic", "spatial").anchor_at(start.get("anchor_J"))
         self.selection = checkpoint.get("selection")
+        if self._trainer is not None and self.selection_monitor:  # a resumed run: before its callbacks' state loads
+            best_checkpoint_on(self.trainer, self.selection_monitor)
 
     # ------------------------------------------------------------------ public physics
     def acceleration(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
