@@ -310,3 +310,12 @@ def test_identify_fits_the_classical_models_with_the_models_own_drive():
     assert classical_drive(module).forms == ("viscous", "coulomb", "offset")
     module.classical_start = {"form": "viscous+coulomb+offset+saturating"}
     assert classical_drive(module).forms == ("viscous", "coulomb", "offset", "saturating")
+
+
+def test_the_per_recording_table_bolds_every_value_that_prints_as_the_lowest():
+    from lnn_torch.identification.arm_comparison import per_recording_markdown
+
+    text = per_recording_markdown({"r07": {"grey box": 0.08596, "least squares": 0.08591, "description": 1.303},
+                                   "r08": {"grey box": 0.0993, "least squares": 0.0997, "description": float("nan")}})
+    r07, r08 = (line for line in text.splitlines() if line.startswith(("| r07", "| r08")))
+    assert r07 == "| r07 | **0.086** | **0.086** | 1.303 |" and r08 == "| r08 | **0.099** | 0.100 | nan |", text

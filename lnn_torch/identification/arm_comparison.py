@@ -201,12 +201,15 @@ def per_recording(model, system, data, fits: dict, names, model_params: torch.Te
 
 
 def per_recording_markdown(table: dict) -> str:
-    """The per-recording table: one row per recording, each model's mean joint-torque RMS, the lowest in bold."""
+    """The per-recording table: one row per recording, each model's mean joint-torque RMS, the lowest in bold (every
+    one that prints as the lowest: ties at the printed precision alike)."""
     labels = list(next(iter(table.values())))
     rows = []
     for name, errors in table.items():
         best = min((e for e in errors.values() if math.isfinite(e)), default=None)
-        rows.append([name, *(f"**{errors[k]:.3f}**" if errors[k] == best else f"{errors[k]:.3f}" for k in labels)])
+        shown = {k: f"{errors[k]:.3f}" for k in labels}
+        lowest = None if best is None else f"{best:.3f}"
+        rows.append([name, *(f"**{shown[k]}**" if shown[k] == lowest else shown[k] for k in labels)])
     return markdown_table(["recording", *labels], rows)
 
 
