@@ -202,7 +202,7 @@ def test_a_tool_of_known_mass_imports_with_its_centre_of_mass_identified(arm_log
     assert box["recordings"] == ["box_0000", "box_0001", "box_0002"] and box["parameters"]["mass"]["known"]
     assert box["parameters"]["x"]["std"] > 0
     assert "tool box (known: mass; 3 entries; against the arm, identified with them" in printed
-    assert "tool bottle (nothing known; 1 entries" in printed
+    assert "tool bottle (nothing known; 1 entry;" in printed
     assert printed.count("a point tool's own inertia (to identify it, name ten payload values") == 2  # (four values)
     assert printed.count("friction the drive model lacks (e.g. growing with the load) shift the values by more") == 2
 
