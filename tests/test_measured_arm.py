@@ -217,6 +217,8 @@ def test_identify_finds_the_arms_feedback_on_its_measured_velocity(learned, tmp_
     assert 0 < u["condition_number"] < float("inf") and len(u["interval95"]) == len(u["names"])
     assert all(lo <= v <= hi for v, (lo, hi) in zip(u["value"], u["interval95"], strict=True))
     assert "What the training recordings determine" in (tmp_path / "id" / "report.md").read_text()
+    # the consistent row's own prior (chosen on validation for its weighting and drive model) is named
+    assert "The prior towards the description of physically consistent" in (tmp_path / "id" / "report.md").read_text()
     consistent = "physically consistent + viscous+coulomb+offset"
     for base in ("film_lnn", "least squares + viscous+coulomb+offset", consistent):
         with_it = rows[f"{base} + velocity feedback"]

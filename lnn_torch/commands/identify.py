@@ -296,6 +296,7 @@ def _identify_arm(module, args) -> int:
                 + ("; the model carries the loads the import left unknown as identified against it, in the last "
                    "section, the classical fits the dataset's" if loads is not None else "")
                 + f"):\n\n{markdown(result)}\n\n"
+                + _priors_line(fits)
                 + ("" if by_recording is None else "Per recording of the split, the mean joint-torque RMS error "
                    f"(N m; the lowest in bold):\n\n{per_recording_markdown(by_recording)}\n\n")
                 + "## What the training recordings determine "
@@ -306,6 +307,16 @@ def _identify_arm(module, args) -> int:
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
     return 0
+
+
+def _priors_line(fits: dict) -> str:
+    """A sentence naming the prior of each physically consistent row (chosen on validation for its own rows'
+    weighting and drive model, so not necessarily the model's start's), or nothing."""
+    priors = [f"{label}: {fit.info['prior']:g}" for label, fit in fits.items() if fit.info.get("prior") is not None]
+    if not priors:
+        return ""
+    return ("The prior towards the description of " + "; ".join(priors) + " (chosen on validation for that row's "
+            "weighting and drive model; the model's start chose its own, above).\n\n")
 
 
 def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tensor | None]:
