@@ -25,32 +25,33 @@ zero; without velocities, the next row's positions equal) is a legitimate sample
 duplicate (the time stamp repeated too) is dropped whenever rows are dropped. Stamps that go further back than a
 few cycles (a clock that jumped), or repeat with other values, are refused as in a CSV.
 
-The torque delay (``torque_delay``): the shift ``d`` of the input columns that best explains them by the
-state, ``tau(t + d) = f(q(t), qd(t), qdd(t))``: positive where the torques are stamped late (a sensor or
-bus delay). Both sides are low-passed alike by a zero-phase filter (4th-order Butterworth, ``min(10 Hz,
-0.2 / dt)``), accelerations differentiated from the (measured) velocities; the shifted torques are a cubic
-spline of the filtered ones (sub-sample shifts). For a robot arm with its description the model is the
-rigid body's inverse dynamics, linear in its inertial parameters (``lnn_torch.robots.regressor.regressor``:
-the base parameters with armature and viscous damping) plus Coulomb and offset friction per joint, fitted
-by ordinary least squares at each shift: the residual is smallest where torques and motion line up, since
-a delay leaves ``d * dtau/dt`` that the instantaneous state cannot explain. Without a description (any
-system) the same criterion with a compact basis, linear in its coefficients, of the terms that carry a
-torque's variation at the frequencies of motion: ``1``, every ``qdd_k`` (inertia with a mean mass
-matrix), ``qd_k`` and ``tanh(qd_k / v_c)`` (friction), ``sin q_k, cos q_k`` (gravity; a length enters as
-itself): ``3 + 3 dof`` coefficients per input. Few on purpose: on one smooth trajectory any rich function
-of the state is a rich function of time, which fits a shifted torque as well as the true one (a basis
-with products of accelerations and angles and sums of angles, 184 coefficients per input for six joints,
-fitted the UR10 bag's torques to 0.03 N m at every shift and ran to the end of any range searched).
-Measured on a simulated Panda with a known delay (20 s of a 4-harmonic trajectory of about +-0.8 rad, torque
-noise 0.05-0.1 N m): the arm's regressor within 0.4 ms at 30, 100, 125 and 500 Hz, the compact basis within
-2 ms at 100-500 Hz and 7 ms at 30 Hz (the tests hold the regressor to 1 ms at 30 and 100 Hz, the basis to 2
-ms at 125 Hz). Each recording's two halves are fitted apart and their delays compared with their standard
-errors (``torque_delay``: the Birge ratio); where they disagree the model misses part of the dynamics, the
-error is widened, the estimate marked, and ``auto`` refuses it. The estimate is reported with the residual
-at zero delay and at the estimate, and applied only when asked (``auto`` or a number): each input at ``t``
-replaced by its value at ``t + d`` (a cubic spline through the stamps), the rows at the recording's end
-(``d > 0``) or start (``d < 0``) without a shifted input dropped (``t0_s`` in the provenance: the first row
-kept, from which windows count).
+The torque delay (``torque_delay``): the shift ``d`` of the input columns that best explains them by the state,
+``tau(t + d) = f(q(t), qd(t), qdd(t))``: positive where the torques are stamped late (a sensor or bus delay).
+Both sides of the regression equation are low-passed alike by a zero-phase filter (4th-order Butterworth,
+``min(10 Hz, 0.2 / dt)``): the torques, and the basis below computed from states filtered more widely
+(``WIDE_HZ``; accelerations differentiated from the measured velocities where there are), column by column
+(filtering the states to 10 Hz before a nonlinear basis biased a simulated 500 Hz arm's delay by -1 to -2 ms);
+the shifted torques are a cubic spline of the filtered ones (sub-sample shifts). For a robot arm with its
+description the model is the rigid body's inverse dynamics, linear in its inertial parameters
+(``lnn_torch.robots.regressor.regressor``: the base parameters with armature and viscous damping) plus Coulomb
+and offset friction per joint, fitted by ordinary least squares at each shift: the residual is smallest where
+torques and motion line up, since a delay leaves ``d * dtau/dt`` that the instantaneous state cannot explain.
+Without a description (any system) the same criterion with a compact basis, linear in its coefficients, of the
+terms that carry a torque's variation at the frequencies of motion: ``1``, every ``qdd_k`` (inertia with a mean
+mass matrix), ``qd_k`` and ``tanh(qd_k / v_c)`` (friction), ``sin q_k, cos q_k`` (gravity; a length enters as
+itself): ``3 + 3 dof`` coefficients per input. Few on purpose: on one smooth trajectory any rich function of the
+state is a rich function of time, which fits a shifted torque as well as the true one (a basis with products of
+accelerations and angles and sums of angles, 184 coefficients per input for six joints, fitted the UR10 bag's
+torques to 0.03 N m at every shift and ran to the end of any range searched). Measured on a simulated Panda with
+a known delay (20 s of a 4-harmonic trajectory of about +-0.8 rad, torque noise 0.05-0.1 N m): the arm's
+regressor within 0.4 ms at 30, 100, 125 and 500 Hz, the compact basis within 2 ms at 100-500 Hz and 7 ms at 30
+Hz (the tests hold the regressor to 1 ms at 30 and 100 Hz, the basis to 2 ms at 125 Hz). Each recording's two
+halves are fitted apart and their delays compared with their standard errors (``torque_delay``: the Birge
+ratio); where they disagree the model misses part of the dynamics, the error is widened, the estimate marked,
+and ``auto`` refuses it. The estimate is reported with the residual at zero delay and at the estimate, and
+applied only when asked (``auto`` or a number): each input at ``t`` replaced by its value at ``t + d`` (a cubic
+spline through the stamps), the rows at the recording's end (``d > 0``) or start (``d < 0``) without a shifted
+input dropped (``t0_s`` in the provenance: the first row kept, from which windows count).
 """
 
 from __future__ import annotations
@@ -318,6 +319,36 @@ def _cutoff(dt: float) -> float:
     return min(10.0, 0.2 / dt)
 
 
+# the states the delay's basis is computed from are filtered more widely (WIDE_HZ, at most 0.4 of the sampling rate)
+# than the criterion's band (``_cutoff``): the basis and the torques are then low-passed alike, the regression
+# equation filtered (exact for a model linear in its parameters). Low-passing the states before a nonlinear basis
+# instead biased the delay of a simulated 500 Hz arm by -1 to -2 ms (its truth 0; -0.1 to -0.3 ms so), and leaves
+# the real recordings' estimates within 0.1 ms
+WIDE_HZ = 40.0
+SEGMENT = 20_000  # samples of a recording whose basis is computed and filtered at once (with margins)
+
+
+def _filtered_at(fn, q, qd, qdd, rows, dt: float, settings: dict) -> np.ndarray:
+    """``fn(q, qd, qdd) -> (t k, p)`` (``k`` rows per sample) low-passed along time as ``settings``, at the
+    samples ``rows``: ``(len(rows) k, p)``; computed over segments of at most ``SEGMENT`` samples, each with
+    ten periods of the cutoff as margin on either side (what the filter's response reaches)."""
+    from .derivatives import smooth_inputs
+
+    T, rows = len(q), np.asarray(rows)
+    margin = int(round(10.0 / (settings["cutoff"] * dt)))
+    out = []
+    for a in range(0, T, SEGMENT):
+        at = rows[(rows >= a) & (rows < a + SEGMENT)]
+        if not len(at):
+            continue
+        lo, hi = max(0, a - margin), min(T, a + SEGMENT + margin)
+        Y = fn(*(np.ascontiguousarray(x[lo:hi]) for x in (q, qd, qdd)))
+        Y = Y.reshape(hi - lo, -1, Y.shape[-1])
+        k, p = Y.shape[1:]
+        out.append(smooth_inputs(Y.reshape(hi - lo, k * p), dt, settings).reshape(hi - lo, k, p)[at - lo])
+    return np.concatenate(out).reshape(-1, out[0].shape[-1])
+
+
 def state_basis(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, angle_mask, coulomb_velocity: float,
                 combinations=None) -> np.ndarray:
     """``(T, p)``: the compact basis of the delay's criterion at states ``(T, dof)``: ``1``, every
@@ -405,22 +436,26 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
         if T - 2 * edge < 2 * MIN_ROWS:
             out.append({"name": s["name"], "skipped": f"{T} samples: too short to estimate a delay of +-{search:g} s"})
             continue
-        qd, qdd = estimate(q, dt, settings, s.get("qd"))
+        # the states widely filtered, the basis (and a known payload's torque) then low-passed as the torques
+        qd, qdd = estimate(q, dt, {**settings, "cutoff": min(WIDE_HZ, 0.4 / dt)}, s.get("qd"))
         spline = scipy.interpolate.CubicSpline(dt * np.arange(T), smooth_inputs(tau, dt, settings), axis=0)
         rows = np.arange(edge, T - edge, max(1, (T - 2 * edge) // MAX_ROWS))
         offset = np.zeros((len(rows), tau.shape[1]))
         if chain is not None:
-            A = _arm_basis(chain, q[rows], qd[rows], qdd[rows], coulomb_velocity)
+            A = _filtered_at(lambda *x: _arm_basis(chain, *x, coulomb_velocity), q, qd, qdd, rows, dt, settings)
             params = np.asarray(s.get("params", ()), dtype=np.float64)
             if payload and params.size and np.any(params):
                 import torch
 
                 from ..robots.regressor import payload_torque
 
-                offset = payload_torque(chain, q[rows], qd[rows], qdd[rows],
-                                        torch.as_tensor(np.tile(params, (len(rows), 1)))).numpy()
+                def load(q, qd, qdd, params=params):
+                    return payload_torque(chain, q, qd, qdd, torch.as_tensor(np.tile(params, (len(q), 1)))).numpy()
+
+                offset = _filtered_at(load, q, qd, qdd, rows, dt, settings).reshape(len(rows), -1)
         else:
-            A = state_basis(q[rows], qd[rows], qdd[rows], angle_mask, coulomb_velocity, combinations)
+            A = _filtered_at(lambda *x: state_basis(*x, angle_mask, coulomb_velocity, combinations), q, qd, qdd, rows,
+                             dt, settings)
         n_eq = tau.shape[1] if flat else 1  # rows of A per sample
         halves = []
         for part in np.array_split(np.arange(len(rows)), 2):
