@@ -365,7 +365,7 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
     picked, cache = [], {}
     for s, (j, name, tool) in use:
         data = cache.setdefault(s, dm.trajectories(s))
-        picked.append((data, j, name, tool, data.num_points if data.lengths is None else int(data.lengths[j])))
+        picked.append((data, j, name, tool, data.valid_lengths()[j]))
     # long recordings thinned to at most TOOL_ROWS samples in all, as the import's tool fit
     stride = max(1, math.ceil(sum(n for *_, n in picked) / TOOL_ROWS))
     rows = [(name, *(getattr(data, a)[j, :n:stride].double() for a in ("q", "qd", "qdd", "tau")), tool)

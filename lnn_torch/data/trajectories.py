@@ -55,6 +55,14 @@ class Trajectories:
     def dof(self) -> int:
         return self.q.shape[2]
 
+    def valid_lengths(self) -> list[int]:
+        """Each trajectory's number of points (the rest of ``T`` is NaN padding)."""
+        return [self.num_points] * len(self) if self.lengths is None else [int(n) for n in self.lengths]
+
+    def entry(self, j: int) -> Trajectories:
+        """Trajectory ``j`` alone (a batch of one)."""
+        return self._map(lambda x: x[j:j + 1])
+
     def head(self, n: int | None) -> Trajectories:
         """The first ``n`` trajectories (all for None)."""
         if n is None or n >= len(self):
@@ -73,8 +81,7 @@ class Trajectories:
 def points(data, stride: int = 1) -> list[torch.Tensor]:
     """``q, qd, qdd, tau, params`` at the valid points of every trajectory (every ``stride``-th), float64."""
     out = {k: [] for k in ("q", "qd", "qdd", "tau", "params")}
-    lengths = [data.num_points] * len(data) if data.lengths is None else [int(n) for n in data.lengths]
-    for j, n in enumerate(lengths):
+    for j, n in enumerate(data.valid_lengths()):
         for k in ("q", "qd", "qdd", "tau"):
             out[k].append(getattr(data, k)[j, :n:stride].double())
         out["params"].append(data.params[j].double().expand(len(out["q"][-1]), -1))

@@ -27,8 +27,7 @@ def _horizons(ctx: EvalContext) -> SectionResult:
     dt = data.dt
     n = int(round(max(max(horizons), float(ctx.options.get("time_limit", 0))) / dt))
     step = max(1, int(round(every / dt)))
-    lengths = [data.num_points] * len(data) if data.lengths is None else [int(x) for x in data.lengths]
-    starts = [(j, s) for j, length in enumerate(lengths) for s in range(0, length - n, step)]
+    starts = [(j, s) for j, length in enumerate(data.valid_lengths()) for s in range(0, length - n, step)]
     if not starts:
         return skip(f"no trajectory is longer than the longest horizon, {n * dt:g} s")
     js = torch.tensor([j for j, _ in starts])

@@ -195,7 +195,7 @@ def per_recording(model, system, data, fits: dict, names, model_params: torch.Te
     alone (``names``: one per trajectory, e.g. the dataset's recordings), the description as written included
     (``model_params`` as ``compare_on_arm``'s)."""
     return {name: {label: row["rms_mean"] for label, row in
-                   compare_on_arm(model, system, data._map(lambda x, j=j: x[j:j + 1]), fits,
+                   compare_on_arm(model, system, data.entry(j), fits,
                                   model_params=None if model_params is None else model_params[j:j + 1])["rows"].items()}
             for j, name in enumerate(names)}
 

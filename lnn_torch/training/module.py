@@ -361,7 +361,7 @@ class LNNModule(L.LightningModule):
             return
         val = dm.trajectories("val") if "val" in dm.split_names() else None
         train = dm.trajectories("train")
-        points = int(train.lengths.sum()) if train.lengths is not None else len(train) * train.num_points
+        points = sum(train.valid_lengths())
         every = "every sample" if STRIDE == 1 else f"every {ordinal(STRIDE)} sample"
         print(f"classical start: least squares on {every} of {points} training samples"
               + (", its settings chosen on the validation split" if val is not None else "")
@@ -417,7 +417,7 @@ class LNNModule(L.LightningModule):
         data, stride, torque = dm.trajectories("val"), int(dm.hparams.eval_stride), model_torque(self.model)
         out = []
         for j in range(len(data)):
-            q, qd, qdd, tau, params = (x.to(self.device) for x in points(data._map(lambda x, j=j: x[j:j + 1]), stride))
+            q, qd, qdd, tau, params = (x.to(self.device) for x in points(data.entry(j), stride))
             out.append(torque_errors(torque(q, qd, qdd, params), tau, range(tau.shape[1]))["rms_mean"])
         return out
 
