@@ -8,6 +8,7 @@ fail: the description itself is far from the model, and a wrong frame conversion
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -22,6 +23,7 @@ from lnn_torch.export import description as wb  # noqa: E402
 from lnn_torch.networks import build_model  # noqa: E402
 from lnn_torch.networks.base import SceneInfo  # noqa: E402
 from lnn_torch.robots.description import ArmDescription  # noqa: E402
+from lnn_torch.robots.kinematics import read_chain  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 from lnn_torch.robots.shipped import DESCRIPTIONS  # noqa: E402
 
@@ -394,7 +396,7 @@ def test_an_mjcf_as_the_robot_is_written_as_compiled(tmp_path, float64):
     print("mjcf as the robot", errors)
     assert max(errors.values()) < BOUND, errors
     assert (arm.model.nu, arm.model.nsensor, arm.model.nexclude) == (2, 1, 0)
-    assert '<include file="../src/defaults.xml" />' in result.path.read_text()
+    assert '<include file="../src/defaults.xml"/>' in result.path.read_text()  # closed as the file closes them
     assert "hand" not in arm.body_names and {"payload", "tool"} <= set(arm.body_names)
 
 
@@ -504,3 +506,41 @@ def test_a_file_written_without_a_payload_keeps_its_flange(tmp_path, float64, na
     reference = MujocoArm(description)
     held = alone.gravity(q, load) - alone.gravity(q)  # the load's own torques: where it hangs
     torch.testing.assert_close(held, reference.gravity(q, load) - reference.gravity(q), rtol=1e-12, atol=1e-12)
+
+
+def test_what_the_data_left_as_described_is_written_as_the_description_has_it(tmp_path, monkeypatch):
+    """A float32 grey box gives a value the data never moved as the description's to float32 round-off
+    (3.6999999 for a mass of 3.7): such values are the description's, so a link left as described keeps its
+    inertial element as written (a rotated one too), a link of which one second moment moved keeps the text of
+    every value that did not (mass, centre of mass, the unchanged inertia entries), the file closes its elements
+    and declares its namespaces as the source does, and the written chain is the identified one (the write-back's
+    own check). The rule can fail: a link moved by more than round-off is written anew."""
+    text = TWO_LINK_URDF.replace('<robot name="two">', '<robot name="two" xmlns:xacro="http://ros.org/wiki/xacro">')
+    source = tmp_path / "two.urdf"
+    source.write_text(text)
+    description = {"source": str(source), "flange": "tool0"}
+    model = build_model("film_lnn", _scene(description, 2), kinetic={"spatial": {}}, potential={"spatial": {}}).float()
+    described = read_chain(ArmDescription.of(description).compile()).J.numpy()
+    ident = wb.identified_arm(model)
+    assert 0 < np.abs(ident.J - described).max() < 1e-6  # the model's own: the description's to float32 round-off
+    noise = 1e-8 * np.random.default_rng(0).standard_normal(described.shape)
+    J = described * (1 + noise + noise.transpose(0, 2, 1))  # round-off everywhere
+    J[1, 2, 2] += 1e-3  # l2's second moment along z: its ixx and iyy move, nothing else
+    monkeypatch.setattr(wb, "identified_arm", lambda *a, **k: dataclasses.replace(ident, J=J))
+    result = wb.write_description(model, tmp_path / "out" / "two_identified.urdf")
+    written = result.path.read_text()
+    assert any("within the model's round-off" in n for n in result.notes), result.notes
+    inertials = lambda t: re.findall(r"<inertial>.*?</inertial>", t, re.S)  # noqa: E731
+    before, after = inertials(text), inertials(written)
+    assert after[1] == before[1]  # l1: rotated inertial, as written
+    l2 = wb._parse(written).find("link[@name='l2']/inertial")
+    inertia = l2.find("inertia").attrib
+    assert (l2.find("mass").get("value"), l2.find("origin").get("xyz")) == ("1.5", "0.1 0 0.1")
+    assert {k: inertia[k] for k in ("izz", "ixy", "ixz", "iyz")} == {"izz": "0.015", "ixy": "0.001", "ixz": "0",
+                                                                      "iyz": "0"}
+    assert inertia["ixx"] != "0.015" and inertia["iyy"] != "0.02"  # moved
+    assert '<robot name="two" xmlns:xacro="http://ros.org/wiki/xacro">' in written and " />" not in written
+    # l1 moved by more than round-off: written anew
+    J[0, 3, 3] *= 1 + 1e-5
+    moved = wb.write_description(model, tmp_path / "out" / "moved.urdf")
+    assert inertials(moved.path.read_text())[1] != before[1]

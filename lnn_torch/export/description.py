@@ -22,8 +22,12 @@ changes are applied too: the bodies it ``remove``-s are gone (with the actuators
 exclusions and transmissions that name them), a ``payload`` body hangs at the flange where a payload is
 written (a URDF link and fixed joint), the ``tool`` is there. Use it as ``source`` alone (no ``remove``, ``tool`` or
 ``flange``). Geometry, joints, limits, actuators, defaults, visuals and comments are kept as written:
-the file is edited as XML (``xml.etree``; MJCF and URDF alike), numbers written with every digit
-(``repr``), relative asset paths re-pointed where the file is written elsewhere. MuJoCo's own writer
+the file is edited as XML (``xml.etree``; MJCF and URDF alike; the root's start tag and the closing of empty
+elements as the file writes them), numbers written with every digit (``repr``), relative asset paths re-pointed
+where the file is written elsewhere. What the data left as described is written as the description has it: an
+identified value within the model's round-off of the description's is the description's (``_as_described``; a
+float32 model gives a mass of 3.7 as 3.6999999), a body whose inertial is then the description's keeps its
+element as written, and a value of a changed one that did not change keeps its text. MuJoCo's own writer
 (``MjSpec.to_xml``) is not used: it prints 6 significant digits, which alone moves the shipped Panda's
 mass matrix by 1.5e-6 relative (its body quaternions become 0.707107), and rewrites the whole file.
 
@@ -44,7 +48,8 @@ damping and friction loss): else ``InputError`` and nothing is written.
 A URDF-described arm written as MJCF (``format="mjcf"``) is its URDF write-back converted by MuJoCo's own URDF
 importer (``_urdf_as_mjcf``): static bodies kept, the armature set, every body frame, inertial and joint value
 rewritten in full from the compiled model (``MjSpec.to_xml`` writes six digits), mesh files not found here left
-out (noted), then checked as above.
+out (noted), the joints' ranges and effort limits in full; URDF velocity limits have no MJCF attribute (noted);
+then checked as above.
 
 Sources: an ``LNNModule`` or network whose kinetic part is ``spatial`` (the grey box; its kinetic
 ``eps`` on the diagonal is folded into the armature, exact), or a classical ``ArmModel`` with full
@@ -53,6 +58,7 @@ parameters (``pi``; give its ``description``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -79,6 +85,10 @@ FORMATS = ("mjcf", "urdf")
 SUFFIXES = {"mjcf": ".xml", "urdf": ".urdf"}
 REFUSAL = "write-back needs a grey box built from a robot description (kinetic part 'spatial')"
 CHECK_RTOL = 1e-9  # the written file's links against the identified ones (relative to each link's largest entry)
+# an identified pseudo-inertia entry within this many machine epsilons of the model's dtype of the description's
+# (relative to the entry's scale, sqrt(J_aa J_bb)) is the description's: what the data left undetermined comes
+# back from a float32 model as 3.6999999304954803 for a mass of 3.7, and 0 as -6e-35 (_as_described)
+ROUND_OFF = 16
 _ORIENTATIONS = ("quat", "axisangle", "xyaxes", "zaxis", "euler")
 
 
@@ -88,7 +98,9 @@ class IdentifiedArm:
     """The arm a model identified, in SI (float64 numpy): per moving body ``J (n, 4, 4)`` in its frame
     (welded bodies folded in, payload excluded), per joint ``armature``, ``damping`` (viscous) and
     ``frictionloss`` (Coulomb level; None where the model has no such form), the ``payload`` row at the
-    flange (or None), what cannot be expressed (``unexpressed``: ``{term, why, values}``) and notes."""
+    flange (or None), what cannot be expressed (``unexpressed``: ``{term, why, values}``), notes and
+    ``resolution``: the relative round-off of the numbers the model computes in (``ROUND_OFF`` machine epsilons
+    of its dtype), below which an identified value is the description's (``_as_described``)."""
 
     description: ArmDescription
     what: str
@@ -100,6 +112,7 @@ class IdentifiedArm:
     joint_names: tuple[str, ...]
     unexpressed: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    resolution: float = 0.0
 
 
 @dataclass
@@ -238,7 +251,8 @@ def _from_grey_box(m, row) -> IdentifiedArm:
         notes.append("the model has no Coulomb friction: the joints' friction loss is left as written")
     _check_geometry(desc, part, None)
     return IdentifiedArm(desc, f"grey box ({m.variant}, kinetic part 'spatial')", J, armature, damping,
-                         frictionloss, row, names, unexpressed, notes)
+                         frictionloss, row, names, unexpressed, notes,
+                         ROUND_OFF * float(torch.finfo(m.dtype).eps))
 
 
 def _drive_terms(drive, coef: dict, names, stiction: bool = False, stick_velocity: float | None = None) -> list[dict]:
@@ -296,7 +310,8 @@ def _from_arm_model(model, row, description) -> IdentifiedArm:
         notes.append("the fit has no Coulomb friction: the joints' friction loss is left as written")
     _check_geometry(desc, None, chain)
     return IdentifiedArm(desc, f"classical {model.method} fit (drive {model.drive.name})", J, pi[10 * n: 11 * n].copy(),
-                         damping, frictionloss, row, names, _drive_terms(model.drive, coef, names), notes)
+                         damping, frictionloss, row, names, _drive_terms(model.drive, coef, names), notes,
+                         ROUND_OFF * float(np.finfo(np.float64).eps))
 
 
 def _check_geometry(desc: ArmDescription, part, chain) -> None:
@@ -322,6 +337,46 @@ def _check_geometry(desc: ArmDescription, part, chain) -> None:
 
 
 # ---------------------------------------------------------------------------- the bodies to write
+def _as_described(ident: IdentifiedArm, nominal: np.ndarray) -> tuple[IdentifiedArm, int]:
+    """``ident`` with each link's pseudo-inertia entries that lie within the model's round-off
+    (``ident.resolution`` times the entry's scale ``sqrt(J_aa J_bb)``) of the description's ``nominal (n, 4, 4)``
+    set to the description's (a link whose result would not be a rigid body is left as identified), and how
+    many of the links' ten values each were so set. The written file then holds the description's own numbers
+    where the data determined nothing (and the file's text for them: ``_keep``)."""
+    J = ident.J.copy()
+    count = 0
+    for i in range(len(J)):
+        diag = np.abs(np.diagonal(nominal[i]))
+        close = np.abs(J[i] - nominal[i]) <= ident.resolution * np.sqrt(np.outer(diag, diag))
+        if not close.any():
+            continue
+        snapped = np.where(close, nominal[i], J[i])
+        if np.linalg.eigvalsh(0.5 * (snapped + snapped.T)).min() <= 0:
+            continue
+        J[i] = snapped
+        count += int(np.triu(close).sum())
+    if not count:
+        return ident, 0
+    return dataclasses.replace(ident, J=J), count
+
+
+def _keep(old: str | None, new, scale: float | None = None) -> str:
+    """The numbers ``new`` as an attribute's text, each one the old text's own token where the old one is the
+    same number to float64 round-off (relative to ``scale``, default the largest of either): values the data
+    left as described keep the description's spelling (``0.0193``, not ``0.019299999999999998``)."""
+    values = np.asarray(new, dtype=np.float64).reshape(-1)
+    tokens = (old or "").split()
+    try:
+        before = np.array([float(t) for t in tokens])
+    except ValueError:
+        before = np.array([])
+    if before.shape != values.shape:
+        return _nums(values)
+    scale = float(np.max(np.abs(np.concatenate([before, values])), initial=0.0)) if scale is None else scale
+    same = np.abs(before - values) <= 1e-12 * scale
+    return " ".join(t if ok else _num(v) for t, ok, v in zip(tokens, same, values, strict=True))
+
+
 def inertial_of(J: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """``(mass, centre of mass (3,), inertia about it (3, 3))`` of a pseudo-inertia ``J (4, 4)`` in its
     body's frame (what MJCF's ``<inertial pos mass fullinertia>`` and URDF's ``<inertial>`` hold)."""
@@ -370,8 +425,11 @@ def _body_groups(model) -> list[dict]:
 
 
 def _plan(ident: IdentifiedArm, model) -> tuple[dict, list[str]]:
-    """``{body name: J in its own frame or None (zeroed)}`` for every body whose inertial is written, and
-    notes (module docstring: welded bodies keep theirs where the rest is a rigid body)."""
+    """``{body name: J in its own frame or None (zeroed)}`` for every body whose inertial is written (a body
+    whose ``J`` is the description's keeps its inertial as written), and notes (module docstring: welded bodies
+    keep theirs where the rest is a rigid body)."""
+    from ..robots.kinematics import _quat_matrix, pseudo_inertia
+
     groups = _body_groups(model)
     plan, notes = {}, []
     for i, g in enumerate(groups):
@@ -379,6 +437,12 @@ def _plan(ident: IdentifiedArm, model) -> tuple[dict, list[str]]:
             raise InputError(f"write-back: moving body {g['id']} of the description has no name")
         welded = sum((w["J"] for w in g["welded"]), np.zeros((4, 4)))
         own = ident.J[i] - welded
+        b = g["id"]
+        R = _quat_matrix(model.body_iquat[b])
+        written = pseudo_inertia(float(model.body_mass[b]), model.body_ipos[b],
+                                 R @ np.diag(model.body_inertia[b]) @ R.T)
+        if np.abs(own - written).max() <= 1e-12 * np.abs(written).max():  # as described: its inertial as written
+            continue
         eig = np.linalg.eigvalsh(0.5 * (own + own.T))
         if eig.min() > 1e-9 * max(eig.max(), 1e-300):
             plan[g["body"]] = own
@@ -432,7 +496,15 @@ def _serialise(text: str, root) -> str:
                   if not any(a <= m.start() < b for a, b in comments)), 0)
     end = text.rfind(f"</{root.tag}>")
     after = text[end + len(root.tag) + 3:] if end >= 0 else "\n"
-    return text[:start] + ET.tostring(root, encoding="unicode") + after
+    body = ET.tostring(root, encoding="unicode")
+    if " />" not in text:  # the writer closes empty elements with " />": as the file does, where it never does
+        body = body.replace(" />", "/>")
+    # the root's start tag as written (the write-back never changes the root's attributes; ElementTree drops the
+    # namespace declarations no element uses, e.g. a xacro output's xmlns:xacro)
+    written, original = re.match(r"<[^>]*>", body), re.match(r"<[^>]*>", text[start:])
+    if written and original and not original.group(0).endswith("/>"):
+        body = original.group(0) + body[written.end():]
+    return text[:start] + body + after
 
 
 def _child_indent(root, parent) -> str:
@@ -585,7 +657,10 @@ def _mjcf_inertial(root, body):
 
 
 def _mjcf_set_inertial(root, body, J) -> None:
-    """A body's inertial from its pseudo-inertia ``J`` in its frame (None: massless)."""
+    """A body's inertial from its pseudo-inertia ``J`` in its frame (None: massless); a value the same as the
+    file's keeps its text (``_keep``)."""
+    found = body.find("inertial")
+    was = {} if found is None else dict(found.attrib)
     inertial = _mjcf_inertial(root, body)
     if J is None:
         inertial.set("pos", "0 0 0")
@@ -593,9 +668,16 @@ def _mjcf_set_inertial(root, body, J) -> None:
         inertial.set("diaginertia", "0 0 0")
         return
     m, c, I = inertial_of(J)
-    inertial.set("pos", _nums(c))
-    inertial.set("mass", _num(m))
-    inertial.set("fullinertia", _nums([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]))
+    inertial.set("pos", _keep(was.get("pos"), c))
+    inertial.set("mass", _keep(was.get("mass"), [m]))
+    full = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+    scale = float(np.abs(full).max())
+    oriented = any(was.get(k) for k in _ORIENTATIONS)
+    if not oriented and "diaginertia" in was and _keep(was["diaginertia"] + " 0 0 0", full, scale) \
+            == was["diaginertia"] + " 0 0 0":  # the same diagonal inertia: as written
+        inertial.set("diaginertia", was["diaginertia"])
+    else:
+        inertial.set("fullinertia", _keep(None if oriented else was.get("fullinertia"), full, scale))
 
 
 def _row_J(row) -> np.ndarray:
@@ -750,12 +832,15 @@ def _urdf_set_inertial(root, link, mass, com, I) -> None:
         if parts[tag] is None:
             parts[tag] = ET.Element(tag)
             _add(root, inertial, parts[tag], first=tag == "origin")
-    parts["origin"].set("xyz", _nums(com))
+    # a value the same as the file's keeps its text (``_keep``), where the file's inertia is in the link's axes
+    axes = not any(float(v) for v in (parts["origin"].get("rpy") or "0 0 0").split())
+    parts["origin"].set("xyz", _keep(parts["origin"].get("xyz"), com))
     parts["origin"].set("rpy", "0 0 0")
-    parts["mass"].set("value", _num(mass))
+    parts["mass"].set("value", _keep(parts["mass"].get("value"), [mass]))
+    scale = float(np.abs(I).max())
     for key, (a, b) in zip(("ixx", "iyy", "izz", "ixy", "ixz", "iyz"),
                            ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)), strict=True):
-        parts["inertia"].set(key, _num(I[a, b]))
+        parts["inertia"].set(key, _keep(parts["inertia"].get(key) if axes else None, [I[a, b]], scale))
     if new:
         _add(root, link, inertial, first=True)
 
@@ -907,6 +992,11 @@ def _urdf_as_mjcf(source, path: Path, ident: IdentifiedArm, *, payload, descript
         notes = [n for n in back.notes if "the description names are not found here" not in n]  # (URDF's own)
         notes.append("converted from the URDF write-back by MuJoCo's URDF importer: bodies, joints and inertials as "
                      "MuJoCo reads the URDF, each joint's armature set")
+        speeds = [j.get("name") for j in _parse(urdf.read_text()).iter("joint")
+                  if j.find("limit") is not None and j.find("limit").get("velocity") is not None]
+        if speeds:
+            notes.append(f"the URDF's joint velocity limits ({len(speeds)} joints) have no MJCF attribute: not in the "
+                         "MJCF (its position limits are the joints' range, its effort limits their actuatorfrcrange)")
         if dropped:
             more = ", ..." if len(dropped) > 1 else ""
             notes.append(f"{len(dropped)} mesh file(s) not found here ({dropped[0]}{more}): their geoms are left out "
@@ -950,6 +1040,10 @@ def _exact_frames(root, model) -> None:
                 for key, values in (("armature", model.dof_armature), ("damping", model.dof_damping),
                                     ("frictionloss", model.dof_frictionloss)):
                     joint.set(key, _num(values[d]))
+                if joint.get("range") is not None:  # the URDF's limits in full (to_xml: 6.28319 for 6.28318530718)
+                    joint.set("range", _nums(model.jnt_range[j]))
+                if joint.get("actuatorfrcrange") is not None:
+                    joint.set("actuatorfrcrange", _nums(model.jnt_actfrcrange[j]))
 
 
 # ---------------------------------------------------------------------------- the check
@@ -1057,9 +1151,16 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     """
     import mujoco
 
+    from ..robots.kinematics import read_chain
+
     path = Path(path)
     fmt = _format_of(path, format)
     ident = identified_arm(source, payload, description)
+    ident, described = _as_described(ident, read_chain(ident.description.compile()).J.double().numpy())
+    if described:
+        ident.notes.append(f"{described} of the links' values lie within the model's round-off ({ident.resolution:.2g} "
+                           "relative) of the description's (the data determined nothing there): written as the "
+                           "description has them")
     desc = ident.description
     src = desc.path
     text = src.read_text()
@@ -1097,6 +1198,12 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     writer = _write_mjcf if fmt == "mjcf" else _write_urdf
     path.parent.mkdir(parents=True, exist_ok=True)
     root = writer(ident, plan, text, src, path, spec)
+    kind_tag = "body" if fmt == "mjcf" else "link"
+    if ident.payload is None and not any(e.get("name") == PAYLOAD_BODY for e in _parse(text).iter(kind_tag)) \
+            and any(e.get("name") == PAYLOAD_BODY for e in root.iter(kind_tag)):
+        notes.append(f"a massless {kind_tag} '{PAYLOAD_BODY}' is added at the flange "
+                     f"({desc.flange or 'the chain end'}): it records where loads attach, so that the file read alone "
+                     "as a description has the same flange (--payload or --tool gives it a load)")
     _add(root, root, _comment(ident, fmt, sidecar.name, lines), first=True)
     written = _serialise(text, root)
     temp = path.with_name(f".{path.stem}.writing{path.suffix}")
