@@ -272,8 +272,9 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
 
     from lnn_torch.commands.export import tool_row
 
-    row = tool_row(str(data), "load")
-    assert abs(row[0] / load[0] - 1) < 0.02
+    row, how = tool_row(str(data), "load", load_model(ckpt), ckpt)
+    assert abs(row[0] / load[0] - 1) < 0.02 and how.startswith("identified against the model from this split")
+    assert row == got  # as identify identified it
     out = tmp_path / "arm.xml"
     assert main(["export", ckpt, "--format", "mjcf", "--tool", str(data), "load", "-o", str(out)]) == 0
     written = mujoco.MjModel.from_xml_path(str(out))
@@ -290,7 +291,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     rows use the dataset's; so is its row with the robot's velocity feedback (``--feedback``). A load the
     training recordings carry is identified from those, never from the recordings judged: the same whichever
     split is judged."""
-    from lnn_torch.commands.identify import _tools_on_split
+    from lnn_torch.commands.identify import tools_on_split
     from lnn_torch.data import read_dataset
     from lnn_torch.data.importer import ImportSpec, import_recordings
     from lnn_torch.identification.arm_comparison import feedback_rows, model_torque, points
@@ -344,7 +345,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     spec.split = {"train": ["new[0:2.0]"], "val": ["new[2.0:2.5]"], "test": ["new[2.5:]"]}
     windows = import_recordings([csv], tmp_path / "windows.h5", spec)
     dm = TrajectoryDataModule(path=str(windows), targets=targets)
-    loads = {split: _tools_on_split(load_model(ckpt), read_dataset(windows), dm, split) for split in ("val", "test")}
+    loads = {split: tools_on_split(load_model(ckpt), read_dataset(windows), dm, split) for split in ("val", "test")}
     assert loads["test"][0]["tools"]["load"]["from"] == "training and validation recordings"
     assert loads["val"][0]["tools"]["load"]["from"] == ("training and validation recordings (the judged split "
                                                         "among them)")

@@ -101,6 +101,30 @@ def test_a_tool_every_recording_carries_cannot_be_told_from_the_arm(chain):
     np.testing.assert_allclose(fit.values["box"], POINT, atol=1e-9)
 
 
+def test_against_an_arm_without_friction_the_drives_friction_is_fitted_beside_the_tool(chain):
+    """Against the description as written (no friction), recordings whose torques hold the drive's viscous,
+    Coulomb and offset friction: with ``friction`` those are fitted beside the tool, which comes out exact;
+    without, the tool takes up the friction (the check can fail)."""
+    from lnn_torch.mechanics.friction import DriveModel
+
+    drive = DriveModel.of({"forms": "viscous+coulomb+offset", "coulomb_velocity": 0.02})
+    b, c, o = (torch.linspace(lo, hi, chain.dof, dtype=torch.float64)
+               for lo, hi in ((0.5, 2.0), (0.3, 1.5), (-0.4, 0.4)))
+    data = [(name, q, qd, qdd, tau + b * qd + c * drive.shape("coulomb", qd) + o, tool)
+            for name, q, qd, qdd, tau, tool in recordings(chain, POINT, seed=3, free=0)]
+    tool = {"box": Tool.declared("box", {}, 4)}
+    pi = description_parameters(chain)
+
+    def arm(q, qd, qdd):
+        return inverse_dynamics(chain, q, qd, qdd, pi)
+
+    fitted = identify_tools(chain, data, tool, arm=arm, drive=drive, friction=True)
+    np.testing.assert_allclose(fitted.values["box"], POINT, atol=1e-8)
+    assert max(fitted.residual_rms) < 1e-8
+    alone = identify_tools(chain, data, tool, arm=arm, drive=drive)
+    assert np.abs(alone.values["box"] - POINT).max() > 1e-2
+
+
 def test_declarations_are_checked():
     with pytest.raises(InputError, match="'box': colour is not a payload field"):
         Tool.declared("box", {"colour": 1}, 4)

@@ -27,8 +27,8 @@ In Python: ``torch.export.load("exported/forward_dynamics.pt2").module()(q, qd, 
 ``--format mjcf`` or ``urdf`` hands an arm's grey box (kinetic part ``spatial``) back as its robot
 description: the description it was built from with the identified link masses, centres of mass,
 inertias, joint armature, damping and friction loss (and ``--payload``, the load at the flange, or
-``--tool DATA NAME``, a tool as an import identified it), nothing else changed; MuJoCo loaded from it
-has the model's rigid-body dynamics. What the format cannot express
+``--tool DATA NAME``, a tool of an imported dataset identified against the model as ``identify`` does),
+nothing else changed; MuJoCo loaded from it has the model's rigid-body dynamics. What the format cannot express
 (Coulomb smoothing, friction offset, Stribeck, a learned residual, URDF's armature) is printed and
 kept in ``OUT.json`` beside it (``lnn_torch.export.description``). A URDF-described arm written as ``mjcf``
 is its URDF write-back converted by MuJoCo, with the armature. ``-o`` names the file (``.xml``, ``.urdf``) or a
@@ -64,8 +64,8 @@ def _parser() -> argparse.ArgumentParser:
                          "evaluated with it): mass cx cy cz [Ixx Iyy Izz Ixy Ixz Iyz] (kg, m, kg m^2; flange frame, "
                          "inertia about its centre of mass)")
     ap.add_argument("--tool", nargs=2, default=None, metavar=("DATA", "NAME"),
-                    help="mjcf, urdf: instead of --payload, the tool NAME as the import of DATA (.h5) identified it "
-                         "(or declared it)")
+                    help="mjcf, urdf: instead of --payload, the tool NAME of DATA (.h5) identified against the model "
+                         "as lnn-torch identify does (as declared where the import knew all of it)")
     ap.add_argument("--functions", nargs="+", default=None, choices=FUNCTIONS, metavar="FUNCTION",
                     help=f"among {', '.join(FUNCTIONS)} (default: every one the model has)")
     ap.add_argument("--dtype", default=None, choices=sorted(DTYPES),
@@ -115,24 +115,43 @@ def _write_descriptions(module, args, out, formats) -> None:
             print(f"note: {note}")
 
 
-def tool_row(path: str, name: str) -> list[float]:
-    """The payload row of the tool ``name`` in an imported dataset file: as its import identified it (the
-    file's provenance ``tools``), or as declared where nothing was unknown."""
+def tool_row(path: str, name: str, module, checkpoint: str) -> tuple[list[float], str]:
+    """The payload row of the tool ``name`` in an imported dataset file, and where it comes from: as declared
+    where the import knew all of it, else identified against the model (``module``, loaded from ``checkpoint``)
+    as ``lnn-torch identify`` identifies it (from the training and validation recordings that carry it, else from
+    those of the split that does): the import's own estimate was made against a classical arm or, for a tool only
+    a new log carries, against the description as written."""
     import json
 
     from ..data import read_dataset
     from ..errors import InputError
+    from ..robots.tools import Tool
+    from ..training.checkpoint_format import data_hparams
+    from ..training.datamodule import TrajectoryDataModule
+    from .identify import tools_on_split
 
     f = read_dataset(path)
     provenance = json.loads(f.attrs["provenance"])
-    for fit in (provenance.get("tools") or {}).get("fits", []):
-        if name in fit["tools"]:
-            return [p["value"] for p in fit["tools"][name]["parameters"].values()]
     declared = ((provenance.get("settings") or {}).get("parameters") or {}).get("tools") or {}
-    if isinstance(declared.get(name), list):
-        return [float(v) for v in declared[name]]
-    known = sorted(set(declared) | {t for fit in (provenance.get("tools") or {}).get("fits", []) for t in fit["tools"]})
-    raise InputError(f"{path}: no tool {name!r} (tools: {', '.join(known) or 'none'})")
+    if name not in declared:
+        raise InputError(f"{path}: no tool {name!r} (tools: {', '.join(sorted(declared)) or 'none'})")
+    width = f.read("params").shape[-1]
+    if not Tool.declared(name, declared[name], width).unknown:
+        return [float(v) for v in Tool.declared(name, declared[name], width).known_row()], "as declared"
+    dm = TrajectoryDataModule(path=str(path), targets=data_hparams(checkpoint).get("targets", "file"))
+    carried = (provenance.get("tools") or {}).get("entries", {})
+    recordings = json.loads(f.attrs["recordings"])
+    for split in ("train", "val", "test"):
+        if any(carried.get(recordings[int(k)]) == name for k in f.splits.get(split, [])):
+            report, _ = tools_on_split(module, f, dm, split, judging=False)
+            tool = report["tools"][name]
+            values = [p["value"] for p in tool["parameters"].values()]
+            shown = ", ".join(f"{k} {p['value']:.6g} {p['unit']}"
+                              + (f" [{p['interval95'][0]:.6g}, {p['interval95'][1]:.6g}]" if "interval95" in p
+                                 else " (known)") for k, p in tool["parameters"].items())
+            return values, (f"identified against the model from {tool['from']} ({', '.join(tool['recordings'])}): "
+                            f"{shown} (95 %)")
+    raise InputError(f"{path}: no recording carries tool {name!r}")
 
 
 def main(argv: list[str]) -> int:
@@ -154,14 +173,14 @@ def main(argv: list[str]) -> int:
 
         raise InputError(f"--payload takes 4 values (mass cx cy cz) or 10 (and Ixx Iyy Izz Ixy Ixz Iyz), got "
                          f"{len(args.payload)}")
-    if args.tool is not None:
-        if args.payload is not None:
-            from ..errors import InputError
+    if args.tool is not None and args.payload is not None:
+        from ..errors import InputError
 
-            raise InputError("give --payload or --tool, not both")
-        args.payload = tool_row(*args.tool)
-        print(f"tool {args.tool[1]} of {args.tool[0]}: " + " ".join(f"{v:.6g}" for v in args.payload))
+        raise InputError("give --payload or --tool, not both")
     module = load_model(args.checkpoint)
+    if args.tool is not None:
+        args.payload, how = tool_row(*args.tool, module, args.checkpoint)
+        print(f"tool {args.tool[1]} of {args.tool[0]}, {how}")
     out_dir = output_dir(args.checkpoint, args.output_dir, "export")
     if descriptions:
         _write_descriptions(module, args, out_dir, descriptions)

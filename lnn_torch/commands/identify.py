@@ -241,7 +241,7 @@ def _identify_arm(module, args) -> int:
     friction = classical_drive(module)
     out = Path(args.output_dir) if args.output_dir else _default_output(args)
     out.mkdir(parents=True, exist_ok=True)
-    tools, loads = _tools_on_split(module, f, dm, args.split)
+    tools, loads = tools_on_split(module, f, dm, args.split)
     width, trains = f.read("params").shape[-1], len(f.splits.get("train", ())) > 0
     if not trains or width != module.system.num_params:
         # a new recording alone (no training split), or payloads the model does not condition on: its tools
@@ -319,14 +319,15 @@ def _priors_line(fits: dict) -> str:
             "weighting and drive model; the model's start chose its own, above).\n\n")
 
 
-def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tensor | None]:
+def tools_on_split(module, f, dm, split: str, judging: bool = True) -> tuple[dict | None, torch.Tensor | None]:
     """The loads of the split's recordings whose tools the import left (partly) unknown, identified again
     against the model's own arm (its torques without payload, the tool's rigid body at the flange:
     ``identification.payload.identify_tools``): a tool the training or validation recordings carry from those
     recordings (as the import did, and never from the recordings judged), a tool only the split carries (a new
     recording's load) from the split's own. ``f``: the dataset file (``TrajectoryFile``). Returns the report and
     the split's parameters with those loads in place of the import's (``(B, P)``, one row per entry);
-    ``(None, None)`` where the split carries no such tool."""
+    ``(None, None)`` where the split carries no such tool. ``judging`` False: the split is not judged (export),
+    its tools' sources say nothing of it."""
     from ..data.import_tools import TOOL_ROWS
     from ..identification.arm_comparison import arm_chain, model_torque
     from ..identification.payload import identify_tools
@@ -357,7 +358,7 @@ def _tools_on_split(module, f, dm, split: str) -> tuple[dict | None, torch.Tenso
     seen = {tool for rows in fitting.values() for _, _, tool in rows}
     words = {"train": "training", "val": "validation"}
     sources = {tool: (" and ".join(words[s] for s, rows in fitting.items() if any(t == tool for *_, t in rows))
-                      + " recordings" + (" (the judged split among them)" if split in fitting else "")
+                      + " recordings" + (" (the judged split among them)" if judging and split in fitting else "")
                       if tool in seen else "this split's recordings") for _, _, tool in judged}
     # a seen tool's training and validation entries, a new tool's entries of the split
     use = [(s, e) for s, listed in fitting.items() for e in listed if e[2] in sources]

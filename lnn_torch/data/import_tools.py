@@ -8,7 +8,9 @@ model conditions on them as on known ones (``lnn_torch.identification.payload.id
 * jointly with the arm, on the training and validation entries: the arm's base parameters and its
   drive's linear friction (``viscous+coulomb+offset`` where the import models friction, else viscous)
   beside each tool's columns; recordings without the tool (or with a known one) tell the two apart;
-* where they cannot (every such entry carries the tool), against the description as written, said so;
+* where they cannot (every such entry carries the tool), against the description as written with the drive's
+  friction fitted beside the tool, said so: provisional values (the tool takes up what the description gets
+  wrong about the arm);
 * a tool that only held-out (test) entries carry: from those entries, against the arm identified
   above (or by least squares on the entries with known payloads; else the description), said so: its
   held-out error is then not independent of the fit, and its intervals take that arm as exact.
@@ -97,9 +99,11 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
             arm = fit.arm
         except ToolsUndetermined:  # every fitting entry carries a tool the arm cannot be told from
             carrying = [r for r in rows if isinstance(r[5], str) and r[5] in first]
-            fit = identify_tools(chain, carrying, known | first, arm=against_description, block=block,
-                                 against="the description as written (every training and validation entry carries "
-                                         "the tool: it cannot be told from the arm's last link)")
+            fit = identify_tools(chain, carrying, known | first, arm=against_description, block=block, drive=drive,
+                                 friction=True,
+                                 against="the description as written, the drive's friction fitted beside the tool "
+                                         "(every training and validation entry carries the tool: it cannot be told "
+                                         "from the arm's last link)")
         reports.append(fit.report() | {"held_out": False})
         values.update({t: fit.values[t] for t in first})
     rest = {t: tool for t, tool in pending.items() if t not in seen}
@@ -116,8 +120,9 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
             fit = identify_tools(chain, rows, known | rest, arm=lambda q, qd, qdd: arm.inverse(q, qd, qdd), block=block,
                                  against=label)
         else:
-            fit = identify_tools(chain, rows, known | rest, arm=against_description, block=block,
-                                 against="the description as written (held-out entries used)")
+            fit = identify_tools(chain, rows, known | rest, arm=against_description, block=block, drive=drive,
+                                 friction=True, against="the description as written, the drive's friction fitted "
+                                                        "beside the tool (held-out entries used)")
         reports.append(fit.report() | {"held_out": True})
         values.update({t: fit.values[t] for t in rest})
     for k, d in enumerate(data):
@@ -129,6 +134,18 @@ def identify_at_import(system, spec, tools: dict, tool_of: dict, stems, entries,
     report = {"targets": targets, "drive": drive, "fits": reports, "stride": stride,
               "entries": {d[0]: d[5] for d in data if isinstance(d[5], str)}}
     return params, report
+
+
+def _provisional(fit: dict) -> str:
+    """For a tool fitted against the description as written (no trained arm to fit it against), that its values
+    are provisional and where better ones come from; else nothing."""
+    if not fit["against"].startswith("the description"):
+        return ""
+    return ("; against the description as written the tool also takes up what the description gets wrong about the "
+            "arm (its links' masses and inertias), which these entries cannot tell apart and its intervals do not "
+            "hold: provisional values; identify it "
+            "against a trained model: lnn-torch identify CHECKPOINT DATA (lnn-torch export --tool DATA NAME writes "
+            "that)")
 
 
 def tool_lines(report: dict) -> list[str]:
@@ -157,7 +174,8 @@ def tool_lines(report: dict) -> list[str]:
                          + ("a point tool's own inertia (to identify it, name ten payload values in the import "
                             "config, parameters: names: [mass, cx, cy, cz, ixx, iyy, izz, ixy, ixz, iyz]) and "
                             if point else "")
-                         + "friction the drive model lacks (e.g. growing with the load) shift the values by more")
+                         + "friction the drive model lacks (e.g. growing with the load) shift the values by more"
+                         + _provisional(fit))
     return lines
 
 

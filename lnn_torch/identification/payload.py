@@ -148,7 +148,7 @@ def _start(pi: torch.Tensor, tool: Tool) -> torch.Tensor:
 
 
 def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+coulomb+offset", block: int = 1,
-                   against: str | None = None, max_iterations: int = 50) -> ToolFit:
+                   against: str | None = None, max_iterations: int = 50, friction: bool = False) -> ToolFit:
     """The unknown entries of ``tools`` (``{name: Tool}``) from ``recordings``: a list of ``(name, q, qd,
     qdd, tau, payload)`` per recording (``(T, n)`` arrays, SI; ``payload`` the tool's name, or a known row
     ``(4 or 10,)``, or None), by least squares on the joint torques.
@@ -156,11 +156,12 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     ``arm`` None: jointly with the arm -- its base parameters and ``drive``'s linear friction
     (``classical_arm``) as further columns, so the tools must be told apart from the arm's last link by
     recordings without them (or with others); else the arm's torques ``arm(q, qd, qdd) -> (T, n)``
-    (a model's without payload) are taken as known. Each tool's torques are its rigid body at the flange,
-    linear in its ten (``robots.regressor.payload_regressor``) and nonlinear in the row (mass, centre of
-    mass, inertia about it): Gauss-Newton from the free linear estimate, the linear coefficients solved
-    with each step. Raises ``ToolsUndetermined`` where the data cannot determine a tool's unknown
-    entries."""
+    (a model's without payload) are taken as known; with ``friction``, less ``drive``'s linear friction per
+    joint fitted beside the tools (an arm without friction: the description as written). Each tool's torques
+    are its rigid body at the flange, linear in its ten (``robots.regressor.payload_regressor``) and nonlinear
+    in the row (mass, centre of mass, inertia about it): Gauss-Newton from the free linear estimate, the linear
+    coefficients solved with each step. Raises ``ToolsUndetermined`` where the data cannot determine a tool's
+    unknown entries."""
     from ..mechanics.friction import DriveModel
     from ..robots.regressor import base_parameters, parameter_names, payload_regressor, payload_ten, payload_torque
     from .classical_arm import (
@@ -216,6 +217,11 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
         Yall = torch.cat(rows_Y).reshape(rows, -1)
         base = base_parameters(Yall)
         A_lin = torch.cat([Yall[:, torch.as_tensor(base["independent"])], torch.cat(rows_F).reshape(rows, -1)], 1)
+    elif friction:  # the drive's friction beside the given arm's torques (viscous too: no regressor here)
+        forms = [f for f in drive.linear_forms]
+        base = None
+        A_lin = torch.cat([_friction_columns(torch.as_tensor(np.ascontiguousarray(r[2]), dtype=torch.float64),
+                                             drive, forms) for r in recordings]).reshape(rows, -1)
     else:
         base, A_lin = None, target.new_zeros(rows, 0)
     Yp = {name: torch.cat(v).reshape(rows, 10) for name, v in Yp.items()}
