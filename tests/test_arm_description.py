@@ -125,6 +125,24 @@ def test_descriptions_round_trip_and_bad_ones_are_refused_in_one_line():
             ArmDescription.of(bad).compile()
 
 
+def test_an_unexpanded_xacro_is_refused_with_how_to_expand_it(tmp_path):
+    """A ROS description as its package keeps it (xacro macros): MuJoCo cannot read it, and the one-line error
+    says to expand it first, without suggesting a command that overwrites it; a plain bad URDF gets no hint."""
+    xacro = ('<robot name="r" xmlns:xacro="http://ros.org/wiki/xacro"><xacro:property name="pi" value="3.14159"/>'
+             '<link name="base"/><link name="l1"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" '
+             'izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link><joint name="j1" type="revolute"><parent '
+             'link="base"/><child link="l1"/><axis xyz="0 0 1"/><limit lower="${-pi}" upper="${pi}" effort="1" '
+             'velocity="1"/></joint></robot>')
+    for name, expanded in (("arm.urdf.xacro", "arm.urdf"), ("arm.urdf", "arm_expanded.urdf")):
+        (tmp_path / name).write_text(xacro)
+        with pytest.raises(InputError, match=rf"xacro file .*expand it first, e.g. xacro {name} > {expanded}$"):
+            ArmDescription.of(str(tmp_path / name)).compile()
+    (tmp_path / "bad.urdf").write_text(xacro.replace("${-pi}", "low").replace("${pi}", "1").replace("xacro:", "x"))
+    with pytest.raises(InputError) as err:
+        ArmDescription.of(str(tmp_path / "bad.urdf")).compile()
+    assert "xacro file" not in str(err.value)
+
+
 def test_a_continuous_joint_turns_all_the_way_round(tmp_path):
     path = tmp_path / "continuous.urdf"
     path.write_text(URDF.replace('type="revolute"><parent link="l1"/>', 'type="continuous"><parent link="l1"/>')

@@ -251,6 +251,11 @@ def test_a_force_residual_is_learned_only_where_validation_has_recordings_of_its
     trainer = fit_briefly(own, ckpt_path=str(tmp_path / "r.ckpt"), learn_residual=False, max_steps=2)
     assert trainer.lightning_module.model.forces.residual is not None and trainer.max_steps == 4
     capsys.readouterr()
+    # evaluating that checkpoint (as lnn-torch test does) resumes nothing: no line about its steps
+    fresh = quiet_trainer(tmp_path, max_steps=2, logger=False, enable_checkpointing=False)  # its plan: 2 steps
+    fresh.validate(trainer.lightning_module, datamodule=trainer.datamodule, ckpt_path=str(tmp_path / "r.ckpt"),
+                   verbose=False)
+    assert "a resumed run" not in capsys.readouterr().out
     unjudged = import_recordings([one, two], tmp_path / "n.h5", spec(split={"train": ["one"], "val": [],
                                                                             "test": ["two"]}))
     module = LNNModule(scene=scene, scene_config=config, model_options={"residual_force": {"local": True}})

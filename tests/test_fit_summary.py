@@ -96,3 +96,34 @@ def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_ch
     module.selection = None
     FitSummary().on_fit_end(trainer, module)
     assert "best validation checkpoint: runs/x/checkpoints/epoch1-err6.2.ckpt" in capsys.readouterr().out
+
+
+def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(capsys):
+    """Validation kept the start (step 0, 0.1333), which no checkpoint of its own holds, while the best checkpoint
+    saved by the same scalar after it is worse (0.1334): the summary says the kept state, in the last checkpoint, is
+    better, and that the figures it prints are the last validation's, not the kept state's."""
+    checkpoint = SimpleNamespace(best_model_path="runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt",
+                                 monitor="val/torque_rms", best_model_score=torch.tensor(0.1334))
+    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=1500, callbacks=[],
+                              checkpoint_callbacks=[checkpoint], limit_val_batches=1.0,
+                              callback_metrics={"val/torque_rms": torch.tensor(0.1336),
+                                                "val/torque_nrmse": torch.tensor(0.15)})
+    selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.1333, "history": [[0, 0.1333], [1500, 0.1336]]}
+    module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, selection=selection)
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "best validation checkpoint" not in out
+    assert ("best checkpoint of the steps trained: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt (val/torque_rms "
+            "0.1334; the state the run keeps, in the last checkpoint, is better)") in out
+    assert "the figures below are the last validation's (step 1500), not the kept state's" in out
+    selection.update(step=1000, value=0.1334)  # the best checkpoint is the kept state: called so
+    FitSummary().on_fit_end(trainer, module)
+    assert "best validation checkpoint: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt" in capsys.readouterr().out
+
+
+def test_the_printed_test_command_keeps_the_fits_data_and_run_folder():
+    from lnn_torch.training.lightning_cli import data_options
+
+    argv = ["-c", "configs/real_panda.yaml", "--data.path", "data/my arm.h5", "--trainer.default_root_dir=runs/fit",
+            "--trainer.max_steps", "10"]
+    assert data_options(argv) == ["--data.path='data/my arm.h5'", "--trainer.default_root_dir=runs/fit"]

@@ -46,6 +46,19 @@ def _mujoco():
     return mujoco
 
 
+def _xacro_hint(path: Path) -> str:
+    """Where a description that MuJoCo cannot read is a xacro macro file (ROS's, unexpanded): how to expand it."""
+    try:
+        text = Path(path).read_text(errors="replace")
+    except OSError:
+        return ""
+    name = Path(path).name
+    if Path(path).suffix == ".xacro" or "<xacro:" in text or "${" in text or "$(arg" in text:
+        expanded = name.removesuffix(".xacro") if name.endswith(".urdf.xacro") else f"{Path(path).stem}_expanded.urdf"
+        return f"; it is a xacro file (ROS macros, unexpanded): expand it first, e.g. xacro {name} > {expanded}"
+    return ""
+
+
 def _joint_setting(value, key: str):
     if isinstance(value, str):
         if value not in JOINT_SETTINGS:
@@ -177,7 +190,8 @@ class ArmDescription:
         except ValueError as err:
             lines = [line.strip() for line in str(err).splitlines() if line.strip()]
             where = f" ({'; '.join(lines[1:])})" if len(lines) > 1 else ""
-            raise InputError(f"robot description {path}: {lines[0] if lines else err}{where}") from None
+            raise InputError(f"robot description {path}: {lines[0] if lines else err}{where}{_xacro_hint(path)}") \
+                from None
         spec.compiler.fusestatic = False  # keep a URDF's fixed frames (its flange link) as bodies
         left_out = drop_missing_meshes(spec, path)
         if left_out and (str(path), *left_out) not in _WARNED:

@@ -133,14 +133,22 @@ class FitSummary(L.Callback):
         selection = getattr(pl_module, "selection", None)
         # a best checkpoint kept by another scalar than the run's own choice (which the last one holds): not offered
         if keeper is not None and (selection is None or keeper.monitor == selection["monitor"]):
-            lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
+            best = getattr(keeper, "best_model_score", None)
+            if selection is not None and best is not None and selection["value"] < float(best):
+                # the kept state (e.g. the start) is no saved checkpoint of its own: the last one holds it
+                lines.append(f"  best checkpoint of the steps trained: {path(keeper.best_model_path)} "
+                             f"({keeper.monitor} {float(best):.4g}; the state the run keeps, in the last checkpoint, "
+                             "is better)")
+            else:
+                lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
         if selection is not None and selection["step"] != trainer.global_step:
             judged = len(selection.get("history", ())) > 1
             why = ("validation preferred it" if judged else "the only state validation judged (none ran after the "
                    "start: the steps since are not kept)")
             lines.append(f"  the run ends with the state at step {selection['step']} ({selection['monitor']} "
-                         f"{selection['value']:.4g}): {why}" + (f"; the figures below are the last validation's, at "
-                                                                f"step {trainer.global_step}" if judged else ""))
+                         f"{selection['value']:.4g}): {why}" + (f"; the figures below are the last validation's (step "
+                                                                f"{trainer.global_step}), not the kept state's"
+                                                                if judged else ""))
         torque = None
         if "val/torque_rms" in m:
             torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "

@@ -125,13 +125,15 @@ def quiet_third_parties() -> None:
 
 
 def data_options(argv: list[str]) -> list[str]:
-    """The ``--data`` and ``--data.*`` options of a command line (a data config file, single settings), each as one
-    ``--data[.NAME]=VALUE`` (quoted for a shell where needed)."""
+    """The ``--data`` and ``--data.*`` options of a command line (a data config file, single settings) and its
+    ``--trainer.default_root_dir`` (a test's run then goes beside the fit's), each as one ``--NAME=VALUE``
+    (quoted for a shell where needed)."""
     import shlex
 
     out = []
     for i, arg in enumerate(argv):
-        if not (arg.startswith("--data.") or arg == "--data" or arg.startswith("--data=")):
+        if not (arg.startswith("--data.") or arg == "--data" or arg.startswith("--data=")
+                or arg.split("=", 1)[0] == "--trainer.default_root_dir"):
             continue
         if "=" in arg:
             name, value = arg.split("=", 1)

@@ -194,7 +194,8 @@ class LNNModule(L.LightningModule):
         if rebuild:
             self.model = build_model(self.hparams.variant, self.system, **self._model_options)
             freeze_all_but(self.model, self.hparams.get("train_only"), self.hparams.get("init_from"))
-        if checkpoint.get("raised_max_steps") and self._trainer is not None:  # a resumed run with a learned residual
+        if (checkpoint.get("raised_max_steps") and self._trainer is not None
+                and self.trainer.state.fn == "fit"):  # a resumed run with a learned residual (not a test)
             self._at_least(int(checkpoint["raised_max_steps"]), "a resumed run with its force residual",
                            getattr(self.trainer, "datamodule", None))
         start = checkpoint.get("classical_start")
