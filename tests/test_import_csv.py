@@ -5,6 +5,7 @@ on length coordinates; every refusal one line naming the file, the line of the f
 
 import gzip
 import json
+import re
 
 import numpy as np
 import pytest
@@ -196,6 +197,7 @@ def test_errors_name_the_files_own_lines_past_comments_and_blank_lines(tmp_path)
     ("text", r"run\.csv: line 4: column 'ta': 'n/a' is not a number$"),
     ("short", r"run\.csv: line 4: no value in column 'fx' \(the row has 4 cells, the header 5\)$"),
     ("twice", r"run\.csv: line 1: the header names column 'x' 2 times"),
+    ("merged", r"run\.csv: line 4: 10 cells, the header names 5 \(two rows run together"),
 ])
 def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
     path = tmp_path / "run.csv"
@@ -207,6 +209,9 @@ def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
         cells[3] = "n/a"
     elif problem == "short":
         cells = cells[:4]
+    elif problem == "merged":  # a logger's line break lost: two rows as one
+        cells = cells + lines[4].split(",")
+        lines[2] += ","  # a trailing delimiter (an empty cell past the header) is no matter
     else:
         lines[0] = lines[0].replace("fx", "x")
     lines[3] = ",".join(cells)
@@ -216,6 +221,34 @@ def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
     if problem == "twice":  # a repeated column that is not read is no matter
         f = read_dataset(import_recordings([path], tmp_path / "y.h5", spec(coordinates=["a", "ta"], inputs=None)))
         np.testing.assert_array_equal(np.asarray(f.read("q"))[0, :, 1], signals(T)["ta"])
+
+
+def test_angles_wrapped_into_one_turn_are_made_continuous_and_a_wrong_angle_unit_is_noted(tmp_path, capsys):
+    """An encoder that reports its angle in -180..180 degrees while the joint turns over and over: the import makes
+    it continuous (the same dataset as the continuous log, to round-off) and says so; a length coordinate is never
+    touched. Degrees read as radians move 57 times too fast: the import notes it; the same log in degrees gives no
+    note."""
+    t = np.arange(2000) * 0.002  # 4 s
+    turning = signals(t) | {"a": 9.0 * t + 0.5 * np.sin(3 * t)}  # 5.7 turns from 0 to 36 rad: 6 wraps
+    continuous = tmp_path / "c" / "run.csv"
+    continuous.parent.mkdir()
+    continuous.write_text(text(t, turning | {"a": np.degrees(turning["a"])}))
+    wrapped = tmp_path / "run.csv"
+    wrapped.write_text(text(t, turning | {"a": (np.degrees(turning["a"]) + 180) % 360 - 180}))
+    want = arrays(import_recordings([continuous], tmp_path / "c.h5", spec(angle_units="deg")))
+    assert main(["import", str(wrapped), "-o", str(tmp_path / "w.h5"), "--angle-units", "deg", "--coordinates", "a",
+                 "x", "--angle-mask", "1", "0", "--inputs", "ta", "fx", "--split", "1", "0", "0"]) == 0
+    printed = capsys.readouterr().out
+    assert "run.csv: angle a wraps into one turn (6 jumps of a whole turn between two rows): made continuous" in printed
+    assert "note: the angles move" not in printed
+    got = arrays(tmp_path / "w.h5")
+    np.testing.assert_allclose(got["q"], want["q"], rtol=0, atol=1e-9)
+    assert np.abs(np.diff(got["q"][0, :, 0])).max() < 0.05
+    assert main(["import", str(continuous), "-o", str(tmp_path / "r.h5"), "--coordinates", "a", "x", "--angle-mask",
+                 "1", "0", "--inputs", "ta", "fx", "--split", "1", "0", "0"]) == 0  # degrees read as radians
+    assert re.search(r"note: the angles move at up to run\.csv 5\d\d\.\d rad/s \(95th percentile; angle columns read "
+                     r"in rad\): if they are in degrees, set angle_units: deg \(--angle-units deg\)",
+                     capsys.readouterr().out)
 
 
 # ---------------------------------------------------------------------------- 8. names

@@ -164,6 +164,22 @@ def slow_sampling_note(provenance: dict) -> str | None:
             "or ns, set time_units (--time-units)")
 
 
+FAST_ANGLES = 100.0  # rad/s: angles moving faster than this (95th percentile of a recording) were read in a wrong unit?
+
+
+def fast_angles_note(provenance: dict) -> str | None:
+    """One line when a recording's angles move faster than ``FAST_ANGLES`` (degrees read as radians?: 57 times
+    their speed), suggesting ``angle_units``; else None."""
+    fast = [(s["file"], s["angle_speed_p95_rad_s"]) for s in provenance.get("sources", [])
+            if s.get("angle_speed_p95_rad_s", 0.0) > FAST_ANGLES]
+    if not fast:
+        return None
+    units = provenance.get("settings", {}).get("angle_units", "rad")
+    listing = ", ".join(f"{name} {speed:.4g} rad/s" for name, speed in fast)
+    return (f"note: the angles move at up to {listing} (95th percentile; angle columns read in {units}): if they "
+            "are in degrees, set angle_units: deg (--angle-units deg)")
+
+
 def _listed(first: list, count: int) -> str:
     """The first message or line numbers of ``count``, ``...`` where there are more."""
     return ", ".join(str(x) for x in first) + (", ..." if count > len(first) else "")
@@ -187,6 +203,9 @@ def source_lines(provenance: dict) -> list[str]:
                 lines.append(f"{src['file']}: {count} message{'s' if count > 1 else ''} {kind} left out "
                              f"(message{'s' if count > 1 else ''} {first})")
             lines.extend(f"{src['file']}: {note}" for note in src.get("notes", []))
+        for column, jumps in (src.get("wrapped") or {}).items():
+            lines.append(f"{src['file']}: angle {column} wraps into one turn ({jumps} jump{'s' if jumps > 1 else ''} "
+                         "of a whole turn between two rows): made continuous")
         rep = src.get("repeated_rows") or {}
         if rep.get("count"):
             at = ("message" if src.get("format") else "line") + ("s" if rep["count"] > 1 else "")
@@ -216,7 +235,7 @@ def main(argv: list[str]) -> int:
     path = import_recordings(files, args.output, spec, overwrite=args.overwrite)
     f = read_dataset(path)
     names = json.loads(f.attrs["recordings"])
-    splits = "; ".join(f"{k}: {', '.join(names[i] for i in v)}" for k, v in f.splits.items())
+    splits = "; ".join(f"{k}: {', '.join(names[i] for i in v)}" for k, v in f.splits.items() if len(v))
     provenance = json.loads(f.attrs["provenance"])
     for line in source_lines(provenance) + resampling_report(provenance):
         print(line)
@@ -229,8 +248,8 @@ def main(argv: list[str]) -> int:
 
         for line in tool_lines(provenance["tools"]):
             print(line)
-    note = slow_sampling_note(provenance)
-    if note:
-        print(note)
+    for note in (slow_sampling_note(provenance), fast_angles_note(provenance)):
+        if note:
+            print(note)
     print(f"wrote {path} ({f.num_trajectories} recordings, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
     return 0

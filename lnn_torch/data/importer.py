@@ -122,7 +122,7 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     output = check_writable(output, overwrite)  # before any work
     decl, param_table = spec.parameter_table(stems)
     system = spec.system(decl)
-    records, lines_of, timing, infos = _read(files, spec, system.dof)
+    records, lines_of, timing, infos = _read(files, spec, system.dof, system.angle_mask)
     dt = _interval(files, timing, spec.dt)
     resampled = [resample(raw, dt) for raw in records]
     # the delay's fit reads each recording's longest stretch clear of gaps beyond max_gap (no interpolated stretch)
@@ -167,13 +167,40 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     return write_dataset(output, arrays, splits, _attributes(system, spec, entries, provenance), overwrite=overwrite)
 
 
-def _read(files: list[Path], spec: ImportSpec, dof: int) -> tuple[list, list, list, list]:
-    """Each recording's table (repeated rows dropped where ``repeated_rows`` says so), its lines (or
-    messages), its timing (checked) and what was read (with the repeated rows' count)."""
+def unwrap_angles(raw: np.ndarray, columns, period: float) -> dict:
+    """Angles an encoder or logger wrapped into one turn (``-180..180`` deg, ``0..2 pi``), made continuous in
+    place: where an angle column of ``raw`` jumps between two rows by about a whole ``period`` (within a quarter
+    of it; no motion moves an angle by half a turn between two samples), the rest of the column moves by the
+    period. Returns ``{column: jumps}`` for the columns changed."""
+    changed = {}
+    for c in columns:
+        step = np.diff(raw[:, c])
+        wraps = (np.abs(step) > period / 2) & (np.abs(np.abs(step) - period) < period / 4)
+        if wraps.any():
+            raw[1:, c] -= period * np.cumsum(np.where(wraps, np.sign(step), 0.0))
+            changed[c] = int(wraps.sum())
+    return changed
+
+
+def _read(files: list[Path], spec: ImportSpec, dof: int, angle_mask) -> tuple[list, list, list, list]:
+    """Each recording's table (repeated rows dropped where ``repeated_rows`` says so; angles wrapped into one
+    turn made continuous, ``unwrap_angles``), its lines (or messages), its timing (checked) and what was read
+    (with the repeated rows' count and the wrapped angles)."""
     records, lines_of, timing, infos = [], [], [], []
     drop = (spec.repeated_rows or "keep") == "drop"
+    period = 2 * np.pi / ANGLE_UNITS[spec.angle_units]
+    angles = [1 + j for j in range(dof) if angle_mask[j]]
     for f in files:
         raw, lines, info = read_table(f, spec)
+        wrapped = unwrap_angles(raw, angles, period)
+        if wrapped:
+            info["wrapped"] = {spec.coordinates[c - 1] if spec.coordinates else f"q{c}": n for c, n in wrapped.items()}
+        interval = np.diff(raw[:, 0])
+        if angles and (interval > 0).any():  # how fast the angles move, in rad/s (a unit read wrong shows here)
+            moving = interval > 0
+            speed = (np.abs(np.diff(raw[:, angles], axis=0))[moving] / interval[moving, None]
+                     * ANGLE_UNITS[spec.angle_units])
+            info["angle_speed_p95_rad_s"] = float(np.percentile(speed, 95, axis=0).max())
         repeated = repeated_rows(raw, dof, bool(spec.velocities))
         duplicates = repeated & np.r_[False, raw[1:, 0] == raw[:-1, 0]]  # the time stamp repeated too
         info["repeated_rows"] = {"count": int(repeated.sum()), "dropped": drop,

@@ -110,6 +110,9 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
             if not row or not "".join(row).strip():
                 continue
             line = before + reader.line_num  # the file's line (the row's last, if a quoted cell spans lines)
+            if len(row) > len(header) and any(cell.strip() for cell in row[len(header):]):
+                raise InputError(f"{path}: line {line}: {len(row)} cells, the header names {len(header)} (two rows "
+                                 "run together, or a delimiter inside a value?)")
             try:
                 values = [float(row[i].replace(",", ".")) if commas else float(row[i]) for i in index]
             except (ValueError, IndexError):
