@@ -10,6 +10,7 @@ them)."""
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import sys
 from pathlib import Path
@@ -142,7 +143,9 @@ def test_a_bag_imports_to_the_same_dataset_as_the_csv_of_the_same_data(kind, tmp
     assert src["time"] == "the messages' header stamps" and src["repeated_rows"]["count"] == 0
     assert src["format"].startswith("ROS 1" if kind == "ros1" else "ROS 2")
     # the torque delay is estimated on both (the same number: the same table)
-    assert prov["torque_delay"]["delay_s"] == dataset(tmp_path / "csv.h5")[2]["torque_delay"]["delay_s"]
+    assert prov["torque_delay"] == dataset(tmp_path / "csv.h5")[2]["torque_delay"]
+    # (these efforts are no function of the motion: not timed, and said why)
+    assert "too little to time them" in prov["torque_delay"]["recordings"][0]["skipped"]
 
 
 def test_joint_names_mapped_in_another_order_land_in_their_columns(tmp_path):
@@ -461,6 +464,33 @@ def test_a_known_torque_delay_is_recovered_without_a_description(tmp_path, capsy
     with pytest.raises(InputError, match=r"torque_delay auto: the delay is not determined \(the recordings' halves "
                                          rf"give {halves}, beyond their errors"):
         import_recordings([tmp_path / "arm.csv", tmp_path / "late.csv"], tmp_path / "b.h5", spec)
+
+
+def test_inputs_the_state_does_not_explain_give_no_delay_and_an_undetermined_half_no_agreement(tmp_path):
+    """A recording whose torque columns hold only the sensor's noise (a free swing, the motors off): no delay is
+    estimated for it, and auto says why; halves of which one is undetermined (its best shift at the edge searched)
+    are not called in agreement."""
+    from lnn_torch.data.bags import delay_lines
+
+    pytest.importorskip("mujoco")
+    delayed_arm_csv(tmp_path / "arm.csv", 0.008, 0.0, seconds=8.0)
+    lines = (tmp_path / "arm.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rng = np.random.default_rng(0)
+    rows = [[float(v) for v in line.split(",")] for line in lines[1:]]
+    for r in rows:
+        for j in range(7):
+            r[header.index(f"tau{j + 1}")] = 0.05 * rng.standard_normal()
+    (tmp_path / "swing.csv").write_text(lines[0] + "\n" + "\n".join(",".join(map(repr, r)) for r in rows) + "\n")
+    spec = arm_spec(torque_delay="auto", split=[1.0, 0.0, 0.0])
+    with pytest.raises(InputError, match=r"torque_delay auto: no recording gives an estimate of the delay \(swing: the "
+                                         r"state explains \d+% of its inputs' variance at no delay, a fit of noise "
+                                         r"\d+%: too little to time them"):
+        import_recordings([tmp_path / "swing.csv"], tmp_path / "s.h5", spec)
+    report = {"method": "m", "searched_s": 0.05, "delay_s": -0.05, "se_s": math.inf, "birge": math.inf,
+              "consistent": False, "recordings": []}
+    line = delay_lines(report, "estimate", 0.0)[-1]
+    assert "a half's delay is undetermined (at the edge searched)" in line and "agree" not in line
 
 
 def test_a_torque_delay_setting_is_checked(tmp_path):

@@ -308,6 +308,10 @@ def repeated_rows(table: np.ndarray, dof: int, velocities: bool) -> np.ndarray:
 MAX_ROWS = 4000  # samples of a recording the delay's least squares uses (every k-th sample beyond)
 MIN_ROWS = 40  # fewer interior samples than this in each half: no estimate for the recording
 BIRGE = 3.0  # the halves' delays disagree beyond this many standard errors (Birge ratio): not determined
+# a recording whose inputs the basis explains less of (share of their variance at zero delay, beyond what the same fit
+# explains of noise) gets no estimate: its inputs are not a function of the state the basis holds (e.g. a free swing:
+# the inputs are the sensor's noise)
+EXPLAINED = 0.5
 
 
 def delay_range(dt: float, span: float | None) -> float:
@@ -429,6 +433,7 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
               "least squares of the inputs on a compact basis of the state (accelerations, velocities, Coulomb, sines "
               "and cosines of the angles)")
     flat = chain is not None
+    independent = min(1.0, 2 * cutoff * dt)  # the share of the samples independent after the low-pass
     recordings, out = [], []
     for s in series:
         q, tau = s["q"], s["tau"]
@@ -469,9 +474,18 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
                 return memo[shift]
 
             halves.append((rss, len(part) * tau.shape[1], W.shape[1] * (1 if flat else tau.shape[1])))
+        inputs = spline(dt * rows) - offset
+        left, total = sum(g(0.0) for g, _, _ in halves), float((inputs * inputs).sum())
+        explained = 1.0 - max(left, 0.0) / total if total > 0 else 0.0
+        # what a fit of as many columns explains of noise filtered as the inputs are
+        chance = min(1.0, sum(p for _, _, p in halves) / (sum(c for _, c, _ in halves) * independent))
+        if explained - chance < EXPLAINED:
+            out.append({"name": s["name"], "skipped": f"the state explains {explained:.0%} of its inputs' variance at "
+                                                      f"no delay, a fit of noise {chance:.0%}: too little to time "
+                                                      "them"})
+            continue
         recordings.append((s["name"], halves))
     shifts = dt * np.arange(-K, K + 1)
-    independent = min(1.0, 2 * cutoff * dt)  # the share of the samples independent after the low-pass
 
     def minimise(parts):
         """``(delay, at the edge, standard error, rss)`` of the summed residual of ``parts``: the scan's
@@ -494,10 +508,12 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
         return best, k in (0, 2 * K), se, {"rms_zero": math.sqrt(max(f(0.0), 0) / count),
                                             "rms_delay": math.sqrt(max(f(best), 0) / count)}
 
-    estimates = []  # (delay, se) of every half
+    estimates = []  # (delay, se) of every half; a half whose best shift is at the edge searched is undetermined
     for name, halves in recordings:
         best, at_edge, se, rms = minimise(halves)
-        parts = [minimise([h])[::2] for h in halves]
+        parts = [(d, math.inf if edge_half else e) for d, edge_half, e, _ in (minimise([h]) for h in halves)]
+        if not all(math.isfinite(e) for _, e in parts):  # a half undetermined: so is the recording's estimate
+            se = math.inf
         estimates += parts
         out.append({"name": name, "delay_s": best, "se_s": se, "halves_s": [d for d, _ in parts], **rms,
                     "at_edge": at_edge})
@@ -508,8 +524,10 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
         best, at_edge, se, rms = minimise([h for _, halves in recordings for h in halves])
         d, e = np.array([x for x, _ in estimates]), np.array([x for _, x in estimates])
         w = np.where(np.isfinite(e) & (e > 0), 1.0 / np.where(e > 0, e, 1.0) ** 2, 0.0)
+        determined = int((w > 0).sum())  # the halves compared: an undetermined one compares with none
         mean = float((w * d).sum() / w.sum()) if w.sum() > 0 else float(d.mean())
-        birge = math.sqrt(float((w * (d - mean) ** 2).sum()) / (len(d) - 1)) if w.sum() > 0 else math.inf
+        birge = (math.sqrt(float((w * (d - mean) ** 2).sum()) / (determined - 1)) if determined == len(d) > 1
+                 else math.inf)
         report.update({"delay_s": best, "se_s": se * max(1.0, birge), "birge": birge, "consistent": birge <= BIRGE,
                        **rms, "at_edge": at_edge})
     return report
@@ -553,6 +571,8 @@ def delay_lines(report: dict, mode: str, applied: float | None) -> list[str]:
              f"+-{1e3 * report['searched_s']:.4g} ms): " + "; ".join(parts)]
     if "delay_s" in report:
         agree = (f"the halves agree (Birge ratio {report['birge']:.2g})" if report["consistent"] else
+                 "a half's delay is undetermined (at the edge searched): no estimate to compare, and auto does not "
+                 "apply it" if not math.isfinite(report["birge"]) else
                  f"the halves disagree beyond their errors (Birge ratio {report['birge']:.2g}): the model misses "
                  "part of the torques' dynamics; the error is widened by the ratio, and auto does not apply it")
         if applied:

@@ -239,7 +239,8 @@ def _delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, 
     if spec.delay_mode != "auto" or not system.num_inputs:
         return delay, 0.0
     if "delay_s" not in delay:
-        raise InputError("import: torque_delay auto: no recording is long enough to estimate the delay; set "
+        why = "; ".join(f"{r['name']}: {r['skipped']}" for r in delay.get("recordings", []) if "skipped" in r)
+        raise InputError(f"import: torque_delay auto: no recording gives an estimate of the delay ({why}); set "
                          "torque_delay (s)")
     if not delay["consistent"]:
         halves = ", ".join(f"{1e3 * x:+.3g}" for r in delay["recordings"] for x in r.get("halves_s", []))
