@@ -53,6 +53,11 @@ def main() -> None:
     module = load_model(args.checkpoint)
     saved = data_hparams(args.checkpoint)
     dm = TrajectoryDataModule(path=args.data or saved["path"], targets=saved.get("targets", "file"))
+    if module.system.dof != 2 or module.system.num_inputs != 2:
+        raise SystemExit(f"real_pendulum.py: {dm.path} is a system of {module.system.dof} coordinates and "
+                         f"{module.system.num_inputs} input(s); this comparison is with the lab's model of the shipped "
+                         "double pendulum (two coordinates, a motor at each joint): judge another system with "
+                         "lnn-torch evaluate CHECKPOINT")
     data = dm.trajectories(args.split)
     smoothed = dm.trajectories(args.split, smooth_inputs=True)  # the torques in the reference's band
     names = json.loads(read_dataset(dm.path).attrs["recordings"])

@@ -116,6 +116,11 @@ def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(caps
     assert ("best checkpoint of the steps trained: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt (val/torque_rms "
             "0.1334; the state the run keeps, in the last checkpoint, is better)") in out
     assert "the figures below are the last validation's (step 1500), not the kept state's" in out
+    assert "15.00 % normalised\n" in out
+    trainer.callback_metrics["val/torque_nrmse"] = torch.tensor(7.9)  # a free swing's noise as the scale
+    FitSummary().on_fit_end(trainer, module)
+    assert ("790.00 % normalised (by the validation recordings' own torques, smaller than the error: they carry "
+            "little input, e.g. free swings)") in capsys.readouterr().out
     selection.update(step=1000, value=0.1334)  # the best checkpoint is the kept state: called so
     FitSummary().on_fit_end(trainer, module)
     assert "best validation checkpoint: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt" in capsys.readouterr().out

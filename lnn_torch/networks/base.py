@@ -257,6 +257,12 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         accelerations with ``lnn_torch.mechanics.integrators.rollout``; Hamiltonian models their own flow.
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
+        n_u = self.scene.num_inputs
+        if n_u and (tau is None or tau.ndim != 3 or tuple(tau.shape) != (q0.shape[0], num_steps, n_u)):
+            shape = (q0.shape[0], num_steps, n_u) if q0.ndim == 2 else ("batch", num_steps, n_u)
+            got = "none" if tau is None else tuple(tau.shape)
+            raise InputError(f"tau must have shape {shape} (batch, num_steps, inputs: each held over its step) for "
+                             f"scene '{self.scene.name}', got {got}")
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
         step = integrators.METHODS.get(method)  # an unknown name is refused by the eager path
         if step is not None and (self._compile is True

@@ -152,7 +152,9 @@ class FitSummary(L.Callback):
         torque = None
         if "val/torque_rms" in m:
             torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
-                      f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised")
+                      f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised"
+                      + (" (by the validation recordings' own torques, smaller than the error: they carry little "
+                         "input, e.g. free swings)" if m["val/torque_nrmse"] > 1 else ""))
         # a model fitted to torques alone (an arm's identification): its torque error first, and its accelerations
         # (forward dynamics under the measured torques, which carry what no model of the state predicts) named so
         torques_only = torque is not None and getattr(pl_module, "hparams", {}).get("acceleration_weight", 1.0) == 0
