@@ -107,6 +107,16 @@ def test_fit_logs_tensorboard_tags_and_checkpoint_round_trip(dataset, tmp_path):
         qs, qds = loaded.rollout(q, qd, params, 0.01, 10)
     torch.testing.assert_close(a1, a2)
     assert qs.shape == (2, 11, 2) and torch.isfinite(qs).all()
+    # the data path as given (here absolute) and, resolved, the file the fit read: a relative path that does not
+    # hold from another folder is read from there
+    from lnn_torch.training.checkpoint_format import data_hparams
+
+    assert data_hparams(ckpt)["path"] == str(dataset)
+    raw = torch.load(ckpt, weights_only=False)
+    assert raw["data_path_resolved"] == str(Path(dataset).resolve())
+    raw["datamodule_hyper_parameters"]["path"] = "data/not_from_here.h5"  # as a fit in another folder named it
+    torch.save(raw, tmp_path / "moved.ckpt")
+    assert data_hparams(tmp_path / "moved.ckpt")["path"] == str(Path(dataset).resolve())
 
 
 def test_non_finite_loss_skips_the_step(dataset, tmp_path):

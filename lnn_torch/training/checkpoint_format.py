@@ -160,11 +160,19 @@ def output_dir(checkpoint: str, given: str | None, kind: str) -> Path:
     return Path(checkpoint).parent.parent / kind
 
 
+DATA_PATH = "data_path_resolved"  # the data file's absolute path when the checkpoint was saved
+
+
 def data_hparams(source: str | Path) -> dict:
-    """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``)."""
+    """The DataModule hyper-parameters a checkpoint records (its data path and dataset ``spec``); a data path
+    relative to the folder the fit ran in, not found from here, is the absolute one the checkpoint records."""
     ckpt = read_checkpoint(source)
     if "datamodule_hyper_parameters" in ckpt:
-        return ckpt["datamodule_hyper_parameters"]
+        hparams = dict(ckpt["datamodule_hyper_parameters"])
+        given, resolved = hparams.get("path"), ckpt.get(DATA_PATH)
+        if given and resolved and not Path(given).exists() and Path(resolved).exists():
+            hparams["path"] = resolved
+        return hparams
     if str(source).startswith(PRETRAINED):  # shipped models keep it in their card
         return info(str(source)[len(PRETRAINED):]).get("datamodule_hyper_parameters", {})
     return {}

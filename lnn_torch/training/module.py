@@ -9,6 +9,7 @@ validation and test are ``lnn_torch.evaluation.evaluate_split`` on a whole split
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import lightning as L
 import torch
@@ -145,9 +146,13 @@ class LNNModule(L.LightningModule):
 
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """The model's widths even where left to the variant's default, the compiled robot descriptions
-        it was built from (``robots.description.compiled_copies``) and the package's stamp."""
+        """The model's widths even where left to the variant's default, the data file's absolute path, the
+        compiled robot descriptions it was built from (``robots.description.compiled_copies``) and the package's
+        stamp."""
         ckpt.record_widths(checkpoint, self.model)
+        dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        if getattr(dm, "path", None):  # where the data were (a relative path holds only from the fit's folder)
+            checkpoint[ckpt.DATA_PATH] = str(Path(dm.path).resolve())
         if self._description_copies is None:
             try:
                 self._description_copies = compiled_copies({"scene_config": self.hparams.get("scene_config"),
