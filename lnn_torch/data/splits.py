@@ -69,7 +69,12 @@ def _by_name(names: list[str], split: dict) -> dict:
         out[part] = np.array(sorted(names.index(n) for n in chosen), dtype=np.int64)
     used = np.concatenate(list(out.values()))
     if len(np.unique(used)) != len(used):
-        raise InputError("split: a recording is named in more than one split")
+        values, counts = np.unique(used, return_counts=True)
+        twice = [names[int(i)] for i in values[counts > 1]]
+        where = {n: [part for part in out if names.index(n) in out[part]] for n in twice}
+        raise InputError("split: a recording is named in more than one split: "
+                         + "; ".join(f"{n} ({' and '.join(parts) if len(parts) > 1 else 'twice in ' + parts[0]})"
+                                     for n, parts in where.items()))
     if not any(len(v) for v in out.values()):
         raise InputError("split: no recording in any split")
     return out
