@@ -162,7 +162,7 @@ def test_import_command_refuses_an_existing_output_and_reports_one_line(recordin
     argv[argv.index("-o") + 1] = str(tmp_path / "b.h5")
     assert main(argv[:-2] + ["test=run9"]) == 2
     assert "unknown recording(s) run9" in capsys.readouterr().err
-    assert main(argv[:-2] + ["val=run1", "test=run2"]) == 2
+    assert main(argv[:-2] + ["train=run0,run1", "val=run1", "test=run2"]) == 2
     assert "split: a recording is named in more than one split: run1 (train and val)" in capsys.readouterr().err
 
 
