@@ -214,6 +214,8 @@ def test_simulate_a_model_of_a_measured_system_without_parameters(tmp_path, caps
     assert "no closed form" in capsys.readouterr().out
     header = [line for line in out.read_text().splitlines() if not line.startswith("#")][0]
     assert header.split(",")[:3] == ["t", "q1", "q2"] and "energy" not in header
+    described = [line for line in out.read_text().splitlines() if line.startswith("# columns:")][0]
+    assert "_exact" not in described and "energy" not in described  # (the comment names the columns there are)
 
 
 def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, capsys):

@@ -403,6 +403,20 @@ def test_simulate_with_inputs_from_a_file_or_an_excitation(actuated_checkpoint, 
     inputs.write_text("t,tau1,tau2\n0.0,0.1,0.0\n0.3,oops,0\n0.6,0,0\n")
     assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "e.csv")]) == 2
     assert "row 3 is malformed" in capsys.readouterr().err
+    # a file on its own grid whose last row's interval covers the last step (0.49 s here): held there
+    inputs.write_text("t,tau1,tau2\n" + "".join(f"{0.02 * k:.2f},0.1,0\n" for k in range(25)))  # to 0.48 s
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "f.csv")]) == 0
+    inputs.write_text("t,tau1,tau2\n" + "".join(f"{0.02 * k:.2f},0.1,0\n" for k in range(24)))  # to 0.46 s: short
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "g.csv")]) == 2
+    assert "t covers [0, 0.46] s (its last row held to 0.48 s), the simulation's steps start in [0, 0.49] s" in (
+        capsys.readouterr().err)
+    # the comment names the columns the file has
+    text = (tmp_path / "f.csv").read_text().splitlines()
+    described = [line for line in text if line.startswith("# columns:")][0]
+    columns = [line for line in text if not line.startswith("#")][0].split(",")
+    assert "tau1, tau2: the inputs held over each step" in described
+    for named, column in (("*_exact", "q1_exact"), ("energy_drift:", "energy_drift")):
+        assert (named in described) == (column in columns), (named, columns)
 
 
 def test_combined_angle_features_tangents_and_pullback_match_autograd(rng):

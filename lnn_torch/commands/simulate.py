@@ -94,8 +94,11 @@ def read_inputs(path: str | Path, names, t: np.ndarray) -> np.ndarray:
     times, u = values[:, 0], values[:, 1:]
     if (np.diff(times) <= 0).any():
         raise ValueError(f"{path}: column t does not increase at row {int(np.nonzero(np.diff(times) <= 0)[0][0]) + 3}")
-    if times[0] > t[0] + 1e-12 or times[-1] < t[-1] - 1e-12:
-        raise ValueError(f"{path}: t covers [{times[0]:g}, {times[-1]:g}] s, the simulation [{t[0]:g}, {t[-1]:g}] s")
+    # each row's inputs hold until the next row's time, the last row's for one of the file's intervals
+    held = times[-1] + (float(np.median(np.diff(times))) if len(times) > 1 else 0.0)
+    if times[0] > t[0] + 1e-12 or held < t[-1] - 1e-12:
+        raise ValueError(f"{path}: t covers [{times[0]:g}, {times[-1]:g}] s (its last row held to {held:g} s), the "
+                         f"simulation's steps start in [{t[0]:g}, {t[-1]:g}] s")
     return u[np.searchsorted(times, t + 1e-12, side="right") - 1]
 
 
@@ -159,10 +162,16 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
         cols += ["energy", "energy_drift"]
         data += [result["energy"][:, None], result["energy_drift"][:, None]]
     units = ", ".join(f"{n} [{u}]" for n, u in zip(names, system.coord_units, strict=True))
+    described = [f"t [s], {units}, their time derivatives"]
+    if "q_exact" in result:
+        described.append("*_exact: the closed-form trajectory")
+    if "tau" in result:
+        described.append(f"{', '.join(system.input_names)}: the inputs held over each step")
+    if "energy" in result:
+        described.append("energy: the scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0) - "
+                         "W(t)| / (V_max - V_min) (W the true work of inputs and friction; 0 for a conservative scene)")
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
-              f"columns: t [s], {units}, their time derivatives; *_exact: the closed-form trajectory; energy: the "
-              "scene's true energy of the model's trajectory [J]; energy_drift: |E(t) - E(0) - W(t)| / (V_max - V_min) "
-              "(W the true work of inputs and friction; 0 for a conservative scene)")
+              f"columns: {'; '.join(described)}")
     with open(path, "w") as fh:  # comment lines ("# "), then a plain header row that CSV readers take
         fh.write("".join(f"# {line}\n" for line in header.splitlines()) + ",".join(cols) + "\n")
         np.savetxt(fh, np.concatenate(data, axis=1), delimiter=",", fmt="%.10g")
