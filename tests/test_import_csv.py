@@ -301,3 +301,18 @@ def test_inputs_acting_on_lengths_are_forces(tmp_path):
     assert json.loads(f.attrs["units"])["tau"] == ["N m", "N"]
     f = read_dataset(import_recordings([path], tmp_path / "y.h5", spec(input_matrix=[[1, 1], [0, 1]])))
     assert json.loads(f.attrs["inputs"])["units"] == ["N m", "N or N m"]
+
+
+def test_the_unit_notes_name_the_recordings_read_in_a_doubtful_unit():
+    """Time stamps in ms read as seconds sample every 0.5 s or more; degrees read as radians move at 100 rad/s or
+    more: each note lists the recordings that do, with the value, and names the setting; none where none does."""
+    from lnn_torch.commands.import_recordings import fast_angles_note, slow_sampling_note
+
+    sources = [{"file": "a.csv", "timing": {"median_interval_s": 2.0}, "angle_speed_p95_rad_s": 3.0},
+               {"file": "b.csv", "timing": {"median_interval_s": 0.002}, "angle_speed_p95_rad_s": 172.0}]
+    provenance = {"sources": sources, "settings": {"time_units": "s", "angle_units": "rad"}}
+    assert slow_sampling_note(provenance) == ("note: median sampling interval a.csv 2 s (time column read in s): if "
+                                              "its stamps are in ms, us or ns, set time_units (--time-units)")
+    assert fast_angles_note(provenance).startswith("note: the angles move at up to b.csv 172 rad/s (95th percentile")
+    calm = {"sources": [sources[0] | {"timing": {"median_interval_s": 0.01}}], "settings": {}}
+    assert slow_sampling_note(calm) is None and fast_angles_note(calm) is None

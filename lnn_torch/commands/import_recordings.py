@@ -150,16 +150,19 @@ def spec_from_args(args):
     return ImportSpec(**fields)
 
 
+def _beyond(provenance: dict, value, limit: float, unit: str) -> str:
+    """The recordings whose ``value(source)`` reaches ``limit``, each with its value (``''``: none)."""
+    hits = [(s["file"], value(s)) for s in provenance.get("sources", []) if value(s) >= limit]
+    return ", ".join(f"{name} {v:.4g} {unit}" for name, v in hits)
+
+
 def slow_sampling_note(provenance: dict) -> str | None:
     """One line when a recording's median sampling interval is 0.5 s or more (time stamps in ms, us or ns
     read as seconds?), suggesting ``time_units``; else None."""
-    sources = provenance.get("sources", [])
-    slow = [(s["file"], s["timing"]["median_interval_s"]) for s in sources
-            if (s.get("timing") or {}).get("median_interval_s", 0.0) >= 0.5]
-    if not slow:
+    listing = _beyond(provenance, lambda s: (s.get("timing") or {}).get("median_interval_s", 0.0), 0.5, "s")
+    if not listing:
         return None
     units = provenance.get("settings", {}).get("time_units", "s")
-    listing = ", ".join(f"{name} {interval:.4g} s" for name, interval in slow)
     return (f"note: median sampling interval {listing} (time column read in {units}): if its stamps are in ms, us "
             "or ns, set time_units (--time-units)")
 
@@ -168,14 +171,12 @@ FAST_ANGLES = 100.0  # rad/s: angles moving faster than this (95th percentile of
 
 
 def fast_angles_note(provenance: dict) -> str | None:
-    """One line when a recording's angles move faster than ``FAST_ANGLES`` (degrees read as radians?: 57 times
+    """One line when a recording's angles move at ``FAST_ANGLES`` or faster (degrees read as radians?: 57 times
     their speed), suggesting ``angle_units``; else None."""
-    fast = [(s["file"], s["angle_speed_p95_rad_s"]) for s in provenance.get("sources", [])
-            if s.get("angle_speed_p95_rad_s", 0.0) > FAST_ANGLES]
-    if not fast:
+    listing = _beyond(provenance, lambda s: s.get("angle_speed_p95_rad_s", 0.0), FAST_ANGLES, "rad/s")
+    if not listing:
         return None
     units = provenance.get("settings", {}).get("angle_units", "rad")
-    listing = ", ".join(f"{name} {speed:.4g} rad/s" for name, speed in fast)
     return (f"note: the angles move at up to {listing} (95th percentile; angle columns read in {units}): if they "
             "are in degrees, set angle_units: deg (--angle-units deg)")
 
