@@ -256,3 +256,17 @@ def test_a_payload_body_at_the_named_flange_is_used_and_any_other_refused(tmp_pa
     else:
         with pytest.raises(InputError, match="has a body 'payload' and a flange 'l2'"):
             description.compile()
+
+
+def test_a_description_found_in_neither_folder_is_refused_naming_both(tmp_path, monkeypatch):
+    from lnn_torch.commands.import_recordings import resolved_robot
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "configs").mkdir()
+    with pytest.raises(InputError, match=r"robot description \.\./arm\.urdf: no such file beside the import config "
+                                         rf"\({tmp_path}/arm\.urdf\) or from the working folder \({tmp_path.parent}/arm"
+                                         r"\.urdf\), and not a shipped one \(franka_panda"):
+        resolved_robot({"source": "../arm.urdf"}, tmp_path / "configs")
+    (tmp_path / "arm.urdf").write_text(URDF)
+    assert resolved_robot({"source": "../arm.urdf"}, tmp_path / "configs")["source"] == str(tmp_path / "arm.urdf")
+    assert resolved_robot("franka_panda", tmp_path) == "franka_panda"

@@ -93,7 +93,8 @@ def resolved_robot(robot, base: Path):
     """A robot description setting (a name, a path, or a dict with ``source``) whose file path, where
     relative, is taken relative to ``base`` (the import config's folder) when the file is there, else to
     the working folder, and written absolute: the dataset (and every checkpoint trained on it) then
-    finds the description from any folder. A shipped name stays as it is."""
+    finds the description from any folder. A shipped name stays as it is; a file found in neither place is
+    refused, naming both."""
     from ..robots import DESCRIPTIONS
 
     source = robot.get("source") if isinstance(robot, dict) else robot
@@ -103,7 +104,11 @@ def resolved_robot(robot, base: Path):
         if candidate.exists():
             absolute = str(candidate.resolve())
             return {**robot, "source": absolute} if isinstance(robot, dict) else absolute
-    return robot
+    from ..errors import InputError
+
+    raise InputError(f"robot description {source}: no such file beside the import config ({(base / source).resolve()})"
+                     f" or from the working folder ({Path(source).resolve()}), and not a shipped one "
+                     f"({', '.join(DESCRIPTIONS)})")
 
 
 def spec_from_args(args):
