@@ -18,6 +18,31 @@ class InputError(ValueError):
     """Raised for malformed physical input (shapes, NaN, non-positive parameters)."""
 
 
+def check_tensors(floating=(), **named) -> None:
+    """``InputError`` naming the first of ``named`` (``name=value``; None skipped) that is not a torch tensor (a
+    numpy array, a list), or, for the names in ``floating``, not floating point (an integer tensor's results would
+    be truncated)."""
+    import torch
+
+    for name, x in named.items():
+        if x is None:
+            continue
+        if not isinstance(x, torch.Tensor):
+            raise InputError(f"{name} must be a torch.Tensor, got {type(x).__name__} (torch.as_tensor({name}, "
+                             "dtype=torch.float64) converts it)")
+        if name in floating and not x.is_floating_point():
+            raise InputError(f"{name} must be floating point, got {x.dtype} (e.g. torch.tensor([[1.0, 0.0]]), not "
+                             "[[1, 0]]: integers would truncate the results)")
+
+
+class UnknownNameError(InputError, KeyError):
+    """A name among none of those known (a pretrained model): an ``InputError`` in one line, and a ``KeyError``
+    for code that looks names up (its message without ``KeyError``'s quotes)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
 class UntrustedParameterWarning(UserWarning):
     """Parameters given to a model lie beyond its trusted range (``Normalizer.TRUST`` standard
     deviations of its training parameters): the model conditions on the nearest trusted values."""

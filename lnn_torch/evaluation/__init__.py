@@ -38,6 +38,7 @@ exact reference is ``lnn_torch.systems.ground_truth.reference_rollout``.
 from __future__ import annotations
 
 from ..data.trajectories import Trajectories
+from ..errors import InputError
 from ..networks.capabilities import INVERSE_DYNAMICS, capabilities_of, missing
 from .metrics import (
     acceleration_errors,
@@ -85,8 +86,9 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
     """Evaluate ``model`` on trajectories of ``system`` (SI units).
 
     Args:
-        model: a ``DynamicsModel`` (``module.model``), ``ClosedForm(system)`` or any object with the
-            same ``acceleration``/``rollout`` methods.
+        model: a ``DynamicsModel`` (``module.model``; the ``LNNModule`` that ``load_model`` returns is taken as
+            its ``model``), ``ClosedForm(system)`` or any object with the same ``acceleration``/``rollout`` methods;
+            a model of another scene's coordinates or parameters is refused in one line.
         data: the reference trajectories (``Trajectories``, float64).
         sections: names in ``SECTIONS`` to compute.
         integrator, dt: the rollouts' method and step (default: the data's sampling interval).
@@ -105,6 +107,13 @@ def evaluate_model(model, system, data: Trajectories, *, sections=DEFAULT_SECTIO
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
         raise ValueError(f"unknown evaluation sections {unknown}; known: {', '.join(SECTIONS)}")
+    if hasattr(model, "model") and hasattr(model, "system"):  # what load_model returns: its network evaluates
+        model = model.model
+    scene = getattr(model, "scene", None)
+    if scene is not None and (scene.dof, scene.num_params) != (system.dof, system.num_params):
+        raise InputError(f"the model is of scene '{scene.name}' ({scene.dof} coordinates, {scene.num_params} "
+                         f"parameters); the data are of '{system.name}' ({system.dof} coordinates, {system.num_params} "
+                         "parameters)")
     ctx = EvalContext(model, system, data, integrator, dt, horizon, tuple(thresholds), accel_stride, num_rollouts,
                       dict(options))
     out: dict = {"variant": getattr(model, "variant", type(model).__name__), "scene": system.name,

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import math
+import operator
 import warnings
 
 import torch
 from torch import nn
 
-from ..errors import InputError, UntrustedParameterWarning
+from ..errors import InputError, UntrustedParameterWarning, check_tensors
 from ..mechanics import integrators
 from ..mechanics.forces import check_inputs as check_tau
 from ..perf import compile_pays
@@ -170,6 +171,7 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
     def check_inputs(self, q, qd, params, tau=None, inputs: bool = True) -> None:
         """Raise ``InputError`` naming what is wrong with shapes, NaN, parameter signs and (unless
         ``inputs`` is False) the inputs ``tau`` (given iff the scene is actuated)."""
+        check_tensors(("q", "qd", "tau"), q=q, qd=qd, params=params, tau=tau)
         dof, P = self.scene.dof, self.scene.num_params
         if q.ndim != 2 or q.shape[-1] != dof:
             raise InputError(f"q must have shape (batch, {dof}), got {tuple(q.shape)}")
@@ -188,8 +190,8 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
                 if not torch.isfinite(x).all():
                     raise InputError(f"{name} contains NaN or Inf")
         extremes = param_extremes(params) if P else None  # one reduction for the signs and the trusted range
-        check_param_signs(params, self.scene.kinds, [f"params[{i}]" for i in range(P)], "params",
-                          None if extremes is None else extremes[0])
+        check_param_signs(params, self.scene.kinds, self.scene.param_names or [f"params[{i}]" for i in range(P)],
+                          "params", None if extremes is None else extremes[0])
         normalizer = getattr(self, "normalizer", None)
         if normalizer is not None and P:
             note = normalizer.untrusted(params, self.scene.param_names or [f"params[{i}]" for i in range(P)],
@@ -257,6 +259,10 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         accelerations with ``lnn_torch.mechanics.integrators.rollout``; Hamiltonian models their own flow.
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
+        try:
+            num_steps = operator.index(num_steps)
+        except TypeError:
+            raise InputError(f"num_steps must be an integer, got {num_steps!r}") from None
         n_u = self.scene.num_inputs
         if n_u and (tau is None or tau.ndim != 3 or tuple(tau.shape) != (q0.shape[0], num_steps, n_u)):
             shape = (q0.shape[0], num_steps, n_u) if q0.ndim == 2 else ("batch", num_steps, n_u)

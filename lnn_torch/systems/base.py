@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, check_tensors
 from ..mechanics.forces import check_inputs, dissipative_force, identity_or_none, input_force
 from .excitation import validate as validate_excitation
 from .recording import ClosedFormRecorder
@@ -401,6 +401,7 @@ class System(abc.ABC):
     # ------------------------------------------------------------------ checks
     def check_params(self, params: torch.Tensor) -> None:
         """Raise ``InputError`` for non-finite, non-positive (or, for friction, negative) parameters."""
+        check_tensors(params=params)
         if params.shape[-1:] != (self.num_params,):
             raise InputError(
                 f"{self.name}: params must have shape (*batch, {self.num_params}) "
@@ -413,6 +414,7 @@ class System(abc.ABC):
 
     def check_state(self, q: torch.Tensor, qd: torch.Tensor | None = None) -> None:
         """Raise ``InputError`` for wrong shapes or non-finite states."""
+        check_tensors(("q", "qd"), q=q, qd=qd)
         named = [(name, x) for name, x in (("q", q), ("qd", qd)) if x is not None]
         for name, x in named:
             if x.shape[-1:] != (self.dof,):

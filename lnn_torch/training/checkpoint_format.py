@@ -10,7 +10,7 @@ import pickle
 import zipfile
 from pathlib import Path
 
-from ..errors import CheckpointError
+from ..errors import CheckpointError, UnknownNameError
 from ..pretrained import HERE, available, info
 
 PRETRAINED = "pretrained:"
@@ -133,7 +133,7 @@ def resolve(source: str | Path) -> Path:
         name = source[len(PRETRAINED):]
         path = HERE / f"{name}.ckpt"
         if not path.exists():
-            raise KeyError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
+            raise UnknownNameError(f"no pretrained model '{name}'; available: {', '.join(available()) or 'none'}")
         return path
     path = Path(source)
     if not path.exists():
