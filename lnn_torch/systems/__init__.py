@@ -20,6 +20,20 @@ SYSTEMS: dict[str, type[System]] = {
 }
 
 
+def register_system(cls: type[System], replace: bool = False) -> type[System]:
+    """Add a scene of your own (a ``System`` subclass with its ``name``) to ``SYSTEMS``, so that datasets,
+    models and checkpoints name it like a shipped one (``docs/own_scene.md``); run it in every process before
+    such a file or checkpoint is read. A shipped scene's name is refused unless ``replace``. Returns ``cls``
+    (usable as a class decorator)."""
+    if not (isinstance(cls, type) and issubclass(cls, System)) or not isinstance(getattr(cls, "name", None), str):
+        raise InputError(f"register_system: {cls!r} is not a System subclass with a name")
+    if cls.name in SYSTEMS and SYSTEMS[cls.name] is not cls and not replace:
+        raise InputError(f"register_system: scene '{cls.name}' exists already ({SYSTEMS[cls.name].__name__}); "
+                         "choose another name, or pass replace=True")
+    SYSTEMS[cls.name] = cls
+    return cls
+
+
 def get_system(name: str, **config) -> System:
     """Build a scene by name with its sampler configuration (``config`` as in ``System.config()``)."""
     try:
@@ -32,6 +46,6 @@ def get_system(name: str, **config) -> System:
         raise InputError(f"scene '{name}': bad configuration ({err})") from None
 
 
-__all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system",
+__all__ = ["GRAVITY", "InputError", "Range", "System", "SYSTEMS", "get_system", "register_system",
            "DoublePendulum", "Pendulum", "MassSpring", "ChainPendulum", "RelativisticParticle",
            "ActuatedDoublePendulum", "RobotArm", "MeasuredSystem", "ClosedForm", "reference_rollout"]

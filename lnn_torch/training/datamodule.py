@@ -269,7 +269,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         if self.file is None:
             self.prepare_data()
             self.file = read_dataset(self.path)
-            if not self.file.measured:
+            if not self.file.measured and self.spec_fields:  # a file given alone is what it holds
                 self._check_spec()
         return self.file
 

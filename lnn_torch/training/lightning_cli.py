@@ -87,8 +87,10 @@ def make_trainer(**overrides):
     import lightning as L
 
     kwargs = {**TRAINER_DEFAULTS, "logger": None, "callbacks": None, **overrides}
-    if kwargs["logger"] is None:
-        kwargs["logger"] = _instantiate(LOGGER)
+    if kwargs["logger"] is None:  # under default_root_dir where one is given, as the command line puts it
+        root = kwargs.get("default_root_dir")
+        kwargs["logger"] = _instantiate(LOGGER if root is None else
+                                        {**LOGGER, "init_args": {**LOGGER["init_args"], "save_dir": str(root)}})
     if kwargs["callbacks"] is None:
         kwargs["callbacks"] = [_instantiate(spec) for spec in CALLBACKS]
     return L.Trainer(**kwargs)
