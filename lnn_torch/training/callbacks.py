@@ -178,9 +178,10 @@ class FitSummary(L.Callback):
             lines.append(f"  validation: none ran in training (every {epochs} epochs, {every} steps; "
                          f"set --trainer.check_val_every_n_epoch lower for a shorter run)")
         if last is not None:
-            configs = " ".join(f"-c {c}" for c in getattr(self, "config_paths", [])) or "-c <this config>"
-            extra = "".join(f" {o}" for o in getattr(self, "data_options", []))
-            lines.append(f"  test it: lnn-torch test {configs}{extra} --ckpt_path {path(last)}")
+            if hasattr(self, "config_paths"):  # a command-line run (a Python one has no command to repeat)
+                configs = " ".join(f"-c {c}" for c in self.config_paths) or "-c <this config>"
+                extra = "".join(f" {o}" for o in getattr(self, "data_options", []))
+                lines.append(f"  test it: lnn-torch test {configs}{extra} --ckpt_path {path(last)}")
             data = getattr(getattr(trainer, "datamodule", None), "path", None)
             if torques_only and data is not None:  # an arm's identification: beside least squares, per joint
                 lines.append(f"  beside classical least squares: lnn-torch identify {path(last)} {data}")

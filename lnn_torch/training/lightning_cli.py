@@ -83,9 +83,11 @@ def make_trainer(**overrides):
     callbacks (best and last checkpoints, prediction and test-metric writers, the fit summary), with
     ``overrides`` (any ``Trainer`` argument: ``max_steps``, ``logger=False``, ``callbacks=[...]``,
     ``enable_progress_bar``...) taking precedence. Scripts and studies train through it, so that a
-    study's model is trained as a user's is."""
+    study's model is trained as a user's is. Lightning's notes that the command line leaves out are left out
+    here too (``quiet_third_parties``)."""
     import lightning as L
 
+    quiet_third_parties()  # as the command line: no advertisements, no note at every checkpoint written
     kwargs = {**TRAINER_DEFAULTS, "logger": None, "callbacks": None, **overrides}
     if kwargs["logger"] is None:  # under default_root_dir where one is given, as the command line puts it
         root = kwargs.get("default_root_dir")
