@@ -6,7 +6,10 @@
   its accelerations are undefined (``lnn_torch.mechanics.euler_lagrange``);
 * ``DatasetFileError`` (a ``ValueError``): a dataset file is missing, not HDF5, incomplete or malformed;
 * ``GenerationError`` (a ``RuntimeError``): ground truth could not be integrated to the requested accuracy;
-* ``CheckpointError`` (an ``InputError``): a file is not a readable lnn-torch checkpoint.
+* ``CheckpointError`` (an ``InputError``): a file is not a readable lnn-torch checkpoint;
+* ``UnknownNameError`` (an ``InputError`` and a ``KeyError``): a name none of those known (a pretrained model).
+
+``check_tensors`` refuses, by name, an argument that is not a torch tensor or (for states) not floating point.
 
 Each is also importable where it was first defined (``lnn_torch.systems.base.InputError``,
 ``lnn_torch.mechanics.euler_lagrange.SingularHessianError``, ``lnn_torch.data.DatasetFileError``,
