@@ -57,3 +57,16 @@ def test_evaluate_model_takes_what_load_model_returns_and_refuses_another_scene(
     with pytest.raises(InputError, match=r"^the model is of scene 'double_pendulum' \(2 coordinates, 4 parameters\); "
                                          r"the data are of 'pendulum' \(1 coordinates, 2 parameters\)$"):
         evaluate_model(model, get_system("pendulum"), data)
+
+
+def test_a_rollout_that_becomes_non_finite_is_warned_of(model):
+    """From a state far beyond any trained (a million rad/s) the learned flow overflows: the rollout says how
+    many trajectories and from when; an ordinary one says nothing."""
+    import warnings
+
+    p = torch.tensor([[1.0, 0.6, 1.2, 1.1]] * 2)
+    with pytest.warns(RuntimeWarning, match=r"rollout: 1 of 2 trajectories became non-finite \(the first at step \d+"):
+        model.rollout(torch.zeros(2, 2), torch.tensor([[1e6, 0.0], [0.1, 0.0]]), p, 0.01, 50)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.rollout(torch.zeros(2, 2), torch.tensor([[1.0, 0.0], [0.1, 0.0]]), p, 0.01, 50)

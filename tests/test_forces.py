@@ -288,9 +288,13 @@ def test_bad_inputs_are_refused_clearly(rng):
     with pytest.raises(InputError, match=r"tau must have shape \(4, 5, 2\) \(batch, num_steps, inputs: each held over "
                                          r"its step\) for scene '.*', got \(4, 4, 2\)$"):
         model.rollout(q, qd, params, 0.01, 5, tau=tau[:, None].expand(-1, 4, -1))  # one step short
-    for given, shown in ((tau, r"got \(4, 2\)"), (None, "got none")):  # one step's inputs; none at all
-        with pytest.raises(InputError, match=rf"tau must have shape \(4, 5, 2\) .*, {shown}$"):
-            model.rollout(q, qd, params, 0.01, 5, tau=given)
+    from lnn_torch.training import LNNModule
+
+    module = LNNModule(scene="actuated_double_pendulum", variant="film_lnn", hidden_dims=[8, 8])
+    for roll in (model.rollout, module.rollout):  # the network, and the Lightning module load_model gives
+        for given, shown in ((tau, r"got \(4, 2\)"), (None, "got none")):  # one step's inputs; none at all
+            with pytest.raises(InputError, match=rf"tau must have shape \(4, 5, 2\) .*, {shown}$"):
+                roll(q, qd, params, 0.01, 5, tau=given)
     bad = params.clone()
     bad[1, 8] = -0.01  # negative viscous friction b2
     with pytest.raises(InputError, match=r"friction coefficients must be >= 0; negative values in \['b2'\]"):

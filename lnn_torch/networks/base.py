@@ -259,6 +259,21 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
         accelerations with ``lnn_torch.mechanics.integrators.rollout``; Hamiltonian models their own flow.
         What the model derives from the parameters alone (FiLM) is computed once per rollout.
         """
+        num_steps = self.check_rollout_inputs(q0, num_steps, tau)
+        self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
+        step = integrators.METHODS.get(method)  # an unknown name is refused by the eager path
+        if step is not None and (self._compile is True
+                                 or (self._compile == "auto" and compile_pays(num_steps * step.stages))):
+            integrators.check_rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+            out = self._compiled_rollout(q0, qd0, params, dt, num_steps, method, tau)
+            if out is not None:
+                return out
+        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
+
+    def check_rollout_inputs(self, q0, num_steps, tau) -> int:
+        """``num_steps`` as an int, and the inputs ``tau`` of an actuated scene checked as a rollout takes them,
+        ``(batch, num_steps, inputs)``: ``InputError`` in one line naming what is wrong (before the per-step
+        checks, whose message would name one step's shape)."""
         try:
             num_steps = operator.index(num_steps)
         except TypeError:
@@ -269,15 +284,7 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
             got = "none" if tau is None else tuple(tau.shape)
             raise InputError(f"tau must have shape {shape} (batch, num_steps, inputs: each held over its step) for "
                              f"scene '{self.scene.name}', got {got}")
-        self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
-        step = integrators.METHODS.get(method)  # an unknown name is refused by the eager path
-        if step is not None and (self._compile is True
-                                 or (self._compile == "auto" and compile_pays(num_steps * step.stages))):
-            integrators.check_rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
-            out = self._compiled_rollout(q0, qd0, params, dt, num_steps, method, tau)
-            if out is not None:
-                return out
-        return integrators.rollout(self.acceleration_fn(params), q0, qd0, params, dt, num_steps, method, tau=tau)
+        return num_steps
 
     def rollout_conditioning(self, params: torch.Tensor) -> tuple[str, torch.Tensor, tuple]:
         """``(name, params_norm, cond)``: the method ``name(q_norm, qd_norm, params_norm, *cond[, tau_norm])``

@@ -139,6 +139,7 @@ class HamiltonianNN(DynamicsModel):
         """Integrate the model's own flow in ``(q, m)`` (RK methods; inputs ``tau (B, num_steps, n_u)``
         held over each step); ``qd`` of the result is the model's velocity ``dH/dp`` (canonical) or
         the state ``m = qd`` (velocity coordinates)."""
+        num_steps = self.check_rollout_inputs(q0, num_steps, tau)
         self.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
         dof = self.scene.dof
         q_n, _, p_n = self.normalize(q0, qd0, params)

@@ -14,7 +14,7 @@ from pathlib import Path
 import lightning as L
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, check_tensors
 from ..evaluation import evaluate_split, section_logs
 from ..identification.learned import identify
 from ..networks import build_model, registry
@@ -224,9 +224,19 @@ class LNNModule(L.LightningModule):
 
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
         """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``.
-        ``tau (B, num_steps, n_u)``: inputs of an actuated scene, held over each step."""
+        ``tau (B, num_steps, n_u)``: inputs of an actuated scene, held over each step. A trajectory that becomes
+        non-finite is warned of (``RuntimeWarning``)."""
+        check_tensors(("q0", "qd0", "tau"), q0=q0, qd0=qd0, params=params, tau=tau)
+        num_steps = self.model.check_rollout_inputs(q0, num_steps, tau)
         self.system.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
-        return self.model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+        q, qd = self.model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+        bad = ~(torch.isfinite(q).all(-1) & torch.isfinite(qd).all(-1))  # (B, num_steps + 1)
+        if bad.any():
+            first = int(bad.any(0).nonzero()[0, 0])
+            warnings.warn(f"rollout: {int(bad.any(1).sum())} of {len(q)} trajectories became non-finite (the first "
+                          f"at step {first}, t = {first * dt:g} s): their states left what the model was trained on, "
+                          "or dt is too large for them", RuntimeWarning, stacklevel=2)
+        return q, qd
 
     def inverse(self, q, qd, qdd, params) -> torch.Tensor:
         """The inputs ``tau (B, n_u)`` (N m) that produce the accelerations ``qdd`` (structured models
