@@ -143,9 +143,8 @@ def _provisional(fit: dict) -> str:
         return ""
     return ("; against the description as written the tool also takes up what the description gets wrong about the "
             "arm (its links' masses and inertias), which these entries cannot tell apart and its intervals do not "
-            "hold: provisional values; identify it "
-            "against a trained model: lnn-torch identify CHECKPOINT DATA (lnn-torch export --tool DATA NAME writes "
-            "that)")
+            "hold: provisional values; identify it against a trained model: lnn-torch identify CHECKPOINT DATA "
+            "(lnn-torch export --tool DATA NAME writes that)")
 
 
 def tool_lines(report: dict) -> list[str]:

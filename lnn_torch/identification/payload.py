@@ -186,6 +186,9 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
     rows_Y, rows_target, rows_F, Yp, groups, ends = [], [], [], {name: [] for name in pending}, [], 0
     n = chain.dof
     extra = [f for f in drive.linear_forms if f != "viscous"]  # the friction columns beside the regressor's
+    # the friction columns each recording adds: beside the arm's regressor, or alone beside a given arm's torques
+    # (viscous too: no regressor there), or none
+    columns = extra if arm is None else list(drive.linear_forms) if friction else []
     for rec, q, qd, qdd, tau, payload in recordings:
         q, qd, qdd, tau = (torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float64) for x in (q, qd, qdd, tau))
         if q.ndim != 2 or q.shape[1] != n or not all(x.shape == q.shape for x in (qd, qdd, tau)):
@@ -208,7 +211,7 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
             Yp[name].append(last if isinstance(payload, str) and payload == name else torch.zeros_like(last))
         rows_Y.append(Y)
         rows_target.append(target)
-        rows_F.append(_friction_columns(qd, drive, extra) if extra else q.new_zeros(T, n, 0))
+        rows_F.append(_friction_columns(qd, drive, columns) if columns else q.new_zeros(T, n, 0))
         groups.append(ends + (torch.arange(T) // max(int(block), 1)).repeat_interleave(n))
         ends = int(groups[-1].max()) + 1
     target = torch.cat(rows_target).reshape(-1)
@@ -217,13 +220,8 @@ def identify_tools(chain, recordings, tools: dict, *, arm=None, drive="viscous+c
         Yall = torch.cat(rows_Y).reshape(rows, -1)
         base = base_parameters(Yall)
         A_lin = torch.cat([Yall[:, torch.as_tensor(base["independent"])], torch.cat(rows_F).reshape(rows, -1)], 1)
-    elif friction:  # the drive's friction beside the given arm's torques (viscous too: no regressor here)
-        forms = [f for f in drive.linear_forms]
-        base = None
-        A_lin = torch.cat([_friction_columns(torch.as_tensor(np.ascontiguousarray(r[2]), dtype=torch.float64),
-                                             drive, forms) for r in recordings]).reshape(rows, -1)
-    else:
-        base, A_lin = None, target.new_zeros(rows, 0)
+    else:  # a given arm: the drive's friction columns beside its torques where asked (``columns``), else none
+        base, A_lin = None, torch.cat(rows_F).reshape(rows, -1)
     Yp = {name: torch.cat(v).reshape(rows, 10) for name, v in Yp.items()}
     names = list(pending)
 

@@ -190,12 +190,11 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
                 if not torch.isfinite(x).all():
                     raise InputError(f"{name} contains NaN or Inf")
         extremes = param_extremes(params) if P else None  # one reduction for the signs and the trusted range
-        check_param_signs(params, self.scene.kinds, self.scene.param_names or [f"params[{i}]" for i in range(P)],
-                          "params", None if extremes is None else extremes[0])
+        names = self.scene.param_names or [f"params[{i}]" for i in range(P)]
+        check_param_signs(params, self.scene.kinds, names, "params", None if extremes is None else extremes[0])
         normalizer = getattr(self, "normalizer", None)
         if normalizer is not None and P:
-            note = normalizer.untrusted(params, self.scene.param_names or [f"params[{i}]" for i in range(P)],
-                                        self.scene.param_units or [""] * P, extremes)
+            note = normalizer.untrusted(params, names, self.scene.param_units or [""] * P, extremes)
             if note:
                 warnings.warn(note, UntrustedParameterWarning, stacklevel=3)
 
