@@ -394,13 +394,19 @@ def _transform(pos, quat) -> np.ndarray:
     return t(pos, quat)
 
 
+def _body_J(model, b: int) -> np.ndarray:
+    """The pseudo-inertia of body ``b`` of a compiled model, in the body's frame (its inertial as compiled)."""
+    from ..robots.kinematics import _quat_matrix, pseudo_inertia
+
+    R = _quat_matrix(model.body_iquat[b])
+    return pseudo_inertia(float(model.body_mass[b]), model.body_ipos[b], R @ np.diag(model.body_inertia[b]) @ R.T)
+
+
 def _body_groups(model) -> list[dict]:
     """Per moving body of a compiled description (chain order): its name, its joint's name, and the
     bodies welded to it (payload excluded) with their pose in it and their pseudo-inertia there, as
     ``read_chain`` folds them."""
     import mujoco
-
-    from ..robots.kinematics import _quat_matrix, pseudo_inertia
 
     name = lambda kind, i: mujoco.mj_id2name(model, kind, i)  # noqa: E731
     frame_of = {0: (-1, np.eye(4))}
@@ -417,8 +423,7 @@ def _body_groups(model) -> list[dict]:
         if owner < 0 or body == PAYLOAD_BODY:
             continue
         if int(model.body_jntnum[b]) != 1:
-            R = _quat_matrix(model.body_iquat[b])
-            Jb = pseudo_inertia(float(model.body_mass[b]), model.body_ipos[b], R @ np.diag(model.body_inertia[b]) @ R.T)
+            Jb = _body_J(model, b)
             groups[owner]["welded"].append({"body": body, "id": b, "local": local, "J": local @ Jb @ local.T,
                                             "mass": float(model.body_mass[b])})
     return groups
@@ -428,8 +433,6 @@ def _plan(ident: IdentifiedArm, model) -> tuple[dict, list[str]]:
     """``{body name: J in its own frame or None (zeroed)}`` for every body whose inertial is written (a body
     whose ``J`` is the description's keeps its inertial as written), and notes (module docstring: welded bodies
     keep theirs where the rest is a rigid body)."""
-    from ..robots.kinematics import _quat_matrix, pseudo_inertia
-
     groups = _body_groups(model)
     plan, notes = {}, []
     for i, g in enumerate(groups):
@@ -437,10 +440,7 @@ def _plan(ident: IdentifiedArm, model) -> tuple[dict, list[str]]:
             raise InputError(f"write-back: moving body {g['id']} of the description has no name")
         welded = sum((w["J"] for w in g["welded"]), np.zeros((4, 4)))
         own = ident.J[i] - welded
-        b = g["id"]
-        R = _quat_matrix(model.body_iquat[b])
-        written = pseudo_inertia(float(model.body_mass[b]), model.body_ipos[b],
-                                 R @ np.diag(model.body_inertia[b]) @ R.T)
+        written = _body_J(model, g["id"])
         if np.abs(own - written).max() <= 1e-12 * np.abs(written).max():  # as described: its inertial as written
             continue
         eig = np.linalg.eigvalsh(0.5 * (own + own.T))
@@ -1100,9 +1100,7 @@ def _check_written(path: Path, ident: IdentifiedArm, fmt: str) -> float:
     if ident.frictionloss is not None:
         compare("friction loss", model.dof_frictionloss[dofs], ident.frictionloss)
     if ident.payload is not None:
-        b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
-        R = K._quat_matrix(model.body_iquat[b])
-        got = K.pseudo_inertia(float(model.body_mass[b]), model.body_ipos[b], R @ np.diag(model.body_inertia[b]) @ R.T)
+        got = _body_J(model, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY))
         compare("the payload's pseudo-inertia", got, _row_J(ident.payload))
     if (chain.flange is None) != (nominal.flange is None) or (
             chain.flange is not None and not torch.allclose(chain.flange, nominal.flange, rtol=0, atol=1e-12)):
@@ -1156,7 +1154,8 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     path = Path(path)
     fmt = _format_of(path, format)
     ident = identified_arm(source, payload, description)
-    ident, described = _as_described(ident, read_chain(ident.description.compile()).J.double().numpy())
+    nominal = ident.description.compile()  # the robot as the model saw it
+    ident, described = _as_described(ident, read_chain(nominal).J.double().numpy())
     if described:
         ident.notes.append(f"{described} of the links' values lie within the model's round-off ({ident.resolution:.2g} "
                            "relative) of the description's (the data determined nothing there): written as the "
@@ -1164,7 +1163,8 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     desc = ident.description
     src = desc.path
     text = src.read_text()
-    kind = "urdf" if _parse(text).tag == "robot" else "mjcf"
+    original = _parse(text)
+    kind = "urdf" if original.tag == "robot" else "mjcf"
     if kind == "urdf" and fmt == "mjcf":  # through the URDF write-back, converted by MuJoCo (armature added)
         return _urdf_as_mjcf(source, path, ident, payload=payload, description=description, overwrite=overwrite,
                              check=check)
@@ -1181,7 +1181,6 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
         if body is None:
             raise InputError(f"write-back: {src} has no body '{name}' to remove")
         spec.delete(body)
-    nominal = desc.compile()
     plan, notes = _plan(ident, nominal)
     missing = sorted(set(missing_meshes(spec).values()))
     if missing:
@@ -1199,7 +1198,7 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
     path.parent.mkdir(parents=True, exist_ok=True)
     root = writer(ident, plan, text, src, path, spec)
     kind_tag = "body" if fmt == "mjcf" else "link"
-    if ident.payload is None and not any(e.get("name") == PAYLOAD_BODY for e in _parse(text).iter(kind_tag)) \
+    if ident.payload is None and not any(e.get("name") == PAYLOAD_BODY for e in original.iter(kind_tag)) \
             and any(e.get("name") == PAYLOAD_BODY for e in root.iter(kind_tag)):
         notes.append(f"a massless {kind_tag} '{PAYLOAD_BODY}' is added at the flange "
                      f"({desc.flange or 'the chain end'}): it records where loads attach, so that the file read alone "
