@@ -14,6 +14,13 @@ def metrics(names, values, pooled=19.47):
             **{f"val/acc_rel_err_{n}": v for n, v in zip(names, values, strict=True)}}
 
 
+def stand_in_trainer(metrics: dict, step: int = 5, checkpoints=()) -> SimpleNamespace:
+    """What ``FitSummary`` reads of a trainer: its run folder, step, checkpoint callbacks and last metrics."""
+    return SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=step, callbacks=[],
+                           checkpoint_callbacks=list(checkpoints), limit_val_batches=1.0,
+                           callback_metrics={k: torch.tensor(v) for k, v in metrics.items()})
+
+
 def test_per_coordinate_names_each_coordinate_of_an_arm_and_nothing_for_fewer_than_three():
     names = [f"joint{j}" for j in range(1, 8)]
     line = per_coordinate(metrics(names, [0.02, 0.01, 0.03, 0.02, 0.05, 30.1, 0.04]), names)
@@ -26,10 +33,7 @@ def test_per_coordinate_names_each_coordinate_of_an_arm_and_nothing_for_fewer_th
 
 def test_the_fit_summary_prints_the_per_coordinate_line(capsys):
     names = ["joint1", "joint2", "joint3"]
-    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=5, callbacks=[],
-                              checkpoint_callbacks=[], limit_val_batches=1.0,
-                              callback_metrics={k: torch.tensor(v) for k, v in
-                                                metrics(names, [0.02, 0.5, 12.0]).items()})
+    trainer = stand_in_trainer(metrics(names, [0.02, 0.5, 12.0]))
     module = SimpleNamespace(system=SimpleNamespace(coord_names=names), hparams={})
     FitSummary().on_fit_end(trainer, module)
     out = capsys.readouterr().out
@@ -43,9 +47,7 @@ def test_a_model_fitted_to_torques_alone_leads_with_its_torque_error(capsys):
     accelerations keeps its acceleration line first."""
     names = ["joint1", "joint2", "joint3"]
     values = {**metrics(names, [0.02, 0.5, 12.0]), "val/torque_rms": 0.25, "val/torque_nrmse": 0.15}
-    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=5, callbacks=[],
-                              checkpoint_callbacks=[], limit_val_batches=1.0,
-                              callback_metrics={k: torch.tensor(v) for k, v in values.items()})
+    trainer = stand_in_trainer(values)
     out = {}
     for weight in (0.0, 1.0):
         module = SimpleNamespace(system=SimpleNamespace(coord_names=names), hparams={"acceleration_weight": weight})
@@ -75,10 +77,7 @@ def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_ch
     """A grey box whose state validation chose by its torque error (``SelectOnValidation``) while the best
     checkpoint is kept by the acceleration error: the summary offers the last checkpoint (the run's choice) only."""
     checkpoint = SimpleNamespace(best_model_path="runs/x/checkpoints/epoch1-err6.2.ckpt", monitor="val/acc_rel_err")
-    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=500, callbacks=[],
-                              checkpoint_callbacks=[checkpoint], limit_val_batches=1.0,
-                              callback_metrics={"val/torque_rms": torch.tensor(0.25),
-                                                "val/torque_nrmse": torch.tensor(0.15)})
+    trainer = stand_in_trainer({"val/torque_rms": 0.25, "val/torque_nrmse": 0.15}, 500, [checkpoint])
     selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.2469, "history": [[0, 0.2469], [500, 0.25]]}
     module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, selection=selection)
     FitSummary().on_fit_end(trainer, module)
@@ -104,10 +103,7 @@ def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(caps
     better, and that the figures it prints are the last validation's, not the kept state's."""
     checkpoint = SimpleNamespace(best_model_path="runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt",
                                  monitor="val/torque_rms", best_model_score=torch.tensor(0.1334))
-    trainer = SimpleNamespace(log_dir="runs/x", is_global_zero=True, global_step=1500, callbacks=[],
-                              checkpoint_callbacks=[checkpoint], limit_val_batches=1.0,
-                              callback_metrics={"val/torque_rms": torch.tensor(0.1336),
-                                                "val/torque_nrmse": torch.tensor(0.15)})
+    trainer = stand_in_trainer({"val/torque_rms": 0.1336, "val/torque_nrmse": 0.15}, 1500, [checkpoint])
     selection = {"step": 0, "monitor": "val/torque_rms", "value": 0.1333, "history": [[0, 0.1333], [1500, 0.1336]]}
     module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, selection=selection)
     FitSummary().on_fit_end(trainer, module)
