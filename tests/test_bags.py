@@ -245,9 +245,11 @@ def test_messages_reordered_on_the_way_are_sorted_by_their_stamps_and_reported(t
     assert_same_dataset(tmp_path / "bag.h5", import_recordings([write_csv(tmp_path / "run.csv", data)],
                                                                tmp_path / "csv.h5", csv_spec()))
     _, _, prov = dataset(import_recordings([bag], tmp_path / "receive.h5", bag_spec(stamps="receive")))
-    assert prov["sources"][0]["notes"] == ["the header stamps step back 3 times: the receive times are used, as "
-                                           "stamps: receive asks (stamps: header sorts messages a few cycles late by "
-                                           "their stamps)"]
+    notes = prov["sources"][0]["notes"]
+    assert notes[0] == ("the header stamps step back 3 times: the receive times are used, as stamps: receive asks "
+                        "(stamps: header sorts messages a few cycles late by their stamps)")
+    assert notes[1].startswith("the times on /joint_states are receive times (when the recorder got each message, "
+                               "not when it was sampled): intervals ") and len(notes) == 2
 
 
 def test_messages_without_the_arms_joints_or_a_field_or_a_stamp_are_left_out_and_reported(tmp_path, capsys):
@@ -307,6 +309,96 @@ def test_zero_header_stamps_fall_back_to_the_receive_times_and_say_so(tmp_path):
         import_recordings([bag], tmp_path / "h.h5", bag_spec(stamps="header"))
 
 
+def test_receive_times_in_bursts_are_refused_and_a_fixed_rate_publisher_is_timed_by_its_sequence(tmp_path):
+    """Unstamped messages a recorder received five at a time every 25 ms (a batching network) are not sample times:
+    refused in one line that says so and what to do; ``stamps: sequence`` with the publisher's dt gives the dataset
+    of the CSV of the same samples; a receive time repeated with other values is refused naming the message."""
+    data = motion()
+    data["ns"] = EPOCH + 5_000_000 * np.arange(len(data["ns"]))  # the publisher's samples, exactly 5 ms apart
+    bursts = EPOCH + 25_000_000 * (np.arange(len(data["ns"])) // 5) + 1000 * (np.arange(len(data["ns"])) % 5)
+    bag = write_bag(tmp_path / "run", "sqlite3", data, header=False, received=bursts)
+    with pytest.raises(InputError, match=r"run.db3: the receive times on /joint_states come in bursts \(80 % of the "
+                                         r"messages within 1.48 ms of the one before, .*: they are not the sample "
+                                         r"times; .* set stamps: sequence with dt$"):
+        import_recordings([bag], tmp_path / "b.h5", bag_spec())
+    with pytest.raises(InputError, match="stamps: sequence times the messages one dt apart: set dt"):
+        import_recordings([bag], tmp_path / "b.h5", bag_spec(stamps="sequence"))
+    _, _, prov = dataset(import_recordings([bag], tmp_path / "bag.h5", bag_spec(stamps="sequence", dt=0.005)))
+    assert prov["sources"][0]["time"] == "the messages' order, one dt (0.005 s) apart (stamps: sequence)"
+    assert_same_dataset(tmp_path / "bag.h5", import_recordings([write_csv(tmp_path / "run.csv", data)],
+                                                               tmp_path / "csv.h5", csv_spec(dt=0.005)))
+    twice = data["ns"].copy()
+    twice[7] = twice[6]  # received together with the message before, other values
+    bag = write_bag(tmp_path / "twice", "mcap", data, header=False, received=twice)
+    with pytest.raises(InputError, match=r"twice.mcap: message 8 on /joint_states was received at the same time as "
+                                         r"message 7 with other values: receive times are not sample times"):
+        import_recordings([bag], tmp_path / "t.h5", bag_spec())
+
+
+def write_two_topics(path: Path, data: dict, effort_ns: np.ndarray, efforts: np.ndarray) -> Path:
+    """An MCAP bag with the positions and velocities of ``data`` on /joint_states (no efforts) and the efforts
+    ``efforts`` stamped ``effort_ns`` on /joint_efforts (JointState of the same joints, another order)."""
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Header, Time = (store.types[f] for f in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
+                                                          "builtin_interfaces/msg/Time"))
+
+    def message(ns, names, **arrays):
+        stamp = Time(sec=int(ns // 10**9), nanosec=int(ns % 10**9))
+        full = {f: np.ascontiguousarray(arrays.get(f, np.zeros(0))) for f in ("position", "velocity", "effort")}
+        return store.serialize_cdr(JointState(header=Header(stamp=stamp, frame_id=""), name=names, **full),
+                                   JointState.__msgtype__)
+
+    with Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        states = w.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        torques = w.add_connection("/joint_efforts", JointState.__msgtype__, typestore=store)
+        messages = [(int(ns), states, message(ns, BAG_JOINTS, position=data["pos"][k], velocity=data["vel"][k]))
+                    for k, ns in enumerate(data["ns"])]
+        messages += [(int(ns), torques, message(ns, BAG_JOINTS[::-1], effort=efforts[k, ::-1]))
+                     for k, ns in enumerate(effort_ns)]
+        for ns, conn, raw in sorted(messages, key=lambda m: m[0]):
+            w.write(conn, ns, raw)
+    return path
+
+
+def test_efforts_on_a_topic_of_their_own_are_interpolated_to_the_positions_times(tmp_path, capsys):
+    """Efforts published on /joint_efforts at the positions' stamps import to the dataset of the CSV of the same
+    data; published at other times (a drive bus at its own rate, 3.3 ms after the 5 ms state and starting 50 ms
+    later) they are the efforts at the positions' times to the linear interpolation's error, the position
+    messages before the first effort left out and counted; named where streams leaves effort out, refused."""
+    data = motion()
+    (tmp_path / "same").mkdir()
+    bag = write_two_topics(tmp_path / "same" / "run", data, data["ns"], data["eff"])
+    spec = bag_spec(effort_topic="/joint_efforts")
+    _, _, prov = dataset(import_recordings([bag], tmp_path / "bag.h5", spec))
+    assert prov["sources"][0]["effort_topic"] == "/joint_efforts" and "skipped" not in prov["sources"][0]
+    assert_same_dataset(tmp_path / "bag.h5", import_recordings([write_csv(tmp_path / "run.csv", data)],
+                                                               tmp_path / "csv.h5", csv_spec()))
+    with pytest.raises(InputError, match=r"0 messages on /joint_states hold every field read: .*name the topic that "
+                                         r"has the efforts in effort_topic"):
+        import_recordings([bag], tmp_path / "n.h5", bag_spec())
+
+    w = np.array([1.1, 1.7, 2.3])
+    effort_ns = EPOCH + 50_000_000 + np.arange(0, 2_000_000_000, 3_300_000)
+    te = (effort_ns - EPOCH) / 1e9
+    (tmp_path / "other").mkdir()
+    bag = write_two_topics(tmp_path / "other" / "run", data, effort_ns, np.cos(0.7 * te[:, None] + w))
+    config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=SPLIT,
+                     effort_topic="/joint_efforts")
+    assert main(["import", str(bag), "--config", str(config), "-o", str(tmp_path / "other.h5")]) == 0
+    out = capsys.readouterr().out
+    early = int(((data["ns"] - EPOCH) < 50_000_000).sum())
+    assert f"run: {early} messages outside the efforts' times (before the first on /joint_efforts, after the last or " \
+        f"in a gap) left out (messages 1, 2, 3" in out and "efforts from /joint_efforts (607 messages, median " in out
+    arrays, _, _ = dataset(tmp_path / "other.h5")
+    first = (data["ns"][early] - EPOCH) / 1e9  # the recording now starts at the first message kept
+    n = arrays["lengths"][0]  # the training window, from the recording's first sample
+    truth = np.cos(0.7 * (first + arrays["t"][:n, None]) + w)
+    np.testing.assert_allclose(arrays["tau"][0, :n], truth, atol=2e-5)  # (linear over 3.3 ms: under 1e-5)
+    with pytest.raises(InputError, match="effort_topic names the efforts' topic, but streams leaves effort out"):
+        import_recordings([bag], tmp_path / "s.h5", bag_spec(effort_topic="/joint_efforts",
+                                                             streams=["position", "velocity"]))
+
+
 # ---------------------------------------------------------------------------- 3. one-line refusals
 def _config(tmp_path, **fields) -> Path:
     import yaml
@@ -334,8 +426,8 @@ def test_a_missing_topic_an_unmapped_joint_or_the_missing_extra_is_one_line(tmp_
     err = _refused(tmp_path, capsys, bag, joints={"arm_a": "q1", "arm_b": "q2", "arm_z": "q3"})
     assert "run.db3: message 1 on /joint_states has no joint arm_z (its joints: arm_a, arm_b, arm_c)" in err
     err = _refused(tmp_path, capsys, bag, joints={"arm_a": "q1", "arm_b": "q2"}, coord_names=["q1", "q2"])
-    assert "run.db3: the bag's joint arm_c (message 1 on /joint_states) not mapped: map them in joints, or list " \
-           "them in ignore_joints" in err
+    assert "run.db3: the bag's joint arm_c (message 1 on /joint_states) not mapped: map it in joints, or list " \
+           "it in ignore_joints" in err
     # a model coordinate no bag joint is mapped to (a robot's joints), and a name the model does not have
     err = _refused(tmp_path, capsys, bag, joints={"arm_a": "q1", "arm_b": "q2"}, coord_names=MODEL)
     assert "import: joints: no bag joint is mapped to q3" in err
@@ -345,7 +437,8 @@ def test_a_missing_topic_an_unmapped_joint_or_the_missing_extra_is_one_line(tmp_
     (tmp_path / "e").mkdir()
     empty = write_bag(tmp_path / "e" / "run", "mcap", {**data, "eff": None})
     assert "0 messages on /joint_states hold every field read: message 1 holds 0 effort values for its joints, as " \
-           "do 59 more (leave it out of streams)" in _refused(tmp_path, capsys, empty)
+           "do 59 more (leave it out of streams, or name the topic that has the efforts in effort_topic)" in \
+        _refused(tmp_path, capsys, empty)
     config = _config(tmp_path, joints=dict(zip(BAG_JOINTS, MODEL, strict=True)), split=[1.0, 0.0, 0.0],
                      streams=["position", "velocity"])
     assert main(["import", str(empty), "--config", str(config), "-o", str(tmp_path / "e.h5")]) == 0

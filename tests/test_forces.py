@@ -358,6 +358,10 @@ def test_training_with_inputs_logs_power_balance_and_the_torque_term(actuated_ch
     assert model.model.forces is not None and model.data_dt == pytest.approx(0.005)
     with pytest.raises(ValueError, match=r"torque_weight 0.1 \(needs inverse dynamics"):
         type(model)(scene="actuated_double_pendulum", variant="mlp", torque_weight=0.1, hidden_dims=[8])
+    # data without torques (a bag imported without its efforts): said so, not "film_lnn needs film_lnn"
+    with pytest.raises(ValueError, match=r"^variant 'film_lnn' cannot use: torque_weight 1 \(fits measured torques, "
+                                         r"and scene 'double_pendulum' has no inputs: .*set torque_weight 0\)$"):
+        type(model)(scene="double_pendulum", variant="film_lnn", torque_weight=1.0, hidden_dims=[8])
 
 
 def test_evaluate_reports_the_forced_sections(actuated_checkpoint, tmp_path):

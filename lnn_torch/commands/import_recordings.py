@@ -73,9 +73,12 @@ def _parser() -> argparse.ArgumentParser:
                     help="e.g. train=run1,run2 val=run3 test=run4 (names: file names without .gz, .csv)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--topic", default=None, help="a ROS bag's topic of sensor_msgs/JointState (default /joint_states)")
-    ap.add_argument("--stamps", choices=("auto", "header", "receive"), default=None,
-                    help="a ROS bag's time: the messages' header stamps, the bag's receive times, or auto (default: "
-                    "the header stamps unless every one is zero)")
+    ap.add_argument("--effort-topic", default=None,
+                    help="a ROS bag's topic of the efforts where another than --topic's (JointState of the same "
+                    "joints; interpolated to the positions' times)")
+    ap.add_argument("--stamps", choices=("auto", "header", "receive", "sequence"), default=None,
+                    help="a ROS bag's time: the messages' header stamps, the bag's receive times, sequence (one --dt "
+                    "apart), or auto (default: the header stamps unless every one is zero)")
     ap.add_argument("--streams", nargs="+", choices=("position", "velocity", "effort"), default=None,
                     help="the JointState fields a ROS bag's import reads (default all three)")
     ap.add_argument("--torque-delay", default=None, metavar="S|auto|off",
@@ -131,6 +134,7 @@ def spec_from_args(args):
              "decimal": args.decimal, "conventions": args.conventions,
              "angle_combinations": args.angle_combination, "coulomb_velocity": args.coulomb_velocity, "dt": args.dt,
              "max_gap": args.max_gap, "seed": args.seed, "label": args.label, "topic": args.topic,
+             "effort_topic": args.effort_topic,
              "torque_delay": args.torque_delay, "repeated_rows": args.repeated_rows, "stamps": args.stamps,
              "streams": args.streams}
     fields.update({k: v for k, v in flags.items() if v is not None})
@@ -198,15 +202,23 @@ def source_lines(provenance: dict) -> list[str]:
     for src in provenance.get("sources", []):
         if src.get("format"):
             ignored = f"; ignored joints {', '.join(src['ignored_joints'])}" if src.get("ignored_joints") else ""
+            efforts = (f"; efforts from {src['effort_topic']} ({src['effort_messages']} messages, median interval "
+                       f"{1e3 * src['effort_median_interval_s']:.3g} ms), interpolated to these messages' times"
+                       if src.get("effort_topic") else "")
             lines.append(f"{src['file']}: {src['format']}, topic {src['topic']} ({src['type']}), {src['messages']} "
-                         f"messages, time from {src['time']}{ignored}")
+                         f"messages, time from {src['time']}{ignored}{efforts}")
             for what, left in (src.get("skipped") or {}).items():
                 count, first = left["count"], _listed(left["first"], left["count"])
+                what, _, topic = what.partition(" on ")  # (messages of the efforts' topic: "... on /topic")
                 kind = {"other publisher": f"of another publisher (none of the joints read; theirs: "
                                            f"{', '.join(left.get('joints', []))})",
                         "zero header stamp": "with a zero header stamp (a driver that published before its clock "
-                                             "was set)"}.get(what, f"with no {what[len('empty '):]} values")
-                lines.append(f"{src['file']}: {count} message{'s' if count > 1 else ''} {kind} left out "
+                                             "was set)",
+                        "outside the efforts": f"outside the efforts' times (before the first on "
+                                               f"{src.get('effort_topic')}, after the last or in a gap)"
+                        }.get(what, f"with no {what[len('empty '):]} values")
+                on = f" on {topic}" if topic else ""
+                lines.append(f"{src['file']}: {count} message{'s' if count > 1 else ''}{on} {kind} left out "
                              f"(message{'s' if count > 1 else ''} {first})")
             lines.extend(f"{src['file']}: {note}" for note in src.get("notes", []))
         for column, jumps in (src.get("wrapped") or {}).items():

@@ -114,22 +114,78 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
     """``(table (rows, 1 + k) float64, messages (rows,) int64, info)``: a bag's JointState messages on
     ``spec.topic`` as the table a CSV gives (time in s from the first message, then the positions of
     ``spec.coordinates``, the velocities of ``spec.velocities`` and the efforts of ``spec.input_columns``:
-    joints of the bag), each row's message number (from 1), and what was read (format, topic, type,
-    messages, the time's source, the first stamp in ns, the joints)."""
+    joints of the bag; the efforts from ``spec.effort_topic`` where given: ``_merged``), each row's message
+    number (from 1), and what was read (format, topic, type, messages, the time's source, the first stamp in
+    ns, the joints)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
     AnyReader, store = _rosbags(ros1=path.suffix.lower() == ".bag")
     target, form = _storage(path)
+    efforts = [("effort", j) for j in spec.input_columns]
     fields = ([("position", j) for j in spec.coordinates] + [("velocity", j) for j in spec.velocities or []]
-              + [("effort", j) for j in spec.input_columns])
-    wanted = list(dict.fromkeys(j for _, j in fields))
+              + (efforts if not spec.effort_topic else []))
     ignored = set(spec.ignore_joints or [])
-    topic = "/" + spec.topic.lstrip("/")
+    try:
+        with AnyReader([target], default_typestore=store) as reader:
+            main = _read_topic(reader, path, spec.topic, fields, ignored)
+            other = _read_topic(reader, path, spec.effort_topic, efforts, ignored) if spec.effort_topic and efforts \
+                else None
+    except InputError:
+        raise
+    except Exception as err:  # the library's reader errors, a damaged database or MCAP file, ...
+        raise InputError(f"{path}: cannot read it as a ROS bag ({type(err).__name__}: {err})") from None
+    streams = [main] + ([other] if other else [])
+    source = spec.stamps
+    if source == "auto":  # (both topics on one clock: the header stamps only where both have them)
+        source = "header" if all(s["header_ns"].any() for s in streams) else "receive"
+    elif source == "header":
+        for s in streams:
+            if not s["header_ns"].any():
+                raise InputError(f"{path}: every header stamp on {s['topic']} is zero: set stamps to receive (the "
+                                 "bag's receive times) or auto")
+    elif source == "sequence" and spec.dt is None:
+        raise InputError("import: stamps: sequence times the messages one dt apart: set dt (the publisher's "
+                         "interval, s)")
+    for s in streams:
+        _timed(path, s, source, spec.dt)
+    values, ns, numbers, notes, skipped = main["values"], main["ns"], main["numbers"], main["notes"], main["skipped"]
+    info_other = {}
+    if other:
+        values, ns, numbers, dropped = _merged(path, main, other)
+        notes = notes + [f"{spec.effort_topic}: {n}" for n in other["notes"]]
+        skipped = {**skipped, **{f"{what} on {spec.effort_topic}": v for what, v in other["skipped"].items()}}
+        if dropped:
+            skipped["outside the efforts"] = dropped
+        info_other = {"effort_topic": other["topic"], "effort_messages": len(other["values"]),
+                      "effort_median_interval_s": float(np.median(np.diff(other["ns"]))) / 1e9}
+    t = (ns - ns[0]) / 1e9  # integer nanoseconds from the first: no rounding of epoch times
+    time = ("the messages' header stamps" if source == "header" else
+            "the bag's receive times" + (" (every header stamp is zero)" if spec.stamps == "auto" else "")
+            if source == "receive" else f"the messages' order, one dt ({spec.dt:g} s) apart (stamps: sequence)")
+    info = {"format": form, "topic": main["topic"], "type": main["type"], "messages": len(values), "time": time,
+            "first_stamp_ns": int(ns[0]),
+            "joints": {"position": list(spec.coordinates), "velocity": list(spec.velocities or []),
+                       "effort": list(spec.input_columns)},
+            "ignored_joints": sorted(set(main["ignored"]) | set(other["ignored"] if other else [])), **info_other}
+    if skipped:
+        info["skipped"] = skipped
+    if notes:
+        info["notes"] = notes
+    if spec.joints:
+        info["mapping"] = dict(spec.joints)
+    return np.concatenate([t[:, None], values], 1), numbers, info
+
+
+def _read_topic(reader, path: Path, topic: str, fields: list, ignored: set) -> dict:
+    """The JointState messages on ``topic``: the values of ``fields`` (``(field, joint)`` each) per message,
+    their header stamps and receive times (ns), message numbers (from 1 along the topic), the messages left out
+    (another publisher's, those with an empty array of a field read: ``others``, ``empty``) and the ignored
+    joints seen; a message the fields cannot be read from is refused naming it."""
+    wanted = list(dict.fromkeys(j for _, j in fields))
+    topic = "/" + topic.lstrip("/")
     index: dict[tuple, np.ndarray | None] = {}
     rows, header, received, numbers = [], [], [], []
-    # messages left out, each with its message numbers: another publisher's (none of the joints read), and
-    # those with an empty array of a field read (a driver that had no velocity or effort that cycle)
     others: dict[tuple, list[int]] = {}
     empty: dict[str, list[int]] = {}
 
@@ -147,51 +203,48 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
                              f"joints: {', '.join(names)}): map the bag's names in joints")
         unmapped = [n for n in names if n not in wanted and n not in ignored]
         if unmapped:
+            them = "it" if len(unmapped) == 1 else "them"
             raise InputError(f"{path}: the bag's {_plural(unmapped, 'joint', 'joints')} (message {k} on {topic}) "
-                             "not mapped: map them in joints, or list them in ignore_joints")
+                             f"not mapped: map {them} in joints, or list {them} in ignore_joints")
         return np.array([names.index(j) for _, j in fields], dtype=np.int64)
 
-    try:
-        with AnyReader([target], default_typestore=store) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            if not conns:
-                listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
-                raise InputError(f"{path}: no topic {topic} in the bag (its topics: {listing}): set topic")
-            if any(c.msgtype not in JOINT_STATE for c in conns):
-                raise InputError(f"{path}: topic {topic} holds {conns[0].msgtype} messages, not "
-                                 "sensor_msgs/msg/JointState")
-            kinds = [f for f in ("position", "velocity", "effort") if any(g == f for g, _ in fields)]
-            for k, (conn, stamp, raw) in enumerate(reader.messages(connections=conns), start=1):
-                msg = reader.deserialize(raw, conn.msgtype)
-                names = tuple(msg.name)
-                if names not in index:
-                    index[names] = columns(names, k)
-                at = index[names]
-                if at is None:
-                    others.setdefault(names, []).append(k)
-                    continue
-                arrays = {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in kinds}
-                short = [f for f in kinds if len(arrays[f]) != len(names)]
-                if any(len(arrays[f]) for f in short):
-                    f = next(f for f in short if len(arrays[f]))
-                    raise InputError(f"{path}: message {k} on {topic} holds {len(arrays[f])} {f} values for "
-                                     f"{len(names)} joints")
-                if short:
-                    for f in short:
-                        empty.setdefault(f, []).append(k)
-                    continue
-                rows.append([arrays[f][i] for (f, _), i in zip(fields, at, strict=True)])
-                header.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
-                received.append(int(stamp))
-                numbers.append(k)
-    except InputError:
-        raise
-    except Exception as err:  # the library's reader errors, a damaged database or MCAP file, ...
-        raise InputError(f"{path}: cannot read it as a ROS bag ({type(err).__name__}: {err})") from None
+    conns = [c for c in reader.connections if c.topic == topic]
+    if not conns:
+        listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+        raise InputError(f"{path}: no topic {topic} in the bag (its topics: {listing}): set "
+                         f"{'topic' if fields[0][0] == 'position' else 'effort_topic'}")
+    if any(c.msgtype not in JOINT_STATE for c in conns):
+        raise InputError(f"{path}: topic {topic} holds {conns[0].msgtype} messages, not sensor_msgs/msg/JointState")
+    kinds = [f for f in ("position", "velocity", "effort") if any(g == f for g, _ in fields)]
+    for k, (conn, stamp, raw) in enumerate(reader.messages(connections=conns), start=1):
+        msg = reader.deserialize(raw, conn.msgtype)
+        names = tuple(msg.name)
+        if names not in index:
+            index[names] = columns(names, k)
+        at = index[names]
+        if at is None:
+            others.setdefault(names, []).append(k)
+            continue
+        arrays = {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in kinds}
+        short = [f for f in kinds if len(arrays[f]) != len(names)]
+        if any(len(arrays[f]) for f in short):
+            f = next(f for f in short if len(arrays[f]))
+            raise InputError(f"{path}: message {k} on {topic} holds {len(arrays[f])} {f} values for {len(names)} "
+                             "joints")
+        if short:
+            for f in short:
+                empty.setdefault(f, []).append(k)
+            continue
+        rows.append([arrays[f][i] for (f, _), i in zip(fields, at, strict=True)])
+        header.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
+        received.append(int(stamp))
+        numbers.append(k)
     left = f" ({sum(map(len, empty.values()))} with an empty array left out)" if empty else ""
     if len(rows) < 2 and empty:  # (almost) no message with every field read: the recording has not got one
         f, ks = next(iter(empty.items()))
-        advice = "leave it out of streams" if f != "position" else "the positions are needed"
+        advice = "the positions are needed" if f == "position" else (
+            "leave it out of streams, or name the topic that has the efforts in effort_topic" if f == "effort"
+            else "leave it out of streams")
         verb = "holds" if len(rows) == 1 else "hold"
         raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic} {verb} every field "
                          f"read: message {ks[0]} holds 0 {f} values for its joints, as do {len(ks) - 1} more "
@@ -203,60 +256,119 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
     if len(rows) < 2:
         raise InputError(f"{path}: {len(rows)} message{'s' if len(rows) != 1 else ''} on {topic}: fewer than "
                          f"two{left}")
-    values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields))
-    numbers = np.asarray(numbers, dtype=np.int64)
-    header_ns, received_ns = np.asarray(header, dtype=np.int64), np.asarray(received, dtype=np.int64)
-    source = spec.stamps
-    if source == "auto":
-        source = "header" if header_ns.any() else "receive"
-    elif source == "header" and not header_ns.any():
-        raise InputError(f"{path}: every header stamp on {topic} is zero: set stamps to receive (the bag's receive "
-                         "times) or auto")
     skipped = {"other publisher": {"count": sum(map(len, others.values())),
                                    "first": sorted(k for ks in others.values() for k in ks)[:5],
                                    "joints": sorted({n for names in others for n in names})}} if others else {}
     for f, ks in empty.items():
         skipped[f"empty {f}"] = {"count": len(ks), "first": ks[:5]}
-    notes = []
+    return {"topic": topic, "type": conns[0].msgtype, "fields": fields,
+            "values": np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields)),
+            "numbers": np.asarray(numbers, dtype=np.int64), "header_ns": np.asarray(header, dtype=np.int64),
+            "received_ns": np.asarray(received, dtype=np.int64), "skipped": skipped, "notes": [],
+            "ignored": sorted({n for names, at in index.items() if at is not None for n in names if n in ignored})}
+
+
+def _timed(path: Path, s: dict, source: str, dt: float | None) -> None:
+    """A topic's messages (``_read_topic``) timed by ``source`` (``header``, ``receive`` or ``sequence``: one
+    ``dt`` apart), in place: ``ns`` (a header stamp of zero among wall-clock ones left out, messages a few cycles
+    late sorted by their stamps), NaN and Inf refused naming the message; receive times that arrive in bursts, or
+    repeat with other values, refused (they are not sample times), and their spread said."""
+    topic, values, numbers = s["topic"], s["values"], s["numbers"]
+    header_ns, received_ns = s["header_ns"], s["received_ns"]
     zero = header_ns == 0
     if source == "header" and zero.any() and header_ns.max() >= UNSET_BEFORE_NS:
         # zero stamps among wall-clock ones: a driver that published before its clock was set (a bag whose stamps
         # count from zero, e.g. simulated time, keeps its first message)
-        skipped["zero header stamp"] = {"count": int(zero.sum()), "first": numbers[zero][:5].tolist()}
+        s["skipped"]["zero header stamp"] = {"count": int(zero.sum()), "first": numbers[zero][:5].tolist()}
         values, header_ns, received_ns, numbers = values[~zero], header_ns[~zero], received_ns[~zero], numbers[~zero]
         if len(values) < 2:
             raise InputError(f"{path}: fewer than two messages on {topic} with a header stamp: set stamps to receive")
     bad = np.argwhere(~np.isfinite(values))  # (a message left out for its stamp is not read)
     if bad.size:
         r, c = bad[0]
-        raise InputError(f"{path}: message {numbers[r]} on {topic}: NaN or Inf in the {fields[c][0]} of "
-                         f"{fields[c][1]}")
-    ns = header_ns if source == "header" else received_ns
-    order, reordered = _local_order(ns)
-    if reordered:
-        values, ns, numbers = values[order], ns[order], numbers[order]
-        header_ns, received_ns = header_ns[order], received_ns[order]
-        notes.append(reordered)
+        field, joint = s["fields"][c]
+        raise InputError(f"{path}: message {numbers[r]} on {topic}: NaN or Inf in the {field} of {joint}")
+    if source == "sequence":
+        ns = received_ns[0] + np.round(dt * 1e9 * np.arange(len(values))).astype(np.int64)
+    else:
+        ns = header_ns if source == "header" else received_ns
+        order, reordered = _local_order(ns)
+        if reordered:
+            values, ns, numbers = values[order], ns[order], numbers[order]
+            header_ns, received_ns = header_ns[order], received_ns[order]
+            s["notes"].append(reordered)
     back = int((np.diff(header_ns) < 0).sum())
     if source == "receive" and header_ns.all() and back:
-        notes.append(f"the header stamps step back {back} time{'s' if back > 1 else ''}: the receive times are used, "
-                     "as stamps: receive asks (stamps: header sorts messages a few cycles late by their stamps)")
-    t = (ns - ns[0]) / 1e9  # integer nanoseconds from the first: no rounding of epoch times
-    info = {"format": form, "topic": topic, "type": conns[0].msgtype, "messages": len(values),
-            "time": ("the messages' header stamps" if source == "header" else
-                     "the bag's receive times" + (" (every header stamp is zero)" if spec.stamps == "auto" else "")),
-            "first_stamp_ns": int(ns[0]),
-            "joints": {"position": list(spec.coordinates), "velocity": list(spec.velocities or []),
-                       "effort": list(spec.input_columns)},
-            "ignored_joints": sorted({n for names, at in index.items() if at is not None
-                                      for n in names if n in ignored})}
-    if skipped:
-        info["skipped"] = skipped
-    if notes:
-        info["notes"] = notes
-    if spec.joints:
-        info["mapping"] = dict(spec.joints)
-    return np.concatenate([t[:, None], values], 1), numbers, info
+        s["notes"].append(f"the header stamps step back {back} time{'s' if back > 1 else ''}: the receive times are "
+                          "used, as stamps: receive asks (stamps: header sorts messages a few cycles late by their "
+                          "stamps)")
+    if source == "receive":
+        s["notes"].append(_receive_times(path, topic, ns, values, numbers))
+    s.update(values=values, ns=ns, numbers=numbers)
+
+
+# receive times are refused as sample times where the median interval is below this fraction of the mean (messages
+# delivered in bursts: a recorder or network that batches them)
+BURST_RATIO = 0.3
+
+
+def _receive_times(path: Path, topic: str, ns: np.ndarray, values: np.ndarray, numbers: np.ndarray) -> str:
+    """The line saying that a topic's times are receive times and how much their intervals spread; refusals where
+    they cannot be sample times: delivered in bursts (``BURST_RATIO``), or a receive time repeated with other
+    values."""
+    steps = np.diff(ns) / 1e6  # ms
+    mean = (ns[-1] - ns[0]) / 1e6 / max(len(ns) - 1, 1)
+    median = float(np.median(steps))
+    remedy = ("stamp the messages' headers where they are sampled, or, for a publisher at a fixed rate that lost no "
+              "message, set stamps: sequence with dt")
+    if median < BURST_RATIO * mean:
+        share = float((steps < BURST_RATIO * mean).mean())
+        raise InputError(f"{path}: the receive times on {topic} come in bursts ({100 * share:.0f} % of the messages "
+                         f"within {BURST_RATIO * mean:.3g} ms of the one before, median interval {median:.3g} ms "
+                         f"against {mean:.3g} ms on average): they are not the sample times; {remedy}")
+    same = np.nonzero((steps == 0) & (values[1:] != values[:-1]).any(1))[0]
+    if same.size:
+        i = int(same[0])
+        raise InputError(f"{path}: message {numbers[i + 1]} on {topic} was received at the same time as message "
+                         f"{numbers[i]} with other values: receive times are not sample times; {remedy}")
+    p5, p95 = np.percentile(steps, [5, 95])
+    return (f"the times on {topic} are receive times (when the recorder got each message, not when it was sampled): "
+            f"intervals {p5:.3g}-{p95:.3g} ms (5th-95th percentile) around a median of {median:.3g} ms; their jitter "
+            "moves each sample in time (stamp the messages' headers where you can)")
+
+
+# an effort on another topic is interpolated to a position message's time only between two effort messages at most
+# this many median effort intervals apart (rows in a longer gap of the efforts are left out)
+MERGE_GAP_INTERVALS = 5
+
+
+def _merged(path: Path, main: dict, other: dict) -> tuple:
+    """``(values, ns, numbers, dropped)``: the main topic's rows with the efforts of ``other`` (another topic,
+    timed alike) linearly interpolated to each row's time; rows before the first effort message, after the last,
+    or within a gap of the efforts longer than ``MERGE_GAP_INTERVALS`` of their median interval left out (counted
+    in ``dropped``, None if none)."""
+    te, e = other["ns"], other["values"]
+    if (np.diff(te) <= 0).any():
+        i = int(np.nonzero(np.diff(te) <= 0)[0][0])
+        raise InputError(f"{path}: message {other['numbers'][i + 1]} on {other['topic']}: time repeats or decreases "
+                         "(the efforts' times must increase)")
+    t = main["ns"]
+    at = np.searchsorted(te, t, side="right")  # te[at - 1] <= t < te[at]
+    inside = (at > 0) & (at < len(te)) | (t == te[-1])
+    lo, hi = np.clip(at - 1, 0, len(te) - 1), np.clip(at, 0, len(te) - 1)
+    limit = MERGE_GAP_INTERVALS * float(np.median(np.diff(te)))
+    keep = inside & ((te[hi] - te[lo]) <= limit)
+    if keep.sum() < 2:
+        raise InputError(f"{path}: the efforts on {other['topic']} overlap fewer than two messages on "
+                         f"{main['topic']} in time")
+    base = t[0]  # (float64 seconds from the first position message: no rounding of epoch times)
+    x, xe = (t - base) / 1e9, (te - base) / 1e9
+    merged = np.stack([np.interp(x, xe, e[:, j]) for j in range(e.shape[1])], -1)
+    values = np.concatenate([main["values"], merged], 1)[keep]
+    dropped = None
+    if not keep.all():
+        dropped = {"count": int((~keep).sum()), "first": main["numbers"][~keep][:5].tolist()}
+    return values, t[keep], main["numbers"][keep], dropped
 
 
 # a header stamp of zero is unset (left out) in a bag whose other stamps are wall-clock times, from 2001 on (1e9 s)

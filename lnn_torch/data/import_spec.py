@@ -21,7 +21,7 @@ ARM_PARAMS = ("payload_mass", "payload_x", "payload_y", "payload_z", "payload_ix
 MIN_SAMPLES = 16  # the fewest samples of an entry (a recording or a window) after resampling
 DT_SPREAD = 0.02  # the relative spread of median intervals beyond which the default dt needs them to round alike
 STREAMS = ("position", "velocity", "effort")  # the fields of a sensor_msgs/JointState message
-STAMPS = ("auto", "header", "receive")
+STAMPS = ("auto", "header", "receive", "sequence")
 REPEATED_ROWS = ("drop", "keep")
 
 
@@ -96,8 +96,15 @@ class ImportSpec:
         ignore_joints: joints of the bag not imported (e.g. a gripper's fingers).
         streams: the JointState fields imported: ``position`` and any of ``velocity``, ``effort`` (default
             all three).
+        effort_topic: the topic of the efforts where they come on another topic than the positions (a
+            ``sensor_msgs/JointState`` of the same joints, e.g. ``/joint_efforts``; default None: on ``topic``):
+            each effort linearly interpolated to the position messages' times (both topics timed alike by
+            ``stamps``); position messages before the first effort, after the last or in a gap of the
+            efforts over five of their intervals are left out and counted.
         stamps: a bag's time: ``header`` (the messages' header stamps), ``receive`` (the bag's receive
-            times) or ``auto`` (default: the header stamps unless every one is zero).
+            times: when the recorder got each message; refused where they come in bursts), ``sequence``
+            (message k at k ``dt``: a publisher at a fixed rate that lost no message, whose stamps are unset)
+            or ``auto`` (default: the header stamps unless every one is zero).
         repeated_rows: a row identical to the previous one in every imported value (a stale message:
             the publisher sent the last state again) is ``drop``-ped or ``keep``-t; default: dropped in a
             bag, kept in a CSV (where it is reported). A row at rest (every measured velocity exactly
@@ -138,6 +145,7 @@ class ImportSpec:
     seed: int = 0
     label: str = "measured"
     topic: str = "/joint_states"
+    effort_topic: str | None = None
     joints: dict | None = None
     ignore_joints: list[str] | None = None
     streams: list[str] | None = None
@@ -215,6 +223,11 @@ class ImportSpec:
         """Check the fields for ROS bags (their types and values)."""
         if not isinstance(self.topic, str) or not self.topic.strip("/"):
             raise InputError(f"import: topic must name a topic, e.g. /joint_states; got {self.topic!r}")
+        other = self.effort_topic
+        if other is not None and (not isinstance(other, str) or not other.strip("/")):
+            raise InputError(f"import: effort_topic must name a topic, e.g. /joint_efforts; got {other!r}")
+        if other is not None and other.strip("/") == self.topic.strip("/"):
+            raise InputError(f"import: effort_topic names the topic of the positions ({self.topic}): leave it out")
         if self.streams is not None:
             streams = list(self.streams)
             unknown = [x for x in streams if x not in STREAMS]
@@ -302,6 +315,8 @@ class ImportSpec:
                 inputs = list(self.coordinates)
         elif self.input_columns:
             raise InputError("import: inputs (or currents) are named, but streams leaves effort out")
+        elif self.effort_topic:
+            raise InputError("import: effort_topic names the efforts' topic, but streams leaves effort out")
         return dataclasses.replace(self, velocities=velocities, inputs=inputs, streams=streams,
                                    repeated_rows=self.repeated_rows or "drop")
 

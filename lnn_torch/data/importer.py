@@ -201,7 +201,9 @@ def _read(files: list[Path], spec: ImportSpec, dof: int, angle_mask) -> tuple[li
             speed = (np.abs(np.diff(raw[:, angles], axis=0))[moving] / interval[moving, None]
                      * ANGLE_UNITS[spec.angle_units])
             info["angle_speed_p95_rad_s"] = float(np.percentile(speed, 95, axis=0).max())
-        repeated = repeated_rows(raw, dof, bool(spec.velocities))
+        # (efforts of another topic, interpolated to these times, never repeat: a stale message is its positions')
+        own = raw[:, :1 + dof * (1 + bool(spec.velocities))] if info.get("effort_topic") else raw
+        repeated = repeated_rows(own, dof, bool(spec.velocities))
         duplicates = repeated & np.r_[False, raw[1:, 0] == raw[:-1, 0]]  # the time stamp repeated too
         info["repeated_rows"] = {"count": int(repeated.sum()), "dropped": drop,
                                  "first": [int(x) for x in lines[repeated][:5]], "duplicates": int(duplicates.sum())}

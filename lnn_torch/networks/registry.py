@@ -62,9 +62,11 @@ def refuse_conflicts(variant: str, system, options: dict, energy_weight: float =
     switching variants sees the whole list at once, not one refusal per attempt)."""
     cls = model_class(variant)
     problems = [f"option {k!r} (not an option of {variant})" for k in unknown_options(variant, options)]
-    if torque_weight > 0 and not (INVERSE_DYNAMICS in cls.provides and system.num_inputs):
-        problems.append(f"torque_weight {torque_weight:g} (needs inverse dynamics: film_lnn or delan on a scene with "
-                        f"inputs; scene '{system.name}' has {system.num_inputs})")
+    if torque_weight > 0 and INVERSE_DYNAMICS not in cls.provides:
+        problems.append(f"torque_weight {torque_weight:g} (needs inverse dynamics: film_lnn or delan)")
+    elif torque_weight > 0 and not system.num_inputs:
+        problems.append(f"torque_weight {torque_weight:g} (fits measured torques, and scene '{system.name}' has no "
+                        "inputs: import the recordings' torques (efforts), or set torque_weight 0)")
     if energy_weight > 0 and ENERGY not in cls.provides:
         problems.append(f"energy_weight {energy_weight:g} (variant {variant} has no energy of its own)")
     if acceleration_weight < 0 or (acceleration_weight == 0 and not torque_weight > 0):
@@ -74,5 +76,5 @@ def refuse_conflicts(variant: str, system, options: dict, energy_weight: float =
         problems.append("energy_weight/torque_weight with dissipation 'joint+stiction' (static friction's holding "
                         "torque is not a force of the state)")
     if problems:
-        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}. "
-                         f"Its options: {', '.join(model_options(variant))}")
+        listing = f". Its options: {', '.join(model_options(variant))}" if unknown_options(variant, options) else ""
+        raise InputError(f"variant '{variant}' cannot use: {'; '.join(problems)}{listing}")
