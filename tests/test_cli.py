@@ -84,6 +84,18 @@ def test_cli_fit_test_predict(dataset, tmp_path):
     assert "test/acc_rel_err" in out.stdout
     written = glob.glob(str(tmp_path / "lightning_logs" / "*" / "test_metrics.json"))
     assert written and "test/acc_rel_err" in json.loads(Path(written[0]).read_text())
+    # a --ckpt_path command line sets how the model is judged (Lightning read the checkpoint's over it), and is
+    # refused a model or training setting other than the checkpoint's (ignored without a word before)
+    out = cli_in_process("test", *common, f"--ckpt_path={ckpts[0]}", "--model.test_rollouts=1",
+                         "--trainer.default_root_dir=judged", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "test_rollouts: 1\n" in next((tmp_path / "judged").rglob("config.yaml")).read_text()
+    for command in ("test", "fit"):
+        out = cli_in_process(command, *common, f"--ckpt_path={ckpts[0]}", "--model.lr=0.5", cwd=tmp_path)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-2000:]
+        assert f"lnn-torch {command}: error: --model.lr 0.5: the checkpoint's model has 0.01, and a --ckpt_path " \
+               "checkpoint keeps its model and training settings (only val_rollouts, " in out.stderr, out.stderr
+        assert ("start a new run from its weights (--model.init_from CHECKPOINT)" in out.stderr) == (command == "fit")
     out = cli_in_process("predict", *common, f"--ckpt_path={ckpts[0]}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     files = glob.glob(str(tmp_path / "lightning_logs" / "*" / "predictions.npz"))

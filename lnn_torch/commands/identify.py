@@ -504,6 +504,12 @@ def markdown(report: dict, system) -> str:
     lines.append("")
     for d in report["unidentifiable"]:
         combo = " ".join(f"{v:+.2f} log {p}" for p, v in d["direction"].items())
+        if d.get("scale"):
+            members = ", ".join(d["direction"])
+            lines.append(f"Not identifiable from any motion without inputs: a common scale of {members} "
+                         "(a Lagrangian times a constant has the same equations of motion); the parameters moving "
+                         "along it get no number.")
+            continue
         lines.append(f"Not identifiable from this observation: the direction {combo} (its standard deviation "
                      f"{d['std']:.3g} in log units would exceed the search box); the parameters moving along it "
                      "get no number.")

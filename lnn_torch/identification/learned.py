@@ -365,6 +365,12 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
             tangent[:, :, j] = 1.0
             d = torch.func.jvp(lambda ss: residual(x, ss), (states.clone(),), (tangent.reshape(N, -1),))[1].detach()
             J_s[:, torch.arange(len(window)), window * two_dof + j] = d
+    # the scale the motion cannot see (System.scale_invariance): its tangent at each estimate, in x (the log of a
+    # positive parameter, the value of another), is left out of the information, so that direction is reported flat
+    # whatever a learned model's imperfect invariance suggests
+    scale = system.scale_invariance()
+    exponents = torch.tensor([float(scale.get(p, 0.0)) for p in names], dtype=x.dtype)
+    tangents = torch.where(space.log, exponents, exponents * space.params(x)) if scale else None
     named = dict(system.identifiable_quantities())
     for name in names:
         named.setdefault(name, {name: 1.0})
@@ -378,6 +384,10 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
         if J_n is not None:
             A_ns = J_n.T @ J_p
             A = A - A_ns.T @ torch.linalg.pinv(J_n.T @ J_n) @ A_ns
+        if tangents is not None and tangents[i].norm() > 0:
+            d = tangents[i] / tangents[i].norm()
+            keep = eye - torch.outer(d, d)
+            A = keep @ A @ keep
         s2 = float(r.pow(2).sum()) / max(n - P - (0 if J_n is None else J_n.shape[1]), 1)
         eigval, eigvec = torch.linalg.eigh(0.5 * (A + A.T))
         std = (s2 / eigval.clamp_min(1e-300)).sqrt()  # along each eigenvector
@@ -404,9 +414,13 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
             quantities[qname] = {"value": value, "rel_std" if logarithmic else "std": std_q,
                                  "identifiable": identifiable,
                                  "coefficients": {p: float(v) for p, v in zip(names, c, strict=True) if v != 0}}
+        scale_dir = None if tangents is None or tangents[i].norm() == 0 else tangents[i] / tangents[i].norm()
         unidentifiable = [{"direction": {p: round(float(v), 3) for p, v in zip(names, eigvec[:, j], strict=True)
                                          if abs(v) > 0.05},
-                           "std": float(std[j])} for j in torch.nonzero(flat)[:, 0].tolist()]
+                           "std": float(std[j]),
+                           # the scale no free motion shows (System.scale_invariance), not a lack of excitation
+                           "scale": scale_dir is not None and abs(float(eigvec[:, j] @ scale_dir)) > 0.99}
+                          for j in torch.nonzero(flat)[:, 0].tolist()]
         edge = ((xi - space.centre).abs() > 0.999 * space.half.abs()) & ~_flat_members(eigvec[:, flat])
         out.append({"params": {p: float(v) for p, v in zip(names, params, strict=True)}, "quantities": quantities,
                     "at_bound": [p for p, e in zip(names, edge, strict=True) if e],

@@ -381,10 +381,23 @@ class System(abc.ABC):
         whose parameters constrain each other gives its similar system instead)."""
         return params * k, f"parameters x{k:g}"
 
+    def scale_invariance(self) -> dict:
+        """The parameters' direction that the motion cannot see, ``{param: exponent}``: a Lagrangian (and a
+        dissipation) times a constant has the same equations of motion, so without inputs to fix the scale every
+        parameter of mass dimension (units of kg or N: masses, inertias, stiffnesses, damping) scaled alike
+        changes no trajectory (a pendulum's one mass: any value). Empty for a scene with inputs (a known torque
+        fixes the scale) or without such a parameter."""
+        if self.num_inputs:
+            return {}
+        return {p: 1.0 for p, unit in zip(self.param_names, self.param_units or (), strict=False)
+                if _mass_dimension(unit)}
+
     def identifiable_quantities(self) -> dict:
         """Named log-linear combinations of the parameters that identification reports beside each
-        parameter, ``{name: {param: coefficient}}`` (e.g. a mass ratio); default none."""
-        return {}
+        parameter, ``{name: {param: coefficient}}`` (e.g. a mass ratio); default: each parameter of the scale
+        the motion cannot see (``scale_invariance``) over the first, ``m2/m1``, ``k/m``."""
+        members = list(self.scale_invariance())
+        return {f"{p}/{members[0]}": {members[0]: -1.0, p: 1.0} for p in members[1:]}
 
     def linear_regressor(self, q, qd, qdd, tau=None):
         """Classical identification: the equations of motion written as ``Y phi = b``, linear in a
@@ -442,3 +455,9 @@ class System(abc.ABC):
             check_inputs(tau, self.num_inputs, q.shape[:-1])
             if tau is not None and not torch.isfinite(tau).all():
                 raise InputError(f"{self.name}: tau contains NaN or Inf")
+
+
+def _mass_dimension(unit: str) -> bool:
+    """Whether a unit (``kg``, ``N/m``, ``kg m^2``, ``N m s/rad``) has the dimension of mass."""
+    tokens = unit.replace("/", " ").replace("^", " ").replace("*", " ").replace("·", " ").split()
+    return "kg" in tokens or "N" in tokens

@@ -19,6 +19,34 @@ class LNNCLI(LightningCLI):
         self.argv = list(sys.argv[1:] if args is None else args) if not isinstance(args, dict) else []
         super().parse_arguments(parser, args)
 
+    def _parse_ckpt_path(self) -> None:
+        """Lightning reads a ``--ckpt_path`` checkpoint's hyper-parameters over the model's settings, the command
+        line's too. A setting of how the model is judged (``EVALUATION``) that the command line gives is taken
+        from it; any other (the model, its data link, its training) stays the checkpoint's, and one the command
+        line sets to another value is refused in one line (it was ignored without a word)."""
+        sub = self.config.get("subcommand")
+        given = [] if not sub else list(dict.fromkeys(
+            arg[len("--model."):].split("=", 1)[0].split(".", 1)[0] for arg in self.argv
+            if arg.startswith("--model.")))
+        model = self.config[sub].get("model") if sub else None
+        asked = {k: model.get(k) for k in given} if model is not None else {}
+        super()._parse_ckpt_path()
+        if not asked:
+            return
+        model = self.config[sub]["model"]
+        for key, value in asked.items():
+            stored = model.get(key)
+            if key in EVALUATION or value == stored:
+                model[key] = value
+                continue
+            from ..errors import InputError
+
+            advice = (": to train on with other settings, start a new run from its weights (--model.init_from "
+                      "CHECKPOINT)" if sub == "fit" else "")
+            raise InputError(f"--model.{key} {value!r}: the checkpoint's model has {stored!r}, and a --ckpt_path "
+                             f"checkpoint keeps its model and training settings (only {', '.join(EVALUATION)} may "
+                             f"change){advice}")
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data", "model.scene", apply_on="instantiate", compute_fn=lambda dm: dm.model_scene()[0])
         parser.link_arguments("data", "model.scene_config", apply_on="instantiate",
@@ -55,12 +83,18 @@ class LNNCLI(LightningCLI):
                 cb.data_options = data_options(self.argv)
 
 
+# the model's settings of how it is judged (validation and test rollouts, the threshold of the time within it, figures,
+# compilation): a --ckpt_path command line may set them (every other setting is the checkpoint's)
+EVALUATION = ("val_rollouts", "val_rollout_seconds", "test_rollouts", "val_threshold", "figure_every_n_epochs",
+              "compile")
 TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
 LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
           "init_args": {"save_dir": ".", "name": "lightning_logs", "default_hp_metric": False}}
 CALLBACKS = [
     {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
-     "init_args": {"monitor": "val/acc_rel_err", "mode": "min",
+     # saved when validation ends, so before LastCheckpoint's last.ckpt at the epoch's end (Lightning runs
+     # checkpoint callbacks after the others: at the epoch's end last.ckpt held the best checkpoint before this one)
+     "init_args": {"monitor": "val/acc_rel_err", "mode": "min", "save_on_train_epoch_end": False,
                    "filename": "epoch{epoch}-err{val/acc_rel_err:.4f}", "auto_insert_metric_name": False}},
     {"class_path": "lnn_torch.training.callbacks.LastCheckpoint"},
     {"class_path": "lnn_torch.training.callbacks.PredictionWriter"},
