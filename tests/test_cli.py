@@ -110,6 +110,23 @@ def test_cli_fit_test_predict(dataset, tmp_path):
 
 
 @pytest.mark.slow
+def test_last_checkpoint_names_the_best_checkpoint_that_exists(dataset, tmp_path):
+    """last.ckpt's record of the best checkpoint is the one on disk (it was written before the epoch's best was, and
+    named a file the top-1 rule had deleted: a resumed run printed that path and compared against its score)."""
+    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
+                         "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
+                         "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2",
+                         "--trainer.enable_progress_bar=false", "--trainer.max_epochs=3", "--data.steps_per_epoch=2",
+                         "--trainer.check_val_every_n_epoch=1", "--model.compile=false", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    folder = tmp_path / "lightning_logs" / "version_0" / "checkpoints"
+    last = torch.load(folder / "last.ckpt", weights_only=False)
+    (state,) = [v for k, v in last["callbacks"].items() if k.startswith("ModelCheckpoint")]
+    assert (tmp_path / state["best_model_path"]).exists(), (state["best_model_path"], sorted(folder.iterdir()))
+    assert sorted(p.name for p in folder.iterdir()) == sorted(["last.ckpt", Path(state["best_model_path"]).name])
+
+
+@pytest.mark.slow
 def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
     """--trainer.default_root_dir DIR moves the default TensorBoard run and the checkpoints to DIR
     (the logger's save_dir is no longer fixed to the working directory)."""
