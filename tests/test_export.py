@@ -284,6 +284,41 @@ def test_an_operator_without_onnx_translation_is_refused_in_one_line(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_the_real_pendulums_chain_model_exports_every_function_and_onnx_what_it_can(tmp_path, capsys):
+    """The README's control model (a planar chain part, static friction): every function as a program that takes
+    any batch (with opt_einsum installed, as beside jax, its three-operand einsum fixed the batch to the traced 8
+    and the export failed); by default ONNX gets every function it can express, the forward dynamics (static
+    friction's linalg.solve) left out and said so, the batch dimension named batch."""
+    module = load_model("pretrained:real_double_pendulum")
+    formats = ["pt2", "onnx"] if not ex.missing_onnx_packages() else ["pt2"]
+    assert main(["export", "pretrained:real_double_pendulum", "-o", str(tmp_path), "--format", *formats]) == 0
+    out = capsys.readouterr().out
+    functions = ex.available_functions(module)
+    assert len(functions) == 6
+    model = copy.deepcopy(module.model)
+    for function in functions:
+        program = torch.export.load(tmp_path / f"{function}.pt2").module()
+        for batch in (1, 13):
+            g = torch.Generator().manual_seed(batch)
+            q, qd, tau, qdd = (torch.randn(batch, 2, generator=g) for _ in range(4))
+            params = torch.zeros(batch, 0)
+            with torch.no_grad():
+                torch.testing.assert_close(program(*arguments(function, q, qd, params, tau, qdd)),
+                                           eager(model, function, q, qd, params, tau, qdd), **TOL[torch.float32])
+    if "onnx" not in formats:
+        return
+    import onnx
+
+    meta = json.loads((tmp_path / "export.json").read_text())
+    assert list(meta["not_in_onnx"]) == ["forward_dynamics"] and "aten._linalg_solve_ex" in \
+        meta["not_in_onnx"]["forward_dynamics"]
+    assert "note: forward_dynamics left out of ONNX (the other formats have it): " in out
+    assert sorted(p.name for p in tmp_path.glob("*.onnx")) == sorted(f"{f}.onnx" for f in functions[1:])
+    graph = onnx.load(str(tmp_path / "inverse_dynamics.onnx")).graph
+    assert {d.dim_param for v in [*graph.input, *graph.output] for d in v.type.tensor_type.shape.dim[:1]} == {"batch"}
+    assert set(meta["loading"]) == {"pt2", "aoti.pt2", "onnx"}
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None, reason="no C++ compiler")
 def test_aoti_package_equals_the_eager_model(models, tmp_path):
@@ -297,6 +332,14 @@ def test_aoti_package_equals_the_eager_model(models, tmp_path):
         q, qd, params, tau, qdd = states(module, batch, torch.float64, seed=batch)
         with torch.no_grad():
             torch.testing.assert_close(program(q, qd, params), model.acceleration(q, qd, params), **TOL[torch.float64])
+    # the package checks nothing (float32 inputs gave garbage): AOTIProgram checks them against export.json
+    for args, message in (((q.float(), qd, params), r"^q must be a float64 tensor of shape \(batch, 2\), got "
+                                                     r"torch.float32 of shape \(64, 2\)$"),
+                          ((q, qd[:3], params), r"^qd has batch 3: every input needs the same batch"),
+                          ((q, qd), r"^takes 3 inputs \(q, qd, params\), got 2$"),
+                          ((q.mT.contiguous().mT, qd, params), r"^q must be contiguous")):
+        with pytest.raises(ex.InputError, match=message):
+            program(*args)
 
 
 # ---------------------------------------------------------------------------- the arm's grey box

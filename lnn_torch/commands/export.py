@@ -192,5 +192,7 @@ def main(argv: list[str]) -> int:
     width = max(map(len, meta["functions"]))
     for name, entry in meta["functions"].items():
         print(f"{name:<{width}}  {_signature(entry)}  {meta['dtype']}")
+    for name, why in (meta.get("not_in_onnx") or {}).items():
+        print(f"note: {name} left out of ONNX (the other formats have it): {why}")
     print("wrote " + ", ".join(str(p) for p in files))
     return 0

@@ -254,7 +254,9 @@ def export_program(fn: _Function, batch: int = 8) -> torch.export.ExportedProgra
     ``InputError`` naming the variant and the first line of torch's reason."""
     args = example_inputs(fn, batch)
     try:
-        with torch.no_grad(), unrolled_solves():  # Cholesky solves as elementwise operators (ONNX has none)
+        # Cholesky solves as elementwise operators (ONNX has none); einsum's contraction order not chosen by
+        # opt_einsum (installed beside jax, e.g.), whose choice for the example's batch fixed the batch to it
+        with torch.no_grad(), unrolled_solves(), torch.backends.opt_einsum.flags(enabled=False):
             fn(*args)
             return torch.export.export(fn, args, dynamic_shapes=dynamic_shapes(fn), strict=False)
     except Exception as err:  # noqa: BLE001 (torch.export raises many kinds)
@@ -363,10 +365,27 @@ def to_onnx(program: torch.export.ExportedProgram, fn: _Function):
 
 
 def export_onnx(program: torch.export.ExportedProgram, fn: _Function, path: str | Path) -> Path:
-    """``to_onnx`` saved to ``path``."""
+    """``to_onnx`` saved to ``path`` (its batch dimension named ``batch``)."""
     path = Path(path)
     to_onnx(program, fn).save(str(path))
+    _batch_named(path)
     return path
+
+
+def _batch_named(path: Path) -> None:
+    """The saved ONNX graph's batch dimension named ``batch`` (the exporter names it after its symbol, ``s49``),
+    in its inputs, output and every intermediate value, in place."""
+    import onnx
+
+    model = onnx.load(str(path))
+    symbol = model.graph.input[0].type.tensor_type.shape.dim[0].dim_param
+    if not symbol or symbol == "batch":
+        return
+    for value in [*model.graph.input, *model.graph.output, *model.graph.value_info]:
+        for dim in value.type.tensor_type.shape.dim:
+            if dim.dim_param == symbol:
+                dim.dim_param = "batch"
+    onnx.save(model, str(path))
 
 
 # what is computed from the weights alone (FiLM's maps of its output layers, transposes) folded once when
@@ -379,14 +398,45 @@ AOTI_CHECK_TOLERANCE = {torch.float32: 1e-3, torch.float64: 1e-8}
 
 class AOTIProgram:
     """A loaded AOTInductor package called with positional tensors: ``torch._inductor.aoti_load_package``'s
-    model less its per-call parsing of the argument structure (about 20 us of a batch-1 call)."""
+    model less its per-call parsing of the argument structure (about 20 us of a batch-1 call). The package
+    itself checks nothing (a float64 input gave NaN or 1e37): where ``export.json`` lies beside it, each call's
+    inputs are checked against its entry first (their number, dtype, 2-D shapes with the listed widths, one batch
+    size, contiguity; a few microseconds), a mismatch refused in one line (``InputError``); ``check=False``
+    leaves that out."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, check: bool = True) -> None:
+        path = Path(path)
         self.package = torch._inductor.aoti_load_package(str(path))
         self.loader = self.package.loader
+        self.inputs = None
+        meta = path.parent / "export.json"
+        name = path.name[: -len(".aoti.pt2")] if path.name.endswith(".aoti.pt2") else None
+        if check and name and meta.exists():
+            entry = json.loads(meta.read_text()).get("functions", {}).get(name)
+            if entry is not None:
+                self.inputs = [(x["name"], getattr(torch, x["dtype"]), int(x["shape"][1])) for x in entry["inputs"]]
 
     def __call__(self, *args: torch.Tensor) -> torch.Tensor:
+        if self.inputs is not None:
+            self._check(args)
         return self.loader.run(list(args))[0]
+
+    def _check(self, args) -> None:
+        if len(args) != len(self.inputs):
+            raise InputError(f"takes {len(self.inputs)} inputs ({', '.join(n for n, _, _ in self.inputs)}), got "
+                             f"{len(args)}")
+        batch = None
+        for x, (name, dtype, width) in zip(args, self.inputs, strict=True):
+            if not isinstance(x, torch.Tensor) or x.dtype != dtype or x.ndim != 2 or x.shape[1] != width:
+                got = f"{x.dtype} of shape {tuple(x.shape)}" if isinstance(x, torch.Tensor) else type(x).__name__
+                raise InputError(f"{name} must be a {str(dtype).replace('torch.', '')} tensor of shape (batch, "
+                                 f"{width}), got {got}")
+            batch = x.shape[0] if batch is None else batch
+            if x.shape[0] != batch or not 1 <= batch <= MAX_BATCH:
+                raise InputError(f"{name} has batch {x.shape[0]}: every input needs the same batch, 1 to "
+                                 f"{MAX_BATCH}")
+            if not x.is_contiguous():
+                raise InputError(f"{name} must be contiguous (x.contiguous())")
 
 
 def _constant_nodes(program: torch.export.ExportedProgram) -> set:
@@ -556,9 +606,16 @@ def describe(module, functions: dict, source: str = "", files: dict | None = Non
                            "note": "beyond this range the model conditions on the nearest trusted values; the "
                                    "programs do not warn (null: a parameter taken exactly, at any value)"},
         "batch": {"min": 1, "max": MAX_BATCH},
-        "notes": "the programs check nothing (shapes, NaN, parameter signs, valid states): "
-                 "lnn_torch.load_model checks them. Load a .pt2 with torch.export.load(path).module() and call it "
-                 "with the inputs in the order listed.",
+        "notes": "the programs check no values (NaN, parameter signs, valid states): lnn_torch.load_model checks "
+                 "them. Each takes its inputs in the order listed, as 2-D arrays (batch, n) of the dtype listed.",
+        "loading": {
+            "pt2": "torch.export.load(path).module()(*inputs): shapes and dtype checked",
+            "aoti.pt2": "torch._inductor.aoti_load_package(path)(*inputs) (C++: torch::inductor::"
+                        "AOTIModelPackageLoader): checks nothing, a wrong dtype or shape gives wrong numbers, not an "
+                        "error; lnn_torch.export.programs.AOTIProgram(path) checks them against this file beside it",
+            "onnx": "onnxruntime.InferenceSession(path).run(None, {name: array, ...}) with contiguous arrays of the "
+                    "dtype listed; the batch dimension is named batch",
+        },
         "functions": {},
     }
     for name, fn in functions.items():
@@ -588,6 +645,7 @@ def export_model(module, output_dir: str | Path, functions=None, formats=("pt2",
     unknown = [f for f in formats if f not in FORMATS]
     if unknown or not formats:
         raise InputError(f"format must be among {', '.join(FORMATS)}, got {', '.join(unknown) or 'none'}")
+    chosen = functions is not None  # (every function by default: one ONNX cannot express is left out of ONNX)
     if functions is None:
         reason = refusal(module)
         if reason is not None:
@@ -605,27 +663,39 @@ def export_model(module, output_dir: str | Path, functions=None, formats=("pt2",
     existing = [str(p) for p in targets if p.exists()]
     if existing and not overwrite:
         raise FileExistsError(f"{', '.join(existing)} exist; refusing to overwrite (pass --overwrite)")
-    wrapped, programs, onnx_programs = {}, {}, {}
+    wrapped, programs, onnx_programs, not_onnx = {}, {}, {}, {}
     for name in functions:  # everything that can fail, before a file is written
         fn = wrapped[name] = wrap(module, name, dtype)
         programs[name] = export_program(fn)
         if "onnx" in formats:
-            onnx_programs[name] = to_onnx(programs[name], fn)
+            try:
+                onnx_programs[name] = to_onnx(programs[name], fn)
+            except InputError as err:
+                if chosen:
+                    raise
+                not_onnx[name] = str(err)
+    if not_onnx and len(not_onnx) == len(functions):
+        raise InputError(next(iter(not_onnx.values())))
     output_dir.mkdir(parents=True, exist_ok=True)
     files, written = {name: [] for name in functions}, []
     for fmt in formats:
         for name in functions:
+            if fmt == "onnx" and name in not_onnx:
+                continue
             path = output_dir / output_name(name, fmt)
             if fmt == "pt2":
                 torch.export.save(programs[name], path)
             elif fmt == "onnx":
                 onnx_programs[name].save(str(path))
+                _batch_named(path)
             else:
                 compile_aoti(programs[name], wrapped[name], path)
             files[name].append(path.name)
             written.append(path)
     meta = describe(module, wrapped, source, files)
     meta["dtype"] = str(next(iter(wrapped.values())).model.dtype).replace("torch.", "")
+    if not_onnx:
+        meta["not_in_onnx"] = not_onnx
     meta_path = output_dir / "export.json"
     meta_path.write_text(json.dumps(meta, indent=2) + "\n")
     return [*written, meta_path]
