@@ -239,11 +239,49 @@ def test_the_control_command_reports_a_swing_up_designed_on_the_plant(tmp_path, 
         assert (out / name).stat().st_size > 100 and str(out / name) in printed
 
 
+def test_a_goal_the_limits_cannot_hold_is_said_with_the_share_of_time_at_the_limit(tmp_path, capsys):
+    """Holding the lab pendulum's first link level needs about 4 N m on its shoulder: with 0.3 N m the report says
+    that the goal is beyond the limits, and how often the torque sat at its limit."""
+    import json
+
+    from lnn_torch.cli import main
+
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(ON_LAB.replace("{kind: lqr}", "{kind: lqr, goal: [1.5707963, 0.0]}")
+                        + "limits: {torque: [0.3, 0.3]}\nduration: 1.0\nsuccess: {hold: 0.5}\n")
+    assert main(["control", "plant", "-c", str(scenario), "--episodes", "2", "-o", str(tmp_path / "o"),
+                 "--no-animation"]) == 0
+    report = json.loads((tmp_path / "o" / "control.json").read_text())
+    assert report["success_rate"] == 0.0 and report["torque_at_limit_share"] > 0.5
+    assert report["goal_beyond_limit"]["input"] == "tau1" and report["goal_beyond_limit"]["holding_torque"] > 3.0
+    printed = capsys.readouterr().out
+    assert "The goal cannot be held within the limits: at rest there the plant needs " in printed
+    assert "| control periods with a torque at its limit | " in printed
+
+
+ON_LAB = ("plant: {identified: lnn_torch/datasets/real_double_pendulum/identified_parameters.yml}\n"
+                "controller: {kind: lqr}\n")
+
+
 @pytest.mark.parametrize("text, message", [("controller: {kind: swingup}\n", "'plant' is missing"),
                                            ("plant: {scene: double_pendulum}\ncontroller: {kind: lqr}\n",
                                             "plant.params is missing"),
                                            ("plant: {identified: nowhere.yml}\ncontroller: {}\n",
-                                            "file nowhere.yml does not exist")])
+                                            "file nowhere.yml does not exist"),
+                                           # a key misspelt ran without it (no torque limit: 100 % success)
+                                           (f"{ON_LAB}limits: {{torques: [0.3, 0.3]}}\n", "unknown key limits.torques "
+                                            "(the keys of limits: torque)"),
+                                           (f"{ON_LAB}episdoes: 3\n", "unknown key episdoes (the keys: episodes, "),
+                                           (f"{ON_LAB}noise: 0.001\n", "noise must be a mapping (angle, velocity)"),
+                                           (f"{ON_LAB}control_hz: 0\n", "control_hz must be a number > 0, got 0"),
+                                           (f"{ON_LAB}delay: 2.7\n", "delay must be a whole number >= 0, got 2.7"),
+                                           (f"{ON_LAB}seed: [1]\n", "seed must be a whole number >= 0, got [1]"),
+                                           (f"{ON_LAB}success: {{hold: 9}}\n", "success.hold (9 s) is longer than an "
+                                            "episode (duration 5.0 s)"),
+                                           (f"{ON_LAB}start: {{q: [0, 0, 0]}}\n", "start.q needs 2 values"),
+                                           ("plant: {identified: lnn_torch/datasets/real_double_pendulum/"
+                                            "identified_parameters.yml}\ncontroller: {kind: lqr, R: -0.1}\n",
+                                            "controller.R must be a list of numbers (or one number) > 0, got -0.1")])
 def test_the_control_command_names_a_bad_scenario_in_one_line(text, message, tmp_path, capsys):
     from lnn_torch.cli import main
 

@@ -48,6 +48,70 @@ from ..errors import InputError
 PATHS = {"swingup": "swing-up", "reach": "reach"}
 DEFAULTS = {"episodes": 100, "duration": 5.0, "control_hz": 500.0, "substeps": 2, "limits": {}, "noise": {},
             "delay": 0, "start": {}, "success": {}, "seed": 0}
+# every key a scenario may hold, per mapping (a key misspelt was ignored: `torques` ran without a torque limit)
+KEYS = {"": (*DEFAULTS, "plant", "controller", "calibration_seconds"),
+        "plant": ("identified", "robot", "model", "scene", "scene_config", "params", "actuation"),
+        "controller": ("kind", "goal", "seconds", "kp", "kd", "Q", "R", "catch"),
+        "limits": ("torque",), "noise": ("angle", "velocity"), "start": ("q", "spread"),
+        "success": ("tolerance", "hold")}
+# the numbers of a scenario: (mapping, key) -> (what it must be, its test)
+_POSITIVE, _NONNEGATIVE = ("a number > 0", lambda x: x > 0), ("a number >= 0", lambda x: x >= 0)
+NUMBERS = {("", "duration"): _POSITIVE, ("", "control_hz"): _POSITIVE, ("", "calibration_seconds"): _POSITIVE,
+           ("controller", "seconds"): _POSITIVE, ("controller", "kp"): _NONNEGATIVE,
+           ("controller", "kd"): _NONNEGATIVE, ("controller", "catch"): _POSITIVE,
+           ("noise", "angle"): _NONNEGATIVE, ("noise", "velocity"): _NONNEGATIVE,
+           ("start", "spread"): _NONNEGATIVE, ("success", "tolerance"): _POSITIVE, ("success", "hold"): _POSITIVE}
+INTEGERS = {"episodes": 1, "substeps": 1, "delay": 0, "seed": 0}  # the smallest each may be
+LISTS = {("controller", "goal"): None, ("start", "q"): None, ("controller", "Q"): 0.0, ("controller", "R"): 1e-300,
+         ("limits", "torque"): 1e-300}  # lists of numbers (Q, R and the limit also one number), each >= this
+
+
+def check_scenario(scenario, where: str) -> None:
+    """Refuse, in one line naming the key, what a scenario cannot mean: a key no mapping has (``KEYS``), a mapping
+    that is none, a number that is none or out of range (``NUMBERS``, ``INTEGERS``), a list that is not of
+    numbers (``LISTS``), a hold longer than the episode."""
+    if not isinstance(scenario, dict):
+        raise InputError(f"{where}: a scenario is a mapping of settings, got {type(scenario).__name__}")
+    for section, keys in KEYS.items():
+        mapping = scenario if not section else scenario.get(section, {})
+        if not isinstance(mapping, dict):
+            raise InputError(f"{where}: {section} must be a mapping ({', '.join(keys)}), got {mapping!r}")
+        unknown = [k for k in mapping if k not in keys]
+        if unknown:
+            name = f"{section}." if section else ""
+            raise InputError(f"{where}: unknown key {name}{unknown[0]} (the keys{f' of {section}' if section else ''}: "
+                             f"{', '.join(keys)})")
+
+    def value(section, key):
+        mapping = scenario if not section else scenario.get(section, {})
+        return mapping.get(key)
+
+    def number(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    for (section, key), (what, ok) in NUMBERS.items():
+        x = value(section, key)
+        if x is not None and not (number(x) and ok(x)):
+            raise InputError(f"{where}: {section + '.' if section else ''}{key} must be {what}, got {x!r}")
+    for key, least in INTEGERS.items():
+        x = value("", key)
+        if x is not None and not (isinstance(x, int) and not isinstance(x, bool) and x >= least):
+            raise InputError(f"{where}: {key} must be a whole number >= {least}, got {x!r}")
+    for (section, key), least in LISTS.items():
+        x = value(section, key)
+        if x is None:
+            continue
+        items = [x] if least is not None and not isinstance(x, list) else x
+        if key in ("Q", "R") and isinstance(items, list) and all(isinstance(v, list) for v in items):
+            items = [v for row in items for v in row]  # a full weight matrix
+        if not isinstance(items, list) or not items or not all(number(v) for v in items) or (
+                least is not None and not all(v >= least for v in items)):
+            kind = "a list of numbers" + (" (or one number)" if least is not None else "") + (
+                "" if least is None else " >= 0" if least == 0.0 else " > 0")
+            raise InputError(f"{where}: {section}.{key} must be {kind}, got {x!r}")
+    hold, duration = value("success", "hold"), value("", "duration") or DEFAULTS["duration"]
+    if hold is not None and hold > duration:
+        raise InputError(f"{where}: success.hold ({hold} s) is longer than an episode (duration {duration} s)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -167,6 +231,7 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
     Returns the metrics and the episodes' arrays (``_episodes``)."""
     from ..control import calibrate_on, closed_loop, plant_of, wrap
 
+    check_scenario(scenario, where)
     s = {**DEFAULTS, **scenario}
     for key in ("plant", "controller"):
         if key not in s:
@@ -182,7 +247,9 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
             design_plant = plant_of(design, actuation=s["plant"].get("actuation"), torque_scale=scale)
     if design is not None and design_plant.dof != plant.dof:
         raise InputError(f"{where}: the model has {design_plant.dof} coordinates, the plant {plant.dof}")
-    n, N = plant.dof, int(episodes or s["episodes"])
+    if episodes is not None and episodes < 1:
+        raise InputError(f"--episodes must be 1 or more, got {episodes}")
+    n, N = plant.dof, int(s["episodes"] if episodes is None else episodes)
     gen = torch.Generator().manual_seed(int(s["seed"]))
     ctrl = s["controller"]
     goal1 = torch.tensor([ctrl.get("goal", [math.pi] + [0.0] * (n - 1))], dtype=torch.float64)
@@ -191,6 +258,8 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
     kind = ctrl.get("kind", "swingup")
     start = s["start"]
     centre = torch.tensor([start.get("q", [0.0] * n if kind in PATHS else goal1[0].tolist())], dtype=torch.float64)
+    if centre.shape != (1, n):
+        raise InputError(f"{where}: start.q needs {n} values, got {centre.tolist()[0]}")
     spread = float(start.get("spread", 0.05))
     q0 = centre + spread * (2 * torch.rand(N, n, generator=gen, dtype=torch.float64) - 1)
     goal = goal1.expand(N, -1)
@@ -226,6 +295,18 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
            "torque_rms": float(ep["u"].pow(2).mean().sqrt()), "torque_max": float(ep["u"].abs().max()),
            "final_error_rad_median": float(err[:, -1].median()), "closed_loop_seconds": seconds,
            "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
+    limit = s["limits"].get("torque")
+    if limit is not None:  # how often the controller asked beyond the limit, and whether the goal needs more
+        bound = torch.as_tensor(limit, dtype=torch.float64).reshape(-1).expand(plant.num_inputs)
+        out["torque_at_limit_share"] = float((ep["u"].abs() >= bound * (1 - 1e-9)).double().mean())
+        rest = torch.zeros_like(goal1)
+        with torch.no_grad():
+            needed = plant.inverse(goal1, rest, rest, None if p_plant is None else p_plant[:1])[0].abs()
+        beyond = needed > bound
+        if beyond.any():
+            k = int((needed / bound).argmax())
+            out["goal_beyond_limit"] = {"input": plant.input_names[k] if plant.input_names else str(k),
+                                        "holding_torque": float(needed[k]), "limit": float(bound[k])}
     if scale is not None:
         out["torque_scale_calibrated"] = [float(x) for x in scale.reshape(-1)]
     if design is not None:
@@ -356,11 +437,17 @@ def main(argv: list[str]) -> int:
     if "tracking_error_rms_rad" in clean:
         lines.append(f"| tracking error along the {PATHS[clean['controller']]} path, RMS, rad | "
                      f"{clean['tracking_error_rms_rad']:.3g} |")
+    if "torque_at_limit_share" in clean:
+        lines.append(f"| control periods with a torque at its limit | {100 * clean['torque_at_limit_share']:.1f} % |")
     if "holding_torque_at_goal" in clean:
         hold = clean["holding_torque_at_goal"]
         lines.append(f"| holding torque at the goal, model against plant: largest difference, N m | "
                      f"{hold['largest_difference']:.3g} ({hold['input']}) |")
     lines += ["", f"Closed loop: {clean['closed_loop_seconds']:.1f} s of computation."]
+    if "goal_beyond_limit" in clean:
+        b = clean["goal_beyond_limit"]
+        lines += ["", f"The goal cannot be held within the limits: at rest there the plant needs "
+                      f"{b['holding_torque']:.3g} N m on {b['input']}, its limit is {b['limit']:.3g} N m."]
     if "unknown_to_the_model" in clean:
         unknown = clean["unknown_to_the_model"]
         values = ", ".join(f"{n} = {v:g}" for n, v in zip(unknown["names"], unknown["params"], strict=True))
