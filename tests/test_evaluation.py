@@ -34,6 +34,8 @@ def test_closed_form_through_the_pipeline_is_exact(trajectories):
         assert r["horizon_s"] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="not multiples"):
         evaluate_model(ClosedForm(system), system, trajectories, dt=0.0075)
+    with pytest.raises(ValueError, match=r"^dt must be a positive step in s, got -0.01$"):  # (not "not multiples")
+        evaluate_model(ClosedForm(system), system, trajectories, dt=-0.01)
 
 
 def test_a_wrong_model_is_measured_as_wrong(trajectories):

@@ -291,7 +291,9 @@ def _identify_arm(module, args) -> int:
                   "per_recording": by_recording,
                   "uncertainty": ordinary.info["uncertainty"], "model_start": _model_start(module), "tools": tools}
         text = (f"# {module.model.variant} and classical identification on {path} ({args.split} split, "
-                f"{result['test_points']} points; the fits on the training split, {result['train_points']} points)\n\n"
+                f"{result['test_points']} points; the fits on the training split, {result['train_points']} points"
+                + (f": every {_ordinal(result['train_stride'])} sample" if (result.get("train_stride") or 1) > 1
+                   else "") + ")\n\n"
                 f"{result['model_start']}\n\nJoint-torque RMS error (N m"
                 + ("; the model carries the loads the import left unknown as identified against it, in the last "
                    "section, the classical fits the dataset's" if loads is not None else "")
@@ -552,3 +554,8 @@ def _plot(module, system, obs: Observation, q_used, result, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _ordinal(k: int) -> str:
+    """``2nd``, ``3rd``, ``4th``, ..."""
+    return f"{k}{'th' if 10 <= k % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(k % 10, 'th')}"

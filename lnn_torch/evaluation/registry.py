@@ -11,6 +11,7 @@ Also here: the small helpers the sections share (``_closed_form``: skip a scene 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -101,6 +102,8 @@ class EvalContext:
         is compared every ``sub`` steps with every ``stride``-th data point (a step coarser than the
         data's is a multiple of it, a finer one divides it)."""
         data_dt = self.data.dt
+        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be a positive step in s, got {self.dt}")
         dt = self.dt or data_dt
         stride, sub = max(1, int(round(dt / data_dt))), max(1, int(round(data_dt / dt)))
         if abs(stride * data_dt / sub - dt) > 1e-9 * data_dt:

@@ -93,6 +93,7 @@ def fit_classical(system, train, *, drive="viscous+coulomb+offset", methods=METH
                                                    block=block)
         fits[method].info["fit_seconds"] = time.perf_counter() - start
         fits[method].info["train_points"] = len(X[0])
+        fits[method].info["stride"] = stride
         out[f"{method} + {name}"] = fits[method]
     return out
 
@@ -185,7 +186,8 @@ def compare_on_arm(model, system, data, fits: dict, descriptions: dict | None = 
         rows[label] = with_open_loop(torque_errors(fit.inverse(q, qd, qdd, params), tau, names),
                                      lambda q, qd, u, p, fit=fit: fit.forward(q, qd, u, p))
     train_points = next((f.info.get("train_points") for f in fits.values()), None)
-    return {"joints": names, "test_points": len(q), "train_points": train_points, "rows": rows,
+    stride = next((f.info.get("stride") for f in fits.values()), None)
+    return {"joints": names, "test_points": len(q), "train_points": train_points, "train_stride": stride, "rows": rows,
             "fits": {k: v.report() for k, v in fits.items()},
             "torque_std": dict(zip(names, tau.std(0).tolist(), strict=True))}
 

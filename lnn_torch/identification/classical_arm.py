@@ -334,11 +334,13 @@ def _viscous_of(base: dict, beta: np.ndarray, n: int) -> np.ndarray:
     identifiable in a combination)."""
     p = base["map"].shape[1]
     out = np.full(n, np.nan)
+    M = np.asarray(base["map"])
+    tiny = 1e-9 * np.abs(M).max(1, keepdims=True)  # (a map computed in floating point: round-off is no share)
     for j in range(n):
         col = p - n + j
-        rows = np.nonzero(np.abs(base["map"][:, col]) > 0)[0]
-        if len(rows) == 1 and np.count_nonzero(base["map"][rows[0]]) == 1:
-            out[j] = beta[rows[0]] / base["map"][rows[0], col]
+        rows = np.nonzero(np.abs(M[:, col]) > tiny[:, 0])[0]
+        if len(rows) == 1 and np.count_nonzero(np.abs(M[rows[0]]) > tiny[rows[0]]) == 1:
+            out[j] = beta[rows[0]] / M[rows[0], col]
     return out
 
 

@@ -58,9 +58,10 @@ class ChainPendulum(System):
         self.coord_names = tuple(f"theta{i + 1}" for i in range(n))
         self.param_names = tuple(f"m{i + 1}" for i in range(n)) + tuple(f"l{i + 1}" for i in range(n))
         self.param_units = ("kg",) * n + ("m",) * n
+        listed = (lambda x: f"{x}1" if n == 1 else f"{x}1..{x}{n}")  # noqa: E731 (a chain of one link: theta1)
         self.conventions = (
-            f"q=(theta1..theta{n}): absolute angles from the downward vertical, counter-clockwise positive, rad; "
-            f"params=(m1..m{n}, l1..l{n}) in kg and m; point masses on massless rods; g=9.81 m/s^2"
+            f"q=({listed('theta')}): absolute angles from the downward vertical, counter-clockwise positive, rad; "
+            f"params=({listed('m')}, {listed('l')}) in kg and m; point masses on massless rods; g=9.81 m/s^2"
         )
         # tail[i, k] = 1 if k >= i: mu_i = sum_k tail[i, k] m_k (mass at and below joint i)
         self._tail = torch.triu(torch.ones(n, n, dtype=torch.float64))
