@@ -161,6 +161,22 @@ def test_a_measured_config_without_its_imported_file_says_to_import_it(tmp_path)
                                 targets="savgol").model_scene()[0] == "double_pendulum"
 
 
+def test_a_misspelt_option_is_two_lines_with_the_nearest_one(tmp_path):
+    """A misspelt option, on the command line or in a config file: the error, with the option meant, and the
+    pointer to --help (Lightning's parser printed 90 lines of usage first)."""
+    (tmp_path / "typo.yaml").write_text("model:\n  hiden_dims: [8, 8]\n")
+    for extra, expected in ((["--model.hiden_dims=[8,8]"], "error: unrecognized arguments: --model.hiden_dims=[8,8] "
+                                                            "(did you mean --model.hidden_dims?)"),
+                            (["-c", str(tmp_path / "typo.yaml")], "error: Subcommand 'fit' does not accept option "
+                                                                  "'model.hiden_dims' (did you mean "
+                                                                  "--model.hidden_dims?)")):
+        out = cli_in_process("fit", "-c", str(ROOT / "configs" / "quickstart.yaml"), *extra, cwd=tmp_path)
+        assert out.returncode == 2
+        tip, error = out.stderr.strip().splitlines()  # (the program's name is the process's: lnn-torch in a shell)
+        assert tip.startswith("tip: For details of accepted options run: ") and tip.endswith(" fit --help")
+        assert error == expected, out.stderr[-2000:]
+
+
 def _imported(config: Path, tmp_path: Path) -> Path:
     """The dataset of a config of measured data, imported with its import config: the shipped recordings
     where the package ships them; otherwise (a recording that stays outside the package, such as the real

@@ -47,6 +47,19 @@ class LNNCLI(LightningCLI):
                              f"checkpoint keeps its model and training settings (only {', '.join(EVALUATION)} may "
                              f"change){advice}")
 
+    def init_parser(self, **kwargs):
+        """Lightning's parser, whose errors are the one line that says what is wrong (with the option nearest a
+        misspelt one) and the pointer to ``--help``, not the 90 lines of usage before them."""
+        parser = super().init_parser(**kwargs)
+        parser.print_usage = lambda file=None: None
+        error = parser.error
+
+        def with_suggestion(message, ex=None):
+            return error(message + _nearest_option(parser, message), ex)
+
+        parser.error = with_suggestion
+        return parser
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data", "model.scene", apply_on="instantiate", compute_fn=lambda dm: dm.model_scene()[0])
         parser.link_arguments("data", "model.scene_config", apply_on="instantiate",
@@ -160,6 +173,27 @@ def quiet_third_parties() -> None:
     warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
     # a compiled solve without a native kernel runs through a fallback: correct, nothing to act on
     logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
+
+
+def _nearest_option(parser, message: str) -> str:
+    """``" (did you mean --model.hidden_dims?)"`` for the first option of ``message`` (an unrecognised
+    ``--model.hiden_dims`` on the command line, or ``'model.hiden_dims'`` from a config file) that is close to one
+    the command (``message``'s subcommand, else ``parser``) takes; empty where none is."""
+    import difflib
+    import re
+
+    match = re.search(r"--([\w.]+)|option '([\w.]+)'", message)
+    if match is None:
+        return ""
+    wanted = match.group(1) or match.group(2)
+    sub = re.search(r"Subcommand '(\w+)'", message)
+    target = parser
+    if sub is not None:
+        target = next((p for a in parser._actions for name, p in (getattr(a, "choices", None) or {}).items()
+                       if name == sub.group(1) and hasattr(p, "_option_string_actions")), parser)
+    known = [o[2:] for o in getattr(target, "_option_string_actions", {}) if o.startswith("--")]
+    close = difflib.get_close_matches(wanted, known, n=1, cutoff=0.8)
+    return f" (did you mean --{close[0]}?)" if close else ""
 
 
 def data_options(argv: list[str]) -> list[str]:
