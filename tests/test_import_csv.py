@@ -198,6 +198,11 @@ def test_errors_name_the_files_own_lines_past_comments_and_blank_lines(tmp_path)
     ("short", r"run\.csv: line 4: no value in column 'fx' \(the row has 4 cells, the header 5\)$"),
     ("twice", r"run\.csv: line 1: the header names column 'x' 2 times"),
     ("merged", r"run\.csv: line 4: 10 cells, the header names 5 \(two rows run together"),
+    # what Python's float reads and no logger writes for a number: read as 1000 and 12 before
+    ("underscore", r"run\.csv: line 4: column 'ta': '1_000' is not a number$"),
+    ("digits", r"run\.csv: line 4: column 'ta': '١٢' is not a number$"),
+    ("quote", r"run\.csv: line 4: a quoted cell in column 'ta' runs on for \d+ lines \(a quote that is never closed"),
+    ("latin1", r"run\.csv: line 4: byte 0xb0 is not UTF-8 text .*: save it as UTF-8$"),
 ])
 def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
     path = tmp_path / "run.csv"
@@ -209,6 +214,10 @@ def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
         cells[3] = "n/a"
     elif problem == "short":
         cells = cells[:4]
+    elif problem in ("underscore", "digits"):
+        cells[3] = "1_000" if problem == "underscore" else "١٢"
+    elif problem == "quote":
+        cells[3] = '"' + cells[3]
     elif problem == "merged":  # a logger's line break lost: two rows as one
         cells = cells + lines[4].split(",")
         lines[2] += ","  # a trailing delimiter (an empty cell past the header) is no matter
@@ -216,6 +225,8 @@ def test_a_bad_cell_or_a_repeated_column_is_named(tmp_path, problem, message):
         lines[0] = lines[0].replace("fx", "x")
     lines[3] = ",".join(cells)
     path.write_text("\n".join(lines) + "\n")
+    if problem == "latin1":  # a comment with a degree sign saved as Latin-1
+        path.write_bytes(("\n".join(lines[:3]) + "\n# at 20 \u00b0C\n" + "\n".join(lines[4:]) + "\n").encode("latin-1"))
     with pytest.raises(InputError, match=message):
         import_recordings([path], tmp_path / "x.h5", spec(inputs=["ta", "x"] if problem == "twice" else ["ta", "fx"]))
     if problem == "twice":  # a repeated column that is not read is no matter
@@ -316,3 +327,59 @@ def test_the_unit_notes_name_the_recordings_read_in_a_doubtful_unit():
     assert fast_angles_note(provenance).startswith("note: the angles move at up to b.csv 172 rad/s (95th percentile")
     calm = {"sources": [sources[0] | {"timing": {"median_interval_s": 0.01}}], "settings": {}}
     assert slow_sampling_note(calm) is None and fast_angles_note(calm) is None
+
+
+def test_settings_of_the_wrong_kind_and_splits_that_cannot_mean_anything_are_named(tmp_path):
+    """A config's string where a number or a list belongs (tracebacks, or a string split into letters), a window
+    past the recording's end (cut to it without a word), a negative or infinite window, fractions that are not
+    numbers, and a resampling interval far below the sampling interval (100 million samples asked for)."""
+    path = tmp_path / "run.csv"
+    path.write_text(text(T, signals(T)))
+    for fields, message in (({"dt": "0.01"}, r"^import: dt must be a number \(s\), got '0.01'$"),
+                            ({"max_gap": "1s"}, r"^import: max_gap must be a number \(s\), got '1s'$"),
+                            ({"seed": "abc"}, r"^import: seed must be a whole number, got 'abc'$"),
+                            ({"friction": "no"}, r"^import: friction must be true or false, got 'no'$"),
+                            ({"coordinates": "a"}, r"^import: coordinates must be a list of column names, got 'a'$"),
+                            ({"split": 5}, r"^split must be three fractions summing to 1 .*, got 5$"),
+                            ({"split": [float("nan"), 0.5, 0.5]}, r"^split must be three fractions .*, got \[nan, "),
+                            ({"split": {"train": ["run[0:0.3]"], "test": ["run[0.3:1.0]"]}},
+                             r"^split: window 'run\[0.3:1.0\]' reaches beyond the recording 'run', which is 0.4\d* s "
+                             r"long \(leave the end out for the rest of it: run\[0.3:\]\)$"),
+                            ({"split": {"train": ["run[-1:0.3]"]}}, r"^split: window 'run\[-1:0.3\]': start and end "
+                                                                    r"must be finite seconds"),
+                            ({"split": {"train": ["run[0:inf]"]}}, r"must be finite seconds"),
+                            ({"dt": 1e-7}, r"^import: dt = 1e-07 s is under 1/20 of the recordings' shortest median "
+                                           r"sampling interval \(0.002 s\)")):
+        with pytest.raises(InputError, match=message):
+            import_recordings([path], tmp_path / "x.h5", spec(**{"split": [1.0, 0.0, 0.0], **fields}))
+    assert ImportSpec(**{"coordinates": ["a"], "torque_delay": False}).torque_delay == "off"  # YAML's unquoted off
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, capsys):
+    """``-o run.csv --overwrite`` replaced the recording with the dataset; ``run[1].csv`` imported ``run1.csv`` (a
+    glob); a file given twice became one recording; a gzip file is read whatever its name says; a key given twice
+    in the config is refused."""
+    from lnn_torch.commands.import_recordings import recording_paths
+
+    path = tmp_path / "run.csv"
+    path.write_text(text(T, signals(T)))
+    before = path.read_bytes()
+    with pytest.raises(InputError, match=r"^import: the output .*run.csv is one of the recordings read$"):
+        import_recordings([path], path, spec(), overwrite=True)
+    assert path.read_bytes() == before
+    (tmp_path / "run[1].csv").write_text(text(T, signals(T + 1)))
+    (tmp_path / "run1.csv").write_text(text(T, signals(T)))
+    assert recording_paths([str(tmp_path / "run[1].csv")]) == [str(tmp_path / "run[1].csv")]
+    assert recording_paths([str(tmp_path / "run[0-9].csv")]) == [str(tmp_path / "run1.csv")]  # a pattern still is one
+    with pytest.raises(InputError, match=r"/\./run.csv is given twice \(as .*/run.csv too\)$"):
+        recording_paths([str(path), f"{tmp_path}/./run.csv"])
+    (tmp_path / "zipped.csv").write_bytes(gzip.compress(path.read_bytes()))
+    (tmp_path / "upper.csv.GZ").write_bytes(gzip.compress(path.read_bytes()))
+    for name in ("zipped.csv", "upper.csv.GZ"):
+        np.testing.assert_array_equal(read_csv_table(tmp_path / name, ["time", "a"])[0],
+                                      read_csv_table(path, ["time", "a"])[0])
+    config = tmp_path / "import.yaml"
+    config.write_text("coordinates: [a, x]\nangle_units: rad\nangle_units: deg\n")
+    assert main(["import", str(path), "--config", str(config), "-o", str(tmp_path / "d.h5")]) == 2
+    assert "import config " in capsys.readouterr().err and not (tmp_path / "d.h5").exists()

@@ -22,7 +22,7 @@ def read_config(path: str | Path, what: str = "config") -> dict:
     if not text.strip():
         raise InputError(f"{what} {path} is an empty file")
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        data = json.loads(text) if path.suffix == ".json" else yaml.load(text, Loader=_unique_keys_loader())
     except json.JSONDecodeError as err:
         raise InputError(f"{what} {path} is not valid JSON (line {err.lineno}: {err.msg})") from None
     except yaml.YAMLError as err:
@@ -32,6 +32,28 @@ def read_config(path: str | Path, what: str = "config") -> dict:
     if not isinstance(data, dict):
         raise InputError(f"{what} {path} is not a mapping of options (it holds a {type(data).__name__})")
     return data
+
+
+def _unique_keys_loader():
+    """PyYAML's safe loader refusing a key given twice in one mapping (it kept the last without a word: a second
+    ``angle_units`` overrode the first)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} is given twice",
+                                                        key_node.start_mark)
+            seen.add(key)
+        return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    return Loader
 
 
 def config_paths(argv: list[str]) -> list[str]:

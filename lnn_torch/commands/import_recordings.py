@@ -241,6 +241,23 @@ def source_lines(provenance: dict) -> list[str]:
     return lines
 
 
+def recording_paths(patterns: list[str]) -> list[str]:
+    """The recordings the command line names: a path that exists as it is written (``run[1].csv`` holds glob
+    brackets) taken as it is, else the pattern's matches in sorted order (a shell that left the pattern
+    unexpanded), all sorted by name; a file named twice is refused (``pend.csv pend.csv`` became one recording
+    without a word)."""
+    out = []
+    for pattern in patterns:
+        out += [pattern] if Path(pattern).exists() else sorted(glob.glob(pattern)) or [pattern]
+    seen = {}
+    for f in out:
+        key = Path(f).resolve()
+        if key in seen:
+            raise InputError(f"import: {f} is given twice" + (f" (as {seen[key]} too)" if seen[key] != f else ""))
+        seen[key] = f
+    return sorted(out)
+
+
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
     from ..data.bags import delay_lines
@@ -248,7 +265,7 @@ def main(argv: list[str]) -> int:
     from ..data.resampling import resampling_report
 
     args = _parser().parse_args(argv)
-    files = sorted({f for pattern in args.files for f in (glob.glob(pattern) or [pattern])})
+    files = recording_paths(args.files)
     spec = spec_from_args(args)
     path = import_recordings(files, args.output, spec, overwrite=args.overwrite)
     f = read_dataset(path)

@@ -106,10 +106,10 @@ def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, ove
 def check_writable(path: str | Path, overwrite: bool) -> Path:
     """Fail early (before any work) if ``path`` cannot be written."""
     path = Path(path)
+    if path.is_dir() or str(path).endswith(("/", os.sep)):
+        raise IsADirectoryError(f"{path} is a folder: give the dataset file's path (e.g. {path / 'data.h5'})")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
-    if path.exists() and path.is_dir():
-        raise IsADirectoryError(f"{path} is a directory, not a file path")
     parent = path.parent if str(path.parent) else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)

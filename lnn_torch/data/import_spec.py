@@ -156,6 +156,7 @@ class ImportSpec:
     tool_targets: dict | None = None
 
     def __post_init__(self) -> None:
+        self._types()
         self._bag_fields()
         if self.joints is not None:
             self._mapped_joints()
@@ -207,6 +208,32 @@ class ImportSpec:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise InputError(f"import: {name} must be positive, got {value}")
+
+    def _types(self) -> None:
+        """Each field of the kind it must be, refused in one line naming it (a string where a number or a list
+        belongs failed later with a traceback, or was split into letters)."""
+        def number(x):
+            return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+        for name in ("dt", "max_gap", "window_context", "coulomb_velocity", "torque_delay_range"):
+            value = getattr(self, name)
+            if value is not None and not number(value):
+                unit = "rad/s" if name == "coulomb_velocity" else "s"
+                raise InputError(f"import: {name} must be a number ({unit}), got {value!r}")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise InputError(f"import: seed must be a whole number, got {self.seed!r}")
+        if not isinstance(self.friction, bool):
+            raise InputError(f"import: friction must be true or false, got {self.friction!r}")
+        for name in ("coordinates", "velocities", "inputs", "currents", "coord_names", "input_names"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, (list, tuple)) or not all(isinstance(x, str)
+                                                                                      for x in value)):
+                raise InputError(f"import: {name} must be a list of column names, got {value!r}")
+        if self.drive_gains is not None and (not isinstance(self.drive_gains, (list, tuple))
+                                             or not all(number(g) for g in self.drive_gains)):
+            raise InputError(f"import: drive_gains must be a list of numbers (N m per A), got {self.drive_gains!r}")
+        if self.torque_delay is False:  # YAML reads an unquoted off as false
+            self.torque_delay = "off"
 
     @property
     def input_columns(self) -> list[str]:

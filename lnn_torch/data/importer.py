@@ -119,6 +119,8 @@ def import_recordings(files, output: str | Path, spec: ImportSpec, overwrite: bo
     if len(set(stems)) != len(stems):
         raise InputError(f"import: recording names (file names without .gz and {', '.join(EXTENSIONS)}, or "
                          f"{', '.join(BAG_SUFFIXES)}) must be unique: {stems}")
+    if any(Path(output).resolve() == f.resolve() for f in files):  # (--overwrite replaced a recording with the file)
+        raise InputError(f"import: the output {output} is one of the recordings read")
     output = check_writable(output, overwrite)  # before any work
     decl, param_table = spec.parameter_table(stems)
     system = spec.system(decl)
@@ -355,7 +357,16 @@ def _interval(files: list[Path], timing: list[dict], dt: float | None) -> float:
         raise InputError(f"import: the recordings' median sampling intervals differ by more than "
                          f"{100 * DT_SPREAD:g} % ({listing}): set dt, the resampling interval in s (--dt; e.g. "
                          f"{min(medians):.4g} for the fastest), rather than thin the faster recordings")
+    if dt is not None and dt < min(medians) / UPSAMPLING:
+        raise InputError(f"import: dt = {dt:g} s is under 1/{UPSAMPLING} of the recordings' shortest median sampling "
+                         f"interval ({min(medians):.4g} s): interpolation adds no information, only samples (set dt "
+                         "near the sampling interval)")
     return dt or own[0]
+
+
+# a resampling interval below the recordings' median interval by more than this factor is refused (dt = 1e-7 s
+# on 2 ms recordings asked for 100 million samples)
+UPSAMPLING = 20
 
 
 def _pieces(entries, resampled, records, stems, dt: float, context: int) -> tuple[list, list]:

@@ -36,8 +36,19 @@ def split_entries(names: list[str], split, seed: int, durations: list[float]) ->
                     end = float(m["end"]) if m["end"].strip() else None
                 except ValueError:
                     raise InputError(f"split: window {item!r}: start and end must be seconds") from None
+                if not all(x is None or np.isfinite(x) for x in (start, end)) or (start is not None and start < 0):
+                    raise InputError(f"split: window {item!r}: start and end must be finite seconds from the "
+                                     "recording's first sample, the start >= 0")
                 if start is not None and end is not None and end <= start:
                     raise InputError(f"split: window {item!r} ends before it starts")
+                # (a window past the recording's end was cut to it without a word; one per cent of it is slack: an
+                # end written as the recording's nominal length, a sample or two past its last)
+                last = durations[i] * 1.01 + 1e-9
+                if (start or 0.0) < durations[i] and end is not None and end > last:  # (a start past the end:
+                    # _pieces says it holds no sample, and where windows count from)
+                    raise InputError(f"split: window {item!r} reaches beyond the recording {name!r}, which is "
+                                     f"{durations[i]:.6g} s long (leave the end out for the rest of it: "
+                                     f"{name}[{m['start'].strip()}:])")
             entry = (i, start, end, str(item).strip() if m else name)
             if entry in entries:
                 raise InputError(f"split: {entry[3]!r} is named twice")
@@ -102,9 +113,14 @@ def _split_form(split):
 
 
 def _fractions(names: list[str], split, seed: int) -> dict:
+    usage = ("split must be three fractions summing to 1 ([0.7, 0.15, 0.15]) or the recordings (or windows) of "
+             "each part ({train: [...], val: [...], test: [...]})")
+    if not isinstance(split, (list, tuple)) or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in split):
+        raise InputError(f"{usage}, got {split!r}")
     fractions = [float(x) for x in split]
     if len(fractions) != 3 or any(f < 0 for f in fractions) or abs(sum(fractions) - 1) > 1e-9:
-        raise InputError(f"split must be three fractions summing to 1 or a dict of recording names, got {split!r}")
+        raise InputError(f"{usage}, got {split!r}")
     n = len(names)
     perm = np.random.default_rng(np.random.SeedSequence(int(seed))).permutation(n)
     n_val, n_test = int(round(fractions[1] * n)), int(round(fractions[2] * n))

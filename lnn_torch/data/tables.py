@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import itertools
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -59,17 +60,49 @@ def read_csv_table(path: Path, columns: list[str], delimiter: str | None = None,
         raise InputError(f"{path}: no such file")
     import gzip
 
-    opener = gzip.open if path.suffix == ".gz" else open
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, not a recording (give its files, e.g. {path}/*.csv)")
+    with open(path, "rb") as fh:  # gzip by its magic bytes, whatever the name says (.GZ, a .csv that is one)
+        compressed = fh.read(2) == b"\x1f\x8b"
+    opener = gzip.open if compressed or path.suffix.lower() == ".gz" else open
     try:
         return _parse_csv(path, opener, columns, delimiter, decimal)
     except EOFError:
         raise InputError(f"{path}: truncated (the compressed file ends early)") from None
     except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text CSV file (undecodable bytes)") from None
+        raise InputError(f"{path}: {_undecodable(path, opener)}") from None
     except csv.Error as err:
         raise InputError(f"{path}: not a readable CSV file ({err})") from None
     except OSError as err:  # gzip.BadGzipFile, ...
         raise InputError(f"{path}: cannot read it ({err})") from None
+
+
+def _undecodable(path: Path, opener) -> str:
+    """Where a file stops being UTF-8 text: its first such line, and the way out."""
+    with opener(path, "rb") as fh:
+        if fh.read(2) in (b"\xff\xfe", b"\xfe\xff"):
+            return "UTF-16 text (its byte-order mark): save it as UTF-8"
+        fh.seek(0)
+        for n, raw in enumerate(fh, start=1):
+            try:
+                raw.decode("utf-8")
+            except UnicodeDecodeError as err:
+                byte = raw[err.start:err.start + 1].hex()
+                return (f"line {n}: byte 0x{byte} is not UTF-8 text (a file saved as Latin-1 or Windows-1252, where a "
+                        "degree sign or an accent is one byte?): save it as UTF-8")
+    return "not a text CSV file (undecodable bytes)"
+
+
+# a cell is a number as a CSV writes one: ASCII digits, sign, point, exponent (Python's float also takes 1_000 and
+# other scripts' digits, which no logger writes for a number)
+_NUMBER = re.compile(r"^\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*$|^\s*[+-]?(nan|inf|infinity)\s*$",
+                     re.IGNORECASE | re.ASCII)
+
+
+def _number(cell: str) -> float:
+    if not _NUMBER.match(cell):
+        raise ValueError(cell)
+    return float(cell)
 
 
 def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
@@ -114,7 +147,7 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
                 raise InputError(f"{path}: line {line}: {len(row)} cells, the header names {len(header)} (two rows "
                                  "run together, or a delimiter inside a value?)")
             try:
-                values = [float(row[i].replace(",", ".")) if commas else float(row[i]) for i in index]
+                values = [_number(row[i].replace(",", ".")) if commas else _number(row[i]) for i in index]
             except (ValueError, IndexError):
                 raise InputError(_cell_error(path, line, row, header, columns, index, commas)) from None
             bad = [c for c, v in zip(columns, values, strict=True) if not math.isfinite(v)]
@@ -136,10 +169,16 @@ def _cell_error(path: Path, line: int, row: list[str], header: list[str], column
                     f"{len(header)})")
         cell = row[i].strip()
         try:
-            float(cell.replace(",", ".") if commas else cell)
+            _number(cell.replace(",", ".") if commas else cell)
         except ValueError:
             if not cell:
                 return f"{path}: line {line}: column {c!r} is empty"
+            if "\n" in cell:  # a quote that opened and never closed swallowed the lines after it
+                first = line - cell.count("\n")
+                return (f"{path}: line {first}: a quoted cell in column {c!r} runs on for {cell.count(chr(10))} lines "
+                        "(a quote that is never closed?)")
+            if len(cell) > 40:
+                cell = cell[:37] + "..."
             hint = (" (decimal commas are read with decimal ',' or 'auto' and a delimiter other than ',')"
                     if "," in cell and not commas else "")
             return f"{path}: line {line}: column {c!r}: {cell!r} is not a number{hint}"
