@@ -368,6 +368,12 @@ def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, c
     with pytest.raises(InputError, match=r"^import: the output .*run.csv is one of the recordings read$"):
         import_recordings([path], path, spec(), overwrite=True)
     assert path.read_bytes() == before
+    # a refused import leaves no folder behind (they were created before the work); a folder is no output file
+    with pytest.raises(InputError, match="split: window"):
+        import_recordings([path], tmp_path / "new" / "deeper" / "d.h5", spec(split={"train": ["run[0:9]"]}))
+    assert not (tmp_path / "new").exists()
+    with pytest.raises(IsADirectoryError, match=r"is a folder: give the dataset file's path \(e.g. "):
+        import_recordings([path], f"{tmp_path}/", spec())
     (tmp_path / "run[1].csv").write_text(text(T, signals(T + 1)))
     (tmp_path / "run1.csv").write_text(text(T, signals(T)))
     assert recording_paths([str(tmp_path / "run[1].csv")]) == [str(tmp_path / "run[1].csv")]

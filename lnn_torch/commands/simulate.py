@@ -172,6 +172,7 @@ def write_trajectory(path: Path, result: dict, system, meta: dict, overwrite: bo
                          "W(t)| / (V_max - V_min) (W the true work of inputs and friction; 0 for a conservative scene)")
     header = (f"lnn-torch simulate: {json.dumps(meta)}\nscene {system.name}: {system.conventions}\n"
               f"columns: {'; '.join(described)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w") as fh:  # comment lines ("# "), then a plain header row that CSV readers take
         fh.write("".join(f"# {line}\n" for line in header.splitlines()) + ",".join(cols) + "\n")
         np.savetxt(fh, np.concatenate(data, axis=1), delimiter=",", fmt="%.10g")

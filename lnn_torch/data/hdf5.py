@@ -78,6 +78,7 @@ def write_dataset(path: str | Path, arrays: dict, splits: dict, attrs: dict, ove
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
+    _make_parent(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
@@ -110,14 +111,22 @@ def check_writable(path: str | Path, overwrite: bool) -> Path:
         raise IsADirectoryError(f"{path} is a folder: give the dataset file's path (e.g. {path / 'data.h5'})")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
-    parent = path.parent if str(path.parent) else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise PermissionError(f"cannot create folder {parent}: {err.strerror}") from None
-    if not os.access(parent, os.W_OK):
-        raise PermissionError(f"cannot write to {parent}: permission denied")
+    # the nearest folder that exists (the rest is created when the file is written: a refused run leaves none)
+    parent = (path.parent if str(path.parent) else Path(".")).absolute()
+    existing = next(p for p in (parent, *parent.parents) if p.exists())
+    if not existing.is_dir():
+        raise NotADirectoryError(f"cannot create folder {parent}: {existing} is a file")
+    if not os.access(existing, os.W_OK):
+        raise PermissionError(f"cannot write to {existing}: permission denied")
     return path
+
+
+def _make_parent(path: Path) -> None:
+    """The folders ``path`` goes in, created at the moment it is written."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PermissionError(f"cannot create folder {path.parent}: {err.strerror}") from None
 
 
 def read_rows(dataset, rows) -> np.ndarray:
@@ -267,6 +276,7 @@ def write_arrays(path: str | Path, arrays: dict, attrs: dict, overwrite: bool = 
     """Write named arrays and attributes to an HDF5 file atomically (e.g. a simulated trajectory)."""
     h5py = _h5py()
     path = check_writable(path, overwrite)
+    _make_parent(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
