@@ -258,7 +258,8 @@ def test_angles_wrapped_into_one_turn_are_made_continuous_and_a_wrong_angle_unit
     assert main(["import", str(continuous), "-o", str(tmp_path / "r.h5"), "--coordinates", "a", "x", "--angle-mask",
                  "1", "0", "--inputs", "ta", "fx", "--split", "1", "0", "0"]) == 0  # degrees read as radians
     assert re.search(r"note: the angles move at up to run\.csv 5\d\d\.\d rad/s \(95th percentile; angle columns read "
-                     r"in rad\): if they are in degrees, set angle_units: deg \(--angle-units deg\)",
+                     r"in rad, time in s, median interval 2 ms\): if they are in degrees, set angle_units: deg "
+                     r"\(--angle-units deg\); if the time column is in another unit, set time_units",
                      capsys.readouterr().out)
 
 

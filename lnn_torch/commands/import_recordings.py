@@ -185,9 +185,13 @@ def fast_angles_note(provenance: dict) -> str | None:
     listing = _beyond(provenance, lambda s: s.get("angle_speed_p95_rad_s", 0.0), FAST_ANGLES, "rad/s")
     if not listing:
         return None
-    units = provenance.get("settings", {}).get("angle_units", "rad")
-    return (f"note: the angles move at up to {listing} (95th percentile; angle columns read in {units}): if they "
-            "are in degrees, set angle_units: deg (--angle-units deg)")
+    settings = provenance.get("settings", {})
+    units, time_units = settings.get("angle_units", "rad"), settings.get("time_units", "s")
+    median = min((s.get("timing") or {}).get("median_interval_s", 1.0) for s in provenance.get("sources", [{}]))
+    # (a speed is per second of the time column as read: stamps in s declared as ms make every angle 1000x faster)
+    return (f"note: the angles move at up to {listing} (95th percentile; angle columns read in {units}, time in "
+            f"{time_units}, median interval {1e3 * median:.3g} ms): if they are in degrees, set angle_units: deg "
+            "(--angle-units deg); if the time column is in another unit, set time_units")
 
 
 def _listed(first: list, count: int) -> str:
