@@ -342,3 +342,13 @@ def test_compile_failure_falls_back_to_eager(where, dataset, tmp_path, monkeypat
         trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
     assert model.training_pass.compiled is False and trainer.global_step == 3
     assert all(torch.isfinite(p).all() for p in model.parameters())
+
+
+def test_what_load_model_returns_takes_compile_dynamics_as_the_readme_calls_it():
+    """``lnn_torch.load_model(...).compile_dynamics(True)`` as the README writes it (it raised AttributeError: the
+    method was the network's only): the module's network is switched, the module returned."""
+    from lnn_torch import load_model
+
+    module = load_model("pretrained:double_pendulum")
+    assert module.compile_dynamics(False) is module and module.model._compile is False
+    assert module.compile_dynamics("auto").model._compile == "auto"

@@ -137,6 +137,9 @@ def main(argv: list[str]) -> int:
         module.model.compile_dynamics()
     saved = data_hparams(args.checkpoint)
     data = args.data or _data_file(saved, args.split)
+    if args.data and not Path(args.data).exists():
+        raise InputError(f"dataset file {args.data} does not exist (write it first, or leave --data out: the "
+                         "model's own data file, a simulated scene's generated from its spec)")
     f = read_dataset(data)
     problem = module.system.mismatch(f.scene)
     if problem:

@@ -63,6 +63,7 @@ import copy
 import json
 import math
 import platform
+import warnings
 from pathlib import Path
 
 import torch
@@ -684,7 +685,9 @@ def export_model(module, output_dir: str | Path, functions=None, formats=("pt2",
                 continue
             path = output_dir / output_name(name, fmt)
             if fmt == "pt2":
-                torch.export.save(programs[name], path)
+                with warnings.catch_warnings():  # torch's note on weights that share storage: they are on the CPU
+                    warnings.filterwarnings("ignore", message="No complete tensor found in the group")
+                    torch.export.save(programs[name], path)
             elif fmt == "onnx":
                 onnx_programs[name].save(str(path))
                 _batch_named(path)

@@ -222,6 +222,12 @@ class LNNModule(L.LightningModule):
 
     forward = acceleration
 
+    def compile_dynamics(self, enabled: bool | str = True) -> LNNModule:
+        """When ``acceleration`` and ``rollout`` run through ``torch.compile`` (the network's
+        ``compile_dynamics``: ``True``, ``False`` or ``"auto"``, the default). Returns this module."""
+        self.model.compile_dynamics(enabled)
+        return self
+
     def rollout(self, q0, qd0, params, dt: float, num_steps: int, method: str = "rk4", tau=None):
         """Integrate the learned dynamics: returns ``(q, qd)`` each ``(B, num_steps + 1, dof)``.
         ``tau (B, num_steps, n_u)``: inputs of an actuated scene, held over each step. A trajectory that becomes
