@@ -177,7 +177,7 @@ def test_control_moves_the_arms_description_with_the_learned_model(learned, tmp_
     assert "tracking error along the reach path" in text and "swing-up" not in text
 
     sim = read_config(ROOT / "configs" / "control" / "robot_arm_reach.yaml")
-    path.write_text(json.dumps({**sim, "duration": 0.5}))
+    path.write_text(json.dumps({**sim, "duration": 0.5, "success": {**sim["success"], "hold": 0.25}}))
     assert main(["control", ckpt, "-c", str(path), "--episodes", "1", "--no-animation", "-o", str(out)]) == 0
     report = json.loads((out / "control.json").read_text())
     assert report["unknown_to_the_model"]["params"] == sim["plant"]["params"]
