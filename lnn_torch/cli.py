@@ -41,9 +41,19 @@ def lightning_main(argv: list[str]) -> int:
 
     for path in config_paths(argv):  # a bad file in one line, before LightningCLI's own parse
         read_config(path)
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    from .errors import InputError
     from .training.lightning_cli import run_cli
 
-    run_cli(argv)
+    try:
+        run_cli(argv)
+    except MisconfigurationException as err:  # a trainer setting this machine cannot take (a GPU it lacks, ...)
+        import torch
+
+        hint = (" (this machine has no CUDA device: --trainer.accelerator cpu, or leave it out)"
+                if "gpu" in str(err).lower() and not torch.cuda.is_available() else "")
+        raise InputError(f"the trainer cannot be set up as asked: {str(err).strip().splitlines()[0]}{hint}") from None
     # Lightning's DDP leaves the process group alive; left to interpreter shutdown, gloo's worker
     # threads can abort the process ("terminate called without an active exception", exit -6) after
     # a successful run. Only on success: a rank that failed must not wait on the others here.

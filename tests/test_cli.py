@@ -177,6 +177,17 @@ def test_a_misspelt_option_is_two_lines_with_the_nearest_one(tmp_path):
         assert error == expected, out.stderr[-2000:]
 
 
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a machine with CUDA takes the GPU")
+def test_a_gpu_asked_for_on_a_machine_without_one_is_one_line(tmp_path):
+    """``--trainer.accelerator gpu`` without CUDA: Lightning's MisconfigurationException was a traceback."""
+    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "quickstart.yaml"), "--trainer.accelerator=gpu",
+                         f"--data.path={tmp_path / 'd.h5'}", "--data.spec.num_trajectories=4", cwd=tmp_path)
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == ["lnn-torch fit: error: the trainer cannot be set up as asked: No "
+                                               "supported gpu backend found! (this machine has no CUDA device: "
+                                               "--trainer.accelerator cpu, or leave it out)"], out.stderr[-2000:]
+
+
 def _imported(config: Path, tmp_path: Path) -> Path:
     """The dataset of a config of measured data, imported with its import config: the shipped recordings
     where the package ships them; otherwise (a recording that stays outside the package, such as the real
