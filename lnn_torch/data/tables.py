@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import itertools
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -93,16 +92,13 @@ def _undecodable(path: Path, opener) -> str:
     return "not a text CSV file (undecodable bytes)"
 
 
-# a cell is a number as a CSV writes one: ASCII digits, sign, point, exponent (Python's float also takes 1_000 and
-# other scripts' digits, which no logger writes for a number)
-_NUMBER = re.compile(r"^\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*$|^\s*[+-]?(nan|inf|infinity)\s*$",
-                     re.IGNORECASE | re.ASCII)
-
-
 def _number(cell: str) -> float:
-    if not _NUMBER.match(cell):
+    """A cell as a CSV writes a number: what Python's float reads but for digit-group underscores (``1_000``) and
+    other scripts' digits and spaces, which no logger writes for a number (they were read as 1000 and 12)."""
+    value = float(cell)
+    if "_" in cell or not cell.isascii():
         raise ValueError(cell)
-    return float(cell)
+    return value
 
 
 def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
