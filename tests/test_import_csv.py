@@ -390,3 +390,11 @@ def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, c
     config.write_text("coordinates: [a, x]\nangle_units: rad\nangle_units: deg\n")
     assert main(["import", str(path), "--config", str(config), "-o", str(tmp_path / "d.h5")]) == 2
     assert "import config " in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
+
+
+def test_a_delimiter_inside_a_quoted_header_name_is_no_delimiter(tmp_path):
+    """``"torque;filtered"`` named a column of a comma file: the header's ``;`` made it read as ``;``-delimited."""
+    path = tmp_path / "run.csv"
+    path.write_text('time,"angle;rad",x\n0,1,2\n1,2,3\n2,3,4\n')
+    values, lines = read_csv_table(path, ["time", "angle;rad"])
+    np.testing.assert_array_equal(values, [[0, 1], [1, 2], [2, 3]])

@@ -112,8 +112,9 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
         else:
             raise InputError(f"{path}: the file is empty" if not before else
                              f"{path}: no header row (only comment or blank lines)")
+        bare = "".join(header_line.split('"')[::2])  # (a delimiter inside a quoted name is no delimiter)
         sep = separator(delimiter) if delimiter is not None else (
-            ";" if ";" in header_line else "\t" if "\t" in header_line else ",")
+            ";" if ";" in bare else "\t" if "\t" in bare else ",")
         if sep is None:
             raise InputError(f"{path}: delimiter must be one character (or 'tab'), got {delimiter!r}")
         if decimal not in DECIMALS:
