@@ -398,3 +398,14 @@ def test_a_delimiter_inside_a_quoted_header_name_is_no_delimiter(tmp_path):
     path.write_text('time,"angle;rad",x\n0,1,2\n1,2,3\n2,3,4\n')
     values, lines = read_csv_table(path, ["time", "angle;rad"])
     np.testing.assert_array_equal(values, [[0, 1], [1, 2], [2, 3]])
+
+
+def test_columns_aligned_by_spaces_read_with_the_whitespace_delimiter(tmp_path):
+    """A physics lab's ``.dat`` file: columns aligned by runs of spaces (and a tab), a comment first; the same
+    values as the CSV."""
+    path = tmp_path / "run.dat"
+    path.write_text("# aligned\n  time     a        x\n  0.0      1.5      -2\n  0.1\t   2.5      -3\n\n"
+                    "  0.2      3.5e-1   -4\n")
+    values, lines = read_csv_table(path, ["time", "a", "x"], delimiter="whitespace")
+    np.testing.assert_array_equal(values, [[0.0, 1.5, -2], [0.1, 2.5, -3], [0.2, 0.35, -4]])
+    assert lines.tolist() == [3, 4, 6]

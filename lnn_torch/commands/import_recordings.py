@@ -55,8 +55,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--angle-units", choices=("rad", "deg"), default=None)
     ap.add_argument("--length-units", choices=("m", "cm", "mm"), default=None,
                     help="unit of the coordinates that are lengths and their velocities (default m)")
-    ap.add_argument("--delimiter", default=None, help="the files' delimiter, one character or 'tab' (default: "
-                    "the header's, ';' if it holds one, else a tab if it holds one, else ',')")
+    ap.add_argument("--delimiter", default=None, help="the files' delimiter, one character, 'tab' or 'whitespace' "
+                    "(default: the header's, ';' if it holds one, else a tab if it holds one, else ',')")
     ap.add_argument("--decimal", choices=("auto", ".", ","), default=None,
                     help="decimal mark (default auto: decimal commas too where the delimiter is not ',')")
     ap.add_argument("--conventions", default=None, help="the angle convention in words (recorded)")

@@ -43,8 +43,9 @@ class ImportSpec:
         angle_units: ``rad`` or ``deg`` for the angle coordinates and their velocities.
         length_units: ``m`` (default), ``cm`` or ``mm`` for the other coordinates (lengths) and their
             velocities.
-        delimiter: the files' delimiter, one character (``tab`` for a tab); default (None): each file's
-            header's, ``;`` if it holds one, else a tab if it holds one, else ``,``.
+        delimiter: the files' delimiter, one character (``tab`` for a tab; ``whitespace`` for columns separated
+            by runs of spaces or tabs, as aligned ``.dat`` files); default (None): each file's header's, ``;`` if
+            it holds one, else a tab if it holds one, else ``,``.
         decimal: the decimal mark: ``auto`` (default: ``.``, and ``,`` too where the delimiter is not
             ``,``), ``.`` or ``,``.
         conventions: the angle convention in words (recorded; e.g. joint-relative angles).
@@ -200,8 +201,8 @@ class ImportSpec:
         if self.delimiter is not None:
             sep = separator(self.delimiter)
             if sep is None:
-                raise InputError(f"import: delimiter must be one character (or 'tab'), not a quote, '#' or a line "
-                                 f"break; got {self.delimiter!r}")
+                raise InputError(f"import: delimiter must be one character (or 'tab' or 'whitespace'), not a quote, "
+                                 f"'#' or a line break; got {self.delimiter!r}")
             if sep == "," and self.decimal == ",":
                 raise InputError("import: decimal ',' needs a delimiter other than ','")
         for name in ("dt", "max_gap"):

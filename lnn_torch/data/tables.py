@@ -28,9 +28,10 @@ def recording_name(path: str | Path) -> str:
 
 
 def separator(delimiter: str | None) -> str | None:
-    """A ``delimiter`` setting as the character it is (``tab``: a tab; None: detected per file), or None
-    if it cannot be one."""
-    sep = "\t" if delimiter in ("tab", "\\t") else delimiter
+    """A ``delimiter`` setting as the character it is (``tab``: a tab; ``whitespace``, or one space: any run of
+    spaces and tabs, as column-aligned ``.dat`` files have, ``" "`` here; None: detected per file), or None if it
+    cannot be one."""
+    sep = "\t" if delimiter in ("tab", "\\t") else " " if delimiter == "whitespace" else delimiter
     return sep if isinstance(sep, str) and len(sep) == 1 and sep not in "\"#\r\n" else None
 
 
@@ -76,6 +77,22 @@ def read_csv_table(path: Path, columns: list[str], delimiter: str | None = None,
         raise InputError(f"{path}: cannot read it ({err})") from None
 
 
+class _Whitespace:
+    """Rows of a file whose columns are separated by runs of spaces or tabs (no quoting), read as ``csv.reader``
+    reads a delimited one (``line_num``: the lines read so far)."""
+
+    def __init__(self, lines) -> None:
+        self.lines, self.line_num = iter(lines), 0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> list[str]:
+        line = next(self.lines)
+        self.line_num += 1
+        return line.split()
+
+
 def _undecodable(path: Path, opener) -> str:
     """Where a file stops being UTF-8 text: its first such line, and the way out."""
     with opener(path, "rb") as fh:
@@ -116,13 +133,14 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
         sep = separator(delimiter) if delimiter is not None else (
             ";" if ";" in bare else "\t" if "\t" in bare else ",")
         if sep is None:
-            raise InputError(f"{path}: delimiter must be one character (or 'tab'), got {delimiter!r}")
+            raise InputError(f"{path}: delimiter must be one character (or 'tab' or 'whitespace'), got {delimiter!r}")
         if decimal not in DECIMALS:
             raise InputError(f"{path}: decimal must be one of {', '.join(DECIMALS)}, got {decimal!r}")
         if decimal == "," and sep == ",":
             raise InputError(f"{path}: decimal ',' needs a delimiter other than ',' (the header is read with ',')")
         commas = decimal == "," or (decimal == "auto" and sep != ",")
-        reader = csv.reader(itertools.chain([header_line], fh), delimiter=sep)
+        lines_in = itertools.chain([header_line], fh)
+        reader = _Whitespace(lines_in) if sep == " " else csv.reader(lines_in, delimiter=sep)
         header = [h.strip() for h in next(reader)]
         at = before + 1
         missing = [c for c in dict.fromkeys(columns) if c not in header]
