@@ -188,6 +188,16 @@ def test_a_gpu_asked_for_on_a_machine_without_one_is_one_line(tmp_path):
                                                "--trainer.accelerator cpu, or leave it out)"], out.stderr[-2000:]
 
 
+@pytest.mark.parametrize("argv", [["import", "run.csv"], ["simulate", "--params", "1"], ["export"],
+                                  ["evaluate", "x.ckpt", "--horizon", "soon"]])
+def test_a_commands_bad_arguments_are_one_line_with_the_pointer_to_help(argv, tmp_path):
+    """The commands that are not Lightning's: argparse printed the whole usage first (27 lines for import)."""
+    out = cli_in_process(*argv, cwd=tmp_path)
+    assert out.returncode == 2
+    (line,) = out.stderr.strip().splitlines()
+    assert line.startswith(f"lnn-torch {argv[0]}: error: ") and line.endswith(f"(options: lnn-torch {argv[0]} --help)")
+
+
 def _imported(config: Path, tmp_path: Path) -> Path:
     """The dataset of a config of measured data, imported with its import config: the shipped recordings
     where the package ships them; otherwise (a recording that stays outside the package, such as the real

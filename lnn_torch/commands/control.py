@@ -43,6 +43,7 @@ from pathlib import Path
 import torch
 
 from ..errors import InputError
+from .parser import CommandParser
 
 # the controllers that track a path to the goal (computed torque, then LQR), and what the report calls the path
 PATHS = {"swingup": "swing-up", "reach": "reach"}
@@ -115,7 +116,7 @@ def check_scenario(scenario, where: str) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lnn-torch control", description=__doc__,
+    ap = CommandParser(prog="lnn-torch control", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", metavar="CHECKPOINT",
                     help="the model the controller is designed on: a .ckpt, pretrained:NAME, or 'plant'")

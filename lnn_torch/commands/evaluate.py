@@ -40,6 +40,7 @@ import json
 from pathlib import Path
 
 from ..evaluation.report import table_header
+from .parser import CommandParser
 
 
 def write_report(result: dict, output_dir: Path) -> list[Path]:
@@ -70,7 +71,7 @@ def write_report(result: dict, output_dir: Path) -> list[Path]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lnn-torch evaluate", description=__doc__,
+    ap = CommandParser(prog="lnn-torch evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit, or pretrained:<name> for a shipped model")
     ap.add_argument("--data", default=None, help="HDF5 dataset (default: the checkpoint's data path)")

@@ -41,13 +41,15 @@ from __future__ import annotations
 
 import argparse
 
+from .parser import CommandParser
+
 
 def _parser() -> argparse.ArgumentParser:
     from ..export.description import FORMATS as DESCRIPTION_FORMATS
     from ..export.programs import DTYPES, FORMATS, FUNCTIONS
     from ..pretrained import available
 
-    ap = argparse.ArgumentParser(prog="lnn-torch export", description=__doc__,
+    ap = CommandParser(prog="lnn-torch export", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", metavar="CHECKPOINT",
                     help="a .ckpt written by lnn-torch fit, or pretrained:NAME for a shipped model "

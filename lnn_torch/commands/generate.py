@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from ..systems import SYSTEMS
+from .parser import CommandParser
 
 
 class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
@@ -21,7 +22,7 @@ class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def _generate_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = CommandParser(
         prog="lnn-torch generate",
         description=(
             "Generate a ground-truth trajectory dataset (HDF5): closed-form accelerations, seeded per "

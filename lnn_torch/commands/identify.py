@@ -41,6 +41,7 @@ from ..data.import_tools import correlation_block
 from ..errors import InputError
 from ..evaluation.report import markdown_table, number, pct, table_header, table_row
 from ..mechanics.friction import DriveModel
+from .parser import CommandParser
 
 
 @dataclass
@@ -57,7 +58,7 @@ class Observation:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lnn-torch identify", description=__doc__,
+    ap = CommandParser(prog="lnn-torch identify", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", help="a .ckpt written by lnn-torch fit, or pretrained:<name>")
     ap.add_argument("recording", help="a dataset file (.h5) or a CSV recording (.csv, .csv.gz)")

@@ -30,10 +30,11 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
+from .parser import CommandParser
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lnn-torch import", description=__doc__,
+    ap = CommandParser(prog="lnn-torch import", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="+", help="CSV recordings, or ROS bags (.db3, .mcap, .bag, a rosbag2 folder); "
                     "globs are expanded")

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import argparse
 
+from .parser import CommandParser
+
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lnn-torch list", description=__doc__)
+    ap = CommandParser(prog="lnn-torch list", description=__doc__)
     ap.add_argument("what", nargs="?", default="all",
                     choices=("all", "scenes", "variants", "parts", "pretrained", "integrators"))
     return ap

@@ -25,12 +25,13 @@ import numpy as np
 import torch
 
 from ..mechanics.integrators import METHODS
+from .parser import CommandParser
 
 
 def _parser() -> argparse.ArgumentParser:
     from ..pretrained import available
 
-    ap = argparse.ArgumentParser(prog="lnn-torch simulate", description=__doc__,
+    ap = CommandParser(prog="lnn-torch simulate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", nargs="?", default=None, metavar="CHECKPOINT",
                     help="a .ckpt written by lnn-torch fit, or pretrained:NAME for a shipped model "
