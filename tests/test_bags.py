@@ -335,6 +335,18 @@ def test_receive_times_in_bursts_are_refused_and_a_fixed_rate_publisher_is_timed
         import_recordings([bag], tmp_path / "t.h5", bag_spec())
 
 
+def test_unstamped_messages_with_a_pause_are_no_bursts(tmp_path):
+    """Receive times 5 ms apart with one pause of 3 s (a recorder paused) are steady, not bursts: the pause is a gap
+    that windows keep out (its mean interval counted the pause and refused the bag as bursts)."""
+    data = motion()
+    received = data["ns"].copy()
+    received[200:] += 3_000_000_000
+    bag = write_bag(tmp_path / "run", "sqlite3", data, header=False, received=received)
+    split = {"train": ["run[0:0.9]"], "val": ["run[4.1:4.5]"], "test": ["run[4.5:]"]}
+    _, _, prov = dataset(import_recordings([bag], tmp_path / "bag.h5", bag_spec(split=split)))
+    assert prov["sources"][0]["time"] == "the bag's receive times (every header stamp is zero)"
+
+
 def write_two_topics(path: Path, data: dict, effort_ns: np.ndarray, efforts: np.ndarray) -> Path:
     """An MCAP bag with the positions and velocities of ``data`` on /joint_states (no efforts) and the efforts
     ``efforts`` stamped ``effort_ns`` on /joint_efforts (JointState of the same joints, another order)."""
@@ -394,6 +406,16 @@ def test_efforts_on_a_topic_of_their_own_are_interpolated_to_the_positions_times
     n = arrays["lengths"][0]  # the training window, from the recording's first sample
     truth = np.cos(0.7 * (first + arrays["t"][:n, None]) + w)
     np.testing.assert_allclose(arrays["tau"][0, :n], truth, atol=2e-5)  # (linear over 3.3 ms: under 1e-5)
+    # a stale effort message sent again (its stamp and values) is left out and counted, not refused
+    effort_ns2 = np.insert(effort_ns, 100, effort_ns[99])
+    efforts2 = np.insert(np.cos(0.7 * te[:, None] + w), 100, np.cos(0.7 * te[99] + w), axis=0)
+    (tmp_path / "stale").mkdir()
+    stale = write_two_topics(tmp_path / "stale" / "run", data, effort_ns2, efforts2)
+    _, _, prov = dataset(import_recordings([stale], tmp_path / "stale.h5", bag_spec(effort_topic="/joint_efforts")))
+    assert prov["sources"][0]["skipped"]["repeated on /joint_efforts"]["count"] == 1
+    with pytest.raises(InputError, match="stamps: sequence times one topic's messages by their order"):
+        import_recordings([bag], tmp_path / "q.h5", bag_spec(effort_topic="/joint_efforts", stamps="sequence",
+                                                             dt=0.005))
     with pytest.raises(InputError, match="effort_topic names the efforts' topic, but streams leaves effort out"):
         import_recordings([bag], tmp_path / "s.h5", bag_spec(effort_topic="/joint_efforts",
                                                              streams=["position", "velocity"]))

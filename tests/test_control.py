@@ -253,6 +253,14 @@ def test_a_goal_the_limits_cannot_hold_is_said_with_the_share_of_time_at_the_lim
                  "--no-animation"]) == 0
     report = json.loads((tmp_path / "o" / "control.json").read_text())
     assert report["success_rate"] == 0.0 and report["torque_at_limit_share"] > 0.5
+    # one number is every input's limit; YAML's 1e-3 (text) is a number; a full Q with off-diagonal terms is taken
+    scenario.write_text(ON_LAB.replace("{kind: lqr}", "{kind: lqr, goal: [1.5707963, 0.0], Q: [[10, -1, 0, 0], "
+                                       "[-1, 10, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}")
+                        + "limits: {torque: 0.3}\nnoise: {angle: 1e-3}\nduration: 1.0\nsuccess: {hold: 0.5}\n")
+    assert main(["control", "plant", "-c", str(scenario), "--episodes", "2", "-o", str(tmp_path / "o"),
+                 "--no-animation"]) == 0
+    again = json.loads((tmp_path / "o" / "control.json").read_text())
+    assert again["goal_beyond_limit"]["limit"] == 0.3 and again["torque_max"] <= 0.3 + 1e-12
     assert report["goal_beyond_limit"]["input"] == "tau1" and report["goal_beyond_limit"]["holding_torque"] > 3.0
     printed = capsys.readouterr().out
     assert "The goal cannot be held within the limits: at rest there the plant needs " in printed
@@ -279,6 +287,8 @@ ON_LAB = ("plant: {identified: lnn_torch/datasets/real_double_pendulum/identifie
                                            (f"{ON_LAB}success: {{hold: 9}}\n", "success.hold (9 s) is longer than an "
                                             "episode (duration 5.0 s)"),
                                            (f"{ON_LAB}start: {{q: [0, 0, 0]}}\n", "start.q needs 2 values"),
+                                           (f"{ON_LAB}duration: 0.5\n", "success.hold (1.0 s) is longer than an "
+                                            "episode (duration 0.5 s)"),  # (the default hold)
                                            ("plant: {identified: lnn_torch/datasets/real_double_pendulum/"
                                             "identified_parameters.yml}\ncontroller: {kind: lqr, R: -0.1}\n",
                                             "controller.R must be a list of numbers (or one number) > 0, got -0.1")])

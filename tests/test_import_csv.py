@@ -336,7 +336,7 @@ def test_settings_of_the_wrong_kind_and_splits_that_cannot_mean_anything_are_nam
     numbers, and a resampling interval far below the sampling interval (100 million samples asked for)."""
     path = tmp_path / "run.csv"
     path.write_text(text(T, signals(T)))
-    for fields, message in (({"dt": "0.01"}, r"^import: dt must be a number \(s\), got '0.01'$"),
+    for fields, message in (({"dt": "10ms"}, r"^import: dt must be a number \(s\), got '10ms'$"),
                             ({"max_gap": "1s"}, r"^import: max_gap must be a number \(s\), got '1s'$"),
                             ({"seed": "abc"}, r"^import: seed must be a whole number, got 'abc'$"),
                             ({"friction": "no"}, r"^import: friction must be true or false, got 'no'$"),
@@ -389,7 +389,15 @@ def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, c
     config = tmp_path / "import.yaml"
     config.write_text("coordinates: [a, x]\nangle_units: rad\nangle_units: deg\n")
     assert main(["import", str(path), "--config", str(config), "-o", str(tmp_path / "d.h5")]) == 2
-    assert "import config " in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
+    assert "the key 'angle_units' is given twice" in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
+    # YAML's merge key is no key given twice; 1e-3 (text to YAML) is a number
+    config.write_text("base: &b {coordinates: [a, x], inputs: [ta, fx]}\n<<: *b\nangle_mask: [true, false]\n"
+                      "split: [1.0, 0.0, 0.0]\nmax_gap: 1e-1\n")
+    from lnn_torch.commands.config_files import read_config
+
+    fields = read_config(config)
+    assert fields["coordinates"] == ["a", "x"] and ImportSpec(**{k: v for k, v in fields.items() if k != "base"}
+                                                              ).max_gap == pytest.approx(0.1)
 
 
 def test_a_delimiter_inside_a_quoted_header_name_is_no_delimiter(tmp_path):

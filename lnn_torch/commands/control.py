@@ -21,12 +21,13 @@ designs it on the plant itself (the comparison a learned model has to meet). The
   path from the start to ``goal``, then LQR holding it, named for a pendulum's swing-up and an arm's
   reach; lqr = LQR about ``goal`` from starts near it);
 * ``episodes``, ``duration`` (s), ``control_hz``, ``substeps`` (RK4 steps of the plant per control
-  period), ``limits: {torque: [...]}`` (N m), ``noise: {angle, velocity}`` (standard deviations, rad
-  and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}`` (uniform offsets, rad, at
-  rest), ``success: {tolerance, hold}`` (within ``tolerance`` rad of the goal for the last ``hold``
-  s), ``seed``; ``calibration_seconds`` (default 1): a model learned without inputs knows its
-  Lagrangian only up to a scale, calibrated from this long a recording of the plant driven by random
-  torques (``lnn_torch.control.calibrate_on``) and reported.
+  period), ``limits: {torque: [...]}`` (N m; one number: every input's), ``noise: {angle, velocity}``
+  (standard deviations, rad and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}``
+  (uniform offsets, rad, at rest), ``success: {tolerance, hold}`` (within ``tolerance`` rad of the goal
+  for the last ``hold`` s, default 1, no longer than ``duration``), ``seed``; ``calibration_seconds``
+  (default 1): a model learned without inputs knows its Lagrangian only up to a scale, calibrated from
+  this long a recording of the plant driven by random torques (``lnn_torch.control.calibrate_on``) and
+  reported. Every key is checked: one unknown, or a value of the wrong kind, is refused naming it.
 
 Writes ``control.json``, ``report.md``, ``episode.png`` (angles and torques of the first episode)
 and ``episode.gif`` (its animation) to ``--output-dir`` and prints the report.
@@ -49,6 +50,7 @@ from .parser import CommandParser
 PATHS = {"swingup": "swing-up", "reach": "reach"}
 DEFAULTS = {"episodes": 100, "duration": 5.0, "control_hz": 500.0, "substeps": 2, "limits": {}, "noise": {},
             "delay": 0, "start": {}, "success": {}, "seed": 0}
+DEFAULT_HOLD = 1.0  # s within the tolerance at the end of an episode that count as success (success.hold)
 # every key a scenario may hold, per mapping (a key misspelt was ignored: `torques` ran without a torque limit)
 KEYS = {"": (*DEFAULTS, "plant", "controller", "calibration_seconds"),
         "plant": ("identified", "robot", "model", "scene", "scene_config", "params", "actuation"),
@@ -92,6 +94,12 @@ def check_scenario(scenario, where: str) -> None:
 
     for (section, key), (what, ok) in NUMBERS.items():
         x = value(section, key)
+        if isinstance(x, str):  # YAML reads 1e-3 (no point) as text
+            try:
+                x = float(x)
+                (scenario if not section else scenario[section])[key] = x
+            except ValueError:
+                pass
         if x is not None and not (number(x) and ok(x)):
             raise InputError(f"{where}: {section + '.' if section else ''}{key} must be {what}, got {x!r}")
     for key, least in INTEGERS.items():
@@ -103,15 +111,18 @@ def check_scenario(scenario, where: str) -> None:
         if x is None:
             continue
         items = [x] if least is not None and not isinstance(x, list) else x
-        if key in ("Q", "R") and isinstance(items, list) and all(isinstance(v, list) for v in items):
-            items = [v for row in items for v in row]  # a full weight matrix
+        if key in ("Q", "R") and isinstance(items, list) and items and all(isinstance(v, list) for v in items):
+            items = [v for row in items for v in row]  # a full weight matrix: its entries finite (its definiteness
+            if all(number(v) for v in items):        # is the LQR's to check), of any sign off the diagonal
+                continue
         if not isinstance(items, list) or not items or not all(number(v) for v in items) or (
                 least is not None and not all(v >= least for v in items)):
             kind = "a list of numbers" + (" (or one number)" if least is not None else "") + (
                 "" if least is None else " >= 0" if least == 0.0 else " > 0")
             raise InputError(f"{where}: {section}.{key} must be {kind}, got {x!r}")
     hold, duration = value("success", "hold"), value("", "duration") or DEFAULTS["duration"]
-    if hold is not None and hold > duration:
+    hold = DEFAULT_HOLD if hold is None else hold
+    if hold > duration:
         raise InputError(f"{where}: success.hold ({hold} s) is longer than an episode (duration {duration} s)")
 
 
@@ -276,10 +287,13 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
     noise = s["noise"]
     std = (float(noise.get("angle", 0.0)), float(noise.get("velocity", 0.0))) if noise else None
     started = time.perf_counter()
+    limit = s["limits"].get("torque")
+    if limit is not None and not isinstance(limit, list):  # one number: every input's
+        limit = [limit] * plant.num_inputs
     ep = closed_loop(plant, controller, q0, torch.zeros_like(q0), p_plant, float(s["duration"]), dt,
-                     int(s["substeps"]), s["limits"].get("torque"), std, int(s["delay"]), int(s["seed"]))
+                     int(s["substeps"]), limit, std, int(s["delay"]), int(s["seed"]))
     seconds = time.perf_counter() - started
-    tol, hold = float(s["success"].get("tolerance", 0.05)), float(s["success"].get("hold", 1.0))
+    tol, hold = float(s["success"].get("tolerance", 0.05)), float(s["success"].get("hold", DEFAULT_HOLD))
     err = wrap(ep["q"] - goal[:, None], plant.angle_mask).abs().amax(-1)  # (N, T)
     err = torch.nan_to_num(err, nan=math.inf)
     k_hold = max(1, int(round(hold / dt)))
@@ -296,10 +310,10 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
            "torque_rms": float(ep["u"].pow(2).mean().sqrt()), "torque_max": float(ep["u"].abs().max()),
            "final_error_rad_median": float(err[:, -1].median()), "closed_loop_seconds": seconds,
            "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
-    limit = s["limits"].get("torque")
     if limit is not None:  # how often the controller asked beyond the limit, and whether the goal needs more
         bound = torch.as_tensor(limit, dtype=torch.float64).reshape(-1).expand(plant.num_inputs)
-        out["torque_at_limit_share"] = float((ep["u"].abs() >= bound * (1 - 1e-9)).double().mean())
+        # (the control periods in which some input is at its limit)
+        out["torque_at_limit_share"] = float((ep["u"].abs() >= bound * (1 - 1e-9)).any(-1).double().mean())
         rest = torch.zeros_like(goal1)
         with torch.no_grad():
             needed = plant.inverse(goal1, rest, rest, None if p_plant is None else p_plant[:1])[0].abs()

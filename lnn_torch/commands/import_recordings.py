@@ -219,6 +219,7 @@ def source_lines(provenance: dict) -> list[str]:
                                            f"{', '.join(left.get('joints', []))})",
                         "zero header stamp": "with a zero header stamp (a driver that published before its clock "
                                              "was set)",
+                        "repeated": "repeating the one before, stamp and values (stale)",
                         "outside the efforts": f"outside the efforts' times (before the first on "
                                                f"{src.get('effort_topic')}, after the last or in a gap)"
                         }.get(what, f"with no {what[len('empty '):]} values")

@@ -147,6 +147,9 @@ def read_bag_table(path: str | Path, spec) -> tuple[np.ndarray, np.ndarray, dict
     elif source == "sequence" and spec.dt is None:
         raise InputError("import: stamps: sequence times the messages one dt apart: set dt (the publisher's "
                          "interval, s)")
+    elif source == "sequence" and other:
+        raise InputError("import: stamps: sequence times one topic's messages by their order; the efforts' topic "
+                         "(effort_topic) has a rate of its own: stamp the messages, or use receive times")
     for s in streams:
         _timed(path, s, source, spec.dt)
     values, ns, numbers, notes, skipped = main["values"], main["ns"], main["numbers"], main["notes"], main["skipped"]
@@ -317,7 +320,8 @@ def _receive_times(path: Path, topic: str, ns: np.ndarray, values: np.ndarray, n
     they cannot be sample times: delivered in bursts (``BURST_RATIO``), or a receive time repeated with other
     values."""
     steps = np.diff(ns) / 1e6  # ms
-    mean = (ns[-1] - ns[0]) / 1e6 / max(len(ns) - 1, 1)
+    # the mean interval without the longest 1 % (a recording's pauses, which bursts are not)
+    mean = float(steps[steps <= np.percentile(steps, 99)].mean())
     median = float(np.median(steps))
     remedy = ("stamp the messages' headers where they are sampled, or, for a publisher at a fixed rate that lost no "
               "message, set stamps: sequence with dt")
@@ -347,10 +351,14 @@ def _merged(path: Path, main: dict, other: dict) -> tuple:
     timed alike) linearly interpolated to each row's time; rows before the first effort message, after the last,
     or within a gap of the efforts longer than ``MERGE_GAP_INTERVALS`` of their median interval left out (counted
     in ``dropped``, None if none)."""
-    te, e = other["ns"], other["values"]
+    te, e, numbers = other["ns"], other["values"], other["numbers"]
+    same = np.r_[False, (np.diff(te) == 0) & (e[1:] == e[:-1]).all(1)]  # a stale message sent again, stamp and all
+    if same.any():
+        other["skipped"]["repeated"] = {"count": int(same.sum()), "first": numbers[same][:5].tolist()}
+        te, e, numbers = te[~same], e[~same], numbers[~same]
     if (np.diff(te) <= 0).any():
         i = int(np.nonzero(np.diff(te) <= 0)[0][0])
-        raise InputError(f"{path}: message {other['numbers'][i + 1]} on {other['topic']}: time repeats or decreases "
+        raise InputError(f"{path}: message {numbers[i + 1]} on {other['topic']}: time repeats or decreases "
                          "(the efforts' times must increase)")
     t = main["ns"]
     at = np.searchsorted(te, t, side="right")  # te[at - 1] <= t < te[at]

@@ -218,6 +218,12 @@ class ImportSpec:
 
         for name in ("dt", "max_gap", "window_context", "coulomb_velocity", "torque_delay_range"):
             value = getattr(self, name)
+            if isinstance(value, str):  # YAML reads 1e-3 (no point) as text
+                try:
+                    value = float(value)
+                    setattr(self, name, value)
+                except ValueError:
+                    pass
             if value is not None and not number(value):
                 unit = "rad/s" if name == "coulomb_velocity" else "s"
                 raise InputError(f"import: {name} must be a number ({unit}), got {value!r}")
@@ -225,11 +231,12 @@ class ImportSpec:
             raise InputError(f"import: seed must be a whole number, got {self.seed!r}")
         if not isinstance(self.friction, bool):
             raise InputError(f"import: friction must be true or false, got {self.friction!r}")
-        for name in ("coordinates", "velocities", "inputs", "currents", "coord_names", "input_names"):
+        for name in ("coordinates", "velocities", "inputs", "currents", "coord_names", "input_names", "ignore_joints"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, (list, tuple)) or not all(isinstance(x, str)
                                                                                       for x in value)):
-                raise InputError(f"import: {name} must be a list of column names, got {value!r}")
+                what = "joint names" if name == "ignore_joints" else "column names"
+                raise InputError(f"import: {name} must be a list of {what}, got {value!r}")
         if self.drive_gains is not None and (not isinstance(self.drive_gains, (list, tuple))
                                              or not all(number(g) for g in self.drive_gains)):
             raise InputError(f"import: drive_gains must be a list of numbers (N m per A), got {self.drive_gains!r}")

@@ -113,7 +113,8 @@ def _number(cell: str) -> float:
     """A cell as a CSV writes a number: what Python's float reads but for digit-group underscores (``1_000``) and
     other scripts' digits and spaces, which no logger writes for a number (they were read as 1000 and 12)."""
     value = float(cell)
-    if "_" in cell or not cell.isascii():
+    core = cell.strip()  # (any space around it, a no-break space too)
+    if "_" in core or not core.isascii():
         raise ValueError(cell)
     return value
 

@@ -382,11 +382,18 @@ class System(abc.ABC):
         return params * k, f"parameters x{k:g}"
 
     def scale_invariance(self) -> dict:
-        """The parameters' direction that the motion cannot see, ``{param: exponent}``: a Lagrangian (and a
-        dissipation) times a constant has the same equations of motion, so without inputs to fix the scale every
-        parameter of mass dimension (units of kg or N: masses, inertias, stiffnesses, damping) scaled alike
-        changes no trajectory (a pendulum's one mass: any value). Empty for a scene with inputs (a known torque
-        fixes the scale) or without such a parameter."""
+        """The parameters' direction that the motion cannot see, ``{param: exponent}`` (identification reports
+        it as not identifiable, ``lnn_torch.identification.learned``); default none. A scene declares it where
+        it holds: ``mass_scale`` gives the common one of a scene whose every mass is a parameter."""
+        return {}
+
+    def mass_scale(self) -> dict:
+        """``scale_invariance`` of a scene whose every mass, inertia, stiffness and damping is one of its
+        parameters: a Lagrangian (and a dissipation) times a constant has the same equations of motion, so
+        without inputs to fix the scale, every parameter of mass dimension (units of kg or N) scaled alike
+        changes no trajectory (a pendulum's one mass: any value). Empty with inputs (a known torque fixes the
+        scale). A system with masses that are not parameters (a measured one: its learned arm) has no such
+        direction."""
         if self.num_inputs:
             return {}
         return {p: 1.0 for p, unit in zip(self.param_names, self.param_units or (), strict=False)
@@ -395,8 +402,12 @@ class System(abc.ABC):
     def identifiable_quantities(self) -> dict:
         """Named log-linear combinations of the parameters that identification reports beside each
         parameter, ``{name: {param: coefficient}}`` (e.g. a mass ratio); default: each parameter of the scale
-        the motion cannot see (``scale_invariance``) over the first, ``m2/m1``, ``k/m``."""
+        the motion cannot see (``scale_invariance``) over the first, ``m2/m1``, ``k/m`` (where every one is a
+        positive parameter, whose ratio identification reads in logarithms)."""
         members = list(self.scale_invariance())
+        kinds = dict(zip(self.param_names, self.kinds, strict=False))
+        if not all(kinds.get(p) == "positive" for p in members):
+            return {}
         return {f"{p}/{members[0]}": {members[0]: -1.0, p: 1.0} for p in members[1:]}
 
     def linear_regressor(self, q, qd, qdd, tau=None):

@@ -66,6 +66,10 @@ class ChainPendulum(System):
         # tail[i, k] = 1 if k >= i: mu_i = sum_k tail[i, k] m_k (mass at and below joint i)
         self._tail = torch.triu(torch.ones(n, n, dtype=torch.float64))
 
+    def scale_invariance(self) -> dict:
+        """The common scale of its masses (``System.mass_scale``: every mass is a parameter)."""
+        return self.mass_scale()
+
     def config(self) -> dict:
         return {"num_links": self.num_links, "m_log_std": self.m_log_std,
                 "l_range": [self.l_range.low, self.l_range.high],

@@ -199,6 +199,10 @@ class DoublePendulum(System):
         m1, m2, l1, l2 = params.unbind(-1)
         return 2 * GRAVITY * ((m1 + m2) * l1 + m2 * l2)
 
+    def scale_invariance(self) -> dict:
+        """The common scale of its masses (``System.mass_scale``: every mass is a parameter)."""
+        return self.mass_scale()
+
     def identifiable_quantities(self):
         """What free motion determines (``lnn_torch.identification.learned``): a common scale of both masses
         leaves the accelerations unchanged, so only the ratio m2/m1 and the lengths."""

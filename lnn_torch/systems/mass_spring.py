@@ -28,6 +28,10 @@ class MassSpring(System):
     conventions = "q=(x,): displacement from rest, m; params=(m, k) in kg, N/m; no gravity"
     gravity = 0.0
 
+    def scale_invariance(self) -> dict:
+        """The common scale of its masses (``System.mass_scale``: every mass is a parameter)."""
+        return self.mass_scale()
+
     def __init__(self, m_range=(0.5, 2.0), k_range=(0.5, 4.0), x_range=(-1.0, 1.0), v_range=(-1.0, 1.0)) -> None:
         self.m_range = as_range(m_range, "m_range")
         self.k_range = as_range(k_range, "k_range")

@@ -30,6 +30,10 @@ class Pendulum(System):
         "params=(m, l) in kg, m; point mass on a massless rod; g=9.81 m/s^2"
     )
 
+    def scale_invariance(self) -> dict:
+        """The common scale of its masses (``System.mass_scale``: every mass is a parameter)."""
+        return self.mass_scale()
+
     def __init__(self, m_range=(0.5, 2.0), l_range=(0.5, 2.0), theta_range=(-math.pi / 2, math.pi / 2),
                  omega_range=(-1.0, 1.0)) -> None:
         self.m_range = as_range(m_range, "m_range")
