@@ -202,6 +202,15 @@ def test_identify_command_on_a_dataset_trajectory_and_a_csv(tmp_path, capsys):
                  "-o", str(out2), *fast]) == 0
     report = json.loads((out2 / "identification.json").read_text())
     assert report["truth"] is None and report["quantities"]["l2"]["value"] == pytest.approx(1.1, rel=0.03)
+    # epoch stamps (float64 round-off, 1e-4 of the step) are uniform: they were refused as "not uniformly sampled"
+    lines = [ln for ln in sim.read_text().splitlines() if not ln.startswith("#")]
+    epoch = tmp_path / "epoch.csv"
+    epoch.write_text("\n".join([lines[0]] + [",".join([repr(1.7e9 + float(row.split(",")[0]))] + row.split(",")[1:])
+                                             for row in lines[1:]]) + "\n")
+    assert main(["identify", "pretrained:double_pendulum", str(epoch), "--coordinates", "theta1_exact",
+                 "theta2_exact", "-o", str(tmp_path / "id_epoch"), *fast]) == 0
+    again = json.loads((tmp_path / "id_epoch" / "identification.json").read_text())
+    assert again["quantities"]["l2"]["value"] == pytest.approx(report["quantities"]["l2"]["value"], rel=1e-3)
     capsys.readouterr()
 
     # bad input names the problem

@@ -141,7 +141,8 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         tau = data[:, 1 + system.dof * (2 if velocities else 1):] if inputs else None
         qdd, truth, source = None, None, str(path)
         steps = np.diff(t)
-        if (steps <= 0).any() or np.abs(steps - steps.mean()).max() > 1e-6 * max(steps.mean(), 1e-12):
+        # uniform to 0.1 % of the step: a clock written to microseconds, epoch stamps in float64 (round-off only)
+        if (steps <= 0).any() or np.abs(steps - steps.mean()).max() > UNIFORM * max(steps.mean(), 1e-12):
             raise InputError(f"{path}: the time column '{time}' is not uniformly sampled (resample it, e.g. with "
                              "lnn-torch import)")
     else:
@@ -475,6 +476,10 @@ def _unit(coefficients: dict, system) -> str:
     return ""
 
 
+# the relative spread of a recording's time steps still taken as one step (their mean): the round-off of stamps
+UNIFORM = 1e-3
+
+
 def markdown(report: dict, system) -> str:
     """The short report: estimates, uncertainties, the classical reference, residuals."""
     truth, ls, exact = report["truth"], report["least_squares"] or {}, report["true_structure"] or {}
@@ -520,7 +525,13 @@ def markdown(report: dict, system) -> str:
         lines.append("On the edge of the search box (the model's training distribution): "
                      f"{', '.join(report['at_bound'])}; the truth may lie outside what the model was trained on.")
     lines.append("The ± column is the statistical uncertainty of the fit given the model: the model's own error is "
-                 "not in it" + (" (compare the same fit on the true equations)." if exact else "."))
+                 "not in it" + (" (compare the same fit on the true equations)" if exact else "")
+                 + (", nor the bias of accelerations estimated from the positions (their smoothing; --method "
+                    "trajectory fits the positions themselves)" if report["method"] == "acceleration"
+                    and "qdd" not in report["observation"]["used"] else "") + ".")
+    if report["observation"]["noise_added"] and "qd" in report["observation"]["used"]:
+        lines.append("The noise is added to the positions only: the velocities are the recording's own, exact (with "
+                     "--use q they are estimated from the noisy positions, as from a sensor's).")
     rms = ", ".join(f"{k} {v:.3g}" for k, v in report["residual_rms"].items())
     lines += ["", f"Residual rms of the fit (normalised: accelerations / their rms, or position error / "
                   f"(window² / 2) in acceleration units): {rms}.", ""]

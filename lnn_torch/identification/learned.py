@@ -156,8 +156,8 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
     for name, x in (("t", t), ("q", q), ("qd", qd), ("tau", tau), ("qdd", qdd)):
         if x is not None and not torch.isfinite(x).all():
             raise InputError(f"the observation's {name} contains NaN or Inf")
-    dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
-    if len(t) < 21 or not dt > 0 or (torch.diff(t) - dt).abs().max() > 1e-6 * dt:
+    dt = float(t[-1] - t[0]) / (len(t) - 1) if len(t) > 1 else 0.0  # (the mean step: stamps carry round-off)
+    if len(t) < 21 or not dt > 0 or (torch.diff(t) - dt).abs().max() > 1e-3 * dt:
         raise InputError(f"the observation is too short or not uniformly sampled ({len(t)} points; "
                          "need >= 21 points at a constant step)")
     if system.num_inputs and tau is None:
