@@ -51,9 +51,11 @@ def lightning_main(argv: list[str]) -> int:
     except MisconfigurationException as err:  # a trainer setting this machine cannot take (a GPU it lacks, ...)
         import torch
 
+        text = str(err).strip()
         hint = (" (this machine has no CUDA device: --trainer.accelerator cpu, or leave it out)"
-                if "gpu" in str(err).lower() and not torch.cuda.is_available() else "")
-        raise InputError(f"the trainer cannot be set up as asked: {str(err).strip().splitlines()[0]}{hint}") from None
+                if any(w in text.lower() for w in ("gpu", "cuda")) and not torch.cuda.is_available() else "")
+        first = text.splitlines()[0] if text else type(err).__name__
+        raise InputError(f"the trainer cannot be set up as asked: {first}{hint}") from None
     # Lightning's DDP leaves the process group alive; left to interpreter shutdown, gloo's worker
     # threads can abort the process ("terminate called without an active exception", exit -6) after
     # a successful run. Only on success: a rank that failed must not wait on the others here.

@@ -316,6 +316,11 @@ def test_receive_times_in_bursts_are_refused_and_a_fixed_rate_publisher_is_timed
     data = motion()
     data["ns"] = EPOCH + 5_000_000 * np.arange(len(data["ns"]))  # the publisher's samples, exactly 5 ms apart
     bursts = EPOCH + 25_000_000 * (np.arange(len(data["ns"])) // 5) + 1000 * (np.arange(len(data["ns"])) % 5)
+    # batches of 200 at a 1 kHz publisher, every 0.2 s: the gaps between batches are under 1 % of the intervals
+    many = write_bag(tmp_path / "many", "mcap", data, header=False,
+                     received=EPOCH + 200_000_000 * (np.arange(len(data["ns"])) // 200) + 1000 * np.arange(400))
+    with pytest.raises(InputError, match=r"many.mcap: the receive times on /joint_states come in bursts"):
+        import_recordings([many], tmp_path / "m.h5", bag_spec())
     bag = write_bag(tmp_path / "run", "sqlite3", data, header=False, received=bursts)
     with pytest.raises(InputError, match=r"run.db3: the receive times on /joint_states come in bursts \(80 % of the "
                                          r"messages within 1.48 ms of the one before, .*: they are not the sample "

@@ -217,6 +217,14 @@ def test_bad_input_is_refused_in_one_line():
         plant_of(ARM, actuation=(True, False))
     with pytest.raises(InputError, match="Q must be"):
         lqr_gain(*plant.linearize(up, torch.zeros_like(up), None, params), Q=[1.0, 2.0], R=1.0)
+    A, B = plant.linearize(up, torch.zeros_like(up), None, params)
+    for Q, R, message in ((-np.eye(4), 1.0, r"^LQR: Q must be positive semi-definite \(its smallest eigenvalue is "
+                                            r"-1\)"),
+                          (1.0, np.zeros((2, 2)), r"^LQR: R must be positive definite"),
+                          ([[1, 0], [0]], 1.0, r"^LQR: Q must be a scalar, 4 diagonal entries or a \(4, 4\) matrix "),
+                          (np.triu(np.ones((4, 4))), 1.0, r"^LQR: Q must be finite and symmetric$")):
+        with pytest.raises(InputError, match=message):
+            lqr_gain(A, B, Q=Q, R=R)
 
 
 def test_the_control_command_reports_a_swing_up_designed_on_the_plant(tmp_path, capsys):
@@ -261,6 +269,11 @@ def test_a_goal_the_limits_cannot_hold_is_said_with_the_share_of_time_at_the_lim
                  "--no-animation"]) == 0
     again = json.loads((tmp_path / "o" / "control.json").read_text())
     assert again["goal_beyond_limit"]["limit"] == 0.3 and again["torque_max"] <= 0.3 + 1e-12
+    # an episode shorter than the default hold (1 s) without success.hold: held over the whole episode
+    scenario.write_text(ON_LAB + "duration: 0.5\n")
+    assert main(["control", "plant", "-c", str(scenario), "--episodes", "2", "-o", str(tmp_path / "o"),
+                 "--no-animation"]) == 0
+    assert json.loads((tmp_path / "o" / "control.json").read_text())["success_rate"] == 1.0
     assert report["goal_beyond_limit"]["input"] == "tau1" and report["goal_beyond_limit"]["holding_torque"] > 3.0
     printed = capsys.readouterr().out
     assert "The goal cannot be held within the limits: at rest there the plant needs " in printed
@@ -287,8 +300,7 @@ ON_LAB = ("plant: {identified: lnn_torch/datasets/real_double_pendulum/identifie
                                            (f"{ON_LAB}success: {{hold: 9}}\n", "success.hold (9 s) is longer than an "
                                             "episode (duration 5.0 s)"),
                                            (f"{ON_LAB}start: {{q: [0, 0, 0]}}\n", "start.q needs 2 values"),
-                                           (f"{ON_LAB}duration: 0.5\n", "success.hold (1.0 s) is longer than an "
-                                            "episode (duration 0.5 s)"),  # (the default hold)
+
                                            ("plant: {identified: lnn_torch/datasets/real_double_pendulum/"
                                             "identified_parameters.yml}\ncontroller: {kind: lqr, R: -0.1}\n",
                                             "controller.R must be a list of numbers (or one number) > 0, got -0.1")])

@@ -373,7 +373,7 @@ def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, c
     with pytest.raises(InputError, match="split: window"):
         import_recordings([path], tmp_path / "new" / "deeper" / "d.h5", spec(split={"train": ["run[0:9]"]}))
     assert not (tmp_path / "new").exists()
-    with pytest.raises(IsADirectoryError, match=r"is a folder: give the dataset file's path \(e.g. "):
+    with pytest.raises(IsADirectoryError, match=r"names a folder: give the dataset file's path \(e.g. "):
         import_recordings([path], f"{tmp_path}/", spec())
     (tmp_path / "run[1].csv").write_text(text(T, signals(T + 1)))
     (tmp_path / "run1.csv").write_text(text(T, signals(T)))
@@ -392,12 +392,11 @@ def test_the_output_is_never_a_recording_and_a_file_is_read_as_named(tmp_path, c
     assert "the key 'angle_units' is given twice" in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
     # YAML's merge key is no key given twice; 1e-3 (text to YAML) is a number
     config.write_text("base: &b {coordinates: [a, x], inputs: [ta, fx]}\n<<: *b\nangle_mask: [true, false]\n"
-                      "split: [1.0, 0.0, 0.0]\nmax_gap: 1e-1\n")
+                      "split: [1.0, 0.0, 0.0]\nmax_gap: 1e-1\ndrive_gains: [1e2, 2E+1]\n")
     from lnn_torch.commands.config_files import read_config
 
     fields = read_config(config)
-    assert fields["coordinates"] == ["a", "x"] and ImportSpec(**{k: v for k, v in fields.items() if k != "base"}
-                                                              ).max_gap == pytest.approx(0.1)
+    assert fields["coordinates"] == ["a", "x"] and fields["max_gap"] == 0.1 and fields["drive_gains"] == [100.0, 20.0]
 
 
 def test_a_delimiter_inside_a_quoted_header_name_is_no_delimiter(tmp_path):
@@ -417,3 +416,7 @@ def test_columns_aligned_by_spaces_read_with_the_whitespace_delimiter(tmp_path):
     values, lines = read_csv_table(path, ["time", "a", "x"], delimiter="whitespace")
     np.testing.assert_array_equal(values, [[0.0, 1.5, -2], [0.1, 2.5, -3], [0.2, 0.35, -4]])
     assert lines.tolist() == [3, 4, 6]
+    # one space is a delimiter as a CSV has it: quoted names with a space in them read as before
+    quoted = tmp_path / "quoted.txt"
+    quoted.write_text('"time s" q\n0 1\n0.1 2\n')
+    np.testing.assert_array_equal(read_csv_table(quoted, ["time s", "q"], delimiter=" ")[0], [[0, 1], [0.1, 2]])

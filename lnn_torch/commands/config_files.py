@@ -4,6 +4,7 @@ and what is wrong with it (missing, empty, not YAML at a line, not a mapping of 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 from ..errors import InputError
@@ -36,7 +37,7 @@ def read_config(path: str | Path, what: str = "config") -> dict:
 
 def _unique_keys_loader():
     """PyYAML's safe loader refusing a key given twice in one mapping (it kept the last without a word: a second
-    ``angle_units`` overrode the first)."""
+    ``angle_units`` overrode the first), and reading ``1e-3`` as the number it is."""
     import yaml
 
     class Loader(yaml.SafeLoader):
@@ -59,6 +60,9 @@ def _unique_keys_loader():
         return yaml.SafeLoader.construct_mapping(loader, node, deep)
 
     Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    # 1e-3 is a number (YAML 1.2; PyYAML's 1.1 reads an exponent without a point as text)
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9]+(\.[0-9]*)?[eE][-+]?[0-9]+$"),
+                                 list("-+0123456789"))
     return Loader
 
 

@@ -24,10 +24,11 @@ designs it on the plant itself (the comparison a learned model has to meet). The
   period), ``limits: {torque: [...]}`` (N m; one number: every input's), ``noise: {angle, velocity}``
   (standard deviations, rad and rad/s), ``delay`` (control periods), ``start: {q: [...], spread}``
   (uniform offsets, rad, at rest), ``success: {tolerance, hold}`` (within ``tolerance`` rad of the goal
-  for the last ``hold`` s, default 1, no longer than ``duration``), ``seed``; ``calibration_seconds``
-  (default 1): a model learned without inputs knows its Lagrangian only up to a scale, calibrated from
-  this long a recording of the plant driven by random torques (``lnn_torch.control.calibrate_on``) and
-  reported. Every key is checked: one unknown, or a value of the wrong kind, is refused naming it.
+  for the last ``hold`` s, no longer than ``duration``; default 1 s or the whole episode), ``seed``;
+  ``calibration_seconds`` (default 1): a model learned without inputs knows its Lagrangian only up to a
+  scale, calibrated from this long a recording of the plant driven by random torques
+  (``lnn_torch.control.calibrate_on``) and reported. Every key is checked: one unknown, or a value of the
+  wrong kind, is refused naming it.
 
 Writes ``control.json``, ``report.md``, ``episode.png`` (angles and torques of the first episode)
 and ``episode.gif`` (its animation) to ``--output-dir`` and prints the report.
@@ -50,7 +51,8 @@ from .parser import CommandParser
 PATHS = {"swingup": "swing-up", "reach": "reach"}
 DEFAULTS = {"episodes": 100, "duration": 5.0, "control_hz": 500.0, "substeps": 2, "limits": {}, "noise": {},
             "delay": 0, "start": {}, "success": {}, "seed": 0}
-DEFAULT_HOLD = 1.0  # s within the tolerance at the end of an episode that count as success (success.hold)
+# s within the tolerance at the end of an episode that count as success (success.hold; at most the episode)
+DEFAULT_HOLD = 1.0
 # every key a scenario may hold, per mapping (a key misspelt was ignored: `torques` ran without a torque limit)
 KEYS = {"": (*DEFAULTS, "plant", "controller", "calibration_seconds"),
         "plant": ("identified", "robot", "model", "scene", "scene_config", "params", "actuation"),
@@ -121,8 +123,7 @@ def check_scenario(scenario, where: str) -> None:
                 "" if least is None else " >= 0" if least == 0.0 else " > 0")
             raise InputError(f"{where}: {section}.{key} must be {kind}, got {x!r}")
     hold, duration = value("success", "hold"), value("", "duration") or DEFAULTS["duration"]
-    hold = DEFAULT_HOLD if hold is None else hold
-    if hold > duration:
+    if hold is not None and hold > duration:
         raise InputError(f"{where}: success.hold ({hold} s) is longer than an episode (duration {duration} s)")
 
 
@@ -293,7 +294,8 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
     ep = closed_loop(plant, controller, q0, torch.zeros_like(q0), p_plant, float(s["duration"]), dt,
                      int(s["substeps"]), limit, std, int(s["delay"]), int(s["seed"]))
     seconds = time.perf_counter() - started
-    tol, hold = float(s["success"].get("tolerance", 0.05)), float(s["success"].get("hold", DEFAULT_HOLD))
+    tol = float(s["success"].get("tolerance", 0.05))
+    hold = float(s["success"].get("hold", min(DEFAULT_HOLD, float(s["duration"]))))
     err = wrap(ep["q"] - goal[:, None], plant.angle_mask).abs().amax(-1)  # (N, T)
     err = torch.nan_to_num(err, nan=math.inf)
     k_hold = max(1, int(round(hold / dt)))

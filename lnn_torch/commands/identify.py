@@ -193,7 +193,8 @@ def main(argv: list[str]) -> int:
         true_structure = {k: {"value": v["value"], "rel_std": v.get("rel_std")} for k, v in exact.quantities.items()
                           if v["identifiable"]}
     report = {"checkpoint": args.checkpoint, "recording": obs.source, "scene": system.name,
-              "observation": {"seconds": float(obs.t[-1]), "points": len(obs.t), "dt": float(obs.t[1] - obs.t[0]),
+              "observation": {"seconds": float(obs.t[-1]), "points": len(obs.t),
+                              "dt": float(obs.t[-1] - obs.t[0]) / (len(obs.t) - 1),
                               "used": "+".join(n for n, x in (("q", q), ("qd", obs.qd), ("qdd", obs.qdd))
                                                if x is not None), "noise_added": args.noise},
               **result.to_json(), "truth": obs.truth, "true_structure": true_structure, "least_squares": reference}

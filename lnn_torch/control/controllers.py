@@ -72,12 +72,25 @@ def lqr_gain(A: torch.Tensor, B: torch.Tensor, Q, R, dt: float | None = None) ->
 
 
 def _weights(W, k: int, name: str) -> np.ndarray:
-    """A weight matrix ``(k, k)`` from a scalar (times the identity), a diagonal or a matrix."""
-    W = np.asarray(W, dtype=np.float64)
+    """A weight matrix ``(k, k)`` from a scalar (times the identity), a diagonal or a matrix: finite, symmetric,
+    positive semi-definite (``Q``) or positive definite (``R``), else refused naming it."""
+    try:
+        W = np.asarray(W, dtype=np.float64)
+    except (ValueError, TypeError):
+        raise InputError(f"LQR: {name} must be a scalar, {k} diagonal entries or a ({k}, {k}) matrix of numbers, "
+                         f"got {W!r}") from None
     W = W * np.eye(k) if W.ndim == 0 else (np.diag(W) if W.ndim == 1 else W)
     if W.shape != (k, k):
         raise InputError(f"LQR: {name} must be a scalar, {k} diagonal entries or a ({k}, {k}) matrix, got shape "
                          f"{W.shape}")
+    if not np.isfinite(W).all() or not np.allclose(W, W.T, rtol=1e-9, atol=0.0):
+        raise InputError(f"LQR: {name} must be finite and symmetric")
+    low = float(np.linalg.eigvalsh(W).min())
+    scale = float(np.abs(W).max()) or 1.0
+    if name == "R" and not low > 1e-12 * scale:
+        raise InputError(f"LQR: R must be positive definite (its smallest eigenvalue is {low:.3g})")
+    if name == "Q" and low < -1e-12 * scale:
+        raise InputError(f"LQR: Q must be positive semi-definite (its smallest eigenvalue is {low:.3g})")
     return W
 
 

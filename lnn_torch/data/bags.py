@@ -311,8 +311,8 @@ def _timed(path: Path, s: dict, source: str, dt: float | None) -> None:
 
 
 # receive times are refused as sample times where the median interval is below this fraction of the mean (messages
-# delivered in bursts: a recorder or network that batches them)
-BURST_RATIO = 0.3
+# delivered in bursts: a recorder or network that batches them), intervals over PAUSE_S s left out of the mean
+BURST_RATIO, PAUSE_S = 0.3, 1.0
 
 
 def _receive_times(path: Path, topic: str, ns: np.ndarray, values: np.ndarray, numbers: np.ndarray) -> str:
@@ -320,8 +320,9 @@ def _receive_times(path: Path, topic: str, ns: np.ndarray, values: np.ndarray, n
     they cannot be sample times: delivered in bursts (``BURST_RATIO``), or a receive time repeated with other
     values."""
     steps = np.diff(ns) / 1e6  # ms
-    # the mean interval without the longest 1 % (a recording's pauses, which bursts are not)
-    mean = float(steps[steps <= np.percentile(steps, 99)].mean())
+    # the mean interval without the pauses (over PAUSE_S: a recorder paused, which bursts are not)
+    running = steps[steps <= 1e3 * PAUSE_S]
+    mean = float((running if running.size else steps).mean())
     median = float(np.median(steps))
     remedy = ("stamp the messages' headers where they are sampled, or, for a publisher at a fixed rate that lost no "
               "message, set stamps: sequence with dt")

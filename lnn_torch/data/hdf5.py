@@ -108,7 +108,7 @@ def check_writable(path: str | Path, overwrite: bool) -> Path:
     """Fail early (before any work) if ``path`` cannot be written."""
     raw, path = str(path), Path(path)
     if path.is_dir() or raw.endswith(("/", os.sep)):  # (Path drops a trailing slash: the text says it is a folder)
-        raise IsADirectoryError(f"{path} is a folder: give the dataset file's path (e.g. {path / 'data.h5'})")
+        raise IsADirectoryError(f"{path} names a folder: give the dataset file's path (e.g. {path / 'data.h5'})")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite it (pass --overwrite / overwrite=True)")
     # the nearest folder that exists (the rest is created when the file is written: a refused run leaves none)

@@ -5,7 +5,8 @@ Each recording is a text table (``.csv``, ``.tsv``, ``.txt`` or ``.dat``, or any
 ``exp_2024.05.01_a``): a header row naming the columns (after comment lines starting with ``#`` and
 blank lines; a UTF-8 byte-order mark, as Excel writes, is dropped), then one row per sample. The
 delimiter is the header's: ``;`` if it holds one, else a tab if it holds one, else ``,`` (or
-``delimiter``); with a ``;`` or tab delimiter, numbers may have decimal commas (``decimal``).
+``delimiter``: ``whitespace`` for columns aligned by runs of spaces); with a ``;`` or tab delimiter,
+numbers may have decimal commas (``decimal``).
 
 Each recording is resampled onto a uniform grid: every column (coordinates, velocities, inputs) is
 linearly interpolated at ``t_0 + k dt`` from the first time stamp to the last (``dt`` defaults to

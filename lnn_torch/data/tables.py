@@ -27,16 +27,20 @@ def recording_name(path: str | Path) -> str:
     return name[:-len(ext)] if ext is not None and len(name) > len(ext) else name
 
 
+WHITESPACE = "whitespace"  # the delimiter setting of columns separated by runs of spaces and tabs
+
+
 def separator(delimiter: str | None) -> str | None:
-    """A ``delimiter`` setting as the character it is (``tab``: a tab; ``whitespace``, or one space: any run of
-    spaces and tabs, as column-aligned ``.dat`` files have, ``" "`` here; None: detected per file), or None if it
-    cannot be one."""
-    sep = "\t" if delimiter in ("tab", "\\t") else " " if delimiter == "whitespace" else delimiter
+    """A ``delimiter`` setting as the character it is (``tab``: a tab; ``whitespace`` as it is: any run of spaces
+    and tabs, as column-aligned ``.dat`` files have; None: detected per file), or None if it cannot be one."""
+    if delimiter == WHITESPACE:
+        return WHITESPACE
+    sep = "\t" if delimiter in ("tab", "\\t") else delimiter
     return sep if isinstance(sep, str) and len(sep) == 1 and sep not in "\"#\r\n" else None
 
 
 def _shown(sep: str) -> str:
-    return "tab" if sep == "\t" else repr(sep)
+    return "tab" if sep == "\t" else sep if sep == WHITESPACE else repr(sep)
 
 
 def read_csv_columns(path: Path, columns: list[str], delimiter: str | None = None, decimal: str = "auto") -> np.ndarray:
@@ -53,7 +57,8 @@ def read_csv_table(path: Path, columns: list[str], delimiter: str | None = None,
     """``(values (rows, len(columns)) float64, lines (rows,) int64)``: the named columns of a CSV file
     and the line of the file each data row ends on. The delimiter is ``delimiter`` (one character or
     ``tab``), or else the header's: ``;`` if it holds one, else a tab if it holds one, else ``,``;
-    ``decimal`` (``auto``, ``.``, ``,``): ``auto`` reads decimal commas where the delimiter is not ``,``.
+    ``decimal`` (``auto``, ``.``, ``,``): ``auto`` reads decimal commas where the delimiter is not ``,``;
+    ``whitespace``: columns separated by runs of spaces and tabs (no quoting).
     Text is UTF-8 (a byte-order mark is dropped), gzip-compressed where the name ends in ``.gz``."""
     path = Path(path)
     if not path.exists():
@@ -90,7 +95,7 @@ class _Whitespace:
     def __next__(self) -> list[str]:
         line = next(self.lines)
         self.line_num += 1
-        return line.split()
+        return [cell.strip('"') for cell in line.split()]  # (a quoted name of one word: "time")
 
 
 def _undecodable(path: Path, opener) -> str:
@@ -141,7 +146,7 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
             raise InputError(f"{path}: decimal ',' needs a delimiter other than ',' (the header is read with ',')")
         commas = decimal == "," or (decimal == "auto" and sep != ",")
         lines_in = itertools.chain([header_line], fh)
-        reader = _Whitespace(lines_in) if sep == " " else csv.reader(lines_in, delimiter=sep)
+        reader = _Whitespace(lines_in) if sep == WHITESPACE else csv.reader(lines_in, delimiter=sep)
         header = [h.strip() for h in next(reader)]
         at = before + 1
         missing = [c for c in dict.fromkeys(columns) if c not in header]

@@ -452,7 +452,7 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     Jacobian), or None where the scene has no linear form.
     """
     t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
-    dt = float(t[1] - t[0])
+    dt = float(t[-1] - t[0]) / (len(t) - 1)  # (the mean step, as identify's)
     qd, qdd = estimate_derivatives(q[None], dt, None if qd is None else qd[None],
                                    None if qdd is None else qdd[None], derivative)
     e = min(EDGE, q.shape[0] // 10)  # as the acceleration fit: the ends left out
