@@ -99,7 +99,7 @@ def test_validation_logs_what_evaluate_model_computes(tmp_path):
     assert logged["val/acc_rel_err_theta2"] == pytest.approx(r["acc_rel_err"]["theta2"], rel=1e-6)
     assert logged["val/energy_drift"] == pytest.approx(r["energy_drift"]["mean"], rel=1e-6)
     assert logged["val/divergence_time"] == pytest.approx(r["divergence_time@0.2"]["model"]["median"], rel=1e-6)
-    assert logged["val/rollout_seconds"] == pytest.approx(r["horizon_s"]) == pytest.approx(0.5)  # (what they depend on)
+    assert logged["val/rollout_horizon_s"] == pytest.approx(r["horizon_s"]) == pytest.approx(0.5)  # (their length)
 
 
 # ---------------------------------------------------------------------------- registry

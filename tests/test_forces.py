@@ -418,6 +418,11 @@ def test_simulate_with_inputs_from_a_file_or_an_excitation(actuated_checkpoint, 
     assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "g.csv")]) == 2
     assert "t covers [0, 0.46] s (its last row held to 0.48 s), the simulation's steps start in [0, 0.49] s" in (
         capsys.readouterr().err)
+    # a time column in ms: its first row was held over the whole simulation without a word
+    inputs.write_text("t,tau1,tau2\n" + "".join(f"{20 * k},0.1,0\n" for k in range(26)))  # 0..500 ms
+    assert main(base + ["--inputs", str(inputs), "-o", str(tmp_path / "h.csv")]) == 2
+    assert "column t runs over 500 s in steps of 20, the simulation over 0.49 s in steps of 0.01: t is in seconds " \
+           "(a column in ms?)" in capsys.readouterr().err
     # the comment names the columns the file has
     text = (tmp_path / "f.csv").read_text().splitlines()
     described = [line for line in text if line.startswith("# columns:")][0]

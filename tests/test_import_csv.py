@@ -9,6 +9,7 @@ import re
 
 import numpy as np
 import pytest
+import torch
 
 from lnn_torch.cli import main
 from lnn_torch.data import read_dataset
@@ -82,7 +83,10 @@ def test_time_and_length_units_convert_to_seconds_and_metres(reference, tmp_path
     np.testing.assert_allclose(qd[:, 0], 1.3 * np.cos(1.3 * T), atol=1e-12)
     assert json.loads(f.attrs["provenance"])["settings"]["time_units"] == "ns"
     for bad, message in (({"time_units": "min"}, "time_units must be one of s, ms, us, ns, got 'min'"),
-                         ({"length_units": "in"}, "length_units must be one of m, cm, mm, got 'in'")):
+                         ({"length_units": "in"}, "length_units must be one of m, cm, mm, got 'in'"),
+                         # (a cart's millimetres were read as degrees without a word)
+                         ({"length_units": "mm", "angle_mask": None}, "length_units is mm, but every coordinate is an "
+                                                                      "angle: mark the lengths false in angle_mask")):
         with pytest.raises(InputError, match=message):
             spec(**bad)
 
@@ -313,6 +317,27 @@ def test_inputs_acting_on_lengths_are_forces(tmp_path):
     assert json.loads(f.attrs["units"])["tau"] == ["N m", "N"]
     f = read_dataset(import_recordings([path], tmp_path / "y.h5", spec(input_matrix=[[1, 1], [0, 1]])))
     assert json.loads(f.attrs["inputs"])["units"] == ["N m", "N or N m"]
+    # a force's error is reported in N (evaluate's table and figure, the fit's summary said N m for every input)
+    from lnn_torch.evaluation import evaluate_model
+    from lnn_torch.systems import get_system
+    from lnn_torch.training.datamodule import TrajectoryDataModule
+
+    force = read_dataset(import_recordings([path], tmp_path / "z.h5", spec(coordinates=["x"], inputs=["fx"],
+                                                                           angle_mask=[False])))
+    system = get_system(force.scene["name"], **force.scene["config"])
+    assert system.input_units == ("N",)
+
+    from lnn_torch.networks.capabilities import INVERSE_DYNAMICS
+
+    class Echo:  # inverse dynamics of zero (only the units matter here)
+        capabilities = frozenset({INVERSE_DYNAMICS})
+
+        def inverse(self, q, qd, qdd, params):
+            return torch.zeros(len(q), 1, dtype=q.dtype)
+
+    dm = TrajectoryDataModule(path=str(tmp_path / "z.h5"), targets={"method": "spline", "lam": None})
+    result = evaluate_model(Echo(), system, dm.trajectories("train"), sections=["torques"])
+    assert any("RMS (N): mean (tau1)" in row for row in result["_sections"]["torques"].rows)
 
 
 def test_the_unit_notes_name_the_recordings_read_in_a_doubtful_unit():

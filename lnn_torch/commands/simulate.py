@@ -55,7 +55,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="accelerations through torch.compile (pays off for long rollouts; falls back to eager)")
     inputs = ap.add_mutually_exclusive_group()
     inputs.add_argument("--inputs", default=None, metavar="CSV",
-                        help="inputs of an actuated scene: a column per input (and optionally t), held zero-order")
+                        help="inputs of an actuated scene: a column per input (and optionally t, in s), held "
+                        "zero-order")
     inputs.add_argument("--excitation", default=None, metavar="JSON",
                         help="inputs of an actuated scene from a named excitation (lnn_torch.systems.excitation)")
     ap.add_argument("--seed", type=int, default=0, help="seed of --excitation")
@@ -93,6 +94,12 @@ def read_inputs(path: str | Path, names, t: np.ndarray) -> np.ndarray:
             raise ValueError(f"{path}: {len(values)} rows of inputs, but the simulation needs {len(t)} (one per step)")
         return values[: len(t)]
     times, u = values[:, 0], values[:, 1:]
+    span, step = t[-1] - t[0], (t[1] - t[0] if len(t) > 1 else 0.0)
+    # a time column in ms (every row 1000 times later: rows past the end dropped, one row held throughout)
+    if len(times) > 1 and span > 0 and times[-1] - times[0] > 100 * span and np.median(np.diff(times)) > 100 * step:
+        raise ValueError(f"{path}: column t runs over {times[-1] - times[0]:g} s in steps of "
+                         f"{np.median(np.diff(times)):g}, the simulation over {span:g} s in steps of {step:g}: t is in "
+                         "seconds (a column in ms?)")
     if (np.diff(times) <= 0).any():
         raise ValueError(f"{path}: column t does not increase at row {int(np.nonzero(np.diff(times) <= 0)[0][0]) + 3}")
     # each row's inputs hold until the next row's time, the last row's for one of the file's intervals

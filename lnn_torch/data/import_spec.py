@@ -198,6 +198,10 @@ class ImportSpec:
         for name, known in (("time_units", TIME_UNITS), ("length_units", LENGTH_UNITS), ("decimal", DECIMALS)):
             if getattr(self, name) not in known:
                 raise InputError(f"import: {name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
+        if self.length_units != "m" and (self.angle_mask is None or all(self.angle_mask)) and self.robot is None:
+            # (a cart's millimetres were read as degrees without a word)
+            raise InputError(f"import: length_units is {self.length_units}, but every coordinate is an angle: mark the "
+                             "lengths false in angle_mask (e.g. [false, true] for a cart's position and an angle)")
         if self.delimiter is not None:
             sep = separator(self.delimiter)
             if sep is None:

@@ -164,7 +164,7 @@ def torque_figure(ta: dict):
             continue
         ax.plot(ta["t"], ta["measured"][:, j], "k-", lw=1.0, label="measured")
         ax.plot(ta["t"], ta["predicted"][:, j], "C1--", lw=1.0, label="model (inverse dynamics)")
-        ax.set_ylabel(f"{ta['names'][j]} [N m]")
+        ax.set_ylabel(f"{ta['names'][j]} [{(ta.get('units') or ['N m'] * n_u)[j]}]")
     axes.flat[0].legend(loc="upper right", fontsize=8)
     axes.flat[0].set_title("the first trajectory: measured and predicted torques", fontsize=9)
     for ax in axes[-1]:

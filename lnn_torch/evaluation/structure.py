@@ -100,10 +100,12 @@ def _torques(ctx: EvalContext) -> SectionResult:
 
     nm = lambda x: f"{x:.3g}"  # noqa: E731
     first = int(ok.reshape(B, T)[0].sum()) if not ok.all() else T  # the first trajectory's valid points
+    units = list(getattr(ctx.system, "input_units", ()) or ["N m"] * len(names))  # (a force on a length: N)
+    unit = units[0] if len(set(units)) == 1 else "SI"
     arrays = {"t": torch.arange(first) * ctx.accel_stride * data.dt, "measured": tau[:first], "predicted": pred[:first],
-              "names": names}
-    rows = [row("normalised RMSE", t), row("normalised MSE (DeLaN's)", mse), row("RMS (N m)", rms, nm),
-            table_row([f"torque standard deviation of the data (N m): mean ({', '.join(names)})",
+              "names": names, "units": units}
+    rows = [row("normalised RMSE", t), row("normalised MSE (DeLaN's)", mse), row(f"RMS ({unit})", rms, nm),
+            table_row([f"torque standard deviation of the data ({unit}): mean ({', '.join(names)})",
                        f"{nm(std['mean'])} ({', '.join(nm(std[n]) for n in names)})"])]
     return SectionResult({"torque_nrmse": t, "torque_nmse": mse, "torque_rms_nm": rms, "torque_std_nm": std},
                          rows=rows, figures={"torques.png": _figure(torque_figure, arrays)},

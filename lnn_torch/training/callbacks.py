@@ -151,7 +151,9 @@ class FitSummary(L.Callback):
                                                                 if judged else ""))
         torque = None
         if "val/torque_rms" in m:
-            torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} N m RMS (mean over "
+            units = set(getattr(getattr(pl_module, "system", None), "input_units", None) or ["N m"])
+            unit = units.pop() if len(units) == 1 else "SI units"  # (a force on a length is in N)
+            torque = (f"  validation: inverse-dynamics torque error {m['val/torque_rms']:.3g} {unit} RMS (mean over "
                       f"the inputs), {100 * m['val/torque_nrmse']:.2f} % normalised"
                       + (" (by the validation recordings' own torques, smaller than the error: they carry little "
                          "input, e.g. free swings)" if m["val/torque_nrmse"] > 1 else ""))
