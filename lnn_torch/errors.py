@@ -9,7 +9,9 @@
 * ``CheckpointError`` (an ``InputError``): a file is not a readable lnn-torch checkpoint;
 * ``UnknownNameError`` (an ``InputError`` and a ``KeyError``): a name none of those known (a pretrained model).
 
-``check_tensors`` refuses, by name, an argument that is not a torch tensor or (for states) not floating point.
+``check_tensors`` refuses, by name, an argument that is not a torch tensor or (for states) not floating point;
+``is_number`` and ``as_number`` are the settings' checks of a number (a bool is none; a number written as text is
+one).
 
 Each is also importable where it was first defined (``lnn_torch.systems.base.InputError``,
 ``lnn_torch.mechanics.euler_lagrange.SingularHessianError``, ``lnn_torch.data.DatasetFileError``,
@@ -36,6 +38,24 @@ def check_tensors(floating=(), **named) -> None:
         if name in floating and not x.is_floating_point():
             raise InputError(f"{name} must be floating point, got {x.dtype} (e.g. torch.tensor([[1.0, 0.0]]), not "
                              "[[1, 0]]: integers would truncate the results)")
+
+
+def is_number(x, finite: bool = False) -> bool:
+    """Whether a setting's value ``x`` is a real number: an int or a float, not a bool (which Python counts as an
+    int); ``finite``: and finite."""
+    import math
+
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and (not finite or math.isfinite(x))
+
+
+def as_number(x):
+    """``x``, or the number a text ``x`` holds (a quoted ``'0.01'`` in a config): ``float(x)`` where it reads."""
+    if isinstance(x, str):
+        try:
+            return float(x)
+        except ValueError:
+            pass
+    return x
 
 
 class UnknownNameError(InputError, KeyError):

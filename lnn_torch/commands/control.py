@@ -44,7 +44,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, as_number, is_number
 from .parser import CommandParser
 
 # the controllers that track a path to the goal (computed torque, then LQR), and what the report calls the path
@@ -91,22 +91,15 @@ def check_scenario(scenario, where: str) -> None:
         mapping = scenario if not section else scenario.get(section, {})
         return mapping.get(key)
 
-    def number(x):
-        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
     for (section, key), (what, ok) in NUMBERS.items():
         x = value(section, key)
-        if isinstance(x, str):  # YAML reads 1e-3 (no point) as text
-            try:
-                x = float(x)
-                (scenario if not section else scenario[section])[key] = x
-            except ValueError:
-                pass
-        if x is not None and not (number(x) and ok(x)):
+        if isinstance(x, str) and x != as_number(x):  # (a number given as text)
+            x = (scenario if not section else scenario[section])[key] = as_number(x)
+        if x is not None and not (is_number(x, finite=True) and ok(x)):
             raise InputError(f"{where}: {section + '.' if section else ''}{key} must be {what}, got {x!r}")
     for key, least in INTEGERS.items():
         x = value("", key)
-        if x is not None and not (isinstance(x, int) and not isinstance(x, bool) and x >= least):
+        if x is not None and not (is_number(x) and isinstance(x, int) and x >= least):
             raise InputError(f"{where}: {key} must be a whole number >= {least}, got {x!r}")
     for (section, key), least in LISTS.items():
         x = value(section, key)
@@ -114,10 +107,12 @@ def check_scenario(scenario, where: str) -> None:
             continue
         items = [x] if least is not None and not isinstance(x, list) else x
         if key in ("Q", "R") and isinstance(items, list) and items and all(isinstance(v, list) for v in items):
-            items = [v for row in items for v in row]  # a full weight matrix: its entries finite (its definiteness
-            if all(number(v) for v in items):        # is the LQR's to check), of any sign off the diagonal
+            # a full weight matrix: its entries finite, of any sign off the diagonal (its symmetry and definiteness
+            # are the LQR's to check: controllers._weights)
+            items = [v for row in items for v in row]
+            if all(is_number(v, finite=True) for v in items):
                 continue
-        if not isinstance(items, list) or not items or not all(number(v) for v in items) or (
+        if not isinstance(items, list) or not items or not all(is_number(v, finite=True) for v in items) or (
                 least is not None and not all(v >= least for v in items)):
             kind = "a list of numbers" + (" (or one number)" if least is not None else "") + (
                 "" if least is None else " >= 0" if least == 0.0 else " > 0")
@@ -313,7 +308,7 @@ def run_scenario(scenario: dict, design, where: str = "scenario", episodes: int 
            "final_error_rad_median": float(err[:, -1].median()), "closed_loop_seconds": seconds,
            "plant": plant.name, "design": "plant" if design is None else design_plant.name, "controller": kind}
     if limit is not None:  # how often the controller asked beyond the limit, and whether the goal needs more
-        bound = torch.as_tensor(limit, dtype=torch.float64).reshape(-1).expand(plant.num_inputs)
+        bound = torch.as_tensor(limit, dtype=torch.float64)  # (one per input: closed_loop checked it)
         # (the control periods in which some input is at its limit)
         out["torque_at_limit_share"] = float((ep["u"].abs() >= bound * (1 - 1e-9)).any(-1).double().mean())
         rest = torch.zeros_like(goal1)

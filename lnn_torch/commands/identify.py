@@ -127,6 +127,7 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         source = f"{path} (split {split}, trajectory {trajectory}, file index {int(index[j])})"
     elif name.endswith((".csv", ".csv.gz")):
         from ..data.tables import read_csv_columns
+        from ..identification.learned import UNIFORM
 
         coordinates = list(coordinates or system.coord_names)
         if len(coordinates) != system.dof:
@@ -141,7 +142,6 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         tau = data[:, 1 + system.dof * (2 if velocities else 1):] if inputs else None
         qdd, truth, source = None, None, str(path)
         steps = np.diff(t)
-        # uniform to 0.1 % of the step: a clock written to microseconds, epoch stamps in float64 (round-off only)
         if (steps <= 0).any() or np.abs(steps - steps.mean()).max() > UNIFORM * max(steps.mean(), 1e-12):
             raise InputError(f"{path}: the time column '{time}' is not uniformly sampled (resample it, e.g. with "
                              "lnn-torch import)")
@@ -160,7 +160,7 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
 
 
 def main(argv: list[str]) -> int:
-    from ..identification.learned import identify, least_squares_reference
+    from ..identification.learned import identify, least_squares_reference, mean_step
     from ..perf import configure_cpu
     from ..training.checkpoints import load_model
 
@@ -194,7 +194,7 @@ def main(argv: list[str]) -> int:
                           if v["identifiable"]}
     report = {"checkpoint": args.checkpoint, "recording": obs.source, "scene": system.name,
               "observation": {"seconds": float(obs.t[-1]), "points": len(obs.t),
-                              "dt": float(obs.t[-1] - obs.t[0]) / (len(obs.t) - 1),
+                              "dt": mean_step(obs.t),
                               "used": "+".join(n for n, x in (("q", q), ("qd", obs.qd), ("qdd", obs.qdd))
                                                if x is not None), "noise_added": args.noise},
               **result.to_json(), "truth": obs.truth, "true_structure": true_structure, "least_squares": reference}
@@ -475,10 +475,6 @@ def _unit(coefficients: dict, system) -> str:
         if name in system.param_names:
             return f" {system.param_units[list(system.param_names).index(name)]}"
     return ""
-
-
-# the relative spread of a recording's time steps still taken as one step (their mean): the round-off of stamps
-UNIFORM = 1e-3
 
 
 def markdown(report: dict, system) -> str:

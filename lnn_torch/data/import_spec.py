@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, as_number, is_number
 from ..systems import get_system
 from .tables import DECIMALS, separator
 
@@ -217,18 +217,10 @@ class ImportSpec:
     def _types(self) -> None:
         """Each field of the kind it must be, refused in one line naming it (a string where a number or a list
         belongs failed later with a traceback, or was split into letters)."""
-        def number(x):
-            return isinstance(x, (int, float)) and not isinstance(x, bool)
-
         for name in ("dt", "max_gap", "window_context", "coulomb_velocity", "torque_delay_range"):
-            value = getattr(self, name)
-            if isinstance(value, str):  # YAML reads 1e-3 (no point) as text
-                try:
-                    value = float(value)
-                    setattr(self, name, value)
-                except ValueError:
-                    pass
-            if value is not None and not number(value):
+            value = as_number(getattr(self, name))  # (a number given as text)
+            setattr(self, name, value)
+            if value is not None and not is_number(value):
                 unit = "rad/s" if name == "coulomb_velocity" else "s"
                 raise InputError(f"import: {name} must be a number ({unit}), got {value!r}")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
@@ -242,7 +234,7 @@ class ImportSpec:
                 what = "joint names" if name == "ignore_joints" else "column names"
                 raise InputError(f"import: {name} must be a list of {what}, got {value!r}")
         if self.drive_gains is not None and (not isinstance(self.drive_gains, (list, tuple))
-                                             or not all(number(g) for g in self.drive_gains)):
+                                             or not all(is_number(g) for g in self.drive_gains)):
             raise InputError(f"import: drive_gains must be a list of numbers (N m per A), got {self.drive_gains!r}")
         if self.torque_delay is False:  # YAML reads an unquoted off as false
             self.torque_delay = "off"

@@ -348,6 +348,11 @@ def _torque_delay(system, spec: ImportSpec, stems, resampled, param_table, decl:
     return report
 
 
+# a resampling interval below the recordings' median interval by more than this factor is refused (dt = 1e-7 s
+# on 2 ms recordings asked for 100 million samples)
+UPSAMPLING = 20
+
+
 def _interval(files: list[Path], timing: list[dict], dt: float | None) -> float:
     """The resampling interval: ``dt``, else the first recording's median interval rounded to 0.1 ms;
     refused where the recordings' medians differ by more than ``DT_SPREAD`` and round apart."""
@@ -363,11 +368,6 @@ def _interval(files: list[Path], timing: list[dict], dt: float | None) -> float:
                          f"interval ({min(medians):.4g} s): interpolation adds no information, only samples (set dt "
                          "near the sampling interval)")
     return dt or own[0]
-
-
-# a resampling interval below the recordings' median interval by more than this factor is refused (dt = 1e-7 s
-# on 2 ms recordings asked for 100 million samples)
-UPSAMPLING = 20
 
 
 def _pieces(entries, resampled, records, stems, dt: float, context: int) -> tuple[list, list]:

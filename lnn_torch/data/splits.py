@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, is_number
 
 WINDOW = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<start>[^:\]]*):(?P<end>[^\]]*)\]$")
 
@@ -99,7 +99,7 @@ def _split_form(split):
     unknown = sorted(set(split) - {"train", "val", "test"})
     if unknown:
         raise InputError(f"split: unknown part(s) {', '.join(map(repr, unknown))} (train, val, test)")
-    if split and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in split.values()):
+    if split and all(is_number(v) for v in split.values()):
         return [float(split.get(part, 0.0)) for part in ("train", "val", "test")]
     out = {}
     for part, items in split.items():
@@ -115,8 +115,7 @@ def _split_form(split):
 def _fractions(names: list[str], split, seed: int) -> dict:
     usage = ("split must be three fractions summing to 1 ([0.7, 0.15, 0.15]) or the recordings (or windows) of "
              "each part ({train: [...], val: [...], test: [...]})")
-    if not isinstance(split, (list, tuple)) or not all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in split):
+    if not isinstance(split, (list, tuple)) or not all(is_number(x, finite=True) for x in split):
         raise InputError(f"{usage}, got {split!r}")
     fractions = [float(x) for x in split]
     if len(fractions) != 3 or any(f < 0 for f in fractions) or abs(sum(fractions) - 1) > 1e-9:

@@ -156,8 +156,8 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
     for name, x in (("t", t), ("q", q), ("qd", qd), ("tau", tau), ("qdd", qdd)):
         if x is not None and not torch.isfinite(x).all():
             raise InputError(f"the observation's {name} contains NaN or Inf")
-    dt = float(t[-1] - t[0]) / (len(t) - 1) if len(t) > 1 else 0.0  # (the mean step: stamps carry round-off)
-    if len(t) < 21 or not dt > 0 or (torch.diff(t) - dt).abs().max() > 1e-3 * dt:
+    dt = mean_step(t) if len(t) > 1 else 0.0
+    if len(t) < 21 or not dt > 0 or (torch.diff(t) - dt).abs().max() > UNIFORM * dt:
         raise InputError(f"the observation is too short or not uniformly sampled ({len(t)} points; "
                          "need >= 21 points at a constant step)")
     if system.num_inputs and tau is None:
@@ -334,6 +334,16 @@ def _gauss_newton(residuals, u, h: float, iterations: int = 6):
     return u
 
 
+# the relative spread of an observation's time steps still taken as one step (their mean, ``mean_step``): the
+# round-off of stamps (a clock written to microseconds, epoch stamps in float64)
+UNIFORM = 1e-3
+
+
+def mean_step(t) -> float:
+    """The time step of a uniformly sampled ``t``: its mean (stamps carry round-off)."""
+    return float(t[-1] - t[0]) / (len(t) - 1)
+
+
 # a direction is not identifiable when its standard deviation exceeds half the search box along it,
 # or FLAT_RATIO times the standard deviation of the best-determined direction
 FLAT_RATIO = 100.0
@@ -384,9 +394,9 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
         if J_n is not None:
             A_ns = J_n.T @ J_p
             A = A - A_ns.T @ torch.linalg.pinv(J_n.T @ J_n) @ A_ns
-        if tangents is not None and tangents[i].norm() > 0:
-            d = tangents[i] / tangents[i].norm()
-            keep = eye - torch.outer(d, d)
+        scale_dir = None if tangents is None or tangents[i].norm() == 0 else tangents[i] / tangents[i].norm()
+        if scale_dir is not None:
+            keep = eye - torch.outer(scale_dir, scale_dir)
             A = keep @ A @ keep
         s2 = float(r.pow(2).sum()) / max(n - P - (0 if J_n is None else J_n.shape[1]), 1)
         eigval, eigvec = torch.linalg.eigh(0.5 * (A + A.T))
@@ -414,7 +424,6 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
             quantities[qname] = {"value": value, "rel_std" if logarithmic else "std": std_q,
                                  "identifiable": identifiable,
                                  "coefficients": {p: float(v) for p, v in zip(names, c, strict=True) if v != 0}}
-        scale_dir = None if tangents is None or tangents[i].norm() == 0 else tangents[i] / tangents[i].norm()
         unidentifiable = [{"direction": {p: round(float(v), 3) for p, v in zip(names, eigvec[:, j], strict=True)
                                          if abs(v) > 0.05},
                            "std": float(std[j]),
@@ -452,7 +461,7 @@ def least_squares_reference(system, t, q, qd=None, tau=None, qdd=None, *, window
     Jacobian), or None where the scene has no linear form.
     """
     t, q, qd, tau, qdd = (_f64(x) for x in (t, q, qd, tau, qdd))
-    dt = float(t[-1] - t[0]) / (len(t) - 1)  # (the mean step, as identify's)
+    dt = mean_step(t)
     qd, qdd = estimate_derivatives(q[None], dt, None if qd is None else qd[None],
                                    None if qdd is None else qdd[None], derivative)
     e = min(EDGE, q.shape[0] // 10)  # as the acceleration fit: the ends left out
