@@ -100,6 +100,13 @@ def quiet_trainer(tmp_path, **kw):
     return L.Trainer(**args)
 
 
+def tiny_fit_args(data, *extra) -> list[str]:
+    """The arguments of a short ``fit`` of the quickstart config on a small generated dataset at ``data`` (20
+    trajectories of 2 s), no progress bar, then ``extra``."""
+    return ["-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={data}", "--data.spec.num_trajectories=20",
+            "--data.spec.duration=2.0", "--trainer.enable_progress_bar=false", *extra]
+
+
 def run_cli(*args, cwd):
     """``lnn-torch ARGS`` in a new process (what a user's shell runs: entry point, exit code, streams)."""
     return subprocess.run([sys.executable, "-m", "lnn_torch.cli", *args], cwd=cwd, capture_output=True, text=True,

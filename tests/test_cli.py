@@ -13,7 +13,7 @@ import torch
 from lnn_torch import LNNModule
 from lnn_torch.training.datamodule import TrajectoryDataModule
 
-from .helpers import ROOT, cli_in_process, run_cli
+from .helpers import ROOT, cli_in_process, run_cli, tiny_fit_args
 
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
@@ -113,11 +113,10 @@ def test_cli_fit_test_predict(dataset, tmp_path):
 def test_last_checkpoint_names_the_best_checkpoint_that_exists(dataset, tmp_path):
     """last.ckpt's record of the best checkpoint is the one on disk (it was written before the epoch's best was, and
     named a file the top-1 rule had deleted: a resumed run printed that path and compared against its score)."""
-    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={dataset}",
-                         "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--data.spec.seed=5",
-                         "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2",
-                         "--trainer.enable_progress_bar=false", "--trainer.max_epochs=3", "--data.steps_per_epoch=2",
-                         "--trainer.check_val_every_n_epoch=1", "--model.compile=false", cwd=tmp_path)
+    out = cli_in_process("fit", *tiny_fit_args(dataset, "--data.spec.seed=5", "--model.hidden_dims=[8,8]",
+                                               "--model.val_rollout_seconds=0.2", "--trainer.max_epochs=3",
+                                               "--data.steps_per_epoch=2", "--trainer.check_val_every_n_epoch=1",
+                                               "--model.compile=false"), cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     folder = tmp_path / "lightning_logs" / "version_0" / "checkpoints"
     last = torch.load(folder / "last.ckpt", weights_only=False)

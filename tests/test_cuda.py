@@ -14,7 +14,13 @@ from lnn_torch import load_pretrained
 from lnn_torch.networks import build_model
 from lnn_torch.systems import get_system
 
-from .helpers import ROOT, assert_fast_path_is_the_references, cli_in_process, normalized_batch, perturbed
+from .helpers import (
+    assert_fast_path_is_the_references,
+    cli_in_process,
+    normalized_batch,
+    perturbed,
+    tiny_fit_args,
+)
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 CUDA = torch.device("cuda")
@@ -123,11 +129,11 @@ def test_compiled_dynamics_on_cuda_equal_the_eager_ones():
 
 @pytest.mark.slow
 def test_fit_trains_on_the_gpu_with_the_cli(tmp_path):
-    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "quickstart.yaml"), f"--data.path={tmp_path / 'd.h5'}",
-                         "--data.spec.num_trajectories=20", "--data.spec.duration=2.0", "--model.hidden_dims=[16,16]",
-                         "--model.val_rollout_seconds=0.5", "--trainer.enable_progress_bar=false",
-                         "--trainer.accelerator=gpu", "--trainer.devices=1", "--trainer.max_steps=30",
-                         "--data.steps_per_epoch=10", "--trainer.check_val_every_n_epoch=1", cwd=tmp_path)
+    out = cli_in_process("fit", *tiny_fit_args(tmp_path / "d.h5", "--model.hidden_dims=[16,16]",
+                                               "--model.val_rollout_seconds=0.5", "--trainer.accelerator=gpu",
+                                               "--trainer.devices=1", "--trainer.max_steps=30",
+                                               "--data.steps_per_epoch=10", "--trainer.check_val_every_n_epoch=1"),
+                         cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     last = torch.load(tmp_path / "lightning_logs" / "version_0" / "checkpoints" / "last.ckpt", weights_only=False)
     assert last["global_step"] == 30
