@@ -193,6 +193,12 @@ def test_errors_name_the_files_own_lines_past_comments_and_blank_lines(tmp_path)
     path.write_text(text(T, signals(T), before=before + "\n", blank_every=10))  # a blank line before the header too
     _, lines = read_csv_table(path, ["time", "a"])
     assert lines[:3].tolist() == [5, 6, 7] and lines[10] == 16 and len(lines) == N
+    # a logger's comment line between rows (a marker) is a comment there too, and counts as a line
+    body = text(T, signals(T)).splitlines(keepends=True)
+    path.write_text("".join(body[:11] + ["# marker: payload attached\n"] + body[11:]))
+    values, lines = read_csv_table(path, ["time", "a"])
+    np.testing.assert_array_equal(values[:, 0], T)
+    assert lines[9:11].tolist() == [11, 13] and len(lines) == N
 
 
 # ---------------------------------------------------------------------------- 6. and 7. cells and columns

@@ -44,8 +44,8 @@ def _shown(sep: str) -> str:
 
 
 def read_csv_columns(path: Path, columns: list[str], delimiter: str | None = None, decimal: str = "auto") -> np.ndarray:
-    """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; comment lines starting
-    with ``#`` before the header) as float64 ``(rows, len(columns))``; errors name the file and line
+    """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; lines starting
+    with ``#`` are comments, before the header or between rows) as float64 ``(rows, len(columns))``; errors name the file and line
     (``read_csv_table`` says which; ``delimiter``, ``decimal``: as ``ImportSpec``'s)."""
     return read_csv_table(path, columns, delimiter, decimal)[0]
 
@@ -161,8 +161,8 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
         index = [header.index(c) for c in columns]
         rows, lines = [], []
         for row in reader:
-            if not row or not "".join(row).strip():
-                continue
+            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+                continue  # (a blank line, or a comment line: a logger's marker between rows)
             line = before + reader.line_num  # the file's line (the row's last, if a quoted cell spans lines)
             if len(row) > len(header) and any(cell.strip() for cell in row[len(header):]):
                 raise InputError(f"{path}: line {line}: {len(row)} cells, the header names {len(header)} (two rows "
