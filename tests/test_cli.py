@@ -90,6 +90,12 @@ def test_cli_fit_test_predict(dataset, tmp_path):
                          "--trainer.default_root_dir=judged", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "test_rollouts: 1\n" in next((tmp_path / "judged").rglob("config.yaml")).read_text()
+    # ... and so does a config file (-c) that sets one (its value was replaced by the checkpoint's)
+    (tmp_path / "judge.yaml").write_text("model:\n  test_rollouts: 2\n")
+    out = cli_in_process("test", *common, "-c", str(tmp_path / "judge.yaml"), f"--ckpt_path={ckpts[0]}",
+                         "--trainer.default_root_dir=judged_by_file", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "test_rollouts: 2\n" in next((tmp_path / "judged_by_file").rglob("config.yaml")).read_text()
     for command in ("test", "fit"):
         out = cli_in_process(command, *common, f"--ckpt_path={ckpts[0]}", "--model.lr=0.5", cwd=tmp_path)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-2000:]

@@ -45,8 +45,9 @@ def _shown(sep: str) -> str:
 
 def read_csv_columns(path: Path, columns: list[str], delimiter: str | None = None, decimal: str = "auto") -> np.ndarray:
     """The named columns of a CSV file (``.csv``, or gzip-compressed ``.csv.gz``; lines starting
-    with ``#`` are comments, before the header or between rows) as float64 ``(rows, len(columns))``; errors name the file and line
-    (``read_csv_table`` says which; ``delimiter``, ``decimal``: as ``ImportSpec``'s)."""
+    with ``#`` are comments, before the header or between rows) as float64 ``(rows, len(columns))``;
+    errors name the file and line (``read_csv_table`` says which; ``delimiter``, ``decimal``: as
+    ``ImportSpec``'s)."""
     return read_csv_table(path, columns, delimiter, decimal)[0]
 
 

@@ -21,15 +21,22 @@ class LNNCLI(LightningCLI):
 
     def _parse_ckpt_path(self) -> None:
         """Lightning reads a ``--ckpt_path`` checkpoint's hyper-parameters over the model's settings, the command
-        line's too. A setting of how the model is judged (``EVALUATION``) that the command line gives is taken
-        from it; any other (the model, its data link, its training) stays the checkpoint's, and one the command
-        line sets to another value is refused in one line (it was ignored without a word)."""
+        line's too. A setting of how the model is judged (``EVALUATION``) that the command line gives, or a
+        config file sets to other than the default, is taken from it; any other (the model, its data link, its
+        training) stays the checkpoint's, and one the command line sets to another value is refused in one
+        line (it was ignored without a word)."""
         sub = self.config.get("subcommand")
         given = [] if not sub else list(dict.fromkeys(
             arg[len("--model."):].split("=", 1)[0].split(".", 1)[0] for arg in self.argv
             if arg.startswith("--model.")))
         model = self.config[sub].get("model") if sub else None
         asked = {k: model.get(k) for k in given} if model is not None else {}
+        if model is not None:  # a config file's (-c) settings of how the model is judged, where not the defaults
+            import inspect
+
+            defaults = inspect.signature(LNNModule.__init__).parameters
+            asked.update({k: model.get(k) for k in EVALUATION if k not in asked and k in defaults
+                          and model.get(k) != defaults[k].default})
         super()._parse_ckpt_path()
         if not asked:
             return
