@@ -167,6 +167,18 @@ def test_a_misread_delimiter_or_decimal_is_named_in_one_line(tmp_path):
     np.testing.assert_array_equal(values[:, 1], signals(T)["x"])
     with pytest.raises(InputError, match="decimal ',' needs a delimiter other than ','"):
         spec(delimiter=",", decimal=",")
+    # a number written with a point in a file of decimal commas: 1.5, or 1500 with a thousands separator?
+    lines = text(T, signals(T), sep=";", decimal=",").splitlines(keepends=True)
+    lines[6] = "1.500" + lines[6][lines[6].index(";"):]
+    path.write_text("".join(lines))
+    with pytest.raises(InputError, match=r"run\.csv: line 7: column 'time': '1\.500' has a point where line 2 writes "
+                                         r"'0,0' in column 'time' with a decimal comma \(a thousands separator\?"):
+        import_recordings([path], tmp_path / "x.h5", spec())
+    path.write_text(text(T, signals(T), sep=";"))  # points alone, semicolons: read as written ...
+    values, _ = read_csv_table(path, ["time", "a"])
+    np.testing.assert_array_equal(values[:, 1], signals(T)["a"])
+    with pytest.raises(InputError, match=r"line 2: column 'time': '0\.0' has a point with decimal ','"):
+        read_csv_table(path, ["time", "a"], decimal=",")  # ... but not where decimal commas are declared
     with pytest.raises(InputError, match="delimiter must be one character"):
         spec(delimiter=";;")
 

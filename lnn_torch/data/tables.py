@@ -161,6 +161,7 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
                              "(which one is meant?): rename the others")
         index = [header.index(c) for c in columns]
         rows, lines = [], []
+        marks: dict[str, tuple] = {}  # (decimal commas) the first cell written with each mark: "." and ","
         for row in reader:
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
                 continue  # (a blank line, or a comment line: a logger's marker between rows)
@@ -172,6 +173,8 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
                 values = [_number(row[i].replace(",", ".")) if commas else _number(row[i]) for i in index]
             except (ValueError, IndexError):
                 raise InputError(_cell_error(path, line, row, header, columns, index, commas)) from None
+            if commas and len(marks) < 2:
+                _decimal_marks(marks, path, line, row, columns, index, decimal)
             bad = [c for c, v in zip(columns, values, strict=True) if not math.isfinite(v)]
             if bad:
                 raise InputError(f"{path}: line {line}: NaN or Inf in column {bad[0]!r}")
@@ -180,6 +183,23 @@ def _parse_csv(path: Path, opener, columns: list[str], delimiter: str | None,
     if len(rows) < 2:
         raise InputError(f"{path}: fewer than two data rows")
     return np.asarray(rows, dtype=np.float64), np.asarray(lines, dtype=np.int64)
+
+
+def _decimal_marks(marks: dict, path: Path, line: int, row: list[str], columns: list[str], index: list[int],
+                   decimal: str) -> None:
+    """Where commas are decimal marks, a number written with a point (``1.500``: 1.5, or a thousands separator
+    for 1500?) is refused when decimal ',' is set, or when the file writes another with a comma (``auto``)."""
+    for c, i in zip(columns, index, strict=True):
+        cell = row[i].strip()
+        for mark in ".,":
+            if mark in cell and mark not in marks:
+                marks[mark] = (line, c, cell)
+    if "." in marks and (decimal == "," or "," in marks):
+        at, c, cell = marks["."]
+        other = (f"where line {marks[','][0]} writes {marks[','][2]!r} in column {marks[','][1]!r} with a decimal "
+                 "comma" if "," in marks else "with decimal ','")
+        raise InputError(f"{path}: line {at}: column {c!r}: {cell!r} has a point {other} (a thousands separator? "
+                         "write every number with one decimal mark, or set decimal)")
 
 
 def _cell_error(path: Path, line: int, row: list[str], header: list[str], columns: list[str], index: list[int],
