@@ -227,5 +227,18 @@ def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, c
         rows = "".join(f"{x:.3f},{0.5 * np.cos(3 * x + phase):.6f},{0.4 * np.sin(3 * x + phase):.6f}\n" for x in t)
         (tmp_path / f"{name}.csv").write_text("t,theta1,theta2\n" + rows)
         assert main(["identify", "pretrained:double_pendulum", f"{name}.csv", "--starts", "1", "--steps", "20"]) == 0
-    assert (tmp_path / "identification" / "a" / "report.md").exists()
-    assert (tmp_path / "identification" / "b" / "report.md").exists()
+    assert (tmp_path / "identification" / "double_pendulum" / "a" / "report.md").exists()
+    assert (tmp_path / "identification" / "double_pendulum" / "b" / "report.md").exists()
+    # ... and per model: another model's report on the same recording goes elsewhere (it replaced this one's)
+    assert main(["identify", "pretrained:double_pendulum_box", "a.csv", "--starts", "1", "--steps", "20"]) == 0
+    assert (tmp_path / "identification" / "double_pendulum_box" / "a" / "report.md").exists()
+    assert "double_pendulum_box" not in (tmp_path / "identification" / "double_pendulum" / "a" / "report.md").read_text(
+    )
+    from types import SimpleNamespace as NS
+
+    from lnn_torch.commands.identify import _default_output
+    run = tmp_path / "lightning_logs" / "version_3" / "checkpoints"
+    assert _default_output(NS(checkpoint=str(run / "last.ckpt"), recording="data/arm.h5", split="test",
+                              trajectory=0)) == run.parent / "identification" / "arm-test-0"
+    assert _default_output(NS(checkpoint=str(run / "epoch2-err0.1.ckpt"), recording="x.csv", split="test",
+                              trajectory=0)) == run.parent / "identification" / "epoch2-err0.1" / "x"

@@ -206,6 +206,9 @@ def test_identify_finds_the_arms_feedback_on_its_measured_velocity(learned, tmp_
     assert main(["identify", ckpt, str(data), "--feedback", "-o", str(tmp_path / "id")]) == 0
     result = json.loads((tmp_path / "id" / "identification.json").read_text())
     rows = result["rows"]
+    # not the model's own dataset (another recording of the arm): said, as the fits and the excitation are its
+    assert result["note"].startswith(f"{data} is not the dataset this model was trained on (")
+    assert "Note: " in (tmp_path / "id" / "report.md").read_text()
     # each recording of the split on its own too (the measure: every held-out log), in the report as well
     per = result["per_recording"]
     assert list(per) == ["arm[3.5:3.7]", "arm[3.7:3.9]"], list(per)
@@ -323,6 +326,7 @@ def test_identify_compares_the_model_on_a_new_log_with_the_load_identified_again
     assert main(["identify", ckpt, str(data), "--feedback", "-o", str(tmp_path / "id")]) == 0
     printed = capsys.readouterr().out
     assert "the model carries the loads the import left unknown as identified against it" in printed
+    assert "not the dataset this model was trained on" not in printed  # (its own)
     result = json.loads((tmp_path / "id" / "identification.json").read_text())
     assert result["tools"]["tools"]["load"]["from"] == "this split's recordings"
     tool = result["tools"]["tools"]["load"]["parameters"]

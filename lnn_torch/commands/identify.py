@@ -23,7 +23,7 @@ The recording is a trajectory of a dataset file (``--split``, ``--trajectory``; 
 the true parameters, and the report gives the errors) or a CSV file (a time column and a column per
 coordinate, optionally velocities and inputs; lines starting with ``#`` are comments). Writes
 ``identification.json``, ``report.md`` and ``fit.png`` (observed and re-simulated coordinates) to
-``--output-dir``.
+``--output-dir`` (default: per model and recording, ``_default_output``).
 """
 
 from __future__ import annotations
@@ -90,8 +90,10 @@ def _parser() -> argparse.ArgumentParser:
                           "per joint on the recorded velocity above the targets' band, fitted on the training split, "
                           "kept where the validation split prefers it; lnn_torch.identification.velocity_feedback)")
     ap.add_argument("--output-dir", "-o", default=None,
-                    help="where the report goes (default: identification/<recording>, with the split and trajectory "
-                         "of a dataset file, so that identifying another recording keeps this one's report)")
+                    help="where the report goes (default: per model and recording, so that another model or "
+                         "recording keeps this one's report: <run>/identification/<recording> beside a fit's "
+                         "checkpoints folder, identification/<name>/<recording> for pretrained:<name>; the split "
+                         "and trajectory of a dataset file after its name)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the fit's operations are small)")
     return ap
 
@@ -269,6 +271,9 @@ def _identify_arm(module, args) -> int:
                      + f"):\n\n{markdown(own)}\n\n")
         text += _tools_markdown(tools)
     else:
+        other = _other_data(args.checkpoint, path)
+        if other:
+            print(f"note: {other}")
         val = dm.trajectories("val") if "val" in dm.split_names() else None  # the consistent fit's prior's choice
         # standard errors over blocks of the filtered residuals' correlation time (as the tools' at import), in
         # the points fitted (every 2nd)
@@ -307,11 +312,36 @@ def _identify_arm(module, args) -> int:
                 + "## What the training recordings determine "
                 f"(ordinary least squares)\n\n{uncertainty_markdown(result['uncertainty'])}\n"
                 + ("\n" + _tools_markdown(tools) if tools else ""))
+        if other:
+            result["note"], text = other, text.replace("\n\n", f"\n\nNote: {other}\n\n", 1)
     (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
     (out / "report.md").write_text(text)
     print(text)
     print(f"wrote {out / 'identification.json'}, {out / 'report.md'}")
     return 0
+
+
+def _other_data(checkpoint: str, path: Path) -> str | None:
+    """A sentence where ``path`` is not the dataset the model was trained on (another file, or the same name
+    holding other recordings), else None: the classical fits and what the data determine are then another
+    dataset's than the model's."""
+    from ..data import read_dataset
+    from ..training.checkpoint_format import data_hparams
+
+    trained = data_hparams(checkpoint).get("path")
+    if not trained:
+        return None
+    ours = Path(trained)
+    if ours.exists():
+        if ours.resolve() == Path(path).resolve():
+            return None
+        a, b = read_dataset(ours), read_dataset(path)  # (a copy or a move of the same file is the same data)
+        if a.attrs.get("recordings") == b.attrs.get("recordings") and a.read("q").shape == b.read("q").shape:
+            return None
+    elif Path(trained).name == Path(path).name:
+        return None  # (the model's file is not here: the same name is taken for it)
+    return (f"{path} is not the dataset this model was trained on ({trained}): the classical fits and what the "
+            "training recordings determine are this file's training split's, and the model's start its own data's")
 
 
 def _priors_line(fits: dict) -> str:
@@ -460,12 +490,21 @@ def _model_start(module) -> str:
 
 
 def _default_output(args) -> Path:
-    """``identification/<recording stem>`` (``-<split>-<trajectory>`` for a dataset file)."""
+    """Per model and recording: ``<run>/identification/<recording stem>`` beside a run's checkpoints folder
+    (``<run>/identification/<checkpoint stem>/...`` for a checkpoint other than ``last.ckpt``), or
+    ``identification/<name>/...`` for ``pretrained:<name>``; ``-<split>-<trajectory>`` after the stem of a
+    dataset file."""
+    from ..training.checkpoint_format import output_dir
+
     path = Path(args.recording)
     stem = path.name.split(".")[0]
     if path.suffix in (".h5", ".hdf5"):
         stem += f"-{args.split}-{args.trajectory}"
-    return Path("identification") / stem
+    folder = output_dir(args.checkpoint, None, "identification")
+    checkpoint = Path(str(args.checkpoint)).stem
+    if not str(args.checkpoint).startswith("pretrained:") and checkpoint != "last":
+        folder = folder / checkpoint
+    return folder / stem
 
 
 def _unit(coefficients: dict, system) -> str:
