@@ -232,8 +232,8 @@ def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, c
     # ... and per model: another model's report on the same recording goes elsewhere (it replaced this one's)
     assert main(["identify", "pretrained:double_pendulum_box", "a.csv", "--starts", "1", "--steps", "20"]) == 0
     assert (tmp_path / "identification" / "double_pendulum_box" / "a" / "report.md").exists()
-    assert "double_pendulum_box" not in (tmp_path / "identification" / "double_pendulum" / "a" / "report.md").read_text(
-    )
+    first = (tmp_path / "identification" / "double_pendulum" / "a" / "report.md").read_text()
+    assert "double_pendulum_box" not in first
     from types import SimpleNamespace as NS
 
     from lnn_torch.commands.identify import _default_output
