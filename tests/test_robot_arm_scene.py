@@ -389,9 +389,10 @@ def _description(tmp_path, text, name="bad.xml"):
 @pytest.mark.parametrize("edit, message", [
     (('<inertial mass="3.228604" pos="2.7518e-2 3.9252e-2 -6.6502e-2" fullinertia="3.7242e-2 3.6155e-2 1.083e-2 '
       '-4.761e-3 -1.1396e-2 -1.2805e-2" />', ""),
-     r"mass and inertia of moving bodies must be larger than mjMINVAL \(Element name 'link3'"),
+     r"body 'link3' moves but has no mass or inertia \(give it an <inertial>"),
     (('<joint name="joint3" />', '<joint name="joint3" type="slide" />'),
-     "joint 'joint3' is a slide joint; only hinge joints are supported"),
+     r"joint 'joint3' is a slide joint; only hinge joints are supported \(a gripper's finger: leave its body out, "
+     r"remove: \[link3\]"),
     (('<joint name="joint7" />', '<joint name="joint7" type="ball" range="0 1" />'),
      "joint 'joint7' is a ball joint; only hinge joints are supported"),
     (('<body name="link0" childclass="panda">', '<body name="link0" childclass="panda"><freejoint name="base" />'),
@@ -402,7 +403,7 @@ def _description(tmp_path, text, name="bad.xml"):
      r"the kinematic tree branches at body 'link6' \(joint 'joint7' does not continue the chain after joint "
      r"'spare_joint'\)"),
     (('<inertial mass="3.228604"', '<inertial mass="0"'),
-     r"mass and inertia of moving bodies must be larger than mjMINVAL \(Element name 'link3'"),
+     r"body 'link3' moves but has no mass or inertia \(give it an <inertial>"),
 ])
 def test_a_bad_description_is_refused_in_one_line(tmp_path, edit, message):
     old, new = edit

@@ -223,6 +223,17 @@ def test_mujoco_from_the_written_urdf_is_the_grey_box(tmp_path, float64):
     assert json.loads(mjcf.sidecar.read_text())["format"] == "mjcf"
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["two_identified.urdf", "two_identified.urdf.json",
                                                                     "two_identified.xml", "two_identified.xml.json"]
+    assert not [n for n in mjcf.notes if "elements are not in the MJCF" in n]
+    # a URDF's elements MuJoCo does not read (a transmission, Gazebo's tags): the URDF write-back keeps them, the
+    # MJCF says it has not
+    extra = ('  <transmission name="t1"><type>transmission_interface/SimpleTransmission</type>'
+             '<joint name="j1"/></transmission>\n  <gazebo reference="l1"><material>Gazebo/Grey</material></gazebo>\n'
+             '  <gazebo/>\n</robot>')
+    source.write_text(TWO_LINK_URDF.replace("</robot>", extra))
+    kept = wb.write_description(model, tmp_path / "more" / "two.urdf", payload=PAYLOAD)
+    assert "<transmission name=\"t1\">" in kept.path.read_text() and "Gazebo/Grey" in kept.path.read_text()
+    mjcf = wb.write_description(model, tmp_path / "more" / "two.xml", "mjcf", payload=PAYLOAD)
+    assert "the URDF's <gazebo> (2), <transmission> (1) elements are not in the MJCF" in " ".join(mjcf.notes)
 
 
 def test_a_urdf_whose_meshes_are_not_there_is_written_back_with_them(tmp_path, float64):
@@ -297,7 +308,16 @@ def test_what_mujoco_cannot_express_is_listed(tmp_path, float64):
     rigid body is still written exactly."""
     model = _grey_box("franka_panda", friction="viscous+coulomb+offset+stribeck+sigmoid", dissipation="joint+rayleigh",
                       residual_force={}, learn_input_matrix="gains")
+    # a residual at its start (its output layer zero) is nothing left out: said so, not listed
+    zero = wb.write_description(model, tmp_path / "zero.xml")
+    assert "force residual" not in [line.split(":")[0] for line in zero.unexpressed]
+    assert any("force residual is zero" in n for n in zero.notes), zero.notes
+    assert not [n for n in zero.notes if "depend on the payload" in n]  # (its coefficients do not, yet)
+    with torch.no_grad():
+        model.forces.residual.output_layer[1].fill_(0.01)  # ... a learned one is
+        model.forces.coefficient_net[-1].weight.fill_(0.01)  # and coefficients that depend on the payload are said
     result = wb.write_description(model, tmp_path / "arm.xml")
+    assert any("depend on the payload: written at no payload" in n for n in result.notes), result.notes
     terms = [line.split(":")[0] for line in result.unexpressed]
     assert terms == ["Coulomb smoothing", "friction offset", "Stribeck friction", "sigmoid friction",
                      "Rayleigh damping", "force residual", "input gains"], terms
@@ -398,6 +418,7 @@ def test_an_mjcf_as_the_robot_is_written_as_compiled(tmp_path, float64):
     assert (arm.model.nu, arm.model.nsensor, arm.model.nexclude) == (2, 1, 0)
     assert '<include file="../src/defaults.xml"/>' in result.path.read_text()  # closed as the file closes them
     assert "hand" not in arm.body_names and {"payload", "tool"} <= set(arm.body_names)
+    assert any(n.startswith("the bodies the model's description removes (hand)") for n in result.notes), result.notes
 
 
 def test_a_wrong_frame_conversion_is_caught(tmp_path, float64, monkeypatch):

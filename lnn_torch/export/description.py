@@ -65,6 +65,7 @@ import os
 import re
 import warnings
 import xml.etree.ElementTree as ET
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -220,15 +221,21 @@ def _from_grey_box(m, row) -> IdentifiedArm:
             unexpressed += _drive_terms(forces.drive, coef, joints, stiction=forces.stiction,
                                         stick_velocity=forces.stick_velocity)
             if hasattr(forces, "coefficient_net") and P:
-                notes.append("the friction coefficients depend on the payload: written at "
-                             + ("the payload given" if row is not None else "no payload"))
+                other = forces.drive_coefficients(m.normalizer.params((params + 1.0).to(dtype)))
+                if any(not torch.equal(v.reshape(-1, v.shape[-1])[0].double().cpu(), torch.as_tensor(coef[k]))
+                       for k, v in other.items() if k in coef):
+                    notes.append("the friction coefficients depend on the payload: written at "
+                                 + ("the payload given" if row is not None else "no payload"))
         if forces is not None and forces.rayleigh is not None:
             unexpressed.append({"term": "Rayleigh damping", "why": "a learned state-dependent damping matrix "
                                 "R(q, qd) qd (dissipation joint+rayleigh); no joint damping expresses it",
                                 "values": None})
         if forces is not None and forces.residual is not None:
-            unexpressed.append({"term": "force residual", "why": "a learned generalised force Q_r(q, qd) (option "
-                                "residual_force); not written", "values": None})
+            if any(bool(p.any()) for p in forces.residual.output_layer):
+                unexpressed.append({"term": "force residual", "why": "a learned generalised force Q_r(q, qd) "
+                                    "(option residual_force); not written", "values": None})
+            else:  # (its output layer at zero: validation kept a state without it)
+                notes.append("the model's force residual is zero (its output layer at zero): nothing left out")
         if forces is not None and forces.num_inputs:
             gains = forces.input_gains()
             if gains is not None:
@@ -1001,6 +1008,11 @@ def _urdf_as_mjcf(source, path: Path, ident: IdentifiedArm, *, payload, descript
             more = ", ..." if len(dropped) > 1 else ""
             notes.append(f"{len(dropped)} mesh file(s) not found here ({dropped[0]}{more}): their geoms are left out "
                          "of the MJCF (the dynamics do not depend on them)")
+        others = Counter(el.tag for el in _parse(urdf.read_text()) if isinstance(el.tag, str)
+                         and el.tag not in ("link", "joint", "material"))
+        if others:
+            notes.append("the URDF's " + ", ".join(f"<{tag}> ({n})" for tag, n in sorted(others.items()))
+                         + " elements are not in the MJCF (MuJoCo does not read them; --format urdf keeps them)")
         record.update({"written": path.name, "format": "mjcf", "not_expressed": unexpressed, "notes": notes,
                        "check": None if rel is None else {"largest_relative_difference": rel, "bound": CHECK_RTOL}})
         sidecar = path.with_name(path.name + ".json")
@@ -1182,6 +1194,10 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
             raise InputError(f"write-back: {src} has no body '{name}' to remove")
         spec.delete(body)
     plan, notes = _plan(ident, nominal)
+    if desc.remove:
+        notes.append(f"the bodies the model's description removes ({', '.join(desc.remove)}) and all that hangs from "
+                     "them are not in the written file, as the model has none (where the recordings were logged "
+                     "with them on, what they weigh is in the links they hang from: putting them back counts it twice)")
     missing = sorted(set(missing_meshes(spec).values()))
     if missing:
         notes.append(f"{len(missing)} mesh file(s) the description names are not found here ({missing[0]}"

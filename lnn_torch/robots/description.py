@@ -23,6 +23,7 @@ copy, a warning says so.
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -172,6 +173,11 @@ class ArmDescription:
         except ValueError as err:
             first, *where = str(err).splitlines()
             where = f" ({', '.join(w.strip() for w in where if w.strip())})" if any(w.strip() for w in where) else ""
+            body = re.search(r"Element name '([^']*)'", where)
+            if "mjMINVAL" in first and "moving bodies" in first and body:  # (MuJoCo's words for a massless link)
+                raise InputError(f"robot description {path}: body '{body.group(1)}' moves but has no mass or "
+                                 "inertia (give it an <inertial>; a link between two joints too, e.g. 1 g and "
+                                 "1e-6 kg m^2: the fit identifies what it carries)") from None
             raise InputError(f"robot description {path} as changed ({self}): {first}{where}") from None
         if self.source not in DESCRIPTIONS:  # what a checkpoint of a model built now carries (compiled_copies)
             _BUILT[self.to_json()] = _mjb(model)

@@ -488,9 +488,11 @@ def _check_serial_arm(m, path) -> None:
                   int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
     for j in range(m.njnt):
         if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
+            body = name(mujoco.mjtObj.mjOBJ_BODY, int(m.jnt_bodyid[j]))
             raise InputError(f"robot description {path}: joint '{name(mujoco.mjtObj.mjOBJ_JOINT, j)}' is a "
-                             f"{joint_type.get(int(m.jnt_type[j]), 'non-hinge')} joint; "
-                             "only hinge joints are supported")
+                             f"{joint_type.get(int(m.jnt_type[j]), 'non-hinge')} joint; only hinge joints are "
+                             f"supported (a gripper's finger: leave its body out, remove: [{body}], and the link it "
+                             "hangs from takes up its mass)")
     if m.nv == 0:
         raise InputError(f"robot description {path} has no joints: a serial arm of hinge joints is expected")
     for i in range(1, m.nv):  # in a serial chain each joint hangs from the one before it
