@@ -120,6 +120,15 @@ def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(caps
     selection.update(step=1000, value=0.1334)  # the best checkpoint is the kept state: called so
     FitSummary().on_fit_end(trainer, module)
     assert "best validation checkpoint: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt" in capsys.readouterr().out
+    # the start kept though worse pooled (a later state was worse on one validation recording): the best checkpoint
+    # is not called the best, nor the state kept
+    selection.update(step=0, value=0.1391)
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "best validation checkpoint" not in out
+    assert ("lowest validation error of the steps trained: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt "
+            "(val/torque_rms 0.1334; not the state the run keeps, in the last checkpoint: below)") in out
+    assert "the run ends with the state at step 0 (val/torque_rms 0.1391)" in out
 
 
 def test_the_printed_test_command_keeps_the_fits_data_and_run_folder():

@@ -139,6 +139,12 @@ class FitSummary(L.Callback):
                 lines.append(f"  best checkpoint of the steps trained: {path(keeper.best_model_path)} "
                              f"({keeper.monitor} {float(best):.4g}; the state the run keeps, in the last checkpoint, "
                              "is better)")
+            elif selection is not None and best is not None and selection["value"] > float(best) * (1 + 1e-6):
+                # the lowest pooled error is not the state kept (one worse on a validation recording of its own;
+                # 1e-6: the float32 score of the same state)
+                lines.append(f"  lowest validation error of the steps trained: {path(keeper.best_model_path)} "
+                             f"({keeper.monitor} {float(best):.4g}; not the state the run keeps, in the last "
+                             "checkpoint: below)")
             else:
                 lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
         if selection is not None and selection["step"] != trainer.global_step:
