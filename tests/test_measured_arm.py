@@ -258,6 +258,7 @@ def test_identify_returns_the_load_a_new_recording_carries(learned, tmp_path, ca
     assert abs(got[0] / load[0] - 1) < 0.02 and np.abs(np.subtract(got[1:], load[1:])).max() < 5e-3, got
     assert tool["recordings"] == ["new"] and "the model's arm" in result["tools"]["against"]
     assert "no training split" in result["comparison"] and "Loads identified against the model" in printed
+    assert "they hold the torque noise, not what the fit leaves out (a point tool's own inertia" in printed
     assert "rows" not in result  # a model of the bare arm cannot carry the load: no error of its own
     # a new log without a load, imported alone: no classical comparison, the model's own error all the same
     alone = dataclasses.replace(spec, parameters=None, split={"train": [], "val": [], "test": ["bare"]})

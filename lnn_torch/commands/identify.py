@@ -431,7 +431,8 @@ def _tools_markdown(tools: dict | None) -> str:
              "validation recordings carry from those (every few samples where they are long), a tool only this "
              "split carries from its own recordings; "
              f"intervals cluster-robust over {tools['block_samples']}-sample blocks, taking the model's arm as "
-             "exact.\n"]
+             "exact: they hold the torque noise, not what the fit leaves out (a point tool's own inertia, friction "
+             "the model lacks, e.g. growing with the load), which can shift the values by more.\n"]
     for name, tool in tools["tools"].items():
         rows = []
         for k, (key, p) in enumerate(tool["parameters"].items()):
