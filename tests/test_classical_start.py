@@ -338,3 +338,29 @@ def test_a_choice_is_taken_only_where_it_validates_better_beyond_chance():
     assert not _beyond_chance(default, noisy)
     short = default[: 2 * CHANCE_BLOCKS - 1]
     assert not _beyond_chance(short, 0.5 * short)
+
+
+def test_the_classical_starts_warnings_of_poor_excitation_are_one():
+    """Each candidate fit of the classical start warns of a poorly excited regressor (its own condition number):
+    the fit says it once, with their range and count; other warnings pass as they were."""
+    import warnings
+
+    from lnn_torch.errors import UntrustedParameterWarning
+    from lnn_torch.training.module import _warn_once_of_excitation
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for number in (1.07e3, 2.5e5, 1.5e7):
+            warnings.warn(f"classical identification: the recordings excite the model poorly (condition number "
+                          f"{number:.3g} of the scaled regressor, above 1000)", UntrustedParameterWarning,
+                          stacklevel=1)
+        warnings.warn("something else", UserWarning, stacklevel=1)
+    with warnings.catch_warnings(record=True) as again:
+        warnings.simplefilter("always")
+        _warn_once_of_excitation(caught)
+    messages = [str(w.message) for w in again]
+    assert len(messages) == 2 and "something else" in messages, messages
+    poor = [m for m in messages if "excite" in m]
+    assert poor == ["classical start: the training recordings excite the model poorly (condition number 1.07e+03 to "
+                    "1.5e+07 of the scaled regressor in 3 of its candidate fits): the base parameters are uncertain; "
+                    "record a more exciting trajectory (lnn-torch identify lists what they determine)"], poor

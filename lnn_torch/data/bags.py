@@ -684,7 +684,8 @@ def delay_lines(report: dict, mode: str, applied: float | None) -> list[str]:
         if "skipped" in r:
             parts.append(f"{r['name']} not estimated ({r['skipped']})")
         else:
-            edge = " (at the edge of the range searched: widen torque_delay_range)" if r["at_edge"] else ""
+            edge = (" (at the edge of the range searched: widen torque_delay_range, or the recording excites the arm "
+                    "too little to tell a delay)" if r["at_edge"] else "")
             halves = ", ".join(f"{1e3 * x:+.1f}" for x in r["halves_s"])
             parts.append(f"{r['name']} {delay(r)}{edge} (halves {halves} ms; residual {r['rms_zero']:.4g} -> "
                          f"{r['rms_delay']:.4g}{unit} rms)")

@@ -388,7 +388,10 @@ class LNNModule(L.LightningModule):
         print(f"classical start: least squares on {every} of {points} training samples"
               + (", its settings chosen on the validation split" if val is not None else "")
               + " (seconds to minutes for long recordings) ...", flush=True)
-        self.classical_start = start_from_classical(self.model, self.system, train, val)
+        with warnings.catch_warnings(record=True) as caught:  # each candidate fit warns of poor excitation: once
+            warnings.simplefilter("always")
+            self.classical_start = start_from_classical(self.model, self.system, train, val)
+        _warn_once_of_excitation(caught)
         s = self.classical_start
         scores = s["validation_rms_mean"]
         chosen = "" if scores is None else (f", chosen on validation ({scores[format(s['prior'], 'g')]:.4g} N m there, "
@@ -527,3 +530,23 @@ class LNNModule(L.LightningModule):
         return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
                 "qdd_true": batch["qdd"], "qdd_pred": pred}
 
+
+def _warn_once_of_excitation(caught) -> None:
+    """Re-issue ``caught`` warnings, those of the classical start's candidate fits on poor excitation (one each, the
+    condition numbers of their regressors) as one: the range of condition numbers and how many fits warned."""
+    import re
+
+    from ..errors import UntrustedParameterWarning
+
+    poor = [w for w in caught if issubclass(w.category, UntrustedParameterWarning) and "excite the model poorly"
+            in str(w.message)]
+    for w in caught:
+        if w not in poor:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if poor:
+        found = [float(m.group(1)) for w in poor if (m := re.search(r"condition number ([0-9.e+-]+)", str(w.message)))]
+        numbers = f"{min(found):.3g}" if len(set(found)) == 1 else f"{min(found):.3g} to {max(found):.3g}"
+        warnings.warn(f"classical start: the training recordings excite the model poorly (condition number {numbers} "
+                      f"of the scaled regressor in {len(poor)} of its candidate fits): the base parameters are "
+                      "uncertain; record a more exciting trajectory (lnn-torch identify lists what they determine)",
+                      UntrustedParameterWarning, stacklevel=3)
