@@ -75,6 +75,21 @@ def test_the_faces_agree_on_the_descriptions_damping_and_inverse_dynamics(faces,
         assert _rel(rebuilt, face.inverse(q, qd, qdd, payload)) < 1e-12
 
 
+def test_the_module_has_the_networks_whole_face_residual_included(faces, states):
+    """Every quantity of the convention (``lnn_torch.networks.rigid_body``) on the module as on its network: the
+    force residual too (zero without one), with the module's checked inputs."""
+    from lnn_torch.errors import InputError
+
+    q, qd, payload = states
+    module, network = faces["module"], faces["network"]
+    with torch.no_grad():
+        for name, args in (("friction", (q, qd, payload)), ("residual_force", (q, qd, payload))):
+            torch.testing.assert_close(getattr(module, name)(*args), getattr(network, name)(*args), rtol=0, atol=0)
+        assert module.residual_force(q, qd, payload).abs().max() == 0  # (no residual in this model)
+    with pytest.raises(InputError, match="params"):
+        module.residual_force(q, qd, payload[:, :3])
+
+
 def test_a_wrong_face_is_seen():
     """The comparison can fail: a classical model of a heavier arm differs by far more than the bound."""
     from lnn_torch.identification import ArmModel

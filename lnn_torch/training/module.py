@@ -271,6 +271,11 @@ class LNNModule(L.LightningModule):
         self.system.check_inputs(q, qd, params, inputs="skip")
         return self.model.friction(q, qd, params)
 
+    def residual_force(self, q, qd, params) -> torch.Tensor:
+        """``Q_r (B, dof)``: the learned force residual in SI (zero without one)."""
+        self.system.check_inputs(q, qd, params, inputs="skip")
+        return self.model.residual_force(q, qd, params)
+
     def identify(self, t, q, qd=None, tau=None, qdd=None, **options):
         """The parameters that best explain ONE observed trajectory: ``lnn_torch.identification.learned.identify``."""
         return identify(self.model, self.system, t, q, qd, tau, qdd, **options)
