@@ -273,8 +273,14 @@ def test_angles_wrapped_into_one_turn_are_made_continuous_and_a_wrong_angle_unit
                  "x", "--angle-mask", "1", "0", "--inputs", "ta", "fx", "--split", "1", "0", "0"]) == 0
     printed = capsys.readouterr().out
     assert "run.csv: angle a wraps into one turn (6 jumps of a whole turn between two rows): made continuous" in printed
-    assert "note: the angles move" not in printed
+    assert "note: the angles move" not in printed and "empty" not in printed  # (split 1 0 0: as asked)
     got = arrays(tmp_path / "w.h5")
+    # a recording alone under the default fractions: validation and test are empty, and the import says how to split
+    assert main(["import", str(wrapped), "-o", str(tmp_path / "one.h5"), "--angle-units", "deg", "--coordinates",
+                 "a", "x", "--angle-mask", "1", "0", "--inputs", "ta", "fx"]) == 0
+    assert ("note: the fractions [0.7, 0.15, 0.15] of 1 recording leave validation and test empty (fractions split "
+            "whole recordings): split recordings in time with windows, e.g. split: {train: ['run[0:60]'], val: "
+            "['run[60:80]'], test: ['run[80:]']} (seconds)") in capsys.readouterr().out
     np.testing.assert_allclose(got["q"], want["q"], rtol=0, atol=1e-9)
     assert np.abs(np.diff(got["q"][0, :, 0])).max() < 0.05
     assert main(["import", str(continuous), "-o", str(tmp_path / "r.h5"), "--coordinates", "a", "x", "--angle-mask",

@@ -264,6 +264,25 @@ def recording_paths(patterns: list[str]) -> list[str]:
     return sorted(out)
 
 
+def empty_split_note(split, f, names: list[str]) -> str | None:
+    """A note where a split given a fraction holds no recording (too few recordings for the fractions), or None."""
+    from ..errors import is_number
+
+    if isinstance(split, dict) and all(is_number(v) for v in split.values()):  # fractions by name
+        split = [split.get(part, 0.0) for part in ("train", "val", "test")]
+    if not isinstance(split, (list, tuple)):
+        return None
+    empty = [part for part, fraction in zip(("train", "val", "test"), split, strict=False)
+             if float(fraction) > 0 and not len(f.splits.get(part, ()))]
+    if not empty:
+        return None
+    first = names[0] if names else "NAME"
+    return (f"note: the fractions {list(split)} of {len(names)} recording{'s' if len(names) != 1 else ''} leave "
+            f"{' and '.join({'val': 'validation', 'test': 'test'}.get(p, p) for p in empty)} empty (fractions split "
+            f"whole recordings): split recordings in time with windows, e.g. split: {{train: ['{first}[0:60]'], "
+            f"val: ['{first}[60:80]'], test: ['{first}[80:]']}} (seconds)")
+
+
 def main(argv: list[str]) -> int:
     from ..data import read_dataset
     from ..data.bags import delay_lines
@@ -289,7 +308,7 @@ def main(argv: list[str]) -> int:
 
         for line in tool_lines(provenance["tools"]):
             print(line)
-    for note in (slow_sampling_note(provenance), fast_angles_note(provenance)):
+    for note in (slow_sampling_note(provenance), fast_angles_note(provenance), empty_split_note(spec.split, f, names)):
         if note:
             print(note)
     print(f"wrote {path} ({f.num_trajectories} recordings, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
