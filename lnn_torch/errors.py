@@ -67,8 +67,9 @@ class UnknownNameError(InputError, KeyError):
 
 
 class UntrustedParameterWarning(UserWarning):
-    """Parameters given to a model lie beyond its trusted range (``Normalizer.TRUST`` standard
-    deviations of its training parameters): the model conditions on the nearest trusted values."""
+    """Parameters given to a model lie beyond the range it was trained on (``Normalizer.EXTRAPOLATION``
+    standard deviations of its training parameters: its answers there are extrapolation); beyond its
+    trusted range (``Normalizer.TRUST``) the model conditions on the nearest trusted values."""
 
 
 class SingularHessianError(RuntimeError):

@@ -64,6 +64,26 @@ def test_normalisation_comes_from_the_training_split_only(dataset):
     np.testing.assert_array_equal(stats["params"].numpy(), f.read("params")[f.splits["train"]])
 
 
+def test_nan_in_the_training_split_is_refused_naming_the_field(dataset, tmp_path):
+    """NaN within a training recording made the normaliser NaN, every training step skipped and the model (all
+    its predictions NaN) score 0 % on validation: the training data are refused in one line instead."""
+    import shutil
+
+    import h5py
+
+    from lnn_torch.errors import InputError
+
+    copy = tmp_path / "nan.h5"
+    shutil.copy(dataset, copy)
+    first = int(read_dataset(dataset).splits["train"][0])
+    with h5py.File(copy, "r+") as f:
+        f["qdd"][first, 10:13] = np.nan
+    with pytest.raises(InputError, match=r"nan\.h5: the training split holds NaN or Inf in 'qdd' at 3 of its \d+ "
+                                         r"points \(within the recordings' lengths\): mend or drop them") as err:
+        make_dm(copy).normalization_data()
+    assert "\n" not in str(err.value)
+
+
 def test_a_file_from_another_spec_is_used_with_a_warning(dataset):
     dm = make_dm(dataset, spec=dict(SPEC, num_trajectories=30))
     with pytest.warns(UserWarning, match="num_trajectories: file 20 vs config 30"):

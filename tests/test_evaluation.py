@@ -20,6 +20,25 @@ def trajectories(tmp_path_factory):
     return read_dataset(path).trajectories("train")
 
 
+def test_a_non_finite_prediction_is_an_infinite_error():
+    """A model whose predictions are NaN (every one, or some) must not score well: the totals are infinite, each
+    trajectory holding one too, and the fraction of such points is counted; padding (NaN targets) is no point."""
+    from lnn_torch.evaluation.metrics import acceleration_errors
+
+    true = torch.randn(4, 10, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    true[3, 7:] = float("nan")  # a shorter recording's padding
+    exact = acceleration_errors(true.clone(), true)
+    assert exact["total"] == 0 and exact["per_trajectory_median"] == 0 and exact["non_finite_fraction"] == 0
+    nan = acceleration_errors(torch.full_like(true, float("nan")), true)
+    assert nan["total"] == nan["q0"] == nan["per_trajectory_median"] == float("inf")
+    assert nan["non_finite_fraction"] == 1.0
+    some = true.clone()
+    some[0, 2, 1] = float("nan")
+    one = acceleration_errors(some, true)
+    assert one["total"] == float("inf") and one["per_trajectory_median"] == 0
+    assert one["per_trajectory_p90"] == float("inf") and one["non_finite_fraction"] == pytest.approx(1 / 37)
+
+
 def test_closed_form_through_the_pipeline_is_exact(trajectories):
     """The scene's own dynamics through evaluate_model: zero acceleration error, no divergence over
     the horizon, energy drift at the integrator's level; a coarser and a finer step than the data's

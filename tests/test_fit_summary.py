@@ -137,3 +137,20 @@ def test_the_printed_test_command_keeps_the_fits_data_and_run_folder():
     argv = ["-c", "configs/real_panda.yaml", "--data.path", "data/my arm.h5", "--trainer.default_root_dir=runs/fit",
             "--trainer.max_steps", "10"]
     assert data_options(argv) == ["--data.path='data/my arm.h5'", "--trainer.default_root_dir=runs/fit"]
+
+
+def test_skipped_steps_are_said_and_a_run_that_never_trained_too(capsys):
+    """Steps skipped for a non-finite loss or gradient (``callbacks.SkipNonFiniteSteps``) are counted in the summary;
+    all of them: the model never trained (NaN in the data made every step so, and validation scored it 0 %)."""
+    trainer = stand_in_trainer({"val/acc_rel_err": 0.1}, 150)
+    module = SimpleNamespace(system=SimpleNamespace(coord_names=None), hparams={}, skipped_steps=torch.tensor(150))
+    FitSummary().on_fit_end(trainer, module)
+    assert ("warning: 150 of 150 steps skipped (a non-finite loss or gradient: the weights left as they were); the "
+            "model never trained") in capsys.readouterr().out
+    module.skipped_steps = torch.tensor(3)
+    FitSummary().on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "warning: 3 of 150 steps skipped" in out and "never trained" not in out
+    module.skipped_steps = torch.tensor(0)
+    FitSummary().on_fit_end(trainer, module)
+    assert "skipped" not in capsys.readouterr().out

@@ -403,8 +403,8 @@ def test_the_trusted_range_settled_from_the_extremes_equals_the_exact_check():
     model = fresh_model("film_lnn")
     norm = model.normalizer
     names, units = ["m1", "m2", "l1", "l2"], ["kg", "kg", "m", "m"]
-    low, high = (x.double() for x in norm.trusted_range())
-    inside = torch.tensor([[1.0, 0.8, 1.2, 1.1], [0.9, 1.1, 1.0, 0.7]], dtype=torch.float64)
+    low, high = (x.double() for x in norm._bounds(norm.EXTRAPOLATION))  # (where it warns; trusted goes further)
+    inside = torch.tensor([[1.0, 0.8, 1.2, 1.1], [0.9, 1.1, 1.0, 0.9]], dtype=torch.float64)
     cases = [inside]
     for bound, factor in ((high, 1 - 1e-12), (high, 1 + 1e-6), (low, 1 + 1e-12), (low, 1 - 1e-6), (high, 50.0)):
         for i in range(4):
@@ -441,8 +441,24 @@ def test_parameters_beyond_the_trusted_range_condition_on_its_bound_with_a_warni
         model.acceleration(q, qd, inside)
     far, bound = inside.clone(), inside.clone()
     far[0, 2], bound[0, 2] = 50 * float(high[2]), float(high[2])
-    with pytest.warns(UntrustedParameterWarning, match=r"l1 = [\d.]+ m \(trusted [\d.]+ to [\d.]+\)"):
+    with pytest.warns(UntrustedParameterWarning, match=r"l1 = [\d.]+ m \(trusted [\d.]+ to [\d.]+\); beyond 8 "
+                                                       r"standard deviations \(trusted\) the model is conditioned"):
         a_far = model.acceleration(q, qd, far)
+    # beyond the range it was trained on (3 standard deviations) but trusted: extrapolation, said so (unclamped)
+    near_low, near_high = model.normalizer._bounds(model.normalizer.EXTRAPOLATION)
+    past = inside.clone()
+    past[0, 2] = 0.5 * (float(near_high[2]) + float(high[2]))
+    with pytest.warns(UntrustedParameterWarning) as caught:
+        model.acceleration(q, qd, past)
+    message = str(caught[0].message)
+    assert message == (f"parameters beyond the range the model was trained on (3 standard deviations of its training "
+                       f"parameters; its answers there are extrapolation): l1 = {float(past[0, 2]):.4g} m (range "
+                       f"{float(near_low[2]):.3g} to {float(near_high[2]):.3g})"), message
+    just = inside.clone()
+    just[0, 2] = 0.999 * float(near_high[2])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.acceleration(q, qd, just)
     with torch.no_grad():
         assert torch.allclose(model.normalizer.params(far), model.normalizer.params(bound), atol=1e-12)
     # the conditioning equals the bound's; the physical length still enters the normalised state

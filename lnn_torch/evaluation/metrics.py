@@ -7,6 +7,8 @@ these into reports.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..mechanics.angles import wrap_angles
@@ -22,22 +24,30 @@ def relative_l2(pred: torch.Tensor, true: torch.Tensor, dim=None) -> torch.Tenso
 
 def acceleration_errors(pred: torch.Tensor, true: torch.Tensor, coord_names=None) -> dict:
     """Relative L2 errors of accelerations ``(B, T, dof)``: ``total``, per coordinate, and the median
-    and 90th percentile over trajectories. Points with a non-finite prediction are left out of the
-    errors and counted in ``non_finite_fraction``."""
+    and 90th percentile over trajectories. A non-finite prediction is an infinite error: the totals and the
+    error of each trajectory that holds one are ``inf`` (a model that gives NaN must not score well), and
+    ``non_finite_fraction`` counts those points."""
     B, T, dof = pred.shape
     known = torch.isfinite(true).all(-1)  # (B, T): padding of shorter recordings is not a point
     finite = torch.isfinite(pred).all(-1) & known
+    broken = known & ~finite  # (B, T)
     names = list(coord_names or [f"q{i}" for i in range(dof)])
     pred_f, true_f = pred[finite], true[finite]  # (n, dof)
-    out = {"total": float(relative_l2(pred_f, true_f))}
+    inf = float("inf")
+    out = {"total": inf if broken.any() else float(relative_l2(pred_f, true_f))}
     for i, name in enumerate(names):
-        out[name] = float(relative_l2(pred_f[:, i], true_f[:, i]))
-    per_traj = torch.stack([relative_l2(pred[b][finite[b]], true[b][finite[b]]) for b in range(B)])
-    per_traj = per_traj[torch.isfinite(per_traj)]
+        out[name] = inf if broken.any() else float(relative_l2(pred_f[:, i], true_f[:, i]))
+    per_traj = torch.stack([torch.tensor(inf, dtype=pred.dtype) if broken[b].any() else
+                            relative_l2(pred[b][finite[b]], true[b][finite[b]]) for b in range(B)])
+    per_traj = per_traj[known.any(1)]
     if per_traj.numel():
         out["per_trajectory_median"] = float(per_traj.median())
-        out["per_trajectory_p90"] = float(torch.quantile(per_traj.double(), 0.9))
-    out["non_finite_fraction"] = float(1 - finite.double().sum() / known.double().sum().clamp_min(1))
+        ordered = per_traj.double().sort().values
+        at = 0.9 * (len(ordered) - 1)  # (torch's linear interpolation; one with an inf in it is inf, not NaN)
+        upper = ordered[math.ceil(at)]
+        out["per_trajectory_p90"] = inf if math.isinf(upper) and at > math.floor(at) or math.isinf(
+            ordered[math.floor(at)]) else float(torch.quantile(ordered, 0.9))
+    out["non_finite_fraction"] = float(broken.double().sum() / known.double().sum().clamp_min(1))
     return out
 
 

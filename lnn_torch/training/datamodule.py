@@ -420,6 +420,12 @@ class TrajectoryDataModule(L.LightningDataModule):
         out = {k: torch.cat([p[k] for p in parts]) for k in src.fields}
         out["params"] = src.params
         out["params_points"] = torch.cat([p["params"] for p in parts])
+        for name, x in out.items():  # (a NaN here makes the normaliser NaN, and every training step skipped)
+            bad = ~torch.isfinite(x).reshape(len(x), -1).all(-1)
+            if bad.any():
+                raise InputError(f"{self.path}: the training split holds NaN or Inf in '{name.split('_')[0]}' at "
+                                 f"{int(bad.sum())} of its {len(x)} {'recordings' if name == 'params' else 'points'}"
+                                 f"{' read' if stride > 1 else ''} (within the recordings' lengths): mend or drop them")
         return out
 
     def trajectories(self, split: str = "val", num_trajectories: int | None = None,
