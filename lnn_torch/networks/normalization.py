@@ -162,8 +162,9 @@ class Normalizer(nn.Module):
 
     def _inside(self, low: list[float], high: list[float]) -> bool:
         """Whether every parameter between ``low`` and ``high`` (per parameter, SI) is inside the
-        ``EXTRAPOLATION`` range by a margin (a value within 1e-9 standard deviations of a bound, a NaN or a non-positive value
-        of a positive parameter is left to the exact check). The transform is monotone, so the extremes decide."""
+        ``EXTRAPOLATION`` range by a margin (a value within 1e-9 standard deviations of a bound, a NaN or a
+        non-positive value of a positive parameter is left to the exact check). The transform is monotone,
+        so the extremes decide."""
         # read every call (no cache that a write through ``.data`` or an inference tensor would defeat)
         logs, means, stds = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std))
         limit = self.EXTRAPOLATION - 1e-9

@@ -149,9 +149,9 @@ class FitSummary(L.Callback):
                 lines.append(f"  best validation checkpoint: {path(keeper.best_model_path)}")
         skipped = int(getattr(pl_module, "skipped_steps", 0) or 0)
         if skipped:
+            never = "; the model never trained" if skipped >= trainer.global_step else ""
             lines.append(f"  warning: {skipped} of {trainer.global_step} steps skipped (a non-finite loss or gradient: "
-                         "the weights left as they were)" + ("; the model never trained" if skipped >= trainer.global_step
-                                                             else ""))
+                         f"the weights left as they were){never}")
         if selection is not None and selection["step"] != trainer.global_step:
             judged = len(selection.get("history", ())) > 1
             why = ("validation preferred it" if judged else "the only state validation judged (none ran after the "
