@@ -3,6 +3,7 @@ config instantiates and fits, fit/test/predict, the default root directory, a mi
 
 import glob
 import json
+import os
 import re
 from pathlib import Path
 
@@ -129,6 +130,40 @@ def test_last_checkpoint_names_the_best_checkpoint_that_exists(dataset, tmp_path
     (state,) = [v for k, v in last["callbacks"].items() if k.startswith("ModelCheckpoint")]
     assert (tmp_path / state["best_model_path"]).exists(), (state["best_model_path"], sorted(folder.iterdir()))
     assert sorted(p.name for p in folder.iterdir()) == sorted(["last.ckpt", Path(state["best_model_path"]).name])
+
+
+@pytest.mark.slow
+def test_a_resumed_fit_keeps_its_best_and_its_settings(dataset, tmp_path):
+    """Resuming (a new run folder): the resumed run's best checkpoint stays the best, its file kept, until one saved
+    here beats it (Lightning tracked it afresh there: a worse checkpoint became "the best"); ``--ckpt_path last``
+    finds the newest run's last.ckpt (Lightning looked for its own and started afresh); a config file's other
+    training setting is refused as the command line's is (it was ignored)."""
+    args = tiny_fit_args(dataset, "--data.spec.seed=5", "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2",
+                         "--data.steps_per_epoch=2", "--trainer.check_val_every_n_epoch=1", "--model.compile=false")
+    out = cli_in_process("fit", *args, "--trainer.max_epochs=1", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    first = tmp_path / "lightning_logs" / "version_0" / "checkpoints"
+    last = torch.load(first / "last.ckpt", weights_only=False)
+    (key,) = [k for k in last["callbacks"] if k.startswith("ModelCheckpoint")]
+    earlier = Path(last["callbacks"][key]["best_model_path"])
+    last["callbacks"][key]["best_model_score"] = torch.tensor(1e-6)  # a best no later state can beat
+    torch.save(last, first / "last.ckpt")
+    out = cli_in_process("fit", *args, "--trainer.max_epochs=3", "--ckpt_path", "last", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"--ckpt_path last: {Path('lightning_logs') / 'version_0' / 'checkpoints' / 'last.ckpt'}" in out.stdout
+    assert f"best validation checkpoint: {os.path.normpath(earlier)}" in out.stdout, out.stdout[-1500:]
+    assert (tmp_path / earlier).exists()
+    second = tmp_path / "lightning_logs" / "version_1" / "checkpoints"
+    assert sorted(p.name for p in second.iterdir()) == ["last.ckpt"]
+    resumed = torch.load(second / "last.ckpt", weights_only=False)
+    assert resumed["global_step"] == 6 and float(resumed["callbacks"][key]["best_model_score"]) == pytest.approx(1e-6)
+    (tmp_path / "faster.yaml").write_text("model:\n  lr: 0.05\n")
+    out = cli_in_process("fit", *args, "-c", "faster.yaml", "--trainer.max_epochs=4", "--ckpt_path", "last",
+                         cwd=tmp_path)
+    assert out.returncode == 2 and "model.lr 0.05 (a config file's): the checkpoint's model has 0.01" in out.stderr
+    out = cli_in_process("fit", *args, "--ckpt_path", "last", "--trainer.default_root_dir=elsewhere", cwd=tmp_path)
+    assert out.returncode == 2 and "--ckpt_path last: no last.ckpt in elsewhere/lightning_logs/version_*/checkpoints" \
+        in out.stderr
 
 
 @pytest.mark.slow

@@ -154,3 +154,23 @@ def test_skipped_steps_are_said_and_a_run_that_never_trained_too(capsys):
     module.skipped_steps = torch.tensor(0)
     FitSummary().on_fit_end(trainer, module)
     assert "skipped" not in capsys.readouterr().out
+
+
+def test_an_interrupted_fit_saves_the_step_reached_and_says_how_to_resume(tmp_path, capsys):
+    """Ctrl-C while training: last.ckpt holds the step reached (an epoch's steps since the last save were lost) and
+    the line says where it is; not during the sanity check, nor for another exception, nor before any step."""
+    from lnn_torch.training.callbacks import LastCheckpoint
+
+    saved = []
+    trainer = SimpleNamespace(sanity_checking=False, fast_dev_run=False, state=SimpleNamespace(fn="fit"),
+                              global_step=37, is_global_zero=True, save_checkpoint=saved.append,
+                              checkpoint_callback=SimpleNamespace(dirpath=str(tmp_path / "ck")))
+    callback = LastCheckpoint()
+    callback.on_exception(trainer, None, KeyboardInterrupt())
+    assert saved == [str(tmp_path / "ck" / "last.ckpt")]
+    assert (f"lnn-torch fit: interrupted at step 37; saved {tmp_path / 'ck' / 'last.ckpt'} (resume: the same command "
+            "with --ckpt_path that file)") in capsys.readouterr().out
+    for exception, changes in ((ValueError("x"), {}), (KeyboardInterrupt(), {"sanity_checking": True}),
+                               (KeyboardInterrupt(), {"global_step": 0})):
+        callback.on_exception(SimpleNamespace(**{**vars(trainer), **changes}), None, exception)
+    assert len(saved) == 1

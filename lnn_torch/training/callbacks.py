@@ -27,7 +27,7 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import BasePredictionWriter
+from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
 
@@ -79,6 +79,37 @@ class TestMetricsWriter(L.Callback):
         print(f"wrote {path} (test metrics)")
 
 
+class BestCheckpoint(ModelCheckpoint):
+    """Lightning's ``ModelCheckpoint`` (the same state key: checkpoints of either resume with either) that keeps the
+    best score of a resumed run: a resumed fit writes into a new run folder, where Lightning tracks the best afresh
+    (its first checkpoint there became "the best" however much worse than the run's). Here the resumed run's best
+    stays the best, its file where it is (never deleted from the other folder), until one saved here beats it."""
+
+    @property
+    def state_key(self) -> str:
+        return f"ModelCheckpoint{self.state_key_args()!r}"
+
+    def state_key_args(self) -> dict:
+        return {"monitor": self.monitor, "mode": self.mode, "every_n_train_steps": self._every_n_train_steps,
+                "every_n_epochs": self._every_n_epochs, "train_time_interval": self._train_time_interval}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        earlier = state_dict.get("dirpath", self.dirpath)
+        path, score = state_dict.get("best_model_path"), state_dict.get("best_model_score")
+        if earlier == self.dirpath or not path or score is None or not os.path.exists(path):
+            super().load_state_dict(state_dict)
+            return
+        self.best_model_path, self.best_model_score = path, score
+        self.best_k_models = {path: score}
+        self.kth_best_model_path, self.kth_value = path, score
+        self._carried = path
+
+    def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
+        if filepath == getattr(self, "_carried", None):  # (the resumed run's file, in its own folder: kept)
+            return
+        super()._remove_checkpoint(trainer, filepath)
+
+
 class LastCheckpoint(L.Callback):
     """Writes ``last.ckpt`` beside the monitored checkpoints at the end of every training epoch: the
     final weights. (Lightning's ``save_last`` writes it only when the monitored metric improves, so
@@ -91,6 +122,21 @@ class LastCheckpoint(L.Callback):
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
         if trainer.sanity_checking or trainer.fast_dev_run:
             return
+        self._save(trainer)
+
+    def on_exception(self, trainer: L.Trainer, pl_module, exception: BaseException) -> None:
+        """Interrupted (Ctrl-C) while training: the state at the step reached is saved as ``last.ckpt`` (an epoch's
+        steps since its last save were lost) and the line to resume it printed."""
+        fitting = getattr(getattr(trainer, "state", None), "fn", None) == "fit"  # (in training or its validation)
+        if not isinstance(exception, KeyboardInterrupt) or trainer.sanity_checking or trainer.fast_dev_run \
+                or not fitting or not trainer.global_step:
+            return
+        self._save(trainer)
+        if trainer.is_global_zero:
+            print(f"\nlnn-torch fit: interrupted at step {trainer.global_step}; saved {os.path.normpath(self.path)} "
+                  "(resume: the same command with --ckpt_path that file)", flush=True)
+
+    def _save(self, trainer: L.Trainer) -> None:
         directory = getattr(trainer.checkpoint_callback, "dirpath", None) or os.path.join(
             trainer.log_dir or trainer.default_root_dir, "checkpoints")
         self.path = os.path.join(directory, self.filename)

@@ -21,22 +21,23 @@ class LNNCLI(LightningCLI):
 
     def _parse_ckpt_path(self) -> None:
         """Lightning reads a ``--ckpt_path`` checkpoint's hyper-parameters over the model's settings, the command
-        line's too. A setting of how the model is judged (``EVALUATION``) that the command line gives, or a
-        config file sets to other than the default, is taken from it; any other (the model, its data link, its
-        training) stays the checkpoint's, and one the command line sets to another value is refused in one
-        line (it was ignored without a word)."""
+        line's too. A setting of how the model is judged (``EVALUATION``) that the command line or a config file
+        gives is taken from it; any other (the model, its data link, its training) stays the checkpoint's, and one
+        the command line sets to another value (or a config file, resuming a fit) is refused in one line (it was
+        ignored without a word)."""
         sub = self.config.get("subcommand")
+        if sub and self.config[sub].get("ckpt_path") == "last":
+            self.config[sub]["ckpt_path"] = _last_checkpoint(self.config[sub])
         given = [] if not sub else list(dict.fromkeys(
             arg[len("--model."):].split("=", 1)[0].split(".", 1)[0] for arg in self.argv
             if arg.startswith("--model.")))
         model = self.config[sub].get("model") if sub else None
+        # and a config file's (-c): its settings of how the model is judged, and on a resumed fit every setting it
+        # gives (a test reads the checkpoint's model whatever the config says: a config's other settings are left)
+        files = _config_model_keys(self.config[sub].get("config") or []) if sub else set()
+        typed = set(given)
+        given += [k for k in files if k not in given and (sub == "fit" or k in EVALUATION)]
         asked = {k: model.get(k) for k in given} if model is not None else {}
-        if model is not None:  # a config file's (-c) settings of how the model is judged, where not the defaults
-            import inspect
-
-            defaults = inspect.signature(LNNModule.__init__).parameters
-            asked.update({k: model.get(k) for k in EVALUATION if k not in asked and k in defaults
-                          and model.get(k) != defaults[k].default})
         super()._parse_ckpt_path()
         if not asked:
             return
@@ -50,7 +51,8 @@ class LNNCLI(LightningCLI):
 
             advice = (": to train on with other settings, start a new run from its weights (--model.init_from "
                       "CHECKPOINT)" if sub == "fit" else "")
-            raise InputError(f"--model.{key} {value!r}: the checkpoint's model has {stored!r}, and a --ckpt_path "
+            where = f"--model.{key} {value!r}" if key in typed else f"model.{key} {value!r} (a config file's)"
+            raise InputError(f"{where}: the checkpoint's model has {stored!r}, and a --ckpt_path "
                              f"checkpoint keeps its model and training settings (only {', '.join(EVALUATION)} may "
                              f"change){advice}")
 
@@ -103,6 +105,46 @@ class LNNCLI(LightningCLI):
                 cb.data_options = data_options(self.argv)
 
 
+def _config_model_keys(paths) -> set[str]:
+    """The model settings (``model: {key: ...}``) the config files ``paths`` (``-c``) give."""
+    import yaml
+
+    keys = set()
+    for path in paths:
+        try:
+            text = yaml.safe_load(open(str(getattr(path, "absolute", path))).read()) or {}
+        except (OSError, yaml.YAMLError):
+            continue
+        model = text.get("model") if isinstance(text, dict) else None
+        if isinstance(model, dict):
+            keys |= set((model.get("init_args") if isinstance(model.get("init_args"), dict) else model).keys())
+    return keys - {"class_path", "init_args"}
+
+
+def _last_checkpoint(config) -> str:
+    """``--ckpt_path last``: the newest run's ``last.ckpt`` (``callbacks.LastCheckpoint``) under the run folders
+    of the default logger (``<default_root_dir or save_dir>/<name>/version_*/checkpoints``); Lightning looks for
+    its own ``save_last`` file, which these runs do not write, and started afresh without a word."""
+    from pathlib import Path
+
+    from ..errors import InputError
+
+    trainer = config.get("trainer") or {}
+    logger = trainer.get("logger")
+    init = (logger.get("init_args") if hasattr(logger, "get") else None) or {}
+    root = Path(init.get("save_dir") or ".")
+    if str(root) == "." and trainer.get("default_root_dir"):
+        root = Path(trainer.get("default_root_dir"))
+    runs = root / (init.get("name") or "lightning_logs")
+    found = [p for p in runs.glob("version_*/checkpoints/last.ckpt")]
+    if not found:
+        raise InputError(f"--ckpt_path last: no last.ckpt in {runs}/version_*/checkpoints (a fit writes one at the end "
+                         "of every epoch, and when interrupted): give the checkpoint's path")
+    latest = max(found, key=lambda p: p.stat().st_mtime)  # (the run written last)
+    print(f"--ckpt_path last: {latest}", flush=True)
+    return str(latest)
+
+
 # the model's settings of how it is judged (validation and test rollouts, the threshold of the time within it, figures,
 # compilation): a --ckpt_path command line may set them (every other setting is the checkpoint's)
 EVALUATION = ("val_rollouts", "val_rollout_seconds", "test_rollouts", "val_threshold", "figure_every_n_epochs",
@@ -111,7 +153,7 @@ TRAINER_DEFAULTS = {"inference_mode": False, "gradient_clip_val": 1.0}
 LOGGER = {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
           "init_args": {"save_dir": ".", "name": "lightning_logs", "default_hp_metric": False}}
 CALLBACKS = [
-    {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+    {"class_path": "lnn_torch.training.callbacks.BestCheckpoint",
      # saved when validation ends, so before LastCheckpoint's last.ckpt at the epoch's end (Lightning runs
      # checkpoint callbacks after the others: at the epoch's end last.ckpt held the best checkpoint before this one)
      "init_args": {"monitor": "val/acc_rel_err", "mode": "min", "save_on_train_epoch_end": False,
