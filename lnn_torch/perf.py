@@ -194,10 +194,13 @@ class CompiledFallback:
                 self.on_failure(err)
 
 
-def adamw(parameters, **kwargs) -> torch.optim.AdamW:
+def adamw(parameters, fused: bool = True, **kwargs) -> torch.optim.AdamW:
     """AdamW with the fused kernel where torch has one for the device (CPU and GPU), else the loop.
-    The fused kernel is faster than the per-parameter loop for these small networks."""
+    The fused kernel is faster than the per-parameter loop for these small networks; ``fused`` False: the
+    loop (mixed precision: Lightning cannot clip the gradients a fused optimiser unscales itself)."""
     parameters = list(parameters)
+    if not fused:
+        return torch.optim.AdamW(parameters, **kwargs)
     try:
         return torch.optim.AdamW(parameters, fused=True, **kwargs)
     except (RuntimeError, TypeError, ValueError):

@@ -167,6 +167,23 @@ def test_a_resumed_fit_keeps_its_best_and_its_settings(dataset, tmp_path):
 
 
 @pytest.mark.slow
+def test_mixed_precision_trains_and_the_optimiser_options_are_refused(dataset, tmp_path):
+    """bf16-mixed (16-mixed on a CPU) with the default gradient clipping trains (the fused AdamW refused clipping
+    gradients it unscales itself); Lightning's --optimizer and --lr_scheduler are refused saying what to set (they
+    replaced the model's whole optimisation, or did nothing without --optimizer)."""
+    args = tiny_fit_args(dataset, "--data.spec.seed=5", "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2",
+                         "--data.steps_per_epoch=2", "--trainer.max_epochs=1", "--model.compile=false")
+    out = cli_in_process("fit", *args, "--trainer.precision=bf16-mixed", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "lnn-torch fit: 2 steps" in out.stdout
+    for option in (["--optimizer", "SGD", "--optimizer.lr", "0.01"], ["--lr_scheduler=StepLR"]):
+        out = cli_in_process("fit", *args, *option, cwd=tmp_path)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-2000:]
+        assert f"{option[0].split('=')[0]}: the model configures its own optimiser (AdamW" in out.stderr
+        assert "set --model.lr, --model.lr_min, --model.weight_decay" in out.stderr
+
+
+@pytest.mark.slow
 def test_default_root_dir_holds_logs_and_checkpoints(dataset, tmp_path):
     """--trainer.default_root_dir DIR moves the default TensorBoard run and the checkpoints to DIR
     (the logger's save_dir is no longer fixed to the working directory)."""

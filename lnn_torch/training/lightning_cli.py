@@ -15,8 +15,18 @@ from .module import LNNModule
 
 class LNNCLI(LightningCLI):
     def parse_arguments(self, parser, args) -> None:
-        """LightningCLI's parse, the command line kept (``before_fit`` reads its ``--data`` options)."""
+        """LightningCLI's parse, the command line kept (``before_fit`` reads its ``--data`` options). The model
+        configures its own optimiser and schedule: ``--optimizer`` and ``--lr_scheduler`` are refused saying so
+        (Lightning's replaced the whole optimisation, or did nothing without ``--optimizer``)."""
         self.argv = list(sys.argv[1:] if args is None else args) if not isinstance(args, dict) else []
+        asked = next((a.split("=", 1)[0] for a in self.argv if a.split("=", 1)[0].split(".", 1)[0] in
+                      ("--optimizer", "--lr_scheduler")), None)
+        if asked:
+            from ..errors import InputError
+
+            raise InputError(f"{asked}: the model configures its own optimiser (AdamW, a cosine schedule per step from "
+                             "model.lr to model.lr_min, no weight decay on physical coefficients): set --model.lr, "
+                             "--model.lr_min, --model.weight_decay")
         super().parse_arguments(parser, args)
 
     def _parse_ckpt_path(self) -> None:
@@ -271,13 +281,13 @@ def run_cli(argv: list[str]) -> LNNCLI:
     # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
     args = None if argv == sys.argv[1:] else argv
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
-                  save_config_kwargs={"overwrite": True}, seed_everything_default=0)
+                  save_config_kwargs={"overwrite": True}, seed_everything_default=0, auto_configure_optimizers=False)
 
 
 def register_description_copies(ckpt_path) -> None:
     """The compiled robot descriptions a checkpoint given as ``--ckpt_path`` carries, for the model the CLI
-    builds before loading its weights (``robots.description.register_copies``); ``last``/``best`` and
-    other names Lightning resolves itself are left to it."""
+    builds before loading its weights (``robots.description.register_copies``); ``best`` and other names
+    Lightning resolves itself are left to it (``last`` is resolved before: ``_last_checkpoint``)."""
     from pathlib import Path
 
     if ckpt_path and Path(str(ckpt_path)).is_file():

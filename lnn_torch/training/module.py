@@ -464,8 +464,10 @@ class LNNModule(L.LightningModule):
     def configure_optimizers(self):
         hp = self.hparams
         trained = [p for p in self.parameters() if p.requires_grad]  # all but what train_only freezes
+        precision = str(getattr(self._trainer, "precision", "32-true")) if self._trainer is not None else "32-true"
         return configure_optimizer(trained, self.model.coefficient_parameters(), lr=hp.lr, lr_min=hp.lr_min,
-                                   weight_decay=hp.weight_decay, progress=lambda s: training_progress(self._trainer, s))
+                                   weight_decay=hp.weight_decay, progress=lambda s: training_progress(self._trainer, s),
+                                   fused="mixed" not in precision)  # (mixed precision clips unscaled gradients)
 
     # ------------------------------------------------------------------ training
     def training_terms(self, q, qd, qdd, params, tau=None, chunks=None) -> dict:

@@ -53,17 +53,18 @@ def freeze_all_but(model, part: str | None, init_from: str | None) -> None:
 
 
 def configure_optimizer(parameters, coefficients, *, lr: float, lr_min: float, weight_decay: float,
-                        progress) -> dict:
+                        progress, fused: bool = True) -> dict:
     """Lightning's ``configure_optimizers`` answer: AdamW over ``parameters`` with ``weight_decay`` on
     all but ``coefficients`` (physical coefficients: a decay would pull a mass or a length towards
-    zero), and a per-step cosine from ``lr`` to ``lr_min`` over ``progress(step)`` in [0, 1]."""
+    zero), and a per-step cosine from ``lr`` to ``lr_min`` over ``progress(step)`` in [0, 1]; ``fused``:
+    ``perf.adamw``'s."""
     params = list(parameters)
     if weight_decay:
         exempt = {id(p) for p in coefficients}
         groups = [{"params": [p for p in params if id(p) not in exempt]},
                   {"params": [p for p in params if id(p) in exempt], "weight_decay": 0.0}]
         params = [g for g in groups if g["params"]]
-    opt = adamw(params, lr=lr, weight_decay=weight_decay)
+    opt = adamw(params, fused=fused, lr=lr, weight_decay=weight_decay)
     floor = lr_min / lr
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt, lambda step: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress(step))))
