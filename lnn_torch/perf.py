@@ -117,10 +117,18 @@ def compile_pays(calls: int) -> bool:
 AUTO_COMPILE_TRAIN_STEPS = 5_000
 
 
-def compile_pays_training(steps: float) -> bool:
+# a run limited in time (``--trainer.max_time``) to less than this many seconds is not compiled: the compilation
+# itself (about 30 s on two cores, a cold cache) would take a share of it that its faster steps cannot repay
+AUTO_COMPILE_MIN_SECONDS = 300.0
+
+
+def compile_pays_training(steps: float, seconds: float | None = None) -> bool:
     """Whether a training run of ``steps`` optimiser steps repays compiling its pass: ``steps >=
-    AUTO_COMPILE_TRAIN_STEPS`` (a run of unknown length does not), unless ``LNN_TORCH_COMPILE`` is ``0``."""
+    AUTO_COMPILE_TRAIN_STEPS`` (a run of unknown length does not) and, where it is limited in time to
+    ``seconds``, at least ``AUTO_COMPILE_MIN_SECONDS``; never where ``LNN_TORCH_COMPILE`` is ``0``."""
     if os.environ.get("LNN_TORCH_COMPILE", "").strip() == "0":
+        return False
+    if seconds is not None and seconds < AUTO_COMPILE_MIN_SECONDS:
         return False
     return steps is not None and steps == steps and steps != float("inf") and steps >= AUTO_COMPILE_TRAIN_STEPS
 

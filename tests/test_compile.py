@@ -285,8 +285,8 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
 
 def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset, tmp_path, monkeypatch):
     """compile="auto" (the default): a run planned for fewer than AUTO_COMPILE_TRAIN_STEPS steps
-    trains eagerly; one planned for at least that many compiles its pass; LNN_TORCH_COMPILE=0 and
-    compile=False never compile."""
+    trains eagerly; one planned for at least that many compiles its pass, unless limited to less time than
+    AUTO_COMPILE_MIN_SECONDS; LNN_TORCH_COMPILE=0 and compile=False never compile."""
     from lnn_torch import perf
 
     built = []
@@ -298,10 +298,10 @@ def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset,
     monkeypatch.setattr(torch, "compile", recording_compile)
     monkeypatch.setattr(perf, "AUTO_COMPILE_TRAIN_STEPS", 4)
 
-    def fit(steps, **kw):
+    def fit(steps, max_time=None, **kw):
         model = LNNModule(val_rollouts=0, hidden_dims=[8], **kw)
         trainer = quiet_trainer(tmp_path, max_steps=steps, limit_val_batches=0, logger=False,
-                                enable_checkpointing=False)
+                                enable_checkpointing=False, max_time=max_time)
         trainer.fit(model, make_dm(dataset, steps_per_epoch=steps))
         return model
 
@@ -309,8 +309,11 @@ def test_training_compiles_by_default_only_runs_long_enough_to_repay_it(dataset,
     assert fit(3).training_pass.compiled is None and not built  # 3 < 4 planned steps: eager
     assert fit(4).training_pass.compiled is not None and len(built) == 1  # 4 planned steps: compiled
     assert fit(6, compile=False).training_pass.compiled is None and len(built) == 1
+    # a run limited to less time than compiling repays (--trainer.max_time 20 s: the compilation took it all)
+    assert fit(6, max_time="00:00:00:20").training_pass.compiled is None and len(built) == 1
+    assert fit(6, max_time="00:01:00:00").training_pass.compiled is not None and len(built) == 2
     monkeypatch.setenv("LNN_TORCH_COMPILE", "0")
-    assert fit(6).training_pass.compiled is None and len(built) == 1
+    assert fit(6).training_pass.compiled is None and len(built) == 2
     with pytest.raises(ValueError, match="compile must be true, false or 'auto'"):
         LNNModule(compile="sometimes")
 

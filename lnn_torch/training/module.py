@@ -491,7 +491,8 @@ class LNNModule(L.LightningModule):
     def training_step(self, batch, batch_idx):
         self._last_batch = batch  # a failed compiled backward redoes it eagerly (``backward``)
         steps = self.trainer.estimated_stepping_batches if self._trainer is not None else 0
-        loss, parts = self.batch_loss(batch, self.training_pass.function(steps, self.device))
+        pass_fn = self.training_pass.function(steps, self.device, _time_limit(self._trainer))
+        loss, parts = self.batch_loss(batch, pass_fn)
         if writes_logs(self._trainer):
             if len(parts) > 1:  # one curve per term; a loss of one term is train/loss itself
                 for name, value in parts.items():
@@ -557,3 +558,12 @@ def _warn_once_of_excitation(caught) -> None:
                       f"of the scaled regressor in {len(poor)} of its candidate fits): the base parameters are "
                       "uncertain; record a more exciting trajectory (lnn-torch identify lists what they determine)",
                       UntrustedParameterWarning, stacklevel=3)
+
+
+def _time_limit(trainer) -> float | None:
+    """The seconds a run may train (``--trainer.max_time``: Lightning's ``Timer``), or None."""
+    from lightning.pytorch.callbacks import Timer
+
+    timer = next((cb for cb in getattr(trainer, "callbacks", None) or () if isinstance(cb, Timer)), None)
+    duration = getattr(timer, "_duration", None)
+    return None if duration is None else float(duration)

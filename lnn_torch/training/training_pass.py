@@ -20,10 +20,11 @@ class TrainingPass:
         self.fn, self.choice = fn, compile
         self.compiled = self.auto = None
 
-    def function(self, planned_steps: float, device):
-        """The function to call this step: compiled (built on first use for ``device``) or ``fn``."""
+    def function(self, planned_steps: float, device, seconds: float | None = None):
+        """The function to call this step: compiled (built on first use for ``device``) or ``fn`` (``seconds``:
+        the run's time limit, if any)."""
         if self.choice == "auto" and self.auto is None:
-            self.auto = compile_pays_training(planned_steps)
+            self.auto = compile_pays_training(planned_steps, seconds)
         if self.compiled is False or not (self.auto if self.choice == "auto" else self.choice):
             return self.fn
         if self.compiled is None:
