@@ -10,6 +10,7 @@
 * ``UnknownNameError`` (an ``InputError`` and a ``KeyError``): a name none of those known (a pretrained model).
 
 ``check_tensors`` refuses, by name, an argument that is not a torch tensor or (for states) not floating point;
+``values_readable`` says where the checks of values cannot run (under ``torch.func`` transforms);
 ``is_number`` and ``as_number`` are the settings' checks of a number (a bool is none; a number written as text is
 one).
 
@@ -38,6 +39,16 @@ def check_tensors(floating=(), **named) -> None:
         if name in floating and not x.is_floating_point():
             raise InputError(f"{name} must be floating point, got {x.dtype} (e.g. torch.tensor([[1.0, 0.0]]), not "
                              "[[1, 0]]: integers would truncate the results)")
+
+
+def values_readable() -> bool:
+    """Whether the values of tensors can be read (for the checks of NaN, signs and ranges): not under a
+    ``torch.func`` transform (``vmap``, ``grad``, ``jacrev``: their tensors hold no single value) nor while
+    ``torch.compile`` traces. The checks of shapes and types hold everywhere."""
+    import torch
+    from torch._C._functorch import peek_interpreter_stack
+
+    return peek_interpreter_stack() is None and not torch.compiler.is_compiling()
 
 
 def is_number(x, finite: bool = False) -> bool:

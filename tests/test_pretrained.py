@@ -39,6 +39,38 @@ def test_shipped_model_loads_and_matches_the_closed_form():
     assert ((a - true).norm() / true.norm()) < 0.01  # measured ~0.2 % on these initial states
 
 
+def test_a_loaded_model_works_under_torch_func_transforms():
+    """``torch.func.vmap`` and ``jacrev`` through a loaded model's (and a scene's) checked ``acceleration``: the
+    checks of values, which read a tensor's value, step aside there (they refused with vmap's .item() error), the
+    results are the plain calls', the Jacobian near the exact one; outside a transform NaN is refused as before,
+    and a gradient through the checks warns of nothing."""
+    import warnings
+
+    from torch.func import jacrev, vmap
+
+    from lnn_torch import load_model
+    from lnn_torch.errors import InputError
+
+    model, system = load_model("pretrained:double_pendulum").double(), get_system("double_pendulum")
+    gen = torch.Generator().manual_seed(3)
+    q, qd = torch.randn(6, 2, generator=gen, dtype=torch.float64), torch.randn(6, 2, generator=gen, dtype=torch.float64)
+    p = torch.tensor([1.0, 0.6, 1.2, 1.1], dtype=torch.float64).expand(6, 4)
+    one = lambda face: lambda q, qd, p: face.acceleration(q[None], qd[None], p[None])[0]  # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        torch.testing.assert_close(vmap(one(model))(q, qd, p), model.acceleration(q, qd, p), rtol=1e-12, atol=1e-12)
+        J, exact = vmap(jacrev(one(model)))(q, qd, p), vmap(jacrev(one(system)))(q, qd, p)
+        x = q.clone().requires_grad_()
+        model.acceleration(x, qd, p).sum().backward()
+    assert J.shape == (6, 2, 2) and float((J - exact).abs().max() / exact.abs().max()) < 0.02
+    by_hand = torch.autograd.functional.jacobian(one(model), (q[2], qd[2], p[2]))[0]
+    torch.testing.assert_close(J[2], by_hand, rtol=1e-9, atol=1e-9)
+    bad = q.clone()
+    bad[1, 0] = float("nan")
+    with pytest.raises(InputError, match="q contains NaN"):
+        model.acceleration(bad, qd, p)
+
+
 def test_simulate_writes_csv_and_plot_and_refuses_to_overwrite(tmp_path, capsys):
     out = tmp_path / "sim.csv"
     argv = ["simulate", "--params", "1.0", "0.6", "1.2", "1.1", "--q0", "0.8", "-0.4", "--qd0", "0", "0",

@@ -20,7 +20,7 @@ import warnings
 import torch
 from torch import nn
 
-from ..errors import InputError, UntrustedParameterWarning, check_tensors
+from ..errors import InputError, UntrustedParameterWarning, check_tensors, values_readable
 from ..mechanics import integrators
 from ..mechanics.forces import check_inputs as check_tau
 from ..perf import compile_pays
@@ -182,10 +182,12 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
                              f"got {tuple(params.shape)}")
         if inputs:
             check_tau(tau, self.scene.num_inputs, q.shape[:1])
+        if not values_readable():  # (vmap, jacrev: no single value to check; the shapes are)
+            return
         named = [(n, x) for n, x in (("q", q), ("qd", qd), ("params", params), ("tau", tau)) if x is not None]
         # one sum over everything is finite unless something is NaN or Inf (or the sum overflows): only
         # then is each tensor checked, to name it
-        if not math.isfinite(float(torch.cat([x.reshape(x.shape[0], -1) for _, x in named], -1).sum())):
+        if not math.isfinite(float(torch.cat([x.detach().reshape(x.shape[0], -1) for _, x in named], -1).sum())):
             for name, x in named:
                 if not torch.isfinite(x).all():
                     raise InputError(f"{name} contains NaN or Inf")

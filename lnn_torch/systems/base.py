@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import InputError, check_tensors
+from ..errors import InputError, check_tensors, values_readable
 from ..mechanics.forces import check_inputs, dissipative_force, identity_or_none, input_force
 from .excitation import validate as validate_excitation
 from .recording import ClosedFormRecorder
@@ -431,6 +431,8 @@ class System(abc.ABC):
                 f"{self.name}: params must have shape (*batch, {self.num_params}) "
                 f"({', '.join(self.param_names)}), got {tuple(params.shape)}"
             )
+        if not values_readable():  # (vmap, jacrev: no single value to check)
+            return
         extremes = param_extremes(params)  # one reduction: NaN and Inf show in the extremes
         if extremes is not None and not all(math.isfinite(v) for v in (*extremes[0], *extremes[1])):
             raise InputError(f"{self.name}: params contain NaN or Inf")
@@ -445,7 +447,7 @@ class System(abc.ABC):
                 raise InputError(f"{self.name}: {name} must have shape (*batch, {self.dof}), got {tuple(x.shape)}")
         # one sum is finite unless something is NaN or Inf (or the sum overflows): only then each is checked
         total = q.sum() if qd is None else q.sum() + qd.sum()
-        if not math.isfinite(float(total)):
+        if values_readable() and not math.isfinite(float(total.detach())):
             for name, x in named:
                 if not torch.isfinite(x).all():
                     raise InputError(f"{self.name}: {name} contains NaN or Inf")
@@ -464,7 +466,7 @@ class System(abc.ABC):
             )
         if inputs == "check":
             check_inputs(tau, self.num_inputs, q.shape[:-1])
-            if tau is not None and not torch.isfinite(tau).all():
+            if tau is not None and values_readable() and not torch.isfinite(tau).all():
                 raise InputError(f"{self.name}: tau contains NaN or Inf")
 
 
