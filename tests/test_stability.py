@@ -394,6 +394,26 @@ def test_every_hard_case_is_a_physical_system_of_its_scene(scene):
             assert (torch.linalg.eigvalsh(M)[..., 0] > 0).all(), (scene, case.name)
 
 
+def test_the_hard_cases_turn_a_scenes_angles_and_leave_its_other_coordinates():
+    """A scene of a length and an angle (a pendulum on a spring): the inverted and whirling cases set the angle (to
+    pi or 0, spun at 10 rad/s) and keep the length's sampled state (a length of 0 put the true accelerations at
+    infinity, and 10 m/s on a spring read as a model's failure)."""
+    from types import SimpleNamespace
+
+    rng_state = np.array([[0.8, 0.3], [1.1, -0.2]]), np.array([[0.05, 0.4], [-0.1, 0.2]])
+    system = SimpleNamespace(angle_mask=[False, True], speed_limit=None, sample_params=lambda rng, n: np.ones((n, 3)),
+                             sample_state=lambda rng, n: rng_state, hard_parameter_cases=lambda: {},
+                             scaled_params=lambda p, k: (p * k, f"x {k}"))
+    cases = {c.name: c for c in hard_cases(system, num=2)}
+    for name in ("inverted, |qd0| = 10 rad/s", "whirling from rest position"):
+        case = cases[name]
+        np.testing.assert_array_equal(case.q0[:, 0].numpy(), rng_state[0][:, 0])
+        np.testing.assert_array_equal(case.qd0[:, 0].numpy(), rng_state[1][:, 0])
+        assert (case.qd0[:, 1].abs() == 10).all()
+    assert (cases["whirling from rest position"].q0[:, 1] == 0).all()
+    assert (cases["inverted, |qd0| = 10 rad/s"].q0[:, 1] - np.pi).abs().max() <= 0.1
+
+
 def test_the_trusted_range_settled_from_the_extremes_equals_the_exact_check():
     """``Normalizer.untrusted`` with each parameter's extremes (the input checks' one reduction) says what the
     exact per-row check says: inside, just inside, just beyond either bound, a NaN, a mixed batch, and after

@@ -59,10 +59,11 @@ def hard_cases(system, num: int = 8, seed: int = 0, dt: float = 0.005, num_steps
         cases.append(HardCase(label, q0, qd0, scaled))
     if system.speed_limit is None:
         if angles.any():
+            # the angles only: a scene's other coordinates (a spring's length) keep their sampled state
             inverted = torch.where(angles, math.pi + f64(rng.uniform(-0.1, 0.1, q0.shape)), q0)
-            fast = f64(rng.choice([-10.0, 10.0], qd0.shape))
+            fast = torch.where(angles, f64(rng.choice([-10.0, 10.0], qd0.shape)), qd0)
             cases.append(HardCase("inverted, |qd0| = 10 rad/s", inverted, fast, base_p))
-            cases.append(HardCase("whirling from rest position", torch.zeros_like(q0), fast, base_p))
+            cases.append(HardCase("whirling from rest position", torch.where(angles, 0.0, q0), fast, base_p))
         else:
             cases.append(HardCase("|qd0| x 10", q0, qd0 * 10, base_p))
     else:  # a scene with a speed limit: close to it
