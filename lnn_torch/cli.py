@@ -90,15 +90,53 @@ def main(argv: list[str] | None = None) -> int:
     if console:
         _plain_warnings(command)
     try:
+        load_plugins()
         if command in LIGHTNING_COMMANDS:
             return lightning_main(argv)
         return importlib.import_module(f"lnn_torch.commands.{COMMANDS[command][0]}").main(rest)
     except (ValueError, OSError, RuntimeError, KeyError) as err:  # InputError, DatasetFileError, FileExistsError, ...
         while err.__cause__ is not None and "Call to compute_fn of link" in str(err):  # jsonargparse's wrapper
             err = err.__cause__
-        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        from .errors import InputError
+
+        message = err.args[0] if isinstance(err, InputError) and isinstance(err, KeyError) and err.args else \
+            f"missing key {err.args[0]!r} (KeyError)" if isinstance(err, KeyError) and err.args else err
         print(f"lnn-torch {command}: error: {message}", file=sys.stderr)
         return 2
+
+
+PLUGINS = "LNN_TORCH_PLUGINS"  # modules to import before a command (a scene, a part, a section of one's own)
+ENTRY_POINTS = "lnn_torch.plugins"  # the same, as a package's entry points
+
+
+def load_plugins() -> list[str]:
+    """Import the modules that register a user's own scenes, model parts or metrics before a command runs: those
+    ``LNN_TORCH_PLUGINS`` names (comma- or space-separated; the working directory is searched too, so a
+    ``my_scene.py`` beside the data is found) and the entry points of group ``lnn_torch.plugins`` of installed
+    packages. Returns their names; ``InputError`` in one line for a module that cannot be imported."""
+    import os
+    from importlib.metadata import entry_points
+
+    from .errors import InputError
+
+    names = [n for n in os.environ.get(PLUGINS, "").replace(",", " ").split() if n]
+    loaded = []
+    if names and os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except Exception as err:  # (its own error, whatever it is: named in one line)
+            raise InputError(f"{PLUGINS}: cannot import '{name}' ({type(err).__name__}: {err})") from None
+        loaded.append(name)
+    for point in entry_points(group=ENTRY_POINTS):
+        try:
+            point.load()
+        except Exception as err:
+            raise InputError(f"plugin entry point '{point.name}' ({point.value}) of group {ENTRY_POINTS} cannot be "
+                             f"loaded ({type(err).__name__}: {err})") from None
+        loaded.append(point.value)
+    return loaded
 
 
 def _plain_warnings(command: str) -> None:

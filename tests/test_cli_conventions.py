@@ -242,3 +242,21 @@ def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, c
                               trajectory=0)) == run.parent / "identification" / "arm-test-0"
     assert _default_output(NS(checkpoint=str(run / "epoch2-err0.1.ckpt"), recording="x.csv", split="test",
                               trajectory=0)) == run.parent / "identification" / "epoch2-err0.1" / "x"
+
+
+def test_plugins_are_imported_before_a_command_and_a_missing_one_is_named(tmp_path, monkeypatch, capsys):
+    """LNN_TORCH_PLUGINS names modules (a scene of one's own) imported before any command, found in the working
+    directory too; one that cannot be imported is refused in one line naming it."""
+    import sys
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    (tmp_path / "my_plugin_for_test.py").write_text("import pathlib\npathlib.Path('imported').write_text('yes')\n")
+    monkeypatch.setenv("LNN_TORCH_PLUGINS", "my_plugin_for_test")
+    assert main(["list"]) == 0 and (tmp_path / "imported").read_text() == "yes"
+    monkeypatch.setenv("LNN_TORCH_PLUGINS", "json, not_a_module_here")
+    assert main(["list"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("lnn-torch list: error: LNN_TORCH_PLUGINS: cannot import 'not_a_module_here' (ModuleNotFoundError: "
+                   "No module named 'not_a_module_here')"), err
+
