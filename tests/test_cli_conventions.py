@@ -260,3 +260,22 @@ def test_plugins_are_imported_before_a_command_and_a_missing_one_is_named(tmp_pa
     assert err == ("lnn-torch list: error: LNN_TORCH_PLUGINS: cannot import 'not_a_module_here' (ModuleNotFoundError: "
                    "No module named 'not_a_module_here')"), err
 
+
+
+def test_out_of_range_run_settings_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """A stride of 0 (a slice error after the model summary), validation every 0 epochs (a ZeroDivisionError
+    traceback from Lightning) and a negative number of rollouts (accepted without a word) are refused by name."""
+    from lnn_torch.errors import InputError
+    from lnn_torch.training import LNNModule
+    from lnn_torch.training.datamodule import TrajectoryDataModule
+
+    with pytest.raises(InputError, match=r"data\.eval_stride must be a whole number >= 1, got 0"):
+        TrajectoryDataModule(path=str(tmp_path / "x.h5"), spec={}, eval_stride=0)
+    with pytest.raises(InputError, match=r"val_rollouts must be a number of trajectories, 0 \(none\) or -1 \(all\), "
+                                         r"got -3"):
+        LNNModule(val_rollouts=-3)
+    monkeypatch.chdir(tmp_path)
+    assert main(["fit", "--trainer.check_val_every_n_epoch", "0", "--data.path", "x.h5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("lnn-torch fit: error: --trainer.check_val_every_n_epoch must be a whole number >= 1 (or null), "
+                   "got 0"), err

@@ -91,6 +91,11 @@ def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_ch
     out = capsys.readouterr().out
     assert "the run ends with the state at step 0 (val/torque_rms 0.2469): the only state validation judged" in out
     assert "validation preferred" not in out and "validation: none ran in training (every 5 epochs, 500 steps" in out
+    assert "set --trainer.check_val_every_n_epoch lower" in out
+    trainer.check_val_every_n_epoch = 1  # every epoch already: the epoch's length is what to shorten
+    FitSummary().on_fit_end(trainer, module)
+    assert ("validation: none ran in training (every 1 epoch, 100 steps; set --data.steps_per_epoch lower (an "
+            "epoch's steps) for a shorter run)") in capsys.readouterr().out
     trainer.callback_metrics = {"val/torque_rms": torch.tensor(0.25), "val/torque_nrmse": torch.tensor(0.15)}
     module.selection = None
     FitSummary().on_fit_end(trainer, module)

@@ -234,10 +234,15 @@ class FitSummary(L.Callback):
         if not m and trainer.limit_val_batches != 0:
             epochs = trainer.check_val_every_n_epoch or 1
             every = epochs * max(trainer.num_training_batches, 1)
-            lines.append(f"  validation: none ran in training (every {epochs} epochs, {every} steps; "
-                         f"set --trainer.check_val_every_n_epoch lower for a shorter run)")
+            advice = ("--trainer.check_val_every_n_epoch lower" if epochs > 1 else
+                      "--data.steps_per_epoch lower (an epoch's steps)")
+            lines.append(f"  validation: none ran in training (every {epochs} epoch{'s' if epochs != 1 else ''}, "
+                         f"{every} steps; set {advice} for a shorter run)")
         if last is not None:
-            if hasattr(self, "config_paths"):  # a command-line run (a Python one has no command to repeat)
+            dm = getattr(trainer, "datamodule", None)
+            splits = getattr(getattr(dm, "file", None), "splits", None)
+            # a command-line run (a Python one has no command to repeat) of data with a test split
+            if hasattr(self, "config_paths") and (splits is None or len(splits.get("test", ())) > 0):
                 configs = " ".join(f"-c {c}" for c in self.config_paths) or "-c <this config>"
                 extra = "".join(f" {o}" for o in getattr(self, "data_options", []))
                 lines.append(f"  test it: lnn-torch test {configs}{extra} --ckpt_path {path(last)}")

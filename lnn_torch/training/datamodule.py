@@ -242,6 +242,9 @@ class TrajectoryDataModule(L.LightningDataModule):
                  eval_trajectories_per_batch: int = 16, num_workers: int = 0, in_memory: bool = True,
                  seed: int = 0, targets: dict | str = "file", smooth_inputs: bool = False) -> None:
         super().__init__()
+        for name, value in (("eval_stride", eval_stride), ("eval_trajectories_per_batch", eval_trajectories_per_batch)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise InputError(f"data.{name} must be a whole number >= 1, got {value!r}")
         self.save_hyperparameters()
         self.path = Path(path)
         self.spec_fields = dict(spec or {})

@@ -93,6 +93,11 @@ class LNNCLI(LightningCLI):
         config = self.config[self.subcommand] if self.subcommand else self.config
         register_description_copies(config.get("ckpt_path"))
         trainer = config.get("trainer")
+        every = trainer.get("check_val_every_n_epoch") if trainer is not None else None
+        if every is not None and (isinstance(every, bool) or not isinstance(every, int) or every < 1):
+            from ..errors import InputError  # (Lightning divided by it, a ZeroDivisionError after the model summary)
+
+            raise InputError(f"--trainer.check_val_every_n_epoch must be a whole number >= 1 (or null), got {every!r}")
         root = trainer.get("default_root_dir") if trainer is not None else None
         logger = trainer.get("logger") if trainer is not None else None
         if not root or logger is None or isinstance(logger, (bool, list)):

@@ -132,6 +132,9 @@ class LNNModule(L.LightningModule):
         # unset, both run and the checkpoint overrides them); the step limit a learned residual raised (``_at_least``)
         self.resuming, self._raised_steps = False, None
         self._description_copies = None  # what checkpoints carry of the robot description files (on_save_checkpoint)
+        for name, value in (("val_rollouts", val_rollouts), ("test_rollouts", test_rollouts)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < -1:
+                raise InputError(f"{name} must be a number of trajectories, 0 (none) or -1 (all), got {value!r}")
         if classical_start not in (True, False, "auto"):
             raise InputError(f"classical_start must be true, false or auto, got {classical_start!r}")
         if learn_residual not in (True, False, "auto"):
