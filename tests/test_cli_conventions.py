@@ -265,6 +265,8 @@ def test_plugins_are_imported_before_a_command_and_a_missing_one_is_named(tmp_pa
 def test_out_of_range_run_settings_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
     """A stride of 0 (a slice error after the model summary), validation every 0 epochs (a ZeroDivisionError
     traceback from Lightning) and a negative number of rollouts (accepted without a word) are refused by name."""
+    import torch
+
     from lnn_torch.errors import InputError
     from lnn_torch.training import LNNModule
     from lnn_torch.training.datamodule import TrajectoryDataModule
@@ -274,6 +276,14 @@ def test_out_of_range_run_settings_are_refused_in_one_line(tmp_path, monkeypatch
     with pytest.raises(InputError, match=r"val_rollouts must be a number of trajectories, 0 \(none\) or -1 \(all\), "
                                          r"got -3"):
         LNNModule(val_rollouts=-3)
+    for dims in ([0], [], [64, -1], "64"):
+        with pytest.raises(InputError, match=r"hidden_dims must be one or more positive widths"):
+            LNNModule(hidden_dims=dims)
+    model = LNNModule(hidden_dims=[8])
+    with pytest.raises(InputError, match=r"q has no rows: an empty batch"):
+        model.model.acceleration(torch.zeros(0, 2), torch.zeros(0, 2), torch.zeros(0, 4))
+    assert main(["generate", "--scene", "measured", "-o", str(tmp_path / "m.h5")]) == 2
+    assert "scene 'measured' is a recorded system: its data come from lnn-torch import" in capsys.readouterr().err
     monkeypatch.chdir(tmp_path)
     assert main(["fit", "--trainer.check_val_every_n_epoch", "0", "--data.path", "x.h5"]) == 2
     err = capsys.readouterr().err.strip()

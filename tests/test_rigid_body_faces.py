@@ -83,7 +83,8 @@ def test_the_module_has_the_networks_whole_face_residual_included(faces, states)
     q, qd, payload = states
     module, network = faces["module"], faces["network"]
     with torch.no_grad():
-        for name, args in (("friction", (q, qd, payload)), ("residual_force", (q, qd, payload))):
+        for name, args in (("friction", (q, qd, payload)), ("residual_force", (q, qd, payload)),
+                           ("energy", (q, qd, payload))):
             torch.testing.assert_close(getattr(module, name)(*args), getattr(network, name)(*args), rtol=0, atol=0)
         assert module.residual_force(q, qd, payload).abs().max() == 0  # (no residual in this model)
     with pytest.raises(InputError, match="params"):

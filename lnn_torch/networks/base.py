@@ -177,6 +177,8 @@ class DynamicsModel(CompiledDynamics, RigidBodyFace, nn.Module):
             raise InputError(f"q must have shape (batch, {dof}), got {tuple(q.shape)}")
         if qd.shape != q.shape:
             raise InputError(f"qd must have the shape of q {tuple(q.shape)}, got {tuple(qd.shape)}")
+        if q.shape[0] == 0:
+            raise InputError("q has no rows: an empty batch (0, dof) has nothing to compute")
         if params.ndim != 2 or params.shape != (q.shape[0], P):
             raise InputError(f"params must have shape ({q.shape[0]}, {P}) for scene '{self.scene.name}', "
                              f"got {tuple(params.shape)}")

@@ -52,7 +52,12 @@ def build_model(variant: str, scene, **options) -> DynamicsModel:
         raise InputError(f"model variant '{variant}' takes no option {', '.join(map(repr, unknown))}; "
                          f"its options: {', '.join(model_options(variant))}")
     if "hidden_dims" in options:
-        options["hidden_dims"] = tuple(options["hidden_dims"])
+        dims = options["hidden_dims"]
+        dims = [dims] if isinstance(dims, int) and not isinstance(dims, bool) else dims
+        if not isinstance(dims, (list, tuple)) or not dims or any(
+                isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in dims):
+            raise InputError(f"hidden_dims must be one or more positive widths, e.g. [64, 64], got {dims!r}")
+        options["hidden_dims"] = tuple(dims)
     return model_class(variant)(scene, **options)
 
 

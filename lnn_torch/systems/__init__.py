@@ -40,6 +40,9 @@ def get_system(name: str, **config) -> System:
         cls = SYSTEMS[name]
     except KeyError:
         raise InputError(f"unknown scene '{name}'; known scenes: {', '.join(sorted(SYSTEMS))}") from None
+    if name == "measured" and "dof" not in config:  # (its coordinates are a recording's: none to generate)
+        raise InputError("scene 'measured' is a recorded system: its data come from lnn-torch import (recordings), "
+                         "not from a simulation")
     try:
         return cls(**config)
     except TypeError as err:

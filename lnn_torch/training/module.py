@@ -274,6 +274,11 @@ class LNNModule(L.LightningModule):
         self.system.check_inputs(q, qd, params, inputs="skip")
         return self.model.friction(q, qd, params)
 
+    def energy(self, q, qd, params) -> torch.Tensor:
+        """``H = T + V (B,)``: the model's own energy (J where it was trained with torques, else its own units)."""
+        self.system.check_inputs(q, qd, params, inputs="skip")
+        return self.model.energy(q, qd, params)
+
     def residual_force(self, q, qd, params) -> torch.Tensor:
         """``Q_r (B, dof)``: the learned force residual in SI (zero without one)."""
         self.system.check_inputs(q, qd, params, inputs="skip")
