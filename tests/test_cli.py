@@ -167,6 +167,36 @@ def test_a_resumed_fit_keeps_its_best_and_its_settings(dataset, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_resumed_fit_logs_what_the_uninterrupted_one_logs(dataset, tmp_path):
+    """20 steps, then from last.ckpt to 40: at each step written the resumed run logs the learning rate a run of 40
+    steps logs there (the same schedule at the same step; keyed on global_step, which Lightning's own step counter
+    runs one ahead of after a resume, every training value was written 10 steps late and some steps not at all)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    args = tiny_fit_args(dataset, "--data.spec.seed=5", "--model.hidden_dims=[8,8]", "--model.val_rollout_seconds=0.2",
+                         "--data.steps_per_epoch=20", "--trainer.check_val_every_n_epoch=1", "--model.compile=false",
+                         "--trainer.log_every_n_steps=5")
+
+    def scalars(folder, tag="train/loss"):
+        events = EventAccumulator(str(folder)).Reload()
+        return {e.step: e.value for e in events.Scalars(tag)}
+
+    assert cli_in_process("fit", *args, "--trainer.max_epochs=2", "--trainer.default_root_dir=whole",
+                          cwd=tmp_path).returncode == 0
+    assert cli_in_process("fit", *args, "--trainer.max_epochs=1", "--trainer.default_root_dir=parts",
+                          cwd=tmp_path).returncode == 0
+    out = cli_in_process("fit", *args, "--trainer.max_epochs=2", "--trainer.default_root_dir=parts",
+                         "--ckpt_path", "last", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    whole = scalars(tmp_path / "whole" / "lightning_logs" / "version_0", "train/lr")
+    second = scalars(tmp_path / "parts" / "lightning_logs" / "version_1", "train/lr")
+    assert sorted(whole) == [4, 9, 14, 19, 24, 29, 34, 39] and sorted(second) == [24, 29, 34, 39], (whole, second)
+    assert len(set(second.values())) == 4  # (the cosine moves between the steps written)
+    for step, value in second.items():
+        assert value == pytest.approx(whole[step], rel=1e-6), (step, value, whole[step])
+
+
+@pytest.mark.slow
 def test_mixed_precision_trains_and_the_optimiser_options_are_refused(dataset, tmp_path):
     """bf16-mixed (16-mixed on a CPU) with the default gradient clipping trains (the fused AdamW refused clipping
     gradients it unscales itself); Lightning's --optimizer and --lr_scheduler are refused saying what to set (they

@@ -259,6 +259,9 @@ def writes_logs(trainer) -> bool:
     step, so per-step values are logged only on the steps that are written. True outside a trainer."""
     if trainer is None:
         return True
+    connector = getattr(trainer, "_logger_connector", None)  # Lightning's own decision (its step counter runs one
+    if connector is not None and hasattr(connector, "should_update_logs"):  # ahead of global_step after a resume:
+        return bool(connector.should_update_logs)  # keyed on global_step, every value was logged 10 steps late)
     return (trainer.global_step + 1) % max(trainer.log_every_n_steps, 1) == 0 or trainer.should_stop
 
 
