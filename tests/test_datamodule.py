@@ -84,6 +84,31 @@ def test_nan_in_the_training_split_is_refused_naming_the_field(dataset, tmp_path
     assert "\n" not in str(err.value)
 
 
+def test_float64_training_reads_float64_data_and_a_fit_without_validation_needs_no_val_split(dataset, tmp_path):
+    """--trainer.precision 64 trains on the file's float64 values (a float32 copy rounded them first); a fit with
+    validation off (limit_val_batches 0) takes a file without a validation split, one with validation says how."""
+    from types import SimpleNamespace
+
+    from lnn_torch.data import DatasetSpec, generate_dataset
+
+    dm = make_dm(dataset)
+    dm.trainer = SimpleNamespace(precision="64-true", limit_val_batches=1.0)
+    dm.setup("fit")
+    assert next(iter(dm.train_dataloader()))["q"].dtype == torch.float64
+    plain = make_dm(dataset)
+    plain.setup("fit")
+    assert next(iter(plain.train_dataloader()))["q"].dtype == torch.float32
+    path = generate_dataset(DatasetSpec(num_trajectories=6, duration=0.5, seed=1, split=[1.0, 0.0, 0.0]),
+                            tmp_path / "noval.h5")
+    alone = make_dm(path)
+    alone.trainer = SimpleNamespace(precision="32-true", limit_val_batches=0)
+    alone.setup("fit")
+    alone.trainer.limit_val_batches = 1.0
+    with pytest.raises(ValueError, match=r"empty 'val' split \(a fit validates on it; --trainer.limit_val_batches 0 "
+                                         r"trains without validation\)"):
+        alone.setup("fit")
+
+
 def test_a_file_from_another_spec_is_used_with_a_warning(dataset):
     dm = make_dm(dataset, spec=dict(SPEC, num_trajectories=30))
     with pytest.warns(UserWarning, match="num_trajectories: file 20 vs config 30"):

@@ -362,15 +362,22 @@ class TrajectoryDataModule(L.LightningDataModule):
             if not len(f.splits.get("train", ())):
                 raise InputError(f"{f.path}: no training recordings (a file imported to evaluate or identify with "
                                  "only): import recordings with a train split to fit on")
-            self.train_set = ChunkDataset(self.source("train"), f.num_points, self.hparams.chunk_len,
+            # float64 training (--trainer.precision 64) reads the data in float64 (a float32 copy rounded them)
+            dtype = torch.float64 if "64" in str(getattr(getattr(self, "trainer", None), "precision", "")) \
+                else torch.float32
+            self.train_set = ChunkDataset(self.source("train", dtype), f.num_points, self.hparams.chunk_len,
                                           self.hparams.chunks_per_batch, self.hparams.steps_per_epoch,
                                           self.hparams.seed)
-            note = self._velocity_note(f, self.source("train"))
+            note = self._velocity_note(f, self.source("train", dtype))
             if note:
                 print(note)
+        off = getattr(getattr(self, "trainer", None), "limit_val_batches", None) == 0  # (validation switched off)
         for split in ("val", "test"):
-            if len(f.splits[split]) == 0 and stage in (("test",) if split == "test" else ("validate", "fit")):
-                raise ValueError(f"{self.path} has an empty '{split}' split")
+            if len(f.splits[split]) == 0 and stage in (("test",) if split == "test" else ("validate",) if off
+                                                       else ("validate", "fit")):
+                raise ValueError(f"{self.path} has an empty '{split}' split"
+                                 + (" (a fit validates on it; --trainer.limit_val_batches 0 trains without validation)"
+                                    if split == "val" and stage == "fit" else ""))
 
     def _velocity_note(self, f, train: _Source) -> str | None:
         """A line where the targets are to take measured velocities (``use_measured_velocity``) and the training
