@@ -70,3 +70,20 @@ def test_a_rollout_that_becomes_non_finite_is_warned_of(model):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model.rollout(torch.zeros(2, 2), torch.tensor([[1.0, 0.0], [0.1, 0.0]]), p, 0.01, 50)
+
+
+def test_a_device_this_machine_cannot_load_on_is_named():
+    """load_model on a CUDA device without CUDA, on 'meta' or on no device at all: one line saying so (torch's error
+    was read as "not an lnn-torch checkpoint")."""
+    import torch
+
+    from lnn_torch import load_model
+    from lnn_torch.errors import InputError
+
+    cases = [("meta", "a model needs its weights"), ("nodevice", "is not a device")]
+    if not torch.cuda.is_available():
+        cases.append(("cuda", "this machine has no CUDA device"))
+    for device, message in cases:
+        with pytest.raises(InputError, match=message) as err:
+            load_model("pretrained:double_pendulum", map_location=device)
+        assert "\n" not in str(err.value)

@@ -20,6 +20,7 @@ def load_model(source, map_location="cpu") -> LNNModule:
     lnn-torch checkpoint is refused in one line (``CheckpointError``)."""
     path = ckpt.resolve(source)
     read_with_descriptions(path)
+    _check_map_location(map_location)
     try:
         model = LNNModule.load_from_checkpoint(path, map_location=map_location)
     except InputError:
@@ -28,6 +29,24 @@ def load_model(source, map_location="cpu") -> LNNModule:
         raise ckpt.unreadable(path, err) from None
     model.eval()
     return model
+
+
+def _check_map_location(map_location) -> None:
+    """``InputError`` in one line for a device this machine lacks or cannot hold a model on (a CUDA device without
+    CUDA, ``meta``: torch's error read as "not an lnn-torch checkpoint")."""
+    import torch
+
+    if callable(map_location) or isinstance(map_location, dict) or map_location is None:
+        return
+    try:
+        device = torch.device(map_location)
+    except (RuntimeError, TypeError) as err:
+        raise InputError(f"map_location {map_location!r} is not a device ({err})") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"map_location {map_location!r}: this machine has no CUDA device (torch.cuda.is_available() "
+                         "is False); load on 'cpu'")
+    if device.type == "meta":
+        raise InputError("map_location 'meta': a model needs its weights; load on 'cpu' or a GPU")
 
 
 def read_with_descriptions(source) -> dict:
