@@ -87,3 +87,13 @@ def test_a_device_this_machine_cannot_load_on_is_named():
         with pytest.raises(InputError, match=message) as err:
             load_model("pretrained:double_pendulum", map_location=device)
         assert "\n" not in str(err.value)
+
+
+def test_identify_names_the_shape_it_was_given(model):
+    """One trajectory of the wrong width: the shape given is named (it was the batched (1, T, dof) inside)."""
+    from lnn_torch.errors import InputError
+
+    with pytest.raises(InputError, match=r"q must be \(T, 2\) for scene 'double_pendulum' \(one trajectory: its "
+                                         r"samples, its coordinates\), got \(11, 3\)"):
+        model.identify(torch.arange(11) * 0.01, torch.zeros(11, 3))
+

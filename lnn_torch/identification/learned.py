@@ -115,6 +115,10 @@ def identify(model, system, t, q, qd=None, tau=None, qdd=None, **options) -> Ide
             qdd: ``(T, dof)`` accelerations, where known (None: estimated from q, qd).
         options: those of ``identify_batch``.
     """
+    for name, x, width in (("q", q, system.dof), ("qd", qd, system.dof), ("qdd", qdd, system.dof)):
+        if x is not None and (np.ndim(x) != 2 or np.shape(x)[1] != width):
+            raise InputError(f"{name} must be (T, {width}) for scene '{system.name}' (one trajectory: its samples, "
+                             f"its coordinates), got {tuple(np.shape(x))}")
     lift = lambda x: None if x is None else np.asarray(x)[None]  # noqa: E731
     return identify_batch(model, system, t, lift(q), lift(qd), lift(tau), lift(qdd), **options)[0]
 
