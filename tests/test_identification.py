@@ -147,7 +147,7 @@ def test_learned_model_identifies_noisy_observations_within_the_stated_uncertain
 
 
 @pytest.mark.parametrize("case, message", [
-    ("dof", r"q must be \(N, T, 2\) for scene 'double_pendulum' \(dof 2\)"),
+    ("dof", r"q must be \(T, 2\) for scene 'double_pendulum' \(one trajectory"),
     ("short", "too short"),
     ("nan", "q contains NaN"),
     ("uneven", "not uniformly sampled"),
