@@ -289,3 +289,26 @@ def test_out_of_range_run_settings_are_refused_in_one_line(tmp_path, monkeypatch
     err = capsys.readouterr().err.strip()
     assert err == ("lnn-torch fit: error: --trainer.check_val_every_n_epoch must be a whole number >= 1 (or null), "
                    "got 0"), err
+
+
+def test_evaluate_without_the_file_a_checkpoint_was_given_names_where_it_was(tmp_path, monkeypatch, capsys):
+    """A model fitted on a file given by its path (no specification to generate it from), evaluated where that file
+    is gone: the file, where it was when trained, and --data (it said "measured recordings" of a generated file)."""
+    import torch
+
+    from lnn_torch.training import LNNModule
+    from lnn_torch.training.checkpoint_format import DATA_PATH
+
+    from .helpers import save_checkpoint
+
+    module = LNNModule(hidden_dims=[8])
+    ckpt = save_checkpoint(module, tmp_path / "m.ckpt")
+    raw = torch.load(ckpt, weights_only=False)
+    raw["datamodule_hyper_parameters"], raw[DATA_PATH] = {"path": "data/small.h5"}, "/elsewhere/data/small.h5"
+    torch.save(raw, ckpt)
+    monkeypatch.chdir(tmp_path)
+    assert main(["evaluate", ckpt]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("lnn-torch evaluate: error: the checkpoint's data file data/small.h5 (/elsewhere/data/small.h5 "
+                   "where it was trained) is not there, and the checkpoint records no specification to generate it "
+                   "from (the fit was given the file: an import, or one generated apart): pass --data"), err

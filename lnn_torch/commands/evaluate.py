@@ -90,10 +90,10 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _data_file(saved: dict, split: str) -> str:
+def _data_file(saved: dict, split: str, resolved: str | None = None) -> str:
     """The checkpoint's dataset file (``saved``: its data hyper-parameters) where it exists, else its
     ``split`` alone from the user's cache (generated there from the specification it records, the
-    first time)."""
+    first time); ``resolved``: the file's absolute path when the checkpoint was saved."""
     from ..data import DatasetSpec
     from ..data.cache import cached_split
     from ..errors import InputError
@@ -102,8 +102,10 @@ def _data_file(saved: dict, split: str) -> str:
     if path and Path(path).exists():
         return path
     if not saved.get("spec"):
-        raise InputError(f"the checkpoint's data file {path} is not there and it records no specification to "
-                         "generate it from (measured recordings): pass --data")
+        where = f" ({resolved} where it was trained)" if resolved and str(resolved) != str(path) else ""
+        raise InputError(f"the checkpoint's data file {path}{where} is not there, and the checkpoint records no "
+                         "specification to generate it from (the fit was given the file: an import, or one "
+                         "generated apart): pass --data")
     return str(cached_split(DatasetSpec(**saved["spec"]), split, progress=True))
 
 
@@ -126,7 +128,7 @@ def main(argv: list[str]) -> int:
     from ..errors import InputError
     from ..evaluation import evaluate_model, report_sections
     from ..perf import configure_cpu, quiet_compile_logs
-    from ..training.checkpoint_format import data_hparams, output_dir
+    from ..training.checkpoint_format import DATA_PATH, data_hparams, output_dir, read_checkpoint
     from ..training.checkpoints import load_model
     from ..training.datamodule import TrajectoryDataModule
 
@@ -137,7 +139,7 @@ def main(argv: list[str]) -> int:
     if args.compile:
         module.model.compile_dynamics()
     saved = data_hparams(args.checkpoint)
-    data = args.data or _data_file(saved, args.split)
+    data = args.data or _data_file(saved, args.split, read_checkpoint(args.checkpoint).get(DATA_PATH))
     if args.data and not Path(args.data).exists():
         raise InputError(f"dataset file {args.data} does not exist (write it first, or leave --data out: the "
                          "model's own data file, a simulated scene's generated from its spec)")
