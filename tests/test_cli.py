@@ -164,6 +164,14 @@ def test_a_resumed_fit_keeps_its_best_and_its_settings(dataset, tmp_path):
     out = cli_in_process("fit", *args, "--ckpt_path", "last", "--trainer.default_root_dir=elsewhere", cwd=tmp_path)
     assert out.returncode == 2 and "--ckpt_path last: no last.ckpt in elsewhere/lightning_logs/version_*/checkpoints" \
         in out.stderr
+    # on another scene's data: one line (the model built for those data could not take the weights: a size list)
+    from lnn_torch.data import DatasetSpec, generate_dataset
+
+    other = generate_dataset(DatasetSpec(scene="pendulum", num_trajectories=6, duration=0.5, seed=1), tmp_path / "p.h5")
+    out = cli_in_process("fit", "--data.path", str(other), "--trainer.max_steps=2", "--ckpt_path",
+                         str(second / "last.ckpt"), cwd=tmp_path)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-2000:]
+    assert "a model of scene 'double_pendulum', and the data (" in out.stderr and "hold 'pendulum'" in out.stderr
 
 
 @pytest.mark.slow

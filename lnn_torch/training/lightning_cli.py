@@ -113,11 +113,37 @@ class LNNCLI(LightningCLI):
         config = self.config[self.subcommand] if self.subcommand else self.config
         if config.get("ckpt_path") and hasattr(self.model, "resuming"):  # no classical start nor residual judging
             self.model.resuming = True
+            _resumed_on(config.get("ckpt_path"), self.model, self.datamodule)
         paths = [str(getattr(p, "relative", p)) for p in (config.get("config") or [])]
         for cb in self.trainer.callbacks:
             if type(cb).__name__ == "FitSummary":
                 cb.config_paths = paths
                 cb.data_options = data_options(self.argv)
+
+
+def _resumed_on(ckpt_path, model, datamodule) -> None:
+    """A resumed fit on data of another scene than its checkpoint's model is refused in one line (the model built
+    for the data could not take the checkpoint's weights: a list of size mismatches); on another file of the same
+    scene a note says which."""
+    from pathlib import Path
+
+    from ..errors import InputError
+    from .checkpoint_format import DATA_PATH, read_checkpoint
+
+    if not Path(str(ckpt_path)).is_file():
+        return
+    ckpt = read_checkpoint(ckpt_path)
+    theirs, ours = ckpt.get("hyper_parameters", {}), model.hparams
+    dof = lambda h: (h.get("scene_config") or {}).get("dof")  # noqa: E731  (a measured system's coordinates)
+    if theirs.get("scene") != ours.get("scene") or dof(theirs) != dof(ours):
+        raise InputError(f"--ckpt_path {ckpt_path}: a model of scene '{theirs.get('scene')}'"
+                         + (f" of {dof(theirs)} coordinates" if theirs.get("scene") == ours.get("scene") else "")
+                         + f", and the data ({getattr(datamodule, 'path', '?')}) hold '{ours.get('scene')}': resume on "
+                         "its own data, or start a new run from its weights (--model.init_from) where they fit")
+    trained = ckpt.get(DATA_PATH)
+    here = getattr(datamodule, "path", None)
+    if trained and here is not None and Path(here).resolve() != Path(trained):
+        print(f"note: resuming on {here}; the checkpoint was trained on {trained}", flush=True)
 
 
 def _config_model_keys(paths) -> set[str]:
