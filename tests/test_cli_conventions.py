@@ -312,3 +312,22 @@ def test_evaluate_without_the_file_a_checkpoint_was_given_names_where_it_was(tmp
     assert err == ("lnn-torch evaluate: error: the checkpoint's data file data/small.h5 (/elsewhere/data/small.h5 "
                    "where it was trained) is not there, and the checkpoint records no specification to generate it "
                    "from (the fit was given the file: an import, or one generated apart): pass --data"), err
+
+
+def test_evaluate_computes_the_sections_asked_for(tmp_path, capsys):
+    """--sections NAME: that section alone (a metric of one's own checked without the whole report's minutes); an
+    unknown name is refused listing the sections."""
+    import json
+
+    from lnn_torch.data import DatasetSpec, generate_dataset
+    from lnn_torch.training import LNNModule
+
+    from .helpers import save_checkpoint
+
+    data = generate_dataset(DatasetSpec(num_trajectories=8, duration=0.5, seed=2), tmp_path / "d.h5")
+    ckpt = save_checkpoint(LNNModule(hidden_dims=[8]), tmp_path / "m.ckpt")
+    assert main(["evaluate", ckpt, "--data", str(data), "--sections", "accelerations", "-o", str(tmp_path / "e")]) == 0
+    metrics = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    assert "acc_rel_err" in metrics and "stability" not in metrics and "energy_drift" not in metrics, list(metrics)
+    assert main(["evaluate", ckpt, "--data", str(data), "--sections", "accel"]) == 2
+    assert "--sections: no section 'accel'; the sections: accelerations, rollouts" in capsys.readouterr().err

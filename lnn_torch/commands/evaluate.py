@@ -84,6 +84,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--long-horizon-steps", type=int, default=100_000,
                     help="RK4 steps of the long-horizon case (0: skip)")
     ap.add_argument("--output-dir", "-o", default=None, help="default: <checkpoint folder>/../evaluation")
+    ap.add_argument("--sections", nargs="+", default=None, metavar="NAME",
+                    help="the report's sections to compute (default: all of them; a section of one's own registered "
+                         "with lnn_torch.evaluation.section, e.g. through LNN_TORCH_PLUGINS, is one)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--compile", action="store_true",
                     help="accelerations through torch.compile (compiled once per batch shape; falls back to eager)")
@@ -151,8 +154,17 @@ def main(argv: list[str]) -> int:
     # the reference as in training: the file's accelerations, or the checkpoint's derivative estimates
     dm = TrajectoryDataModule(path=str(data), spec=None if f.measured else dict(f.spec),
                               targets=saved.get("targets", "file"))
+    sections = report_sections()
+    if args.sections:
+        from ..evaluation import SECTIONS
+
+        unknown = [n for n in args.sections if n not in SECTIONS]
+        if unknown:
+            raise InputError(f"--sections: no section {', '.join(map(repr, unknown))}; the sections: "
+                             f"{', '.join(SECTIONS)}")
+        sections = tuple(args.sections)
     result = evaluate_model(module.model, module.system, dm.trajectories(args.split, args.max_trajectories),
-                            sections=report_sections(), integrator=args.integrator, dt=args.dt, horizon=args.horizon,
+                            sections=sections, integrator=args.integrator, dt=args.dt, horizon=args.horizon,
                             stability_seconds=args.stability_seconds, long_horizon_steps=args.long_horizon_steps,
                             progress=_progress())
     targets = dm.targets
