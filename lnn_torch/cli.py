@@ -99,8 +99,10 @@ def main(argv: list[str] | None = None) -> int:
             err = err.__cause__
         from .errors import InputError
 
-        message = err.args[0] if isinstance(err, InputError) and isinstance(err, KeyError) and err.args else \
-            f"missing key {err.args[0]!r} (KeyError)" if isinstance(err, KeyError) and err.args else err
+        bare = isinstance(err, KeyError) and not isinstance(err, InputError) and err.args \
+            and " " not in str(err.args[0])  # (a KeyError of one word: an internal lookup, named as one)
+        message = f"missing key {err.args[0]!r} (KeyError)" if bare else err.args[0] \
+            if isinstance(err, KeyError) and err.args else err
         print(f"lnn-torch {command}: error: {message}", file=sys.stderr)
         return 2
 

@@ -43,12 +43,11 @@ def check_tensors(floating=(), **named) -> None:
 
 def values_readable() -> bool:
     """Whether the values of tensors can be read (for the checks of NaN, signs and ranges): not under a
-    ``torch.func`` transform (``vmap``, ``grad``, ``jacrev``: their tensors hold no single value) nor while
-    ``torch.compile`` traces. The checks of shapes and types hold everywhere."""
-    import torch
+    ``torch.func`` transform (``vmap``, ``grad``, ``jacrev``: their tensors hold no single value). Under
+    ``torch.compile`` the checks run (a graph break). The checks of shapes and types hold everywhere."""
     from torch._C._functorch import peek_interpreter_stack
 
-    return peek_interpreter_stack() is None and not torch.compiler.is_compiling()
+    return peek_interpreter_stack() is None
 
 
 def is_number(x, finite: bool = False) -> bool:

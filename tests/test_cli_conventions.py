@@ -4,6 +4,8 @@ help texts without doubled defaults."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from lnn_torch._version import __version__
@@ -242,6 +244,9 @@ def test_identify_keeps_one_report_folder_per_recording(tmp_path, monkeypatch, c
                               trajectory=0)) == run.parent / "identification" / "arm-test-0"
     assert _default_output(NS(checkpoint=str(run / "epoch2-err0.1.ckpt"), recording="x.csv", split="test",
                               trajectory=0)) == run.parent / "identification" / "epoch2-err0.1" / "x"
+    # a checkpoint outside a run folder (downloaded, or kept in results/): here, by its name
+    assert _default_output(NS(checkpoint=str(tmp_path / "results" / "model.ckpt"), recording="x.csv", split="test",
+                              trajectory=0)) == Path("identification") / "model" / "x"
 
 
 def test_plugins_are_imported_before_a_command_and_a_missing_one_is_named(tmp_path, monkeypatch, capsys):
@@ -331,3 +336,15 @@ def test_evaluate_computes_the_sections_asked_for(tmp_path, capsys):
     assert "acc_rel_err" in metrics and "stability" not in metrics and "energy_drift" not in metrics, list(metrics)
     assert main(["evaluate", ckpt, "--data", str(data), "--sections", "accel"]) == 2
     assert "--sections: no section 'accel'; the sections: accelerations, rollouts" in capsys.readouterr().err
+
+
+def test_a_resumed_fit_compares_model_options_as_the_module_rewrites_them():
+    """The module leaves a force residual out of model_options where it is not learned (learn_residual): resuming
+    with the same config compares the rest (a note, or a refusal, fired on the config's own residual)."""
+    from lnn_torch.training.lightning_cli import _rewritten
+
+    config = {"friction": "viscous", "residual_force": {"local": True}}
+    assert _rewritten("model_options", config, {"friction": "viscous"})
+    assert not _rewritten("model_options", config, {"friction": "coulomb"})
+    assert not _rewritten("lr", 0.1, 0.01)
+

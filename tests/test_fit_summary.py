@@ -179,3 +179,17 @@ def test_an_interrupted_fit_saves_the_step_reached_and_says_how_to_resume(tmp_pa
                                (KeyboardInterrupt(), {"global_step": 0})):
         callback.on_exception(SimpleNamespace(**{**vars(trainer), **changes}), None, exception)
     assert len(saved) == 1
+
+
+def test_the_clis_best_checkpoint_follows_the_monitor_a_run_selects_by():
+    """The CLI's best-checkpoint callback (``BestCheckpoint``, a ModelCheckpoint) switches to the scalar a run selects
+    its state by (an arm's torques): a test of the exact class missed the subclass, and the files kept the
+    acceleration error's name."""
+    from lnn_torch.training.callbacks import BestCheckpoint, best_checkpoint_on
+    from lnn_torch.training.lightning_cli import CALLBACKS
+
+    callback = BestCheckpoint(**CALLBACKS[0]["init_args"])
+    assert CALLBACKS[0]["class_path"].endswith("BestCheckpoint") and callback.monitor == "val/acc_rel_err"
+    best_checkpoint_on(SimpleNamespace(checkpoint_callbacks=[callback]), "val/torque_rms")
+    assert callback.monitor == "val/torque_rms" and "torque_rms" in callback.filename
+    assert callback.state_key.startswith("ModelCheckpoint{'monitor': 'val/torque_rms'")  # (Lightning's own key)

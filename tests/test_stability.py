@@ -423,7 +423,7 @@ def test_the_trusted_range_settled_from_the_extremes_equals_the_exact_check():
     model = fresh_model("film_lnn")
     norm = model.normalizer
     names, units = ["m1", "m2", "l1", "l2"], ["kg", "kg", "m", "m"]
-    low, high = (x.double() for x in norm._bounds(norm.EXTRAPOLATION))  # (where it warns; trusted goes further)
+    low, high = (x.double() for x in norm._bounds(norm.extrapolation_limits()))  # (it warns there; trusted: further)
     inside = torch.tensor([[1.0, 0.8, 1.2, 1.1], [0.9, 1.1, 1.0, 0.9]], dtype=torch.float64)
     cases = [inside]
     for bound, factor in ((high, 1 - 1e-12), (high, 1 + 1e-6), (low, 1 + 1e-12), (low, 1 - 1e-6), (high, 50.0)):
@@ -465,14 +465,14 @@ def test_parameters_beyond_the_trusted_range_condition_on_its_bound_with_a_warni
                                                        r"standard deviations \(trusted\) the model is conditioned"):
         a_far = model.acceleration(q, qd, far)
     # beyond the range it was trained on (3 standard deviations) but trusted: extrapolation, said so (unclamped)
-    near_low, near_high = model.normalizer._bounds(model.normalizer.EXTRAPOLATION)
+    near_low, near_high = model.normalizer._bounds(model.normalizer.extrapolation_limits())
     past = inside.clone()
     past[0, 2] = 0.5 * (float(near_high[2]) + float(high[2]))
     with pytest.warns(UntrustedParameterWarning) as caught:
         model.acceleration(q, qd, past)
     message = str(caught[0].message)
-    assert message == (f"parameters beyond the range the model was trained on (3 standard deviations of its training "
-                       f"parameters; its answers there are extrapolation): l1 = {float(past[0, 2]):.4g} m (range "
+    assert message == (f"parameters beyond the range the model was trained on (its answers there are extrapolation): "
+                       f"l1 = {float(past[0, 2]):.4g} m (range "
                        f"{float(near_low[2]):.3g} to {float(near_high[2]):.3g})"), message
     just = inside.clone()
     just[0, 2] = 0.999 * float(near_high[2])
@@ -483,3 +483,36 @@ def test_parameters_beyond_the_trusted_range_condition_on_its_bound_with_a_warni
         assert torch.allclose(model.normalizer.params(far), model.normalizer.params(bound), atol=1e-12)
     # the conditioning equals the bound's; the physical length still enters the normalised state
     assert torch.isfinite(a_far).all()
+
+
+def test_the_extrapolation_warning_starts_beyond_the_farthest_training_parameter():
+    """Training parameters drawn far in a lognormal's tail (beyond 3 standard deviations) are inside what the model
+    saw: the warning starts at 1.1 times the farthest (recorded when the normaliser is fitted; 3 at least); a
+    checkpoint written before that was recorded (the shipped ones) loads with it unknown and warns beyond 4."""
+    import warnings
+
+    from lnn_torch import load_model
+    from lnn_torch.errors import UntrustedParameterWarning
+    from lnn_torch.networks.normalization import Normalizer
+
+    gen = torch.Generator().manual_seed(0)
+    log_m = torch.randn(4000, generator=gen, dtype=torch.float64) * 0.3
+    params = torch.stack([log_m.exp(), torch.full_like(log_m, 1.0)], -1)
+    params[0, 1] = 1.5  # (a second parameter with some spread)
+    norm = Normalizer(2, 2, [True, True])
+    norm.fit(torch.zeros(10, 2), torch.zeros(10, 2), torch.randn(10, 2, generator=gen), params)
+    z = (params.log() - norm.param_log_mean) / norm.param_log_std
+    assert float(norm.param_z_max[0]) == pytest.approx(float(z[:, 0].abs().max())) and norm.param_z_max[0] > 3
+    limit = norm.extrapolation_limits()
+    assert float(limit[0]) == pytest.approx(1.1 * float(norm.param_z_max[0]))
+    names, units = ["m", "k"], ["kg", "N/m"]
+    assert norm.untrusted(params, names, units) is None  # its own training parameters: no warning
+    far = params[:1].clone()
+    far[0, 0] = float((norm.param_log_mean[0] + 1.01 * limit[0] * norm.param_log_std[0]).exp())
+    assert norm.untrusted(far, names, units).startswith("parameters beyond the range the model was trained on")
+    shipped = load_model("pretrained:double_pendulum").model.normalizer
+    assert (shipped.param_z_max == 0).all() and (shipped.extrapolation_limits() == 4.0).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UntrustedParameterWarning)
+        load_model("pretrained:double_pendulum").acceleration(torch.zeros(1, 2), torch.zeros(1, 2),
+                                                               torch.tensor([[1.0, 0.6, 6.0, 1.0]]))

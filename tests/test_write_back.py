@@ -419,6 +419,13 @@ def test_an_mjcf_as_the_robot_is_written_as_compiled(tmp_path, float64):
     assert '<include file="../src/defaults.xml"/>' in result.path.read_text()  # closed as the file closes them
     assert "hand" not in arm.body_names and {"payload", "tool"} <= set(arm.body_names)
     assert any(n.startswith("the bodies the model's description removes (hand)") for n in result.notes), result.notes
+    assert not [n for n in result.notes if "do not determine" in n]
+    # a model started from a classical fit whose recordings left values to its prior: the export says which
+    model.classical_start = {"held_by_prior": [f"joint{j}.{k}" for j in (1, 2) for k in ("Ixx", "Iyy", "armature")]}
+    held = wb.write_description(model, tmp_path / "out" / "held.xml", payload=PAYLOAD)
+    assert ("the training recordings do not determine 6 of the values written (joint1.Ixx, joint1.Iyy, "
+            "joint1.armature, joint2.Ixx, joint2.Iyy, joint2.armature): the fit's prior towards the description holds "
+            "them") in " ".join(held.notes), held.notes
 
 
 def test_a_wrong_frame_conversion_is_caught(tmp_path, float64, monkeypatch):

@@ -492,20 +492,22 @@ def _model_start(module) -> str:
 
 def _default_output(args) -> Path:
     """Per model and recording: ``<run>/identification/<recording stem>`` beside a run's checkpoints folder
-    (``<run>/identification/<checkpoint stem>/...`` for a checkpoint other than ``last.ckpt``), or
-    ``identification/<name>/...`` for ``pretrained:<name>``; ``-<split>-<trajectory>`` after the stem of a
-    dataset file."""
+    (``<run>/identification/<checkpoint stem>/...`` for a checkpoint other than ``last.ckpt``),
+    ``identification/<name>/...`` for ``pretrained:<name>`` or a checkpoint outside a run folder (by its
+    name); ``-<split>-<trajectory>`` after the stem of a dataset file."""
     from ..training.checkpoint_format import output_dir
 
     path = Path(args.recording)
     stem = path.name.split(".")[0]
     if path.suffix in (".h5", ".hdf5"):
         stem += f"-{args.split}-{args.trajectory}"
+    checkpoint = Path(str(args.checkpoint))
+    if str(args.checkpoint).startswith("pretrained:"):
+        return output_dir(args.checkpoint, None, "identification") / stem
+    if checkpoint.parent.name != "checkpoints":  # a checkpoint outside a fit's run folder: here, by its name
+        return Path("identification") / checkpoint.stem / stem
     folder = output_dir(args.checkpoint, None, "identification")
-    checkpoint = Path(str(args.checkpoint)).stem
-    if not str(args.checkpoint).startswith("pretrained:") and checkpoint != "last":
-        folder = folder / checkpoint
-    return folder / stem
+    return (folder if checkpoint.stem == "last" else folder / checkpoint.stem) / stem
 
 
 def _unit(coefficients: dict, system) -> str:

@@ -146,20 +146,24 @@ def stability_markdown(results: dict[str, list[dict]]) -> str:
     Case names and refusals are written as they are (the shipped reports' text: a ``|`` in them is
     not escaped)."""
     lines = table_header(["case", "model", "non-finite rollouts", "max true-energy drift", "max cond(M)"])
-    clamped = False
+    clamped: set[str] = set()  # the marks used: * beyond the training range, ** beyond the trusted range
     for case, row_of in _by_case(results):
         for name, r in row_of.items():
             if "error" in r:
                 lines.append(table_row([case, name, f"refused: {r['error']}", "-", "-"]))
                 continue
             cond = r.get("max_cond")
-            mark = " *" if "untrusted_parameters" in r else ""
-            clamped |= bool(mark)
+            message = r.get("untrusted_parameters", "")
+            mark = " **" if "conditioned on the nearest" in message else " *" if message else ""
+            clamped |= {mark.strip()} - {""}
             lines.append(table_row([case + mark, name, pct(r["non_finite_fraction"]), f"{r['max_energy_drift']:.2e}",
                                     "-" if cond is None else f"{cond:.3g}"]))
-    if clamped:
-        lines += ["", f"\\* parameters beyond the model's trusted range ({Normalizer.TRUST:g} standard deviations of "
-                      "its training parameters): the model is conditioned on the nearest trusted values."]
+    if "*" in clamped:
+        lines += ["", "\\* parameters beyond the range the model was trained on (its answers there are "
+                      "extrapolation)."]
+    if "**" in clamped:
+        lines += ["", f"\\*\\* parameters beyond the model's trusted range ({Normalizer.TRUST:g} standard deviations "
+                      "of its training parameters): the model is conditioned on the nearest trusted values."]
     return "\n".join(lines)
 
 

@@ -1172,6 +1172,12 @@ def write_description(source, path, format: str | None = None, *, payload=None, 
         ident.notes.append(f"{described} of the links' values lie within the model's round-off ({ident.resolution:.2g} "
                            "relative) of the description's (the data determined nothing there): written as the "
                            "description has them")
+    held = (getattr(source, "classical_start", None) or {}).get("held_by_prior") or []
+    if held:
+        shown = ", ".join(held[:8]) + (f" and {len(held) - 8} more" if len(held) > 8 else "")
+        ident.notes.append(f"the training recordings do not determine {len(held)} of the values written ({shown}): "
+                           "the fit's prior towards the description holds them (lnn-torch identify lists what the "
+                           "recordings determine)")
     desc = ident.description
     src = desc.path
     text = src.read_text()

@@ -198,7 +198,10 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
             "coulomb_velocity": drive.coulomb_velocity, "smoothing_selection": smoothing,
             **({"saturation_velocity": drive.saturation_velocity, "saturation_selection": saturation}
                if "saturating" in configured.forms else {}),
-            "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points")}
+            "fit_seconds": time.perf_counter() - began, "train_points": fit.info.get("train_points"),
+            # the physical parameters the training data do not determine (the prior towards the description holds
+            # them): an export of the model says so beside the values it writes
+            "held_by_prior": list((fit.info.get("uncertainty") or {}).get("held_by_prior") or [])}
 
 
 def _coulomb_velocity(system, train, val, drive, stride: int, chain) -> tuple:

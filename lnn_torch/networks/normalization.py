@@ -38,8 +38,11 @@ class Normalizer(nn.Module):
     TRUST = 8.0  # |z| of a parameter beyond which the conditioning networks see the bound
     # |z| beyond which a model's answers are extrapolation, said with ``UntrustedParameterWarning``: 3 standard
     # deviations is 1.7 times the half-width of uniformly sampled training parameters (the shipped double
-    # pendulum's error is 1.2 % at 1.8 times its longest training length, 7.5 % at 2.7 and 39 % at 4.5 times)
+    # pendulum's error is 1.2 % at 1.8 times its longest training length, 7.5 % at 2.7 and 39 % at 4.5 times), or
+    # 1.1 times the farthest training parameter (``param_z_max``: lognormal masses reach 3.8 in 6,000 draws); a
+    # checkpoint written before the farthest was recorded: ``EXTRAPOLATION_UNKNOWN``
     EXTRAPOLATION = 3.0
+    EXTRAPOLATION_UNKNOWN = 4.0
 
     def __init__(self, dof: int, num_params: int, angle_mask, param_kinds=None, num_inputs: int = 0,
                  forces: bool = False) -> None:
@@ -58,6 +61,9 @@ class Normalizer(nn.Module):
         self.register_buffer("time_scale", torch.ones(()))
         self.register_buffer("param_log_mean", torch.zeros(num_params))
         self.register_buffer("param_log_std", torch.ones(num_params))
+        # the largest |z| of the training parameters (0: not recorded, a checkpoint written before it was)
+        self.register_buffer("param_z_max", torch.zeros(num_params))
+        self.register_load_state_dict_pre_hook(_record_missing_z_max)
         self.register_buffer("accel_rms", torch.ones(dof))
         # Hamiltonian models: one momentum scale, and the rms of each vector-field component
         self.register_buffer("momentum_scale", torch.ones(()))
@@ -94,6 +100,8 @@ class Normalizer(nn.Module):
         # (no parameters: nothing to reduce, and torch warns about the degrees of freedom of an empty std)
         self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if self.num_params and len(logp) > 1
                                  else torch.ones(self.num_params))
+        if self.num_params and len(logp):
+            self.param_z_max.copy_(((logp - self.param_log_mean) / self.param_log_std).abs().amax(0))
         self.accel_rms.copy_((acc * t_scale**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
         if hasattr(self, "force_scale") and input_force is not None:
             rms = (input_force.double().reshape(-1, self.dof) * scale).pow(2).mean().sqrt()
@@ -136,27 +144,34 @@ class Normalizer(nn.Module):
         if extremes is not None and self._inside(*extremes):
             return None
         z = (self._transform(params.double()) - self.param_log_mean.double()) / self.param_log_std.double()
-        out = (z.abs() > self.EXTRAPOLATION).any(0)
+        limits = self.extrapolation_limits().to(z.device)
+        out = (z.abs() > limits).any(0)
         if not out.any():
             return None
-        near, far = self._bounds(self.EXTRAPOLATION), self._bounds(self.TRUST)
+        near, far = self._bounds(limits), self._bounds(self.TRUST)
         beyond, parts = False, []
         for i in out.nonzero().flatten().tolist():
-            value = float(params[(z[:, i].abs() > self.EXTRAPOLATION).nonzero()[0, 0], i])
+            value = float(params[(z[:, i].abs() > limits[i]).nonzero()[0, 0], i])
             distant = bool((z[:, i].abs() > self.TRUST).any())
             beyond |= distant
             low, high = (far if distant else near)
             parts.append(f"{names[i]} = {value:.4g} {units[i]} ({'trusted' if distant else 'range'} "
                          f"{float(low[i]):.3g} to {float(high[i]):.3g})")
-        return (f"parameters beyond the range the model was trained on ({self.EXTRAPOLATION:g} standard deviations of "
-                f"its training parameters; its answers there are extrapolation): {', '.join(parts)}"
+        return (f"parameters beyond the range the model was trained on (its answers there are extrapolation): "
+                f"{', '.join(parts)}"
                 + (f"; beyond {self.TRUST:g} standard deviations (trusted) the model is conditioned on the nearest "
                    "trusted values" if beyond else ""))
 
-    def _bounds(self, sigmas: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(low, high)`` ``(P,)``: the SI parameters ``sigmas`` standard deviations from the training mean (a
-        linear parameter's low end at 0 at least: those are >= 0)."""
-        bound = torch.full_like(self.param_log_mean, sigmas)
+    def extrapolation_limits(self) -> torch.Tensor:
+        """``(P,)``: the |z| of each parameter beyond which the model extrapolates (``EXTRAPOLATION``)."""
+        z_max = self.param_z_max.double()
+        return torch.where(z_max > 0, (1.1 * z_max).clamp_min(self.EXTRAPOLATION),
+                           torch.full_like(z_max, self.EXTRAPOLATION_UNKNOWN))
+
+    def _bounds(self, sigmas) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(low, high)`` ``(P,)``: the SI parameters ``sigmas`` (a number, or one per parameter) standard
+        deviations from the training mean (a linear parameter's low end at 0 at least: those are >= 0)."""
+        bound = torch.as_tensor(sigmas, dtype=self.param_log_mean.dtype).expand_as(self.param_log_mean).clone()
         low, high = self.params_to_phys(-bound), self.params_to_phys(bound)
         return torch.where(self.param_log.to(low.device), low, low.clamp_min(0)), high
 
@@ -167,8 +182,8 @@ class Normalizer(nn.Module):
         so the extremes decide."""
         # read every call (no cache that a write through ``.data`` or an inference tensor would defeat)
         logs, means, stds = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std))
-        limit = self.EXTRAPOLATION - 1e-9
-        for lo, hi, log, mean, std in zip(low, high, logs, means, stds, strict=True):
+        limits = (self.extrapolation_limits() - 1e-9).tolist()
+        for lo, hi, log, mean, std, limit in zip(low, high, logs, means, stds, limits, strict=True):
             if log:
                 if not lo > 0:
                     return False
@@ -208,3 +223,11 @@ def trusted(params_norm: torch.Tensor) -> torch.Tensor:
     standard deviations (unchanged where ``Normalizer.params`` already clamped them; the ``exact`` ones,
     which a physics part takes at any value, clamped here for the networks beside it)."""
     return params_norm.clamp(-Normalizer.TRUST, Normalizer.TRUST)
+
+
+def _record_missing_z_max(module, state_dict, prefix, *args) -> None:
+    """A checkpoint written before ``param_z_max`` was recorded loads with it unknown (zeros)."""
+    key = prefix + "param_z_max"
+    if key not in state_dict and prefix + "param_log_mean" in state_dict:
+        state_dict[key] = torch.zeros_like(state_dict[prefix + "param_log_mean"])
+

@@ -406,10 +406,8 @@ def best_checkpoint_on(trainer, monitor: str) -> None:
     """The CLI's best-checkpoint callback (on the acceleration error) keeps the best state on ``monitor`` instead
     (what ``SelectOnValidation`` judges: a model trained on torques alone has no acceleration error worth a file
     name); a resumed run's module calls it before the callbacks' state is loaded, which is keyed by it."""
-    from lightning.pytorch.callbacks import ModelCheckpoint
-
     for cb in trainer.checkpoint_callbacks:
-        if type(cb) is ModelCheckpoint and cb.monitor == "val/acc_rel_err" and cb.mode == "min":
+        if isinstance(cb, ModelCheckpoint) and cb.monitor == "val/acc_rel_err" and cb.mode == "min":
             cb.monitor = monitor
             cb.filename = f"epoch{{epoch}}-{monitor.rpartition('/')[2]}{{{monitor}:.4f}}"
 

@@ -24,9 +24,7 @@ class LNNCLI(LightningCLI):
         if asked:
             from ..errors import InputError
 
-            raise InputError(f"{asked}: the model configures its own optimiser (AdamW, a cosine schedule per step from "
-                             "model.lr to model.lr_min, no weight decay on physical coefficients): set --model.lr, "
-                             "--model.lr_min, --model.weight_decay")
+            raise InputError(f"{asked}: {OWN_OPTIMISER}")
         super().parse_arguments(parser, args)
 
     def _parse_ckpt_path(self) -> None:
@@ -52,17 +50,21 @@ class LNNCLI(LightningCLI):
         if not asked:
             return
         model = self.config[sub]["model"]
+        advice = (": to train on with other settings, start a new run from its weights (--model.init_from "
+                  "CHECKPOINT)" if sub == "fit" else "")
         for key, value in asked.items():
             stored = model.get(key)
             if key in EVALUATION or value == stored:
                 model[key] = value
                 continue
+            if key not in typed:  # a config file's: said, not refused (the module rewrites some settings it
+                if not _rewritten(key, value, stored):  # gives, e.g. a residual left out of model_options)
+                    print(f"note: model.{key} {value!r} (a config file's) differs from the checkpoint's {stored!r}: "
+                          f"a --ckpt_path run keeps the checkpoint's{advice}", flush=True)
+                continue
             from ..errors import InputError
 
-            advice = (": to train on with other settings, start a new run from its weights (--model.init_from "
-                      "CHECKPOINT)" if sub == "fit" else "")
-            where = f"--model.{key} {value!r}" if key in typed else f"model.{key} {value!r} (a config file's)"
-            raise InputError(f"{where}: the checkpoint's model has {stored!r}, and a --ckpt_path "
+            raise InputError(f"--model.{key} {value!r}: the checkpoint's model has {stored!r}, and a --ckpt_path "
                              f"checkpoint keeps its model and training settings (only {', '.join(EVALUATION)} may "
                              f"change){advice}")
 
@@ -93,6 +95,11 @@ class LNNCLI(LightningCLI):
         config = self.config[self.subcommand] if self.subcommand else self.config
         register_description_copies(config.get("ckpt_path"))
         trainer = config.get("trainer")
+        chosen = next((k for k in ("optimizer", "lr_scheduler") if config.get(k)), None)
+        if chosen:  # (a config file's; the command line's is refused as it is parsed)
+            from ..errors import InputError
+
+            raise InputError(f"{chosen}: {OWN_OPTIMISER}")
         every = trainer.get("check_val_every_n_epoch") if trainer is not None else None
         if every is not None and (isinstance(every, bool) or not isinstance(every, int) or every < 1):
             from ..errors import InputError  # (Lightning divided by it, a ZeroDivisionError after the model summary)
@@ -146,6 +153,15 @@ def _resumed_on(ckpt_path, model, datamodule) -> None:
         print(f"note: resuming on {here}; the checkpoint was trained on {trained}", flush=True)
 
 
+def _rewritten(key: str, given, stored) -> bool:
+    """Whether the checkpoint's ``stored`` value of model setting ``key`` is the config's ``given`` as the module
+    rewrites it when it builds the model: a force residual left out of ``model_options`` (``learn_residual``)."""
+    if key != "model_options" or not isinstance(given, dict) or not isinstance(stored, dict):
+        return False
+    return {k: v for k, v in given.items() if k != "residual_force"} == \
+        {k: v for k, v in stored.items() if k != "residual_force"}
+
+
 def _config_model_keys(paths) -> set[str]:
     """The model settings (``model: {key: ...}``) the config files ``paths`` (``-c``) give."""
     import yaml
@@ -185,6 +201,10 @@ def _last_checkpoint(config) -> str:
     print(f"--ckpt_path last: {latest}", flush=True)
     return str(latest)
 
+
+OWN_OPTIMISER = ("the model configures its own optimiser (AdamW, a cosine schedule per step from model.lr to "
+                 "model.lr_min, no weight decay on physical coefficients): set --model.lr, --model.lr_min, "
+                 "--model.weight_decay")
 
 # the model's settings of how it is judged (validation and test rollouts, the threshold of the time within it, figures,
 # compilation): a --ckpt_path command line may set them (every other setting is the checkpoint's)
@@ -312,7 +332,7 @@ def run_cli(argv: list[str]) -> LNNCLI:
     # from the console script argv is sys.argv[1:]: let LightningCLI read it itself (given both, it warns)
     args = None if argv == sys.argv[1:] else argv
     return LNNCLI(LNNModule, TrajectoryDataModule, args=args, trainer_defaults=TRAINER_DEFAULTS,
-                  save_config_kwargs={"overwrite": True}, seed_everything_default=0, auto_configure_optimizers=False)
+                  save_config_kwargs={"overwrite": True}, seed_everything_default=0)
 
 
 def register_description_copies(ckpt_path) -> None:
