@@ -501,3 +501,25 @@ def test_learned_saturating_friction_starts_where_told_and_never_injects_energy(
             rates = qd * torch.where(torch.rand_like(qd) < 0.5, 0.01, 3.0)
             power = (rates * forces.friction_torque(rates, p_n)).sum(-1)
             assert (power >= -1e-12).all()
+
+
+def test_predict_on_an_actuated_scene_uses_the_recorded_inputs(tmp_path):
+    """``predict`` (the Lightning command's per-point accelerations) under each point's recorded torques, which it
+    left out (a 587 % error on the shipped arm's own data), with the inputs and the points' mask in its output."""
+    import lightning as L
+
+    from lnn_torch.networks.calls import model_accelerations
+    from lnn_torch.training import LNNModule, TrajectoryDataModule
+
+    path = generate_dataset(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=4, duration=0.5, seed=3,
+                                        split=[0.5, 0.0, 0.5]), tmp_path / "a.h5")
+    module = LNNModule(scene="actuated_double_pendulum", hidden_dims=[8], torque_weight=1.0)
+    dm = TrajectoryDataModule(path=str(path), eval_stride=5)
+    module.model.fit_normalizer(dm.normalization_data())
+    (out,) = L.Trainer(logger=False, enable_progress_bar=False, enable_model_summary=False,
+                       inference_mode=False).predict(module, datamodule=dm)
+    assert out["tau"].shape[:2] == out["q"].shape[:2] and out["valid"].all()
+    with_inputs = model_accelerations(module.model, out["q"], out["qd"], out["params"], out["tau"])
+    without = model_accelerations(module.model, out["q"], out["qd"], out["params"])
+    torch.testing.assert_close(out["qdd_pred"], with_inputs, rtol=0, atol=0)
+    assert (out["qdd_pred"] - without).abs().max() > 1e-3

@@ -33,7 +33,8 @@ from lightning.pytorch.utilities import rank_zero_warn
 
 
 class PredictionWriter(BasePredictionWriter):
-    """Writes ``predict`` outputs (per test trajectory: q, qd, params, true and predicted qdd) to an
+    """Writes ``predict`` outputs (per test trajectory: q, qd, params, true and predicted qdd, the inputs tau of an
+    actuated scene, ``valid``: the points of each recording, the rest padding) to an
     ``.npz`` file: ``output`` if given, else ``<log_dir>/predictions.npz``. Refuses to replace an
     existing file unless ``overwrite``."""
 

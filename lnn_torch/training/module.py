@@ -542,9 +542,13 @@ class LNNModule(L.LightningModule):
         self._evaluate(batch, "test")
 
     def predict_step(self, batch, batch_idx):
-        pred = model_accelerations(self.model, batch["q"], batch["qd"], batch["params"][:, 0])
-        return {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
-                "qdd_true": batch["qdd"], "qdd_pred": pred}
+        """The model's accelerations at the test points under their recorded inputs (``tau`` of an actuated scene:
+        they were left out), with ``valid`` marking the points of each recording (the rest pads shorter ones)."""
+        tau = batch.get("tau") if self.system.num_inputs else None
+        pred = model_accelerations(self.model, batch["q"], batch["qd"], batch["params"][:, 0], tau)
+        out = {"trajectory": batch["trajectory"], "q": batch["q"], "qd": batch["qd"], "params": batch["params"][:, 0],
+               "qdd_true": batch["qdd"], "qdd_pred": pred, "valid": torch.isfinite(batch["q"]).all(-1)}
+        return out if tau is None else {**out, "tau": tau}
 
 
 def _warn_once_of_excitation(caught) -> None:
