@@ -379,3 +379,16 @@ def test_read_rows_equals_hdf5_point_selection(tmp_path):
     with h5py.File(tmp_path / "a.h5", "r") as f:
         for rows in ([0], [39], [0, 1, 2, 7, 8, 20, 39], list(range(40)), [], [3, 5, 7]):
             np.testing.assert_array_equal(read_rows(f["x"], rows), values[rows])
+
+
+def test_a_parameter_can_be_held_fixed_and_a_split_must_leave_training_trajectories(tmp_path):
+    """A range [a, a] is one value (a fixed system, a frictionless actuated one: it was refused as empty); a split
+    whose validation and test shares round up to every trajectory is refused (it wrote an empty training split)."""
+    from lnn_torch.systems.base import Range
+
+    assert Range(1.0, 1.0).sample(np.random.default_rng(0), 3).tolist() == [1.0, 1.0, 1.0]
+    path = generate_dataset(DatasetSpec(scene="pendulum", num_trajectories=3, duration=0.5, seed=1,
+                                        scene_config={"l_range": [1.0, 1.0], "m_range": [0.5, 0.5]}), tmp_path / "p.h5")
+    np.testing.assert_array_equal(np.asarray(read_dataset(path).read("params")), [[0.5, 1.0]] * 3)
+    with pytest.raises(InputError, match=r"split \[0\.1, 0\.45, 0\.45\] of 2 trajectories leaves none for training"):
+        DatasetSpec(num_trajectories=2, duration=1.0, split=[0.1, 0.45, 0.45])

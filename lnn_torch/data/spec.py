@@ -111,6 +111,10 @@ class DatasetSpec:
             raise InputError(f"split must be three non-negative fractions summing to 1, got {self.split}")
         if self.split[0] == 0:
             raise InputError("split: the training fraction must be positive")
+        n = int(self.num_trajectories)
+        if n - int(round(self.split[1] * n)) - int(round(self.split[2] * n)) < 1:  # (as split_indices rounds them)
+            raise InputError(f"split {list(self.split)} of {n} trajectories leaves none for training (the validation "
+                             "and test shares round up to all of them): more trajectories, or a larger training share")
         if int(self.substeps) < 1:
             raise InputError(f"substeps must be >= 1, got {self.substeps}")
         for name in ("energy_tol", "adaptive_tol"):

@@ -32,7 +32,7 @@ PARAM_KINDS = ("positive", "nonnegative", "real")  # see ``System.param_kinds``
 
 @dataclass(frozen=True)
 class Range:
-    """A closed interval ``[low, high]`` with ``low < high``."""
+    """A closed interval ``[low, high]`` with ``low <= high`` (``low == high``: one value, a parameter held fixed)."""
 
     low: float
     high: float
@@ -43,8 +43,6 @@ class Range:
             raise InputError(f"range [{lo}, {hi}] is not finite")
         if lo > hi:
             raise InputError(f"range [{lo}, {hi}] is inverted (low > high)")
-        if lo == hi:
-            raise InputError(f"range [{lo}, {hi}] is empty (low == high)")
 
     def sample(self, rng: np.random.Generator, size) -> np.ndarray:
         return rng.uniform(self.low, self.high, size=size)
