@@ -158,7 +158,7 @@ def test_read_rejects_bad_files(tmp_path):
     [
         (["--scene", "triple_pendulum"], "unknown scene 'triple_pendulum'"),
         (["--scene-config", '{"l1_range": [2.0, 1.0]}'], "inverted"),
-        (["--scene-config", '{"l1_range": [1.0, 1.0]}'], "empty"),
+        (["--scene-config", '{"l1_range": [1.0]}'], "expected a pair"),
         (["--scene-config", "{oops"], "not valid JSON"),
         (["--num-trajectories", "0"], "num_trajectories must be >= 1"),
         (["--dt", "-0.1"], "dt must be positive"),
