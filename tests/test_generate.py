@@ -392,3 +392,19 @@ def test_a_parameter_can_be_held_fixed_and_a_split_must_leave_training_trajector
     np.testing.assert_array_equal(np.asarray(read_dataset(path).read("params")), [[0.5, 1.0]] * 3)
     with pytest.raises(InputError, match=r"split \[0\.1, 0\.45, 0\.45\] of 2 trajectories leaves none for training"):
         DatasetSpec(num_trajectories=2, duration=1.0, split=[0.1, 0.45, 0.45])
+
+
+def test_trajectories_redone_with_adaptive_steps_are_counted_and_said(tmp_path, capsys):
+    """A first pass that fails the accuracy check (semi-implicit Euler) is integrated again with adaptive DOP853: the
+    steps each took count both passes, the refined trajectories are counted, and generate says the data are the
+    adaptive pass's (one adaptive step per interval looked like the fixed pass: 0 refined, the method's name only)."""
+    out = tmp_path / "sie.h5"
+    assert main(["generate", "-n", "3", "--duration", "1", "--integrator", "semi_implicit_euler", "--no-progress",
+                 "-o", str(out)]) == 0
+    assert "note: 3 of 3 trajectories failed the semi_implicit_euler pass's accuracy check and were integrated " \
+           "again with adaptive DOP853 steps" in capsys.readouterr().out
+    f = read_dataset(out)
+    assert json.loads(f.attrs["tolerances"])["refined_trajectories"] == 3
+    assert (np.asarray(f.read("integrator_steps")) > 200).all()  # 200 fixed steps, then the adaptive ones
+    assert main(["generate", "-n", "3", "--duration", "1", "--no-progress", "-o", str(tmp_path / "rk8.h5")]) == 0
+    assert "note:" not in capsys.readouterr().out

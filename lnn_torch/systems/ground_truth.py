@@ -92,8 +92,9 @@ def integrate_ground_truth(system, q0, qd0, params, dt: float, num_steps: int, i
     for tol in tolerances:
         if not todo.numel():
             break
-        y[todo], steps[todo] = _adaptive(system, q0[todo], qd0[todo], params[todo], dt, num_steps, tol,
-                                         None if tau is None else tau[todo])
+        y[todo], taken = _adaptive(system, q0[todo], qd0[todo], params[todo], dt, num_steps, tol,
+                                   None if tau is None else tau[todo])
+        steps[todo] += taken  # every step taken, the passes before included (a refined count tells them apart)
         check[todo] = residual(todo)
         todo = todo[~(check[todo] <= energy_tol)]
     if todo.numel():
