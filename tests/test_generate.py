@@ -408,3 +408,14 @@ def test_trajectories_redone_with_adaptive_steps_are_counted_and_said(tmp_path, 
     assert (np.asarray(f.read("integrator_steps")) > 200).all()  # 200 fixed steps, then the adaptive ones
     assert main(["generate", "-n", "3", "--duration", "1", "--no-progress", "-o", str(tmp_path / "rk8.h5")]) == 0
     assert "note:" not in capsys.readouterr().out
+
+
+def test_a_dataset_too_large_for_the_memory_and_bad_seeds_are_refused_before_any_work(tmp_path, capsys):
+    """20 million trajectories of the default length (4.5 TB of arrays, 4.5 times that while generated) are refused
+    with the estimate (it started, or failed with NumPy's memory error); a negative seed or thread count is named."""
+    for args, message in ((["-n", "20000000"], "20000000 trajectories of 4001 points need about"),
+                          (["--seed", "-3"], "--seed must be >= 0, got -3"),
+                          (["--threads", "0"], "--threads must be a positive number of threads, got 0")):
+        assert main(["generate", *args, "-o", str(tmp_path / "x.h5")]) == 2
+        assert message in capsys.readouterr().err
+        assert not (tmp_path / "x.h5").exists()
