@@ -563,6 +563,23 @@ def test_a_known_torque_delay_is_recovered_by_the_arms_regressor_and_applied(dt,
     assert "torque_delay" not in dataset(tmp_path / "raw.h5")[2]
 
 
+def test_auto_applies_no_delay_that_is_within_its_errors_of_none(tmp_path, capsys):
+    """Torques on time (no delay): the estimate lies within three standard errors of zero, and auto applies none
+    (exact simulated torques were shifted by -11 +- 5 ms and cut by three samples), saying so."""
+    pytest.importorskip("mujoco")
+    delayed_arm_csv(tmp_path / "arm.csv", 0.01, 0.0)
+    spec = arm_spec(robot=ROBOT, coord_names=[f"joint{j}" for j in range(1, 8)], torque_delay="auto")
+    _, _, prov = dataset(import_recordings([tmp_path / "arm.csv"], tmp_path / "auto.h5", spec))
+    report = prov["torque_delay"]
+    assert abs(report["delay_s"]) <= 3 * report["se_s"] and not report["significant"], report
+    assert report["applied_s"] == 0.0
+    from lnn_torch.data.bags import delay_lines
+
+    line = delay_lines(report, "auto", 0.0)[-1]
+    assert line.endswith("not applied: within 3 standard errors of none (torque_delay: auto does not apply it "
+                         "either)"), line
+
+
 def test_a_known_torque_delay_is_recovered_without_a_description(tmp_path, capsys):
     """A measured system with seven angles and torques (no description): the compact basis finds a 24 ms
     delay at 125 Hz within 2 ms; the command prints the estimate per recording and for all."""

@@ -429,6 +429,7 @@ def repeated_rows(table: np.ndarray, dof: int, velocities: bool) -> np.ndarray:
 MAX_ROWS = 4000  # samples of a recording the delay's least squares uses (every k-th sample beyond)
 MIN_ROWS = 40  # fewer interior samples than this in each half: no estimate for the recording
 BIRGE = 3.0  # the halves' delays disagree beyond this many standard errors (Birge ratio): not determined
+SIGNIFICANT = 3.0  # a delay within this many standard errors of zero is none: auto does not apply it
 # a recording whose inputs the basis explains less of (share of their variance at zero delay, beyond what the same fit
 # explains of noise) gets no estimate: its inputs are not a function of the state the basis holds (e.g. a free swing:
 # the inputs are the sensor's noise)
@@ -649,8 +650,9 @@ def torque_delay(series: list[dict], dt: float, *, chain=None, payload=None, ang
         mean = float((w * d).sum() / w.sum()) if w.sum() > 0 else float(d.mean())
         birge = (math.sqrt(float((w * (d - mean) ** 2).sum()) / (determined - 1)) if determined == len(d) > 1
                  else math.inf)
-        report.update({"delay_s": best, "se_s": se * max(1.0, birge), "birge": birge, "consistent": birge <= BIRGE,
-                       **rms, "at_edge": at_edge})
+        widened = se * max(1.0, birge)
+        report.update({"delay_s": best, "se_s": widened, "birge": birge, "consistent": birge <= BIRGE,
+                       "significant": bool(abs(best) > SIGNIFICANT * widened), **rms, "at_edge": at_edge})
     return report
 
 
@@ -700,6 +702,9 @@ def delay_lines(report: dict, mode: str, applied: float | None) -> list[str]:
         if applied:
             what = f"applied: {1e3 * applied:+.2f} ms" + (" (the estimate, torque_delay: auto)" if mode == "auto"
                                                            else " (torque_delay)")
+        elif report["consistent"] and not report.get("significant", True):
+            what = (f"not applied: within {SIGNIFICANT:g} standard errors of none (torque_delay: auto does not apply "
+                    "it either)")
         else:
             what = "not applied" + (" (torque_delay: auto applies it; friction the model lacks, e.g. stiction, "
                                     "shifts both halves alike: check it on held-out recordings first)"

@@ -255,6 +255,8 @@ def _delay(system, spec: ImportSpec, stems, resampled, param_table, decl: dict, 
         raise InputError(f"import: torque_delay auto: the estimate {1e3 * delay['delay_s']:+.3g} ms lies at the edge "
                          f"of the delays searched (+-{1e3 * delay['searched_s']:.3g} ms): widen torque_delay_range, or "
                          "set torque_delay (s)")
+    if not delay.get("significant", True):  # (within its errors of none: exact simulated torques got -11 ms)
+        return delay, 0.0
     return delay, delay["delay_s"]
 
 
