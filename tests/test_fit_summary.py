@@ -102,6 +102,12 @@ def test_a_run_that_chose_its_state_by_another_scalar_does_not_offer_the_best_ch
     assert "best validation checkpoint: runs/x/checkpoints/epoch1-err6.2.ckpt" in capsys.readouterr().out
 
 
+def summary_of(trainer, module, capsys) -> str:
+    """What ``FitSummary`` prints at the end of a fit of ``trainer`` and ``module``."""
+    FitSummary().on_fit_end(trainer, module)
+    return capsys.readouterr().out
+
+
 def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(capsys):
     """Validation kept the start (step 0, 0.1333), which no checkpoint of its own holds, while the best checkpoint
     saved by the same scalar after it is worse (0.1334): the summary says the kept state, in the last checkpoint, is
@@ -128,8 +134,7 @@ def test_a_best_checkpoint_worse_than_the_kept_state_is_not_called_the_best(caps
     # the start kept though worse pooled (a later state was worse on one validation recording): the best checkpoint
     # is not called the best, nor the state kept
     selection.update(step=0, value=0.1391)
-    FitSummary().on_fit_end(trainer, module)
-    out = capsys.readouterr().out
+    out = summary_of(trainer, module, capsys)
     assert "best validation checkpoint" not in out
     assert ("lowest validation error of the steps trained: runs/x/checkpoints/epoch3-torque_rms0.1334.ckpt "
             "(val/torque_rms 0.1334; not the state the run keeps, in the last checkpoint: below)") in out
