@@ -140,6 +140,7 @@ class ClosedForm:
 
     variant = "closed form"
     capabilities = frozenset()  # accelerations and rollouts only
+    dtype = torch.float64  # (exact to round-off: identification polishes its fit by Gauss-Newton, as a float64 model's)
 
     def __init__(self, system) -> None:
         self.system = system
