@@ -222,3 +222,14 @@ def test_identify_command_on_a_dataset_trajectory_and_a_csv(tmp_path, capsys):
     assert "out of range" in capsys.readouterr().err
     assert main(["identify", "pretrained:double_pendulum", str(data), "--feedback", "-o", str(out2)]) == 2
     assert "--feedback is for a model of a measured robot arm" in capsys.readouterr().err
+
+
+def test_the_search_box_keeps_a_nonnegative_parameter_at_or_above_zero():
+    """A friction coefficient's box from a model's training spread (mean +- 3 std) reached below zero: a negative
+    friction was returned, and the command's report then refused it. The box starts at 0 for such parameters."""
+    from lnn_torch.identification.learned import _Space
+
+    space = _Space(["positive", "nonnegative"], torch.tensor([-1.0, -0.02]), torch.tensor([1.0, 0.07]))
+    x = space.x(torch.tensor([[-50.0, -50.0], [50.0, 50.0]], dtype=torch.float64))
+    assert float(x[0, 1]) >= 0.0 and float(x[1, 1]) == pytest.approx(0.07)
+    assert float(x[0, 0]) == pytest.approx(-1.0)  # (a positive parameter's log may be negative)

@@ -75,7 +75,11 @@ class _Space:
 
     def __init__(self, kinds, low, high) -> None:
         self.log = torch.tensor([k == "positive" for k in kinds])
-        self.low, self.high = low.double(), high.double()
+        # a nonnegative parameter (a friction coefficient) never below 0: the box of a model's training spread
+        # reached -0.02, and a negative friction was returned (the report then refused it and wrote nothing)
+        floor = torch.tensor([0.0 if k == "nonnegative" else -float("inf") for k in kinds], dtype=torch.float64)
+        low, high = low.double().maximum(floor), high.double()
+        self.low, self.high = low, torch.maximum(high, low + 1e-12)
         self.centre, self.half = 0.5 * (self.low + self.high), 0.5 * (self.high - self.low)
 
     def x(self, u):
