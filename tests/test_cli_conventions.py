@@ -348,3 +348,16 @@ def test_a_resumed_fit_compares_model_options_as_the_module_rewrites_them():
     assert not _rewritten("model_options", config, {"friction": "coulomb"})
     assert not _rewritten("lr", 0.1, 0.01)
 
+
+
+def test_identify_refuses_recordings_driven_by_inputs_a_model_has_none_of(tmp_path, capsys):
+    """An actuated scene's file given to a model without inputs: one line (a traceback about the normaliser's
+    input_rms before)."""
+    from lnn_torch.data import DatasetSpec, generate_dataset
+
+    path = generate_dataset(DatasetSpec(scene="actuated_double_pendulum", num_trajectories=2, duration=0.5, seed=1,
+                                        split=[0.5, 0.0, 0.5]), tmp_path / "a.h5")
+    assert main(["identify", "pretrained:double_pendulum", str(path), "-o", str(tmp_path / "id")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "recordings of scene 'actuated_double_pendulum' are driven by inputs (torques), which a model of " \
+           "'double_pendulum' has none of" in err and "\n" not in err

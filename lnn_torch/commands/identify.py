@@ -110,6 +110,9 @@ def read_observation(path: str | Path, system, *, split: str = "test", trajector
         from ..data import read_dataset
 
         f = read_dataset(path)
+        if f.num_inputs and not system.num_inputs:  # (the file's torques reached a model without inputs)
+            raise InputError(f"{path}: the recordings of scene '{f.attrs['scene']}' are driven by inputs (torques), "
+                             f"which a model of '{system.name}' has none of: identify them with a model of their scene")
         if split not in f.splits:
             raise InputError(f"{path}: no split '{split}' (splits: {', '.join(f.splits)})")
         index = f.splits[split]
