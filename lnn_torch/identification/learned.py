@@ -211,6 +211,8 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
 
 
 EDGE = 10  # samples left out at each end by the acceleration fit
+# fewer blocks than this (a recording of one or two 0.2 s windows) cannot estimate the cluster-robust covariance
+MIN_BLOCKS = 4
 
 # the units of the trajectory fit's start-state offsets: rad (or m) and rad/s (or m/s)
 STATE_SCALE = (1e-2, 1e-1)
@@ -420,6 +422,8 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
         scores = torch.zeros(int(blocks.max()) + 1, J_red.shape[1], dtype=x.dtype).index_add_(0, blocks,
                                                                                               J_red * r[:, None])
         cov_red = A_inv @ (scores.T @ scores) @ A_inv * (len(scores) / max(len(scores) - 1, 1))
+        if len(scores) < MIN_BLOCKS:  # too few blocks to estimate their spread (one block: exactly zero): the
+            cov_red = cov_red + s2 * A_inv  # independent residuals' covariance added, so it never collapses
         cov = E @ cov_red[:k, :k] @ E.T
         params = space.params(xi)
         quantities = {}
