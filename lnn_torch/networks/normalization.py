@@ -181,8 +181,9 @@ class Normalizer(nn.Module):
         non-positive value of a positive parameter is left to the exact check). The transform is monotone,
         so the extremes decide."""
         # read every call (no cache that a write through ``.data`` or an inference tensor would defeat)
-        logs, means, stds = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std))
-        limits = (self.extrapolation_limits() - 1e-9).tolist()
+        logs, means, stds, far = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std,
+                                                      self.param_z_max))
+        limits = [(max(self.EXTRAPOLATION, 1.1 * z) if z > 0 else self.EXTRAPOLATION_UNKNOWN) - 1e-9 for z in far]
         for lo, hi, log, mean, std, limit in zip(low, high, logs, means, stds, limits, strict=True):
             if log:
                 if not lo > 0:
