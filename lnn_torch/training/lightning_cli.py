@@ -30,9 +30,9 @@ class LNNCLI(LightningCLI):
     def _parse_ckpt_path(self) -> None:
         """Lightning reads a ``--ckpt_path`` checkpoint's hyper-parameters over the model's settings, the command
         line's too. A setting of how the model is judged (``EVALUATION``) that the command line or a config file
-        gives is taken from it; any other (the model, its data link, its training) stays the checkpoint's, and one
-        the command line sets to another value (or a config file, resuming a fit) is refused in one line (it was
-        ignored without a word)."""
+        gives is taken from it; any other (the model, its data link, its training) stays the checkpoint's: one the
+        command line sets to another value is refused in one line, one a config file gives otherwise (resuming a
+        fit) is said in a note (both were ignored without a word)."""
         sub = self.config.get("subcommand")
         if sub and self.config[sub].get("ckpt_path") == "last":
             self.config[sub]["ckpt_path"] = _last_checkpoint(self.config[sub])
@@ -164,12 +164,14 @@ def _rewritten(key: str, given, stored) -> bool:
 
 def _config_model_keys(paths) -> set[str]:
     """The model settings (``model: {key: ...}``) the config files ``paths`` (``-c``) give."""
+    from pathlib import Path
+
     import yaml
 
     keys = set()
     for path in paths:
         try:
-            text = yaml.safe_load(open(str(getattr(path, "absolute", path))).read()) or {}
+            text = yaml.safe_load(Path(str(getattr(path, "absolute", path))).read_text()) or {}
         except (OSError, yaml.YAMLError):
             continue
         model = text.get("model") if isinstance(text, dict) else None
