@@ -89,6 +89,7 @@ def test_the_scale_no_free_motion_shows_is_reported_not_identifiable_and_the_rat
     assert ratio["identifiable"] and ratio["value"] == pytest.approx(2.5, rel=0.05) and ratio["rel_std"] < 0.05
     (direction,) = result.unidentifiable
     assert direction["scale"] and set(direction["direction"]) == {"m", "k"}
+    assert direction["why"] in ("box", "ratio")  # (which rule left it out: the report says which)
 
 
 @pytest.mark.slow

@@ -524,6 +524,8 @@ def _unit(coefficients: dict, system) -> str:
 
 def markdown(report: dict, system) -> str:
     """The short report: estimates, uncertainties, the classical reference, residuals."""
+    from ..identification.learned import FLAT_RATIO
+
     truth, ls, exact = report["truth"], report["least_squares"] or {}, report["true_structure"] or {}
     lines = [f"# Identification: {report['scene']}", "",
              f"Recording: {report['recording']}; {report['observation']['seconds']:.3g} s "
@@ -560,9 +562,10 @@ def markdown(report: dict, system) -> str:
                          "(a Lagrangian times a constant has the same equations of motion); the parameters moving "
                          "along it get no number.")
             continue
+        why = ("beyond half the search box along it" if d.get("why", "box") == "box" else
+               f"over {FLAT_RATIO:g} times that of the best-determined direction: the observation moves it far less")
         lines.append(f"Not identifiable from this observation: the direction {combo} (its standard deviation "
-                     f"{d['std']:.3g} in log units would exceed the search box); the parameters moving along it "
-                     "get no number.")
+                     f"{d['std']:.3g} in log units, {why}); the parameters moving along it get no number.")
     if report["at_bound"]:
         lines.append("On the edge of the search box (the model's training distribution): "
                      f"{', '.join(report['at_bound'])}; the truth may lie outside what the model was trained on.")

@@ -439,6 +439,8 @@ def _uncertainty(objectives: _Objectives, kind: str, space: _Space, x: torch.Ten
         unidentifiable = [{"direction": {p: round(float(v), 3) for p, v in zip(names, eigvec[:, j], strict=True)
                                          if abs(v) > 0.05},
                            "std": float(std[j]),
+                           # why: beyond half the search box along it, or 100 times the best-determined direction's
+                           "why": "box" if bool(std[j] > 0.5 * half_box_along[j]) else "ratio",
                            # the scale no free motion shows (System.scale_invariance), not a lack of excitation
                            "scale": scale_dir is not None and abs(float(eigvec[:, j] @ scale_dir)) > 0.99}
                           for j in torch.nonzero(flat)[:, 0].tolist()]
