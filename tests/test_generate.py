@@ -419,3 +419,18 @@ def test_a_dataset_too_large_for_the_memory_and_bad_seeds_are_refused_before_any
         assert main(["generate", *args, "-o", str(tmp_path / "x.h5")]) == 2
         assert message in capsys.readouterr().err
         assert not (tmp_path / "x.h5").exists()
+
+
+def test_a_file_whose_splits_overlap_is_refused_naming_the_trajectory(tmp_path):
+    """A trajectory in two splits (a test on training data) or twice in one is a malformed file: refused in one line
+    naming it and the splits (it was read as it was)."""
+    path = generate_dataset(DatasetSpec(num_trajectories=6, duration=0.5, seed=1), tmp_path / "d.h5")
+    read_dataset(path)
+    train = np.asarray(read_dataset(path).splits["train"])
+    with h5py.File(path, "r+") as f:
+        del f["splits/test"]
+        f["splits/test"] = np.asarray([train[0]], dtype=np.int64)
+    with pytest.raises(DatasetFileError, match=rf"trajectory {train[0]} is in the splits more than once \(train, "
+                                               r"test\)") as err:
+        read_dataset(path)
+    assert "\n" not in str(err.value)

@@ -233,6 +233,12 @@ def read_dataset(path: str | Path) -> TrajectoryFile:
             all_idx = np.concatenate(list(splits.values()))
             if len(all_idx) and (all_idx.min() < 0 or all_idx.max() >= n):
                 raise DatasetFileError(f"{path} is malformed: split indices out of range [0, {n})")
+            values, counts = np.unique(all_idx, return_counts=True)
+            if (counts > 1).any():  # (a trajectory in two splits, or twice in one: a test on training data)
+                twice = int(values[counts > 1][0])
+                held = [name for name, idx in splits.items() if twice in idx]
+                raise DatasetFileError(f"{path} is malformed: trajectory {twice} is in the splits more than once "
+                                       f"({', '.join(held)})")
             num_params = f["params"].shape[1]
             num_inputs = f["tau"].shape[2] if "tau" in f else 0
             if "tau" in f and f["tau"].shape[:2] != (n, t):
