@@ -24,6 +24,7 @@ from .errors import (
     DatasetFileError,
     GenerationError,
     InputError,
+    PoorFitWarning,
     SingularHessianError,
     UntrustedParameterWarning,
 )
@@ -45,4 +46,4 @@ def __getattr__(name):
 
 
 __all__ = ["__version__", "rollout", "get_system", "InputError", "CheckpointError", "DatasetFileError",
-           "GenerationError", "SingularHessianError", "UntrustedParameterWarning", *_LAZY]
+           "GenerationError", "SingularHessianError", "UntrustedParameterWarning", "PoorFitWarning", *_LAZY]

@@ -82,6 +82,12 @@ class UntrustedParameterWarning(UserWarning):
     trusted range (``Normalizer.TRUST``) the model conditions on the nearest trusted values."""
 
 
+class PoorFitWarning(UserWarning):
+    """An identification's model explains little of the observation (its residual near or beyond the observed
+    accelerations' own size): the observation is likely not the model's scene, or in other units, or barely moves;
+    the estimates and their uncertainties then describe nothing."""
+
+
 class SingularHessianError(RuntimeError):
     """The velocity Hessian d2L/dqd2 of a Lagrangian is singular: accelerations are undefined."""
 

@@ -128,6 +128,30 @@ def test_batched_identification_equals_one_at_a_time():
     assert not both[1].at_bound
 
 
+def test_an_observation_the_model_cannot_explain_is_said_not_estimated_silently():
+    """Angles logged in degrees, or a pendulum at rest with sensor noise: the fit returned parameters with small
+    stated uncertainties and no word. A residual beyond half the accelerations' rms now warns (one warning per
+    observation, naming it in a batch); the scene's own noisy trajectory does not."""
+    import warnings
+
+    from lnn_torch import PoorFitWarning
+
+    system, t, q, qd, _ = observe(seconds=1.0)
+    model = ClosedForm(system)
+    noisy = q + np.random.default_rng(0).normal(0, 1e-3, q.shape)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        fine = identify(model, system, t, noisy, method="acceleration", starts=2, steps=60)
+    assert fine.quantities["l1"]["value"] == pytest.approx(TRUE[2], rel=0.05)
+    still = np.random.default_rng(1).normal(0, 1e-5, q.shape)
+    with pytest.warns(PoorFitWarning) as caught:
+        identify_batch(model, system, t, np.stack([q, np.degrees(q), still]), method="acceleration", starts=2,
+                       steps=60)
+    messages = [str(w.message) for w in caught if issubclass(w.category, PoorFitWarning)]
+    assert len(messages) == 2 and "(observation 1)" in messages[0] and "(observation 2)" in messages[1]
+    assert "scene 'double_pendulum'" in messages[0] and "other units" in messages[0]
+
+
 @pytest.mark.slow
 def test_learned_model_identifies_noisy_observations_within_the_stated_uncertainty():
     """The shipped model, 1e-3 rad position noise (derivatives from a smoothing spline), the
