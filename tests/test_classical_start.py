@@ -354,7 +354,7 @@ def test_the_classical_starts_warnings_of_poor_excitation_are_one():
             warnings.warn(f"classical identification: the recordings excite the model poorly (condition number "
                           f"{number:.3g} of the scaled regressor, above 1000)", UntrustedParameterWarning,
                           stacklevel=1)
-        warnings.warn("something else", UserWarning, stacklevel=1)
+            warnings.warn("something else", UserWarning, stacklevel=1)  # (the same from every candidate fit)
     with warnings.catch_warnings(record=True) as again:
         warnings.simplefilter("always")
         _warn_once_of_excitation(caught)
@@ -364,3 +364,16 @@ def test_the_classical_starts_warnings_of_poor_excitation_are_one():
     assert poor == ["classical start: the training recordings excite the model poorly (condition number 1.07e+03 to "
                     "1.5e+07 of the scaled regressor in 3 of its candidate fits): the base parameters are uncertain; "
                     "record a more exciting trajectory (lnn-torch identify lists what they determine)"], poor
+    # a zero regressor column (a joint that never moves) has an infinite condition number: said, not a crash
+    for numbers, said in (((float("inf"),) * 2, "condition number infinite: a regressor column is zero"),
+                          ((float("inf"), 2e3), "condition number 2e+03, infinite in some of the scaled")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for number in numbers:
+                warnings.warn(f"classical identification: the recordings excite the model poorly (condition number "
+                              f"{number:.3g} of the scaled regressor, above 1000)", UntrustedParameterWarning,
+                              stacklevel=1)
+        with warnings.catch_warnings(record=True) as again:
+            warnings.simplefilter("always")
+            _warn_once_of_excitation(caught)
+        assert len(again) == 1 and said in str(again[0].message), str(again[0].message)

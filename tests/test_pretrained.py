@@ -69,6 +69,15 @@ def test_a_loaded_model_works_under_torch_func_transforms():
     bad[1, 0] = float("nan")
     with pytest.raises(InputError, match="q contains NaN"):
         model.acceleration(bad, qd, p)
+    # the rigid-body terms and a rollout (whose check of non-finite states stopped vmap) run through vmap too
+    rolled = vmap(lambda q, qd, p: model.rollout(q[None], qd[None], p[None], 0.01, 5)[0][0])(q, qd, p)
+    torch.testing.assert_close(rolled, model.rollout(q, qd, p, 0.01, 5)[0], rtol=1e-12, atol=1e-12)
+    for name in ("mass_matrix", "energy", "bias", "gravity"):
+        args = (q, p) if name in ("mass_matrix", "gravity") else (q, qd, p)
+        torch.testing.assert_close(vmap(lambda *a, n=name: getattr(model, n)(*(x[None] for x in a))[0])(*args),
+                                   getattr(model, name)(*args), rtol=1e-12, atol=1e-12)
+    with pytest.raises(InputError, match="has no inputs"):  # (was an AttributeError on None)
+        model.inverse(q, qd, qd, p)
 
 
 def test_simulate_writes_csv_and_plot_and_refuses_to_overwrite(tmp_path, capsys):

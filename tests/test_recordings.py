@@ -244,6 +244,26 @@ def test_the_splines_smoothing_follows_the_noise_and_identification_is_unbiased(
     assert flat == pytest.approx(derivatives.GCV_FLOOR * 0.005 ** 3)
 
 
+def test_the_smoothing_choice_is_the_same_where_scipy_fits_one_column_at_a_time(monkeypatch):
+    """SciPy before 1.16 fits a smoothing spline to one column only (a 2-D ``y`` is a ValueError there): the
+    cross-validated smoothing then fits the columns one by one, to the same choice."""
+    import scipy.interpolate
+
+    t = np.arange(400) * 0.005
+    y = np.sin(3 * t) + np.random.default_rng(0).normal(0.0, 1e-3, len(t))
+    both = derivatives.gcv_lambda(t, y)
+    original = scipy.interpolate.make_smoothing_spline
+
+    def one_column(x, yy, *args, **kwargs):
+        if np.ndim(yy) != 1:
+            raise ValueError("``x`` and ``y`` should be one dimensional and the same size")
+        return original(x, yy, *args, **kwargs)
+
+    monkeypatch.setattr(scipy.interpolate, "make_smoothing_spline", one_column)
+    assert derivatives.gcv_lambda(t, y) == pytest.approx(both, rel=1e-9)
+    assert both > derivatives.GCV_FLOOR * 0.005 ** 3  # (noise: more smoothing than the floor)
+
+
 def test_the_butterworth_estimate_holds_up_to_the_recordings_ends():
     """A smooth motion (two sines, 200 Hz, 10 Hz cutoff, as the shipped configs filter): within the first
     and last 0.1 s the accelerations are within 2 % (measured 2.0 %; 0.05 % inside): the ends are extended

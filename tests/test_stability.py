@@ -510,6 +510,10 @@ def test_the_extrapolation_warning_starts_beyond_the_farthest_training_parameter
     far = params[:1].clone()
     far[0, 0] = float((norm.param_log_mean[0] + 1.01 * limit[0] * norm.param_log_std[0]).exp())
     assert norm.untrusted(far, names, units).startswith("parameters beyond the range the model was trained on")
+    fixed = Normalizer(2, 2, [True, True])  # a parameter held fixed in training: recorded (3), not unknown (4)
+    fixed.fit(torch.zeros(10, 2), torch.zeros(10, 2), torch.randn(10, 2, generator=gen),
+              torch.stack([params[:, 0], torch.full_like(log_m, 1.0)], -1))
+    assert float(fixed.extrapolation_limits()[1]) == 3.0
     old = norm.state_dict()
     del old["param_z_max"]
     unknown = Normalizer(2, 2, [True, True])

@@ -131,8 +131,14 @@ def gcv_lambda(t: np.ndarray, y: np.ndarray) -> float:
     probes = np.random.default_rng(0).choice([-1.0, 1.0], (n, GCV_PROBES))
     stacked = np.column_stack([y, probes])
 
+    def smooth(lam: float) -> np.ndarray:  # SciPy before 1.16 fits one column at a time
+        try:
+            return make_smoothing_spline(t, stacked, lam=lam)(t)
+        except ValueError:
+            return np.column_stack([make_smoothing_spline(t, c, lam=lam)(t) for c in stacked.T])
+
     def score(log_lam: float) -> float:
-        fit = make_smoothing_spline(t, stacked, lam=float(np.exp(log_lam)))(t)
+        fit = smooth(float(np.exp(log_lam)))
         trace = float(np.mean(np.sum(probes * fit[:, 1:], 0)))
         return n * float(np.sum((fit[:, 0] - y) ** 2)) / max(n - trace, 1e-9) ** 2
 

@@ -101,7 +101,8 @@ class Normalizer(nn.Module):
         self.param_log_std.copy_(logp.std(0).clamp_min(1e-3) if self.num_params and len(logp) > 1
                                  else torch.ones(self.num_params))
         if self.num_params and len(logp):
-            self.param_z_max.copy_(((logp - self.param_log_mean) / self.param_log_std).abs().amax(0))
+            # (never exactly 0 once recorded, which means unknown: a parameter held fixed in training is 0 here)
+            self.param_z_max.copy_(((logp - self.param_log_mean) / self.param_log_std).abs().amax(0).clamp_min(1e-6))
         self.accel_rms.copy_((acc * t_scale**2).pow(2).mean(0).sqrt().clamp_min(1e-6))
         if hasattr(self, "force_scale") and input_force is not None:
             rms = (input_force.double().reshape(-1, self.dof) * scale).pow(2).mean().sqrt()

@@ -154,7 +154,8 @@ class RigidBodyFace:
         parameter signs of the inputs first. ``INVERSE_DYNAMICS``."""
         if check:
             self.check_inputs(q, qd, params, inputs=False)
-        return self.forces.solve_inputs(self._input_force(q, qd, qdd, params)).to(q.dtype)
+        force = self._input_force(q, qd, qdd, params)  # (first: a scene without inputs is said, not an AttributeError)
+        return self.forces.solve_inputs(force).to(q.dtype)
 
     def forward(self, q: torch.Tensor, qd: torch.Tensor, params: torch.Tensor,
                             tau: torch.Tensor | None = None, check: bool = True) -> torch.Tensor:

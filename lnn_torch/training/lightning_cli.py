@@ -182,7 +182,7 @@ def _config_model_keys(paths) -> set[str]:
 
 def _last_checkpoint(config) -> str:
     """``--ckpt_path last``: the newest run's ``last.ckpt`` (``callbacks.LastCheckpoint``) under the run folders
-    of the default logger (``<default_root_dir or save_dir>/<name>/version_*/checkpoints``); Lightning looks for
+    of the default logger (``<default_root_dir or save_dir>/<name>/<version>/checkpoints``); Lightning looks for
     its own ``save_last`` file, which these runs do not write, and started afresh without a word."""
     from pathlib import Path
 
@@ -195,9 +195,9 @@ def _last_checkpoint(config) -> str:
     if str(root) == "." and trainer.get("default_root_dir"):
         root = Path(trainer.get("default_root_dir"))
     runs = root / (init.get("name") or "lightning_logs")
-    found = [p for p in runs.glob("version_*/checkpoints/last.ckpt")]
+    found = [p for p in runs.glob("*/checkpoints/last.ckpt")]  # (version_N, or a logger's own version name)
     if not found:
-        raise InputError(f"--ckpt_path last: no last.ckpt in {runs}/version_*/checkpoints (a fit writes one at the end "
+        raise InputError(f"--ckpt_path last: no last.ckpt in {runs}/*/checkpoints (a fit writes one at the end "
                          "of every epoch, and when interrupted): give the checkpoint's path")
     latest = max(found, key=lambda p: p.stat().st_mtime)  # (the run written last)
     print(f"--ckpt_path last: {latest}", flush=True)

@@ -14,7 +14,7 @@ from pathlib import Path
 import lightning as L
 import torch
 
-from ..errors import InputError, check_tensors
+from ..errors import InputError, check_tensors, values_readable
 from ..evaluation import evaluate_split, section_logs
 from ..identification.learned import identify
 from ..networks import build_model, registry
@@ -239,6 +239,8 @@ class LNNModule(L.LightningModule):
         num_steps = self.model.check_rollout_inputs(q0, num_steps, tau)
         self.system.check_inputs(q0, qd0, params, None if tau is None else tau[:, 0])
         q, qd = self.model.rollout(q0, qd0, params, dt, num_steps, method, tau=tau)
+        if not values_readable():  # (under a torch.func transform: no values to judge)
+            return q, qd
         bad = ~(torch.isfinite(q).all(-1) & torch.isfinite(qd).all(-1))  # (B, num_steps + 1)
         if bad.any():
             first = int(bad.any(0).nonzero()[0, 0])
@@ -280,7 +282,8 @@ class LNNModule(L.LightningModule):
         return self.model.energy(q, qd, params)
 
     def residual_force(self, q, qd, params) -> torch.Tensor:
-        """``Q_r (B, dof)``: the learned force residual in SI (zero without one)."""
+        """``Q_r (B, dof)``: the learned force residual in SI (zero without one; a scene without generalised
+        forces has none to add to: InputError, as ``friction``)."""
         self.system.check_inputs(q, qd, params, inputs="skip")
         return self.model.residual_force(q, qd, params)
 
@@ -560,12 +563,21 @@ def _warn_once_of_excitation(caught) -> None:
 
     poor = [w for w in caught if issubclass(w.category, UntrustedParameterWarning) and "excite the model poorly"
             in str(w.message)]
-    for w in caught:
-        if w not in poor:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    seen = set()
+    for w in caught:  # the others once each (every candidate fit raises the same), as Python's default filter shows
+        key = (w.category, str(w.message))
+        if w not in poor and key not in seen:
+            seen.add(key)
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, module=__name__)
     if poor:
-        found = [float(m.group(1)) for w in poor if (m := re.search(r"condition number ([0-9.e+-]+)", str(w.message)))]
-        numbers = f"{min(found):.3g}" if len(set(found)) == 1 else f"{min(found):.3g} to {max(found):.3g}"
+        found = [float(m.group(1)) for w in poor
+                 if (m := re.search(r"condition number (inf|[0-9.e+-]+)", str(w.message)))]
+        finite = [f for f in found if f < float("inf")]
+        if not finite:
+            numbers = "infinite: a regressor column is zero, e.g. a joint that never moves"
+        else:
+            numbers = f"{min(finite):.3g}" if len(set(finite)) == 1 else f"{min(finite):.3g} to {max(finite):.3g}"
+            numbers += ", infinite in some" if len(finite) < len(found) else ""
         warnings.warn(f"classical start: the training recordings excite the model poorly (condition number {numbers} "
                       f"of the scaled regressor in {len(poor)} of its candidate fits): the base parameters are "
                       "uncertain; record a more exciting trajectory (lnn-torch identify lists what they determine)",
