@@ -57,3 +57,34 @@ def test_the_regressor_in_blocks_is_the_regressor_at_once(setup, monkeypatch):
     whole = regressor.regressor(chain, q, qd, qdd)
     monkeypatch.setattr(regressor, "ROWS", 16)  # 40 states: blocks of 16, 16 and 8
     torch.testing.assert_close(regressor.regressor(chain, q, qd, qdd), whole, rtol=0, atol=0)
+
+
+def test_a_first_axis_written_microradians_off_vertical_adds_no_base_parameter(setup):
+    """A description that writes ``rpy="3.1416 0 0"`` tilts its first joint 7e-6 rad: the first link's centre of
+    mass then moves a torque of a few millionths of the others', which became two base parameters (values of
+    hundreds of kg m on a real trial, corrupting the joint's offset). Such a column is now no base parameter: the
+    tilted arm has the exact arm's base parameters, and least squares on its noise-free torques recovers them."""
+    import copy
+
+    import mujoco
+
+    arm, chain, q, qd, qdd = setup
+    model = copy.deepcopy(arm.model)
+    link1 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "link1")
+    half = 0.5 * 7.3e-6
+    tilt = np.array([np.cos(half), np.sin(half), 0.0, 0.0])  # about x
+    mujoco.mju_mulQuat(model.body_quat[link1], model.body_quat[link1].copy(), tilt)
+    tilted = kinematics.read_chain(model)
+    names = regressor.parameter_names(chain)
+    Y, Y_tilted = (regressor.regressor(c, q, qd, qdd).reshape(-1, 84) for c in (chain, tilted))
+    mcx = names.index("joint1.mcx")
+    assert 0 < float(Y_tilted[:, mcx].norm()) < 1e-4 * float(Y_tilted.norm(dim=0).max())  # (moves a little now)
+    exact, base = regressor.base_parameters(Y), regressor.base_parameters(Y_tilted)
+    assert base["rank"] == exact["rank"]
+    assert mcx not in base["independent"] and names.index("joint1.mcy") not in base["independent"]
+    pi = regressor.parameter_vector(tilted.J, tilted.armature, tilted.damping)
+    tau = Y_tilted @ pi
+    beta = base_least_squares(Y_tilted, tau, base)
+    predicted = torch.as_tensor(Y_tilted[:, base["independent"]].numpy() @ beta)
+    assert float((predicted - tau).abs().max()) < 1e-5 * float(tau.abs().max())
+    assert np.abs(beta).max() < 10 * np.abs(base["map"] @ pi.numpy()).max()  # no combination blown up

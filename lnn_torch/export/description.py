@@ -232,8 +232,13 @@ def _from_grey_box(m, row) -> IdentifiedArm:
                                 "values": None})
         if forces is not None and forces.residual is not None:
             if any(bool(p.any()) for p in forces.residual.output_layer):
+                at_rest = _residual_at_rest(m, params, desc)
+                worst = int(np.argmax(at_rest))
                 unexpressed.append({"term": "force residual", "why": "a learned generalised force Q_r(q, qd) "
-                                    "(option residual_force); not written", "values": None})
+                                    "(option residual_force); not written. At rest over the joints' ranges it is "
+                                    f"up to {at_rest[worst]:.3g} N m RMS ({names[worst]}): a torque the written arm "
+                                    "lacks, gravity-like where the residual took up what the rigid body left (per "
+                                    "joint, N m RMS at zero velocity)", "values": at_rest.tolist()})
             else:  # (its output layer at zero: validation kept a state without it)
                 notes.append("the model's force residual is zero (its output layer at zero): nothing left out")
         if forces is not None and forces.num_inputs:
@@ -260,6 +265,19 @@ def _from_grey_box(m, row) -> IdentifiedArm:
     return IdentifiedArm(desc, f"grey box ({m.variant}, kinetic part 'spatial')", J, armature, damping,
                          frictionloss, row, names, unexpressed, notes,
                          ROUND_OFF * float(torch.finfo(m.dtype).eps))
+
+
+def _residual_at_rest(m, params: torch.Tensor, desc, count: int = 512) -> np.ndarray:
+    """``(dof,)``: the RMS of the model's force residual (N m) at zero velocity over ``count`` joint angles drawn
+    uniformly within the description's joint ranges (a joint without limits: a whole turn; seeded): the torque at
+    rest that a description without the residual lacks."""
+    model = desc.compile()
+    limited = np.asarray(model.jnt_limited, dtype=bool)[:, None]
+    ranges = np.where(limited, np.asarray(model.jnt_range, dtype=np.float64), [-np.pi, np.pi])
+    q = np.random.default_rng(0).uniform(ranges[:, 0], ranges[:, 1], (count, len(ranges)))
+    q = torch.as_tensor(q, dtype=m.dtype)
+    force = m.residual_force(q, torch.zeros_like(q), params.expand(count, -1).to(m.dtype))
+    return force.double().pow(2).mean(0).sqrt().cpu().numpy()
 
 
 def _drive_terms(drive, coef: dict, names, stiction: bool = False, stick_velocity: float | None = None) -> list[dict]:

@@ -42,6 +42,7 @@ from ..errors import InputError
 from ..mechanics.friction import COEFFICIENTS, SLOPE_LIMIT, DriveModel
 from ..robots.kinematics import SerialChain, log_cholesky, log_cholesky_factor
 from ..robots.regressor import (
+    NEGLIGIBLE,
     base_parameters,
     classical_of,
     inverse_dynamics,
@@ -230,6 +231,13 @@ def _base_names(base: dict, names: list[str]) -> list[str]:
     return out
 
 
+def _moving(Y: torch.Tensor) -> set:
+    """The parameters whose columns of ``Y (rows, p)`` move a torque: beyond ``NEGLIGIBLE`` of the largest column's
+    norm, as ``base_parameters`` counts them (round-off, 1e-17 of it on one machine and 0 on another, is none)."""
+    norms = Y.norm(dim=0)
+    return set(np.flatnonzero((norms > NEGLIGIBLE * norms.max()).numpy()).tolist())
+
+
 def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: bool = False,
                   rtol: float = 1e-6, block: int = 1) -> ArmModel:
     """Base parameters and friction by (weighted) least squares, with their uncertainty (module
@@ -293,13 +301,13 @@ def least_squares(chain: SerialChain, q, qd, qdd, tau, drive=None, weighted: boo
     names = parameter_names(chain)
     friction_names = linear_friction_names(chain, extra)
     friction_names += [f"{chain.joint_names[j]}.phi1" for j in range(n)] if phi is not None else []
-    moving = set(np.flatnonzero(Y.reshape(N * n, -1).abs().amax(0).numpy() > 0).tolist())
+    moving = _moving(Y.reshape(N * n, -1))
     # of those these recordings do not move, the ones no motion of this arm moves (e.g. the first link's inertia
     # about axes other than its joint's): seeded random states over the whole circle of every joint
     rng = torch.Generator().manual_seed(0)
     Q = (torch.rand(64, n, generator=rng, dtype=torch.float64) * 2 - 1) * math.pi
     anywhere = _regressor(chain, Q, *(torch.randn(64, n, generator=rng, dtype=torch.float64) for _ in range(2)), drive)
-    possible = set(np.flatnonzero(anywhere.reshape(64 * n, -1).abs().amax(0).numpy() > 0).tolist())
+    possible = _moving(anywhere.reshape(64 * n, -1))
     uncertainty = {"condition_number": condition, "block_samples": int(block),
                    "names": _base_names(base, names) + friction_names, "value": x.tolist(), "std": std.tolist(),
                    "interval95": torch.stack([x - Z95 * std, x + Z95 * std], -1).tolist(),

@@ -167,22 +167,40 @@ def reference_regressor(chain: SerialChain, q, qd, qdd) -> torch.Tensor:
     return cols.permute(1, 2, 0)
 
 
+# a parameter whose regressor column is under this fraction of the largest column's norm moves no torque that data
+# can show, nor does a combination whose column beyond the others' span is under it: left out of the base parameters
+# (kept at the description's value; a combination as the dependent columns are). Round-off is 1e-16 of it; joint axes
+# a description writes a few microradians off (``rpy="3.1416 0 0"``: 7e-6 rad) gave columns and combinations of 1e-7
+# to 6e-6 that became base parameters of hundreds or thousands of kg m (link 1's centre of mass of a near-vertical
+# first joint); on the shipped and tried arms the smallest column that motion moves is 2e-3 of the largest (viscous
+# friction at a twentieth of the usual speeds)
+NEGLIGIBLE = 1e-4
+
+
 def base_parameters(Y: torch.Tensor, rtol: float = 1e-6) -> dict:
     """The identifiable combinations of a stacked regressor ``Y (N, p)``: ``{"independent": indices B (r,),
     "dependent": D, "K": (r, p - r), "rank": r, "map": P (r, p)}`` with ``beta = P pi = pi_B + K pi_D``
-    (QR with column pivoting; ``rtol``: the rank tolerance relative to the largest ``|R_jj|``)."""
+    (QR with column pivoting of the unit-scaled columns; ``rtol``: the rank tolerance relative to the largest
+    ``|R_jj|``; a pivot whose unscaled column beyond the earlier pivots' span is under ``NEGLIGIBLE`` of the largest
+    column's norm is dependent too)."""
     import scipy.linalg
 
     Yn = Y.detach().double().cpu().numpy()
     scale = np.linalg.norm(Yn, axis=0)
-    zero = scale <= 1e-10 * scale.max()  # a parameter that moves no torque (round-off at most)
+    zero = scale <= NEGLIGIBLE * scale.max()  # a parameter that moves no torque worth the name
     scale[zero] = 1.0
     Ys = np.where(zero[None, :], 0.0, Yn / scale)
     _, R, piv = scipy.linalg.qr(Ys, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
-    r = int((d > rtol * d[0]).sum())
-    B, D = piv[:r], piv[r:]
-    K = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:]) if r < Yn.shape[1] else np.zeros((r, 0))
+    rank = int((d > rtol * d[0]).sum())  # the pivots beyond round-off
+    # of those, the independent ones: not a pivot whose unscaled column beyond the earlier pivots' span moves under
+    # NEGLIGIBLE of the largest column's torque (scaled up from a small column, a tilt's microradians reach 3e-3 of a
+    # unit pivot); the rest are dependent, expressed in the independent ones by least squares (in R's coordinates)
+    keep = np.zeros(len(d), dtype=bool)
+    keep[:rank] = d[:rank] * scale[piv[:rank]] > NEGLIGIBLE * scale.max()
+    r = int(keep.sum())
+    B, D = piv[keep], piv[~keep]
+    K = (np.linalg.lstsq(R[:, keep], R[:, ~keep], rcond=None)[0] if r < Yn.shape[1] else np.zeros((r, 0)))
     K = K * scale[D][None, :] / scale[B][:, None]  # back to unscaled columns: Y_D = Y_B K
     P = np.zeros((r, Yn.shape[1]))
     P[np.arange(r), B] = 1.0
