@@ -322,3 +322,29 @@ def test_the_per_recording_table_bolds_every_value_that_prints_as_the_lowest():
                                    "r08": {"grey box": 0.0993, "least squares": 0.0997, "description": float("nan")}})
     r07, r08 = (line for line in text.splitlines() if line.startswith(("| r07", "| r08")))
     assert r07 == "| r07 | **0.086** | **0.086** | 1.303 |" and r08 == "| r08 | **0.099** | 0.100 | nan |", text
+
+
+def test_the_regressor_of_the_same_states_is_computed_once_and_never_changed(arm, monkeypatch):
+    """A classical start fits a dozen candidates to the same states: their regressor is computed once (by content:
+    equal states stacked again hit it), a column zeroed for a drive without viscous friction is zeroed in a copy, and
+    other states, or the same states of another arm, get their own."""
+    from lnn_torch.robots import regressor as reg
+
+    arm, chain = arm
+    q, qd, qdd, _ = samples(arm, 300, 5)
+    calls = []
+    monkeypatch.setattr(classical, "regressor", lambda *a: calls.append(1) or reg.regressor(*a))
+    classical._CACHE.clear()
+    first = classical._regressor(chain, q, qd, qdd, DriveModel.of(DRIVE))
+    rigid = classical._regressor(chain, q.clone(), qd.clone(), qdd.clone(), DriveModel.of("coulomb"))
+    again = classical._regressor(chain, q.clone(), qd.clone(), qdd.clone(), DriveModel.of(DRIVE))
+    assert len(calls) == 1 and again is first and not rigid[..., 11 * 7:].any() and first[..., 11 * 7:].any()
+    torch.testing.assert_close(first, reg.regressor(chain, q, qd, qdd), rtol=0, atol=0)
+    classical._regressor(chain, q + 1e-9, qd, qdd, DriveModel.of(DRIVE))
+    moved = read_chain(arm.model)
+    moved.axis[0] = -moved.axis[0]
+    classical._regressor(moved, q, qd, qdd, DriveModel.of(DRIVE))
+    assert len(calls) == 3
+    classical._regressor(chain, q[:10], qd[:10], qdd[:10], DriveModel.of(DRIVE))  # few states: not kept
+    classical._regressor(chain, q[:10], qd[:10], qdd[:10], DriveModel.of(DRIVE))
+    assert len(calls) == 5 and len(classical._CACHE) <= classical.CACHED
