@@ -311,5 +311,6 @@ def main(argv: list[str]) -> int:
     for note in (slow_sampling_note(provenance), fast_angles_note(provenance), empty_split_note(spec.split, f, names)):
         if note:
             print(note)
-    print(f"wrote {path} ({f.num_trajectories} recordings, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
+    count = f"{f.num_trajectories} recording{'' if f.num_trajectories == 1 else 's'}"
+    print(f"wrote {path} ({count}, dt = {f.dt:g} s, up to {f.num_points} points; {splits})")
     return 0
