@@ -88,3 +88,38 @@ def test_a_first_axis_written_microradians_off_vertical_adds_no_base_parameter(s
     predicted = torch.as_tensor(Y_tilted[:, base["independent"]].numpy() @ beta)
     assert float((predicted - tau).abs().max()) < 1e-5 * float(tau.abs().max())
     assert np.abs(beta).max() < 10 * np.abs(base["map"] @ pi.numpy()).max()  # no combination blown up
+
+
+def test_base_parameters_keep_what_a_larger_column_shares_with_a_dropped_small_one_and_ignore_units():
+    """A small column pivoted first and left out (under ``NEGLIGIBLE`` of the largest) must not take with it a
+    direction a larger column shares: that column is kept. The threshold is relative to the largest column, whatever
+    the units (a zero column beside it changes nothing)."""
+    rng = np.random.default_rng(0)
+    basis = np.linalg.qr(rng.normal(size=(50, 3)))[0]
+    a, c = basis[:, 0], basis[:, 1]
+    for Y, big in ((torch.tensor(np.stack([a, 1e-5 * c, c], 1)), 2), (torch.tensor(np.stack([a, c, 1e-5 * c], 1)), 1)):
+        base = regressor.base_parameters(Y)  # (a tie of the unit-scaled columns: either may be pivoted first)
+        assert base["rank"] == 2 and 0 in base["independent"]
+        fit = Y[:, base["independent"]].numpy() @ base["map"]
+        gap = np.abs(fit - Y.numpy()).max(0)  # per column: c represented (kept), the small one under NEGLIGIBLE
+        assert gap.max() < regressor.NEGLIGIBLE and gap[[0, big]].max() < 1e-9, gap
+    small = torch.tensor(np.stack([0.01 * a, 1e-5 * c, 0 * a], 1))  # 1e-3 of the largest: a parameter
+    for scaled in (small, 100 * small, small[:, :2]):
+        assert sorted(regressor.base_parameters(scaled)["independent"].tolist()) == [0, 1]
+
+
+def test_the_regressor_runs_under_vmap_and_a_cached_one_keeps_gradients(setup):
+    from lnn_torch.identification import classical_arm as classical
+
+    _, chain, q, qd, qdd = setup
+    whole = regressor.regressor(chain, q, qd, qdd)
+    one = torch.func.vmap(lambda a, b, c: regressor.regressor(chain, a[None], b[None], c[None])[0])(q, qd, qdd)
+    torch.testing.assert_close(one, whole, rtol=1e-12, atol=1e-12)
+    many = [x.repeat(8, 1) for x in (q, qd, qdd)]  # 320 rows: cached
+    drive = classical.DriveModel.of("viscous")
+    classical._regressor(chain, *many, drive)
+    x = many[0].clone().requires_grad_()
+    Y = classical._regressor(chain, x, *many[1:], drive)
+    assert Y.requires_grad
+    Y.sum().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all()

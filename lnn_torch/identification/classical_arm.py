@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, values_readable
 from ..mechanics.friction import COEFFICIENTS, SLOPE_LIMIT, DriveModel
 from ..robots.kinematics import SerialChain, log_cholesky, log_cholesky_factor
 from ..robots.regressor import (
@@ -182,8 +182,14 @@ _CACHE: OrderedDict = OrderedDict()
 CACHED, CACHE_ROWS = 3, 256
 
 
+def clear_regressor_cache() -> None:
+    """Let go of the cached regressors (``_regressor``; a classical start does when it ends)."""
+    _CACHE.clear()
+
+
 def _content(chain: SerialChain, args) -> str:
     digest = hashlib.blake2b(digest_size=16)
+    digest.update(str(args[0].device).encode())
     for t in (chain.X, chain.axis, chain.anchor, chain.qpos0, chain.gravity, *args):
         a = np.ascontiguousarray(t.detach().cpu().numpy())
         digest.update(f"{a.dtype}{a.shape}".encode())
@@ -195,8 +201,8 @@ def _regressor(chain: SerialChain, q, qd, qdd, drive: DriveModel, viscous: bool 
     """``Y (N, n, 12 n)`` with the damping columns zeroed where the drive has no viscous friction (or
     ``viscous`` is False: the rigid body alone)."""
     args = [torch.as_tensor(x, dtype=torch.float64) for x in (q, qd, qdd)]
-    if args[0].shape[0] < CACHE_ROWS:
-        Y = regressor(chain, *args)
+    if args[0].shape[0] < CACHE_ROWS or any(a.requires_grad for a in args) or not values_readable():
+        Y = regressor(chain, *args)  # (a gradient or a torch.func transform through it: computed afresh)
     else:
         key = _content(chain, args)
         Y = _CACHE.get(key)

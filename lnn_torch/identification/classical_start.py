@@ -27,7 +27,7 @@ from ..errors import InputError
 from ..mechanics.friction import COEFFICIENTS
 from ..robots.regressor import pseudo_inertia_of
 from .arm_comparison import WEIGHTED_CONSISTENT
-from .classical_arm import PRIORS
+from .classical_arm import PRIORS, clear_regressor_cache
 
 CONSISTENT = "physically consistent"
 # a term of the configured drive model is dropped only when the form without it lowers the validation torque
@@ -86,6 +86,13 @@ def start_from_classical(model, system, train, val=None, *, priors=PRIORS, strid
     the method (weighting), form, prior and Coulomb smoothing kept, the chosen form's validation error per prior
     tried (``validation_rms_mean``), the whole prior search (``prior_search``), each form's and each weighting's
     validation error (``form_selection``, ``weighting_selection``), the fit's time."""
+    try:
+        return _start(model, system, train, val, priors, stride)
+    finally:  # (the regressors it cached: training follows)
+        clear_regressor_cache()
+
+
+def _start(model, system, train, val, priors, stride: int) -> dict:
     from ..robots.kinematics import read_chain
     from ..robots.mujoco_arm import load_description
     from .arm_comparison import fit_classical

@@ -209,8 +209,9 @@ def identify_batch(model, system, t, q, qd=None, tau=None, qdd=None, *, method: 
     found = _uncertainty(objectives, final, space, x, states, system)
     with torch.no_grad():  # the acceleration fit's residual whatever the method, per observation: one measure of fit
         error = objectives.residuals("acceleration", space.params(x[:, None]))[:, 0].reshape(N, -1, dof)
-        own_rms = objectives.qdd.pow(2).mean(1).sqrt().clamp_min(1e-9)  # (N, dof): each observation's own
-        explained = (error * (objectives.qdd_rms / own_rms)[:, None]).pow(2).mean((1, 2)).sqrt()
+        own = (objectives.qdd / objectives.qdd_rms).pow(2).mean(1).sum(-1)  # (N,): each observation's own, normalised
+        # (a ratio of sums over the coordinates: a coordinate that barely moves does not decide it)
+        explained = (error.pow(2).mean(1).sum(-1) / own.clamp_min(1e-18)).sqrt()
     for i in range(N):
         _warn_if_poor(float(explained[i]), system, i if N > 1 else None)
     return [Identification(**found[i], loss=float(final_losses[i]), method=method, starts=starts, seconds=seconds)

@@ -113,10 +113,11 @@ def _motion(chain: SerialChain, q, qd, qdd):
     # A_i = sum over l, m <= i of S_min(l,m) S_max(l,m) qd_l qd_m + sum over l <= i of S_l qdd_l: each pair l <= h once
     # (twice off the diagonal), gathered at h = max(l, m), then summed up to i (a running sum over h; the sum over
     # every (l, m, i) at once took four fifths of the regressor's time)
-    lo, hi = torch.triu_indices(n, n)
+    lo, hi = torch.triu_indices(n, n, device=q.device)
     weight = torch.where(lo < hi, 2.0, 1.0).to(q.dtype) * qd[:, lo] * qd[:, hi]  # (B, pairs)
     pairs = (S[:, lo] @ S[:, hi]) * weight[..., None, None]
-    at = torch.zeros(q.shape[0], n, 4, 4, dtype=q.dtype).index_add_(1, hi, pairs) + S * qdd[..., None, None]
+    gather = (hi == torch.arange(n, device=q.device)[:, None]).to(q.dtype)  # (h, pairs): out of place, vmap runs
+    at = torch.einsum("hp,bpxy->bhxy", gather, pairs) + S * qdd[..., None, None]
     A = torch.cumsum(at, 1)  # (B, i, 4, 4)
     return torch.einsum("bkxy,biyz->bkixz", S, T), A @ T, upto
 
@@ -190,7 +191,8 @@ def base_parameters(Y: torch.Tensor, rtol: float = 1e-6) -> dict:
 
     Yn = Y.detach().double().cpu().numpy()
     scale = np.linalg.norm(Yn, axis=0)
-    zero = scale <= NEGLIGIBLE * scale.max()  # a parameter that moves no torque worth the name
+    top = scale.max() if scale.size else 0.0  # (before the zero columns' scale is set to 1)
+    zero = scale <= NEGLIGIBLE * top  # a parameter that moves no torque worth the name
     scale[zero] = 1.0
     Ys = np.where(zero[None, :], 0.0, Yn / scale)
     _, R, piv = scipy.linalg.qr(Ys, mode="economic", pivoting=True)
@@ -200,10 +202,16 @@ def base_parameters(Y: torch.Tensor, rtol: float = 1e-6) -> dict:
     # NEGLIGIBLE of the largest column's torque (scaled up from a small column, a tilt's microradians reach 3e-3 of a
     # unit pivot); the rest are dependent, expressed in the independent ones by least squares (in R's coordinates)
     keep = np.zeros(len(d), dtype=bool)
-    keep[:rank] = d[:rank] * scale[piv[:rank]] > NEGLIGIBLE * scale.max()
+    keep[:rank] = d[:rank] * scale[piv[:rank]] > NEGLIGIBLE * top
+    while True:  # a dependent column the kept ones leave more than NEGLIGIBLE of (a larger column sharing a dropped
+        # small pivot's direction) is kept too, the worst first
+        K = np.linalg.lstsq(R[:, keep], R[:, ~keep], rcond=None)[0] if keep.any() else np.zeros((0, (~keep).sum()))
+        left = np.linalg.norm(R[:, ~keep] - R[:, keep] @ K, axis=0) * scale[piv[~keep]]
+        if not left.size or left.max() <= NEGLIGIBLE * top:
+            break
+        keep[np.flatnonzero(~keep)[int(np.argmax(left))]] = True
     r = int(keep.sum())
     B, D = piv[keep], piv[~keep]
-    K = (np.linalg.lstsq(R[:, keep], R[:, ~keep], rcond=None)[0] if r < Yn.shape[1] else np.zeros((r, 0)))
     K = K * scale[D][None, :] / scale[B][:, None]  # back to unscaled columns: Y_D = Y_B K
     P = np.zeros((r, Yn.shape[1]))
     P[np.arange(r), B] = 1.0
