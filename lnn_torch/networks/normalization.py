@@ -165,9 +165,12 @@ class Normalizer(nn.Module):
 
     def extrapolation_limits(self) -> torch.Tensor:
         """``(P,)``: the |z| of each parameter beyond which the model extrapolates (``EXTRAPOLATION``)."""
-        z_max = self.param_z_max.double()
-        return torch.where(z_max > 0, (1.1 * z_max).clamp_min(self.EXTRAPOLATION),
-                           torch.full_like(z_max, self.EXTRAPOLATION_UNKNOWN))
+        return torch.tensor([self._limit(z) for z in self.param_z_max.tolist()], dtype=torch.float64)
+
+    @classmethod
+    def _limit(cls, z_max: float) -> float:
+        """The extrapolation limit of a parameter whose farthest training value was ``z_max`` (0: not recorded)."""
+        return max(cls.EXTRAPOLATION, 1.1 * z_max) if z_max > 0 else cls.EXTRAPOLATION_UNKNOWN
 
     def _bounds(self, sigmas) -> tuple[torch.Tensor, torch.Tensor]:
         """``(low, high)`` ``(P,)``: the SI parameters ``sigmas`` (a number, or one per parameter) standard
@@ -184,7 +187,7 @@ class Normalizer(nn.Module):
         # read every call (no cache that a write through ``.data`` or an inference tensor would defeat)
         logs, means, stds, far = (b.tolist() for b in (self.param_log, self.param_log_mean, self.param_log_std,
                                                       self.param_z_max))
-        limits = [(max(self.EXTRAPOLATION, 1.1 * z) if z > 0 else self.EXTRAPOLATION_UNKNOWN) - 1e-9 for z in far]
+        limits = [self._limit(z) - 1e-9 for z in far]
         for lo, hi, log, mean, std, limit in zip(low, high, logs, means, stds, limits, strict=True):
             if log:
                 if not lo > 0:
