@@ -348,3 +348,53 @@ def test_the_regressor_of_the_same_states_is_computed_once_and_never_changed(arm
     classical._regressor(chain, q[:10], qd[:10], qdd[:10], DriveModel.of(DRIVE))  # few states: not kept
     classical._regressor(chain, q[:10], qd[:10], qdd[:10], DriveModel.of(DRIVE))
     assert len(calls) == 5 and len(classical._CACHE) <= classical.CACHED
+
+
+@pytest.mark.parametrize("forms", ["viscous+coulomb+offset+saturating", "viscous", ""])
+def test_the_consistent_objectives_closed_form_is_autograds(arm, forms):
+    """``ConsistentObjective``'s value, gradient and Hessian (what the physically consistent fit's trust-region
+    steps use) equal autograd's of the objective written out directly (the log-Cholesky factor, the classical
+    ten, the LogDet divergence), float64, at random parameters of the Panda's links and a random quadratic form."""
+    from lnn_torch.identification.consistent_objective import ConsistentObjective
+    from lnn_torch.robots.kinematics import log_cholesky, log_cholesky_factor
+    from lnn_torch.robots.regressor import classical_of
+
+    _, chain = arm
+    n = chain.dof
+    drive = DriveModel.of(forms or None, saturation_velocity=0.3) if forms else None
+    names = drive.coefficient_names() if drive else []
+    linear = [DriveModel.of(f).coefficient_names()[0] for f in (drive.linear_forms if drive else ()) if f != "viscous"]
+    floor = drive.saturation_floor() if "d" in names else 0.0
+    P = 12 * n + len(linear) * n
+    gen = torch.Generator().manual_seed(0)
+    root = torch.randn(P, P, generator=gen, dtype=torch.float64)
+    A, b, c = root @ root.T / P, torch.randn(P, generator=gen, dtype=torch.float64), 3.0
+    J0 = chain.J.double()
+    theta = torch.cat([log_cholesky(J0).reshape(-1) + 0.3 * torch.randn(10 * n, generator=gen, dtype=torch.float64),
+                       torch.randn((1 + len(names)) * n, generator=gen, dtype=torch.float64)])
+
+    def objective(t, prior):
+        J = (lambda U: U @ U.mT)(log_cholesky_factor(t[: 10 * n].reshape(n, 10)))
+        coef = {name: t[(11 + i) * n: (12 + i) * n] for i, name in enumerate(names)}
+        values = {k: v if k == "o" else v ** 2 for k, v in coef.items()}
+        if "d" in values:
+            values["d"] = values["d"] - floor * values["c"]
+        p = torch.cat([classical_of(J).reshape(-1), t[10 * n: 11 * n] ** 2, values.get("b", torch.zeros(n).double()),
+                       *([torch.stack([values[k] for k in linear], -1).reshape(-1)] if linear else [])])
+        div = sum(torch.trace(torch.linalg.solve(J0[l], J[l])) - torch.logdet(J[l]) + torch.logdet(J0[l]) - 4
+                  for l in range(n))
+        return p @ A @ p - 2 * b @ p + c + prior * div
+
+    closed = ConsistentObjective(A.numpy(), b.numpy(), c, J0.numpy(), names, linear, floor)
+    for prior in (0.0, 0.37):
+        t = theta.clone().requires_grad_(True)
+        value = objective(t, prior)
+        (grad,) = torch.autograd.grad(value, t)
+        hess = torch.func.hessian(lambda x, prior=prior: objective(x, prior))(theta)
+        v, g = closed.value_and_gradient(theta.numpy(), prior)
+        np.testing.assert_allclose(v, float(value.detach()), rtol=1e-12)
+        np.testing.assert_allclose(g, grad.numpy(), rtol=1e-10, atol=1e-10 * float(grad.abs().max()))
+        H = closed.hessian(theta.numpy(), prior)
+        np.testing.assert_allclose(H, hess.numpy(), rtol=1e-9, atol=1e-9 * float(hess.abs().max()))  # round-off: 2e-10
+    with pytest.raises(ValueError, match="physical values expected"):
+        ConsistentObjective(A.numpy()[1:, 1:], b.numpy()[1:], c, J0.numpy(), names, linear, floor)

@@ -54,6 +54,7 @@ from ..robots.regressor import (
     pseudo_inertia_of,
     regressor,
 )
+from .consistent_objective import ConsistentObjective
 
 # the condition number of the column-scaled regressor above which the recordings are said not to determine
 # the model (the exciting trajectories of identification papers reach 10-300; a stationary arm, infinity)
@@ -488,16 +489,25 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
         coef0.append(torch.as_tensor(value))
     theta0 = torch.cat([raw0.reshape(-1), torch.full((n,), 0.05, dtype=q.dtype), *coef0])
 
+    # every friction form linear in its coefficients: the objective, its gradient and Hessian in closed form
+    # (``consistent_objective``); a sigmoid's shape is evaluated per point, by autograd
+    closed = None
+    if linear or not others:
+        floor = drive.saturation_floor() if "d" in names and "c" in names else 0.0
+        closed = ConsistentObjective(A.numpy(), b.numpy(), float(c), J0.numpy(), names, linear_names, floor)
+
     def solve(strength, x0):
         def fun(x):
+            if closed is not None:
+                return closed.value_and_gradient(x, strength)
             t = torch.as_tensor(x).requires_grad_(True)
             value = loss(t, strength)
             (grad,) = torch.autograd.grad(value, t)
             return float(value.detach()), grad.numpy()
 
         def hess(x):
-            if linear or not others:  # no per-point work: one vectorised pass
-                return torch.func.hessian(lambda t: loss(t, strength))(torch.as_tensor(x)).numpy()
+            if closed is not None:
+                return closed.hessian(x, strength)
             return torch.autograd.functional.hessian(lambda t: loss(t, strength), torch.as_tensor(x)).numpy()
 
         return scipy.optimize.minimize(fun, x0, jac=True, hess=hess, method="trust-exact",
