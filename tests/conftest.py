@@ -4,6 +4,10 @@ import shutil
 # commands the tests run in subprocesses (lnn-torch fit, import, ...) use one thread too: two test
 # workers on two cores, each running a two-thread command, would oversubscribe the machine
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# AOTInductor builds the C++ wrapper of each program (the code that calls its kernels, no arithmetic of its own)
+# at -O1 by default: 7-9 s of a program's 12; at -O0 about 5 s. The tests compare programs' numbers, not their
+# speed (benchmarks/ measure that with the default)
+os.environ.setdefault("AOT_INDUCTOR_COMPILE_WRAPPER_OPT_LEVEL", "O0")
 # what commands cache (``lnn_torch.data.cache``: evaluation splits) goes to a folder of this test
 # session, never the user's cache
 import tempfile  # noqa: E402

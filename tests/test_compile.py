@@ -15,12 +15,43 @@ from .conftest import random_batch
 from .helpers import make_dm, perturbed, quiet_trainer
 
 
+def _stand_in_compilers(monkeypatch, tmp_path):
+    """From here on, programs are built by stand-ins: the fused path's ``torch.export`` program run as exported
+    (AOTInductor's packaging and loading replaced; the graph, its inputs and the program's key are the real
+    ones, so a program reused where it should not be runs the old graph), kept in ``tmp_path``, and
+    ``compile_fn`` dynamo without inductor (``backend="eager"``). What they check is which program each call
+    takes; the programs' own numbers come from the real compilations before them."""
+    import types
+
+    import lnn_torch.networks.compiled as models
+    from lnn_torch.networks import fused_aot
+
+    def package(program, package_path, inductor_configs):
+        torch.export.save(program, package_path)
+        return package_path
+
+    def load(path):
+        module = torch.export.load(path).module()
+
+        def run(inputs):
+            out = module(*inputs)
+            return [out] if isinstance(out, torch.Tensor) else list(out)
+
+        return types.SimpleNamespace(loader=types.SimpleNamespace(run=run))
+
+    monkeypatch.setattr(torch._inductor, "aoti_compile_and_package", package)
+    monkeypatch.setattr(torch._inductor, "aoti_load_package", load)
+    monkeypatch.setattr(fused_aot, "_package_dir", lambda: tmp_path / "stand_in_packages")
+    monkeypatch.setattr(models, "compile_fn", lambda fn, device: torch.compile(fn, backend="eager", dynamic=False))
+
+
 @pytest.mark.slow
-def test_compiled_dynamics_equal_eager(rng, monkeypatch):
-    """compile_dynamics(): accelerations and a rollout through torch.compile (C++ wrapper) equal the
-    eager ones, at batch sizes 1 and 5, under no_grad and with autograd; the compiled code is
-    dropped by copies. Without a gradient the fused path is compiled up to ``COMPILED_MAX_ROWS`` rows,
-    the part-by-part path above (and with a gradient)."""
+def test_compiled_dynamics_equal_eager(rng, monkeypatch, tmp_path):
+    """compile_dynamics(): accelerations through the fused path's AOTInductor program (batch 1, no gradient)
+    and through torch.compile (C++ wrapper; with autograd, batch 5) equal the eager ones; weights changed in
+    place are read without recompiling; the compiled code is dropped by copies. Then, with stand-in compilers
+    (``_stand_in_compilers``): a rollout's step takes a program of its own without a gradient and
+    torch.compile with one; above ``COMPILED_MAX_ROWS`` rows the part-by-part path is compiled."""
     import copy
 
     system = get_system("double_pendulum")
@@ -28,25 +59,17 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
     q, qd, params = (x.float() for x in random_batch(system, rng, 5))
     eager_accel = model.acceleration(q, qd, params)
     eager_q, eager_qd = model.rollout(q, qd, params, 0.01, 3)
+    fresh = copy.deepcopy(model)
     model.compile_dynamics()
     with torch.no_grad():
         torch.testing.assert_close(model.acceleration(q[:1], qd[:1], params[:1]), eager_accel[:1], rtol=1e-5, atol=1e-5)
-        q_c, qd_c = model.rollout(q, qd, params, 0.01, 3)
-    torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(model.acceleration(q, qd, params), eager_accel, rtol=1e-5, atol=1e-5)  # autograd
     # without a gradient the fused path is compiled (its stacked weights the program's inputs), with one the parts
-    assert model._compile is True and set(model._compiled) == {"_fused_whole", "_acceleration_whole", "_rollout_step"}
+    assert model._compile is True and set(model._compiled) == {"_fused_whole", "_acceleration_whole"}
     assert copy.deepcopy(model)._compiled == {}  # no fallback happened above; copies recompile
-    # on the CPU the fused path is an AOTInductor program (fused_aot), one per input signature: the accelerations'
-    # and the rollout's step (without a gradient); a rollout with one compiles its step through torch.compile
+    # on the CPU the fused path is an AOTInductor program (fused_aot), one per input signature
     programs = model._compiled["_fused_whole"].compiled
     assert isinstance(programs, FusedPrograms) and len(programs.programs) == 1
-    steps = model._compiled["_rollout_step"].compiled
-    assert isinstance(steps, FusedPrograms) and len(steps.programs) == 1 and steps.dynamo is None
-    q_g, qd_g = model.rollout(q, qd, params, 0.01, 2)
-    assert steps.dynamo is not None and q_g.requires_grad
-    torch.testing.assert_close(q_g, eager_q[:, :3], rtol=1e-5, atol=1e-5)
     # weights and buffers changed in place after compilation: the compiled inference uses the new ones, not
     # recompiled (every tensor is the program's input)
     other = copy.deepcopy(model).compile_dynamics(False)
@@ -59,6 +82,19 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
         assert len(programs.programs) == 1 and model._compiled["_fused_whole"].compiled is programs
         torch.testing.assert_close(changed, other.acceleration(q[:1], qd[:1], params[:1]), rtol=1e-5, atol=1e-5)
         assert (changed - eager_accel[:1]).abs().max() > 1e-3
+    _stand_in_compilers(monkeypatch, tmp_path)
+    # a rollout's step without a gradient: a program of its own; with one, its step through torch.compile
+    fresh.compile_dynamics()
+    with torch.no_grad():
+        q_c, qd_c = fresh.rollout(q, qd, params, 0.01, 3)
+    torch.testing.assert_close(q_c, eager_q, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(qd_c, eager_qd, rtol=1e-5, atol=1e-5)
+    steps = fresh._compiled["_rollout_step"].compiled
+    assert isinstance(steps, FusedPrograms) and len(steps.programs) == 1 and steps.dynamo is None
+    q_g, qd_g = fresh.rollout(q, qd, params, 0.01, 2)
+    assert steps.dynamo is not None and q_g.requires_grad
+    torch.testing.assert_close(q_g, eager_q[:, :3], rtol=1e-5, atol=1e-5)
+    with torch.no_grad():
         from lnn_torch.networks import fused
 
         monkeypatch.setattr(fused, "COMPILED_MAX_ROWS", 4)  # batch 5 is above it: the parts, compiled
@@ -75,11 +111,13 @@ def test_compiled_dynamics_equal_eager(rng, monkeypatch):
 
 
 @pytest.mark.slow
-def test_compiled_fused_program_float64_with_inputs(rng):
+def test_compiled_fused_program_float64_with_inputs(rng, monkeypatch, tmp_path):
     """The fused path's AOTInductor program (``fused_aot.FusedPrograms``) of a float64 model of an actuated
-    scene equals the eager fused path to rounding, inputs included; another batch shape is another program,
-    a cast of the model another; a non-contiguous state is read as its values; a force residual dropped by
-    ``residuals_off`` is dropped by the program too (another program: the model's structure is in its key)."""
+    scene equals the eager fused path to rounding, inputs included, and so does a rollout's step with inputs;
+    a non-contiguous state is read as its values; parameters changed in place are read without recompiling.
+    Then, with stand-in compilers (``_stand_in_compilers``): another batch shape is another program, a cast of
+    the model another; a force residual dropped by ``residuals_off`` is dropped by the program too, and a new
+    Coulomb smoothing is read (other programs: the model's structure is in its key)."""
     import copy
 
     system = get_system("actuated_double_pendulum")
@@ -96,17 +134,14 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         both = torch.stack([q, q], -1)[..., 0]  # a strided view: the program reads its values
         assert not both.is_contiguous()
         torch.testing.assert_close(compiled.acceleration(both, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
-        torch.testing.assert_close(compiled.acceleration(q[:1], qd[:1], params[:1], tau[:1]), expected[:1],
-                                   rtol=1e-10, atol=1e-10)
         programs = compiled._compiled["_fused_whole"].compiled
-        assert isinstance(programs, FusedPrograms) and len(programs.programs) == 2
-        with model.residuals_off("force"):
-            without = model.acceleration(q, qd, params, tau)
-        assert (without - expected).abs().max() > 1e-3
-        with compiled.residuals_off("force"):
-            torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), without, rtol=1e-10, atol=1e-10)
-        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
-        assert len(programs.programs) == 3
+        assert isinstance(programs, FusedPrograms) and len(programs.programs) == 1
+        # a rollout's step under inputs: one program of its own, the eager rollout's result
+        taus = tau[:, None].expand(-1, 3, -1)
+        for a, b in zip(compiled.rollout(q, qd, params, 0.001, 3, tau=taus),
+                        model.rollout(q, qd, params, 0.001, 3, tau=taus), strict=True):
+            torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-10)
+        assert len(compiled._compiled["_rollout_step"].compiled.programs) == 1
         # every parameter changed in place, the learned friction's too (not part of the stacked weights): read
         # on the next call, nothing recompiled
         for m in (model, compiled):
@@ -115,8 +150,19 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         changed = model.acceleration(q, qd, params, tau)
         assert (changed - expected).abs().max() > 1e-3
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), changed, rtol=1e-10, atol=1e-10)
-        assert len(programs.programs) == 3
+        assert len(programs.programs) == 1
         expected = changed
+        _stand_in_compilers(monkeypatch, tmp_path)
+        torch.testing.assert_close(compiled.acceleration(q[:1], qd[:1], params[:1], tau[:1]), expected[:1],
+                                   rtol=1e-10, atol=1e-10)
+        assert len(programs.programs) == 2
+        with model.residuals_off("force"):
+            without = model.acceleration(q, qd, params, tau)
+        assert (without - expected).abs().max() > 1e-3
+        with compiled.residuals_off("force"):
+            torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), without, rtol=1e-10, atol=1e-10)
+        torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-10, atol=1e-10)
+        assert len(programs.programs) == 3
         # the Coulomb smoothing changed (a classical start's choice, or weights loaded): another program, the
         # eager value
         for m in (model, compiled):
@@ -126,12 +172,6 @@ def test_compiled_fused_program_float64_with_inputs(rng):
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), smoothed, rtol=1e-10, atol=1e-10)
         assert len(programs.programs) == 4
         expected = smoothed
-        # a rollout's step under inputs: one program of its own, the eager rollout's result
-        taus = tau[:, None].expand(-1, 3, -1)
-        for a, b in zip(compiled.rollout(q, qd, params, 0.001, 3, tau=taus),
-                        model.rollout(q, qd, params, 0.001, 3, tau=taus), strict=True):
-            torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-10)
-        assert len(compiled._compiled["_rollout_step"].compiled.programs) == 1
         compiled.float()
         torch.testing.assert_close(compiled.acceleration(q, qd, params, tau), expected, rtol=1e-4, atol=1e-4)
         assert len(programs.programs) == 5 and compiled._compile is True
@@ -253,10 +293,10 @@ def test_long_rollouts_compile_by_default_short_ones_and_switched_off_ones_never
 
 
 @pytest.mark.slow
-def test_compiled_training_matches_eager(dataset, tmp_path):
+def test_compiled_training_matches_eager(dataset, tmp_path, monkeypatch):
     """compile=True: on one training batch (the supported size: chunks_per_batch x chunk_len, 4 x 16
     here; evaluation stays eager) the compiled pass gives the eager loss and gradients; and a short
-    fit runs compiled without falling back. The pass is compiled as training compiles it
+    fit runs its pass through ``compile_fn`` without falling back. The pass is compiled as training compiles it
     (``perf.compile_fn``: static shapes, inductor's C++ wrapper), which also compiles it in about half
     the time of plain ``torch.compile``'s Python wrapper."""
     dm = make_dm(dataset)
@@ -277,9 +317,21 @@ def test_compiled_training_matches_eager(dataset, tmp_path):
         # only the summation order differs between the two graphs (in float32 that alone reached
         # 1e-6 of the largest entry, and 5x relative on near-zero entries)
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-12 * max(float(a.abs().max()), 1e-3))
+    # a fit with compile=True runs its pass through compile_fn, without falling back (dynamo without inductor here:
+    # the compiled pass's numbers are those above)
+    from lnn_torch import perf
+
+    compiled = []
+
+    def stand_in(fn, device):
+        compiled.append(fn.__name__)
+        return torch.compile(fn, backend="eager", dynamic=False)
+
+    monkeypatch.setattr(perf, "compile_fn", stand_in)
     model = LNNModule(compile=True, val_rollouts=0, hidden_dims=[16, 16])
     trainer = quiet_trainer(tmp_path, max_epochs=1, limit_val_batches=0, logger=False, enable_checkpointing=False)
     trainer.fit(model, make_dm(dataset, steps_per_epoch=3))
+    assert compiled == ["training_terms"]
     assert model.training_pass.compiled not in (None, False) and trainer.global_step == 3
 
 

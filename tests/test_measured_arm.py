@@ -26,7 +26,7 @@ from lnn_torch.export import programs as ex  # noqa: E402
 from lnn_torch.robots.mujoco_arm import MujocoArm  # noqa: E402
 from lnn_torch.training.checkpoints import load_model  # noqa: E402
 
-from .helpers import ROOT, cli_in_process  # noqa: E402
+from .helpers import ROOT, cli_in_process, session_file  # noqa: E402
 from .test_export import (  # noqa: E402
     arguments,
     assert_close_float32,
@@ -78,21 +78,27 @@ def record(path, seconds: float = 4.0, dt: float = 0.002, seed: int = 0, feedbac
 @pytest.fixture(scope="module")
 def learned(tmp_path_factory):
     """``(checkpoint, module)``: the grey box of ``configs/real_panda.yaml`` fitted for 20 steps on the
-    recording, imported as ``configs/import/real_panda.yaml`` imports the real one."""
+    recording, imported as ``configs/import/real_panda.yaml`` imports the real one (once per test session:
+    the pytest-xdist workers share the checkpoint, ``session_file``)."""
     from lnn_torch.data.importer import ImportSpec, import_recordings
 
-    root = tmp_path_factory.mktemp("measured_arm")
-    csv = record(root / "arm.csv")
-    spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
-                      velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
-                      coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
-                      coulomb_velocity=0.02, label="synthetic_panda",
-                      split={"train": ["arm[0.2:3.0]"], "val": ["arm[3.0:3.5]"], "test": ["arm[3.5:3.9]"]})
-    data = import_recordings([csv], root / "arm.h5", spec)
-    out = cli_in_process("fit", "-c", str(ROOT / "configs" / "real_panda.yaml"), "--data.path", str(data),
-                  "--trainer.max_steps", "20", "--trainer.enable_progress_bar", "false", cwd=root)
-    assert out.returncode == 0, out.stderr[-3000:]
-    (ckpt,) = root.glob("lightning_logs/version_*/checkpoints/last.ckpt")
+    def fit(path):
+        root = path.parent / "measured_arm"
+        root.mkdir(exist_ok=True)
+        csv = record(root / "arm.csv")
+        spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
+                          velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],
+                          coord_names=[f"joint{j}" for j in range(1, 8)], robot=ROBOT, friction=True,
+                          coulomb_velocity=0.02, label="synthetic_panda",
+                          split={"train": ["arm[0.2:3.0]"], "val": ["arm[3.0:3.5]"], "test": ["arm[3.5:3.9]"]})
+        data = import_recordings([csv], root / "arm.h5", spec)
+        out = cli_in_process("fit", "-c", str(ROOT / "configs" / "real_panda.yaml"), "--data.path", str(data),
+                             "--trainer.max_steps", "20", "--trainer.enable_progress_bar", "false", cwd=root)
+        assert out.returncode == 0, out.stderr[-3000:]
+        (ckpt,) = root.glob("lightning_logs/version_*/checkpoints/last.ckpt")
+        shutil.copyfile(ckpt, path)
+
+    ckpt = session_file(tmp_path_factory, "measured_arm.ckpt", fit)
     return str(ckpt), load_model(str(ckpt))
 
 
