@@ -203,7 +203,11 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
     options = {**OPTIONS, "friction": "viscous+coulomb+offset+saturating"}
     level, rising = np.array([2.0, 2.5, 1.5, 1.5, 0.8, 0.6, 0.4]), np.array([3.0, 4.0, 2.0, 2.0, 1.0, 0.8, 0.5])
     laws = {"gears": lambda qd: level * np.tanh(qd / 0.02) + rising * np.tanh(qd / 0.2),
-            "plain": lambda qd: level * np.tanh(qd / 0.02)}
+            "plain": lambda qd: level * np.tanh(qd / 0.02),
+            # a term at 0.1 rad/s beside a Coulomb step smoothed over 0.05: least squares cannot tell it from a
+            # Coulomb step over 0.1 beside a term at 0.05 (the same model); the start takes the saturating term
+            # above the smoothing, every run (round-off took either)
+            "swapped": lambda qd: level * np.tanh(qd / 0.05) + rising * np.tanh(qd / 0.1)}
     runs = {name: started(tmp_path, name, friction, options) for name, friction in laws.items()}
     module, report, scene, config, dm = runs["gears"]
     forms, errors = report["form_selection"], report["saturation_selection"]
@@ -224,6 +228,8 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
         assert rebuilt.model.forces.drive.saturation_velocity == 0.1  # the configured one, until the weights come
         rebuilt.load_state_dict(module.state_dict())
         assert rebuilt.model.forces.drive.saturation_velocity == velocity
+    swapped = runs["swapped"][1]
+    assert (swapped["coulomb_velocity"], swapped["saturation_velocity"]) == (0.05, 0.1), swapped
     module, report, scene, config, dm = runs["plain"]
     assert report["form"] == "viscous+coulomb+offset", report
     forces = module.model.forces

@@ -247,7 +247,8 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
     """``((v_c, v_d), errors)``: the Coulomb smoothing and the velocity of saturating friction of ``drive`` (a form
     with it) whose ordinary least-squares fit of ``train`` has the lowest validation torque error (the mean over
     joints of each joint's RMS) over the grid ``COULOMB_VELOCITIES`` x ``SATURATION_VELOCITIES`` (with
-    ``configured``'s), and each ``v_d``'s error at its best ``v_c`` ``{v_d: N m}``. The rigid body's columns are
+    ``configured``'s; beside a Coulomb term ``v_d > v_c`` only), and each ``v_d``'s error at its best ``v_c``
+    ``{v_d: N m}``. The rigid body's columns are
     solved once (their pseudo-inverse, truncated at ``RANK_RTOL`` of the largest singular value); each pair
     changes only the friction columns beside them."""
     from ..robots.regressor import payload_torque
@@ -271,6 +272,11 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
         else {drive.coulomb_velocity}
     for vc in sorted(smoothings):
         for vd in sorted({configured.saturation_velocity, *SATURATION_VELOCITIES}):
+            # beside a Coulomb term only velocities above its smoothing: below it the two tanh terms swap roles,
+            # the same least-squares model (a tie that round-off decided, differently from run to run), and at it
+            # they are one column twice
+            if "coulomb" in drive.forms and vd <= vc:
+                continue
             at = dataclasses.replace(drive, coulomb_velocity=vc, saturation_velocity=vd)
             F, Fv = (_friction_columns(x, at, forms).reshape(-1, len(forms) * chain.dof) for x in (qd, qdv))
             # Frisch-Waugh: the friction coefficients from the parts of F and tau the rigid body leaves
