@@ -6,7 +6,8 @@ import shutil
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 # AOTInductor builds the C++ wrapper of each program (the code that calls its kernels, no arithmetic of its own)
 # at -O1 by default: 7-9 s of a program's 12; at -O0 about 5 s. The tests compare programs' numbers, not their
-# speed (benchmarks/ measure that with the default)
+# speed (benchmarks/ measure that with the default; the level is in a program's cache key, fused_aot, so a
+# package the tests leave in a cache is never another run's)
 os.environ.setdefault("AOT_INDUCTOR_COMPILE_WRAPPER_OPT_LEVEL", "O0")
 # what commands cache (``lnn_torch.data.cache``: evaluation splits) goes to a folder of this test
 # session, never the user's cache

@@ -89,6 +89,7 @@ def test_the_consistent_fit_explains_the_torques_with_a_physical_arm(arm):
     data = samples(arm, 60, 2)
     fit = classical.consistent_fit(chain, *data, drive=DRIVE, prior=1e-6)
     assert fit.info["converged"], fit.info  # a stationary point (to round-off)
+    assert not classical.consistent_fit(chain, *data, drive=DRIVE, prior=1e-6, max_iterations=2).info["converged"]
     q, qd, qdd, tau = samples(arm, 50, 3)
     error = (fit.inverse(q, qd, qdd) - tau).pow(2).mean().sqrt() / tau.std()
     assert error < 1e-2, float(error)
@@ -351,7 +352,8 @@ def test_the_regressor_of_the_same_states_is_computed_once_and_never_changed(arm
     assert len(calls) == 5 and len(classical._CACHE) <= classical.CACHED
 
 
-@pytest.mark.parametrize("forms", ["viscous+coulomb+offset+saturating", "viscous", ""])
+@pytest.mark.parametrize("forms", ["viscous+coulomb+offset+saturating", "coulomb+offset", "coulomb+stribeck+saturating",
+                                   "viscous", ""])
 def test_the_consistent_objectives_closed_form_is_autograds(arm, forms):
     """``ConsistentObjective``'s value, gradient and Hessian (what the physically consistent fit's trust-region
     steps use) equal autograd's of the objective written out directly (the log-Cholesky factor, the classical
@@ -396,6 +398,7 @@ def test_the_consistent_objectives_closed_form_is_autograds(arm, forms):
         np.testing.assert_allclose(v, float(value.detach()), rtol=1e-12)
         np.testing.assert_allclose(g, grad.numpy(), rtol=1e-10, atol=1e-10 * float(grad.abs().max()))
         H = closed.hessian(theta.numpy(), prior)
-        np.testing.assert_allclose(H, hess.numpy(), rtol=1e-9, atol=1e-9 * float(hess.abs().max()))  # round-off: 2e-10
+        # round-off: the prior's J0^-1 reaches 1e5 on the light links; autograd's own Hessian is asymmetric by 1e-8
+        np.testing.assert_allclose(H, hess.numpy(), rtol=1e-9, atol=1e-7 * float(hess.abs().max()))
     with pytest.raises(ValueError, match="physical values expected"):
         ConsistentObjective(A.numpy()[1:, 1:], b.numpy()[1:], c, J0.numpy(), names, linear, floor)

@@ -229,6 +229,7 @@ def test_saturating_friction_is_kept_only_where_validation_asks_for_it_and_its_v
         rebuilt.load_state_dict(module.state_dict())
         assert rebuilt.model.forces.drive.saturation_velocity == velocity
     swapped = runs["swapped"][1]
+    assert "saturating" in swapped["form"], swapped
     assert (swapped["coulomb_velocity"], swapped["saturation_velocity"]) == (0.05, 0.1), swapped
     module, report, scene, config, dm = runs["plain"]
     assert report["form"] == "viscous+coulomb+offset", report

@@ -20,7 +20,9 @@ def _stand_in_compilers(monkeypatch, tmp_path):
     (AOTInductor's packaging and loading replaced; the graph, its inputs and the program's key are the real
     ones, so a program reused where it should not be runs the old graph), kept in ``tmp_path``, and
     ``compile_fn`` dynamo without inductor (``backend="eager"``). What they check is which program each call
-    takes; the programs' own numbers come from the real compilations before them."""
+    takes and the plumbing around it. Inductor's code for those calls (a rollout's step with a gradient, the
+    part-by-part path without one, a fit's pass) is not built here; the real compilations are the fused path
+    without a gradient, the whole model with one, a rollout's step without one and the training pass."""
     import types
 
     import lnn_torch.networks.compiled as models

@@ -12,6 +12,8 @@ import copy
 import dataclasses
 import json
 import shutil
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,8 +85,7 @@ def learned(tmp_path_factory):
     from lnn_torch.data.importer import ImportSpec, import_recordings
 
     def fit(path):
-        root = path.parent / "measured_arm"
-        root.mkdir(exist_ok=True)
+        root = Path(tempfile.mkdtemp(prefix="measured_arm_", dir=path.parent))
         csv = record(root / "arm.csv")
         spec = ImportSpec(time="time", coordinates=[f"q{j}" for j in range(1, 8)],
                           velocities=[f"dq{j}" for j in range(1, 8)], inputs=[f"tau{j}" for j in range(1, 8)],

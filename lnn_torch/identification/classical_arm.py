@@ -577,9 +577,9 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
 
 
 def _stationary(sol) -> bool:
-    """Whether a trust-region solve ended at a stationary point: scipy's success, or its step test failing at
-    round-off (the message "A bad approximation caused failure to predict improvement") with the gradient below
-    1e-6 of the objective's size at the start (``sol.start_value``)."""
+    """Whether a trust-region solve ended at a stationary point: scipy's success, or an end without it (most often
+    its step test failing at round-off: "A bad approximation caused failure to predict improvement") with the
+    gradient's largest entry below 1e-6 of the objective at the start (``sol.start_value``, at least 1)."""
     gradient = float(np.abs(sol.jac).max()) if getattr(sol, "jac", None) is not None else float("inf")
     return bool(sol.success or gradient <= 1e-6 * max(1.0, abs(float(getattr(sol, "start_value", sol.fun)))))
 

@@ -41,7 +41,7 @@ FORM_MARGIN = 0.02
 COULOMB_VELOCITIES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 # terms of the configured drive model that the start keeps only where validation asks for them (the form with the
 # term lower than the form without it by more than FORM_MARGIN), the other way round from the rest: a curve whose
-# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 27 %; the real Panda's
+# shape the data may not need (the UR10 bag's drives: saturating friction lowers validation 24 %; the real Panda's
 # 0.8 %, the Franka bag's not at all: not kept)
 ON_EVIDENCE = ("stribeck", "saturating")
 # the velocities (rad/s) saturating friction may rise over (with the configured one), chosen with the Coulomb
@@ -247,8 +247,8 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
     """``((v_c, v_d), errors)``: the Coulomb smoothing and the velocity of saturating friction of ``drive`` (a form
     with it) whose ordinary least-squares fit of ``train`` has the lowest validation torque error (the mean over
     joints of each joint's RMS) over the grid ``COULOMB_VELOCITIES`` x ``SATURATION_VELOCITIES`` (with
-    ``configured``'s; beside a Coulomb term ``v_d > v_c`` only), and each ``v_d``'s error at its best ``v_c``
-    ``{v_d: N m}``. The rigid body's columns are
+    ``configured``'s; beside a Coulomb term a pair and its mirror once, ``v_d > v_c``), and each ``v_d``'s error
+    at its best ``v_c`` ``{v_d: N m}``. The rigid body's columns are
     solved once (their pseudo-inverse, truncated at ``RANK_RTOL`` of the largest singular value); each pair
     changes only the friction columns beside them."""
     from ..robots.regressor import payload_torque
@@ -270,12 +270,13 @@ def _saturation_velocities(system, train, val, drive, configured, stride: int, c
     # the Coulomb smoothing only where a form reads it (else the drive's stands)
     smoothings = {configured.coulomb_velocity, *COULOMB_VELOCITIES} if {"coulomb", "stribeck"} & set(drive.forms) \
         else {drive.coulomb_velocity}
+    saturations = sorted({configured.saturation_velocity, *SATURATION_VELOCITIES})
     for vc in sorted(smoothings):
-        for vd in sorted({configured.saturation_velocity, *SATURATION_VELOCITIES}):
-            # beside a Coulomb term only velocities above its smoothing: below it the two tanh terms swap roles,
-            # the same least-squares model (a tie that round-off decided, differently from run to run), and at it
-            # they are one column twice
-            if "coulomb" in drive.forms and vd <= vc:
+        for vd in saturations:
+            # beside a Coulomb term, a pair whose mirror (v_d, v_c) is tried too is tried once, with v_d above v_c:
+            # the two tanh terms swap roles, the same least-squares model (a tie that round-off decided,
+            # differently from run to run); at v_d = v_c they are one column twice
+            if "coulomb" in drive.forms and (vd == vc or (vd < vc and vd in smoothings and vc in saturations)):
                 continue
             at = dataclasses.replace(drive, coulomb_velocity=vc, saturation_velocity=vd)
             F, Fv = (_friction_columns(x, at, forms).reshape(-1, len(forms) * chain.dof) for x in (qd, qdv))

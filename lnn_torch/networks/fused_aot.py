@@ -23,8 +23,9 @@ Python settings changed after compiling are not seen: ``compile_dynamics(True)``
 Other calls (a gradient recorded, the networks part by part) go through ``perf.compile_fn``.
 
 Packages are kept on disk in inductor's cache directory (``TORCHINDUCTOR_CACHE_DIR``), named by a hash of
-the exported graph, its inputs' layout, its constants and the machine's architecture and vector
-instructions: the first compilation of a signature takes about 10-20 s, a later process loads it in 1-2 s.
+the exported graph, its inputs' layout, its constants, the machine's architecture and vector
+instructions and the optimisation level of the program's C++ wrapper (the tests build theirs at -O0): the
+first compilation of a signature takes about 10-20 s, a later process loads it in 1-2 s.
 """
 
 from __future__ import annotations
@@ -244,10 +245,12 @@ class FusedPrograms:
             own = {t.untyped_storage().data_ptr() for t in (*self.model.parameters(), *self.model.buffers())}
             if kinds or any(c.untyped_storage().data_ptr() in own for c in program.constants.values()):
                 raise RuntimeError("the fused program reads model tensors that are not its inputs")
-            # the graph, its inputs' layout, its constants (e.g. a cached 1.0) and the machine it is built for
+            # the graph, its inputs' layout, its constants (e.g. a cached 1.0), the machine it is built for and how
             digest = hashlib.sha256()
             digest.update("\n".join([torch.__version__, platform.machine(), torch.backends.cpu.get_cpu_capability(),
-                                     repr(sorted(_AOTI_OPTIONS.items())), str(program.graph),
+                                     repr(sorted(_AOTI_OPTIONS.items())),
+                                     torch._inductor.config.aot_inductor.compile_wrapper_opt_level,
+                                     str(program.graph),
                                      repr(_layout(inputs))]).encode())
             for name, value in sorted(program.constants.items()):
                 digest.update(name.encode() + repr(value.tolist()).encode())
