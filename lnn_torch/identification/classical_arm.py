@@ -460,17 +460,12 @@ def consistent_fit(chain: SerialChain, q, qd, qdd, tau, drive=None, weights=None
             values["d"] = values["d"] - drive.saturation_floor() * values["c"]
         return J, armature, values
 
-    def loss(theta, strength):
+    def loss(theta, strength):  # a sigmoid drive's (``closed`` below takes every other): its friction per point
         J, armature, values = unpack(theta)
-        viscous = values.get("b", torch.zeros(n, dtype=theta.dtype))
-        p = torch.cat([classical_of(J).reshape(-1), armature, viscous])
-        if linear:  # joint j's forms together: column j k + i is joint j, form i
-            p = torch.cat([p, torch.stack([values[k] for k in linear_names], -1).reshape(-1)])
-        err = p @ A @ p - 2 * b @ p + c
-        if others and not linear:
-            fr = drive.torque(qd, {k: values[k] for k in others} | {"b": torch.zeros(n, dtype=theta.dtype)})
-            fr = fr.reshape(-1) * w_rows
-            err = err + (fr @ fr - 2 * fr @ (tw - Yw @ p)) / N
+        zero = torch.zeros(n, dtype=theta.dtype)
+        p = torch.cat([classical_of(J).reshape(-1), armature, values.get("b", zero)])
+        fr = drive.torque(qd, {k: values[k] for k in others} | {"b": zero}).reshape(-1) * w_rows
+        err = p @ A @ p - 2 * b @ p + c + (fr @ fr - 2 * fr @ (tw - Yw @ p)) / N
         div = (torch.linalg.solve(J0, J).diagonal(dim1=-2, dim2=-1).sum(-1) - torch.logdet(J) + logdet0 - 4).sum()
         return err + strength * div
 
@@ -580,8 +575,7 @@ def _stationary(sol) -> bool:
     """Whether a trust-region solve ended at a stationary point: scipy's success, or an end without it (most often
     its step test failing at round-off: "A bad approximation caused failure to predict improvement") with the
     gradient's largest entry below 1e-6 of the objective at the start (``sol.start_value``, at least 1)."""
-    gradient = float(np.abs(sol.jac).max()) if getattr(sol, "jac", None) is not None else float("inf")
-    return bool(sol.success or gradient <= 1e-6 * max(1.0, abs(float(getattr(sol, "start_value", sol.fun)))))
+    return bool(sol.success or np.abs(sol.jac).max() <= 1e-6 * max(1.0, abs(sol.start_value)))
 
 
 def _physical_uncertainty(chain: SerialChain, Yw, residual, pi, J0, prior: float, N: int) -> dict:

@@ -92,18 +92,18 @@ class ConsistentObjective:
         U = np.einsum("lk,kab->lab", u, self.E)
         J = U @ U.transpose(0, 2, 1)
         p = np.concatenate([(J.reshape(n, 16) @ self.C.T).reshape(-1), self.Q @ rest ** 2 + self.L @ rest])
-        return raw, rest, u, U, J, p
+        slope = np.where(np.arange(10) < 4, u, 1.0)  # d u / d raw
+        return raw, rest, u, slope, U, J, p
 
     def value_and_gradient(self, theta, prior: float) -> tuple[float, np.ndarray]:
         n = self.n
-        raw, rest, u, U, J, p = self._state(theta)
+        raw, rest, u, slope, U, J, p = self._state(theta)
         Ap = self.A @ p
         value = p @ Ap - 2 * self.b @ p + self.c
         value += prior * (float((self.W0 * J).sum()) - 2 * raw[:, :4].sum() + self.logdet0 - 4 * n)
         g = 2 * (Ap - self.b)
         S = self._adjoint(g, prior)
         SU = S @ U
-        slope = np.where(np.arange(10) < 4, u, 1.0)
         grad_links = slope * SU[:, self.rows, self.cols]
         grad_links[:, :4] -= 2 * prior
         jac_rest = self.Q * (2 * rest)[None, :] + self.L
@@ -117,10 +117,9 @@ class ConsistentObjective:
 
     def hessian(self, theta, prior: float) -> np.ndarray:
         n = self.n
-        raw, rest, u, U, J, p = self._state(theta)
+        raw, rest, u, slope, U, J, p = self._state(theta)
         g = 2 * (self.A @ p - self.b)
         S = self._adjoint(g, prior)
-        slope = np.where(np.arange(10) < 4, u, 1.0)  # d u / d raw
         curve = np.where(np.arange(10) < 4, u, 0.0)  # d2 u / d raw2
         # dJ/draw_k = slope_k (E_k U^T + U E_k^T); p's Jacobian, block by block
         D = np.einsum("kab,lcb->lkac", self.E, U)
